@@ -1,0 +1,500 @@
+"""The delayed proportional–derivative loop of the seed paper (eqs. 23–35).
+
+The closed loop m x'' + c x' + k x = −[D x'(t−Δt) + P x(t−Δt)] (eq. 23) has the characteristic
+equation
+
+    f(s) = m s² + c s + k + (D s + P) e^{−sΔt} = 0,
+
+a retarded quasi-polynomial with infinitely many roots but finitely many in any right half-plane.
+Its rightmost roots are found by the spectral (Chebyshev collocation) discretisation of the DDE's
+infinitesimal generator (Breda, Maset & Vermiglio 2005, the method of TRACE-DDE), refined by
+Newton's method on f, and **certified** by the argument principle: the number of zeros of f in the
+half-plane Re s ≥ a (which all lie in a computable disc) is counted along a rectangle's boundary
+and must equal the number of roots found there, so a root cannot be missed.
+
+For a dominant mode s = −σ + iω_d the delayed signal is exactly x(t−Δt) = e^{−sΔt}x(t) =
+[(α₁ − σα₂) x − α₂ ẋ](t) with α₁ = e^{σΔt} cos(ω_dΔt) (ERRATA 1 — the paper's eq. 29 prints an
+extra −(σ/ω_d) sin term) and α₂ = e^{σΔt} sin(ω_dΔt)/ω_d, which gives eqs. (28)–(32).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from phoid import _validate as v
+from phoid.plant import Plant
+
+__all__ = [
+    "DelayedPD",
+    "LoopModes",
+    "alphas",
+    "characteristic",
+    "characteristic_roots",
+    "count_roots_right_of",
+    "dominant_roots",
+    "forward_map",
+    "inverse_map",
+    "is_stable",
+]
+
+
+@dataclass(frozen=True)
+class DelayedPD:
+    """Proportional–derivative feedback u = −[D ẋ(t−Δt) + P x(t−Δt)] (eq. 23).
+
+    Parameters
+    ----------
+    P : float
+        Proportional gain, N/m (any sign).
+    D : float
+        Derivative gain, N·s/m (any sign; negative D removes damping).
+    delay : float, default 0
+        Loop delay Δt, s (≥ 0).
+    """
+
+    P: float
+    D: float
+    delay: float = 0.0
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "P", v.finite("P", self.P, "N/m"))
+        object.__setattr__(self, "D", v.finite("D", self.D, "N·s/m"))
+        object.__setattr__(self, "delay", v.nonnegative("delay", self.delay, "s"))
+
+
+# --------------------------------------------------------------------------------------------
+# characteristic function
+
+
+def characteristic(
+    s: np.ndarray | complex,
+    m: float,
+    c: float,
+    k: float,
+    P: np.ndarray | float,
+    D: np.ndarray | float,
+    delay: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """f(s) = m s² + c s + k + (D s + P) e^{−sΔt} and f′(s) (from eq. 23).
+
+    Parameters
+    ----------
+    s : array_like of complex
+        Laplace variable, 1/s.
+    m, c, k : float
+        Plant mass (kg), damping (N·s/m) and stiffness (N/m).
+    P, D : float or array_like
+        Gains, N/m and N·s/m (broadcast against ``s``).
+    delay : float
+        Loop delay Δt, s.
+
+    Returns
+    -------
+    f, df : ndarray of complex
+        The characteristic function (N/m) and its derivative with respect to s.
+    """
+    s = np.asarray(s, dtype=complex)
+    e = np.exp(-s * delay)
+    f = m * s * s + c * s + k + (D * s + P) * e
+    df = 2.0 * m * s + c + (D - delay * (D * s + P)) * e
+    return f, df
+
+
+def _newton(s, m, c, k, P, D, delay, iters=50):
+    """Vectorised Newton iteration on f; returns refined roots and the final |f| residual."""
+    s = np.array(s, dtype=complex)
+    for _ in range(iters):
+        f, df = characteristic(s, m, c, k, P, D, delay)
+        with np.errstate(all="ignore"):
+            step = np.where(df != 0, f / df, 0.0)
+        s = s - step
+        if np.all(np.abs(step) <= 1e-15 * np.maximum(np.abs(s), 1.0)):
+            break
+    f, _ = characteristic(s, m, c, k, P, D, delay)
+    return s, np.abs(f)
+
+
+def _cheb(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Chebyshev extremal points on [−1, 1] (x₀ = 1) and the differentiation matrix."""
+    j = np.arange(n + 1)
+    x = np.cos(np.pi * j / n)
+    cj = np.ones(n + 1)
+    cj[0] = cj[-1] = 2.0
+    cj = cj * (-1.0) ** j
+    X = x[:, None] - x[None, :]
+    Dm = (cj[:, None] / cj[None, :]) / (X + np.eye(n + 1))
+    Dm -= np.diag(Dm.sum(axis=1))
+    return x, Dm
+
+
+def _generator_eigs(m, c, k, P, D, delay, n):
+    """Eigenvalues of the order-n spectral discretisation of the DDE's infinitesimal generator."""
+    A0 = np.array([[0.0, 1.0], [-k / m, -c / m]])
+    A1 = np.array([[0.0, 0.0], [-P / m, -D / m]])
+    _, Dm = _cheb(n)
+    Dm = Dm * (2.0 / delay)  # map [-1, 1] -> [-delay, 0]; node 0 is theta = 0
+    M = np.kron(Dm, np.eye(2))
+    M[0:2, :] = 0.0
+    M[0:2, 0:2] = A0
+    M[0:2, -2:] = A1
+    return np.linalg.eigvals(M)
+
+
+def _root_radius(m, c, k, P, D, delay, a):
+    """Radius R such that every root with Re s ≥ a satisfies |s| ≤ R.
+
+    From |m s² + c s + k| ≥ m|s|² − c|s| − k and |(D s + P) e^{−sΔt}| ≤ (|D||s| + |P|) e^{−aΔt}.
+    """
+    g = math.exp(-a * delay) if delay > 0 else 1.0
+    b = c + abs(D) * g
+    d = k + abs(P) * g
+    return (b + math.sqrt(b * b + 4 * m * d)) / (2 * m) + 1e-9
+
+
+def count_roots_right_of(
+    a: float, m: float, c: float, k: float, P: float, D: float, delay: float
+) -> int:
+    """Number of roots of f (with multiplicity) in Re s > a, by the argument principle.
+
+    The roots in that half-plane all lie in the disc |s| ≤ R (see :func:`_root_radius`), so the
+    winding number of f along the rectangle [a, R] × [−R, R] counts them. The boundary is
+    sampled finely enough that f turns by less than 0.5 rad between samples (refined until so).
+
+    Parameters
+    ----------
+    a : float
+        Abscissa, 1/s. It must not pass through a root (callers choose it between roots).
+    m, c, k, P, D, delay : float
+        Plant (kg, N·s/m, N/m), gains (N/m, N·s/m) and delay (s).
+
+    Returns
+    -------
+    int
+        The count of characteristic roots with real part greater than ``a``.
+    """
+    R = _root_radius(m, c, k, P, D, delay, a)
+    if R <= a:
+        return 0
+    R = R * 1.05 + 1.0
+    n = max(512, int(64 * (1 + R * delay)))
+    for _ in range(12):
+        u = np.linspace(0.0, 1.0, n, endpoint=False)
+        corners = [complex(a, -R), complex(R, -R), complex(R, R), complex(a, R)]
+        edges = []
+        for i in range(4):
+            z0, z1 = corners[i], corners[(i + 1) % 4]
+            edges.append(z0 + (z1 - z0) * u)
+        z = np.concatenate(edges)
+        f, _ = characteristic(z, m, c, k, P, D, delay)
+        if np.any(f == 0):
+            raise ValueError(f"abscissa a = {a:g} 1/s passes through a characteristic root")
+        dang = np.angle(np.roll(f, -1) / f)
+        if np.max(np.abs(dang)) < 0.5:
+            return int(round(dang.sum() / (2 * np.pi)))
+        n *= 2
+    raise RuntimeError("argument-principle count did not resolve; the loop is pathological")
+
+
+def characteristic_roots(
+    plant: Plant, loop: DelayedPD, *, count: int = 6, verify: bool = True
+) -> np.ndarray:
+    """The rightmost roots of m s² + c s + k + (D s + P) e^{−sΔt} = 0, exactly.
+
+    Parameters
+    ----------
+    plant : Plant
+        The plant (its f_c is ignored: the roots are those of the linear loop).
+    loop : DelayedPD
+        Gains and delay.
+    count : int, default 6
+        At least this many roots (fewer if the loop has fewer, e.g. Δt = 0 gives 2) are returned,
+        conjugates counted separately.
+    verify : bool, default True
+        Certify with the argument principle that no root lies to the right of the last one
+        returned that is not in the list.
+
+    Returns
+    -------
+    ndarray of complex
+        Roots, 1/s, sorted by decreasing real part (for a conjugate pair, positive imaginary
+        part first), each accurate to Newton convergence (|f| at rounding level).
+
+    Notes
+    -----
+    Δt = 0: the quadratic m s² + (c + D)s + (k + P) = 0 is solved in closed form. Otherwise the
+    spectral discretisation (order n, increased until the requested rightmost roots converge)
+    gives starting points that Newton refines; the result is certified as described in the
+    module docstring.
+    """
+    return _rightmost_roots(
+        plant.m, plant.c, plant.k, loop.P, loop.D, loop.delay, count=count, verify=verify
+    )
+
+
+def _rightmost_roots(m, c, k, P, D, tau, *, count=6, verify=True):
+    """:func:`characteristic_roots` on raw numbers (m > 0; c, k of any sign)."""
+    if tau == 0.0:
+        return _quadratic_roots(m, c + D, k + P)
+    n = 32
+    for _attempt in range(6):
+        eig = _generator_eigs(m, c, k, P, D, tau, n)
+        eig = eig[np.isfinite(eig)]
+        # candidates: the rightmost eigenvalues, generously many
+        order = np.argsort(-eig.real)
+        cand = eig[order[: max(4 * count, 16)]]
+        roots, res = _newton(cand, m, c, k, P, D, tau)
+        scale = np.abs(m * roots**2) + np.abs(c * roots) + k + np.abs(D * roots) + abs(P)
+        ok = res <= 1e-9 * np.maximum(scale, 1e-300)
+        roots = _unique(roots[ok])
+        roots = roots[np.argsort(-roots.real, kind="stable")]
+        if roots.size >= min(count, 2):
+            # keep whole conjugate pairs: cut at the first real-part gap after `count` roots
+            re = roots.real
+            gaps = np.flatnonzero(
+                re[:-1] - re[1:] > 1e-9 * np.maximum(np.abs(re[:-1]), 1.0)
+            )
+            cut = next((g + 1 for g in gaps if g + 1 >= count), roots.size)
+            sel = roots[:cut]
+            if not verify:
+                return _sort_pairs(sel)
+            # certify: count zeros right of an abscissa between the last kept root and the next
+            nxt = roots[cut].real if roots.size > cut else sel[-1].real - 1.0
+            a = 0.5 * (sel[-1].real + nxt)
+            if count_roots_right_of(a, m, c, k, P, D, tau) == sel.size:
+                return _sort_pairs(sel)
+        n *= 2
+    raise RuntimeError(
+        f"could not certify the rightmost roots for P={P:g}, D={D:g}, delay={tau:g}"
+    )
+
+
+def _quadratic_roots(a2: float, a1: float, a0: float) -> np.ndarray:
+    """Roots of a2 s² + a1 s + a0 (a2 > 0), rightmost first, without cancellation."""
+    sigma = a1 / (2 * a2)
+    w0sq = a0 / a2
+    q = sigma * sigma - w0sq
+    w = math.sqrt(abs(q))
+    if q >= 0:
+        if sigma > 0:
+            slow, fast = -w0sq / (sigma + w), -sigma - w
+        else:
+            slow = -sigma + w
+            fast = w0sq / slow if slow != 0 else -sigma - w
+        return np.array([complex(slow), complex(fast)])
+    return np.array([complex(-sigma, w), complex(-sigma, -w)])
+
+
+def _unique(z: np.ndarray, rtol: float = 1e-8) -> np.ndarray:
+    out: list[complex] = []
+    for zi in z:
+        if not any(abs(zi - o) <= rtol * max(abs(o), 1.0) for o in out):
+            out.append(complex(zi))
+    return np.array(out, dtype=complex)
+
+
+def _sort_pairs(z: np.ndarray) -> np.ndarray:
+    key = np.lexsort((-z.imag, -np.round(z.real, 10)))
+    return z[key]
+
+
+def is_stable(plant: Plant, loop: DelayedPD) -> bool:
+    """True when every characteristic root has a negative real part (certified)."""
+    return bool(characteristic_roots(plant, loop, count=2)[0].real < 0)
+
+
+# --------------------------------------------------------------------------------------------
+# dominant root, vectorised over runs (the identification's hot path)
+
+
+def dominant_roots(
+    m: float,
+    c: float,
+    k: float,
+    P: np.ndarray,
+    D: np.ndarray,
+    delay: float,
+    guess: np.ndarray | None = None,
+    *,
+    certify: bool = False,
+) -> np.ndarray:
+    """Dominant (rightmost, upper-half-plane) root of each run's loop, 1/s.
+
+    Parameters
+    ----------
+    m, c, k : float
+        Plant parameters (kg, N·s/m, N/m); need not satisfy Plant's sign checks (used inside
+        fits).
+    P, D : array_like
+        Gains of each run (N/m, N·s/m).
+    delay : float
+        Loop delay, s.
+    guess : array_like of complex, optional
+        Starting points for Newton (e.g. the measured roots −σᵢ + iω_dᵢ). Without a guess, or with
+        ``certify=True``, each root is computed by :func:`characteristic_roots`.
+    certify : bool, default False
+        Compute each root with the certified method instead of Newton from the guess.
+
+    Returns
+    -------
+    ndarray of complex
+        s_i = −σᵢ + iω_dᵢ with ω_dᵢ ≥ 0.
+    """
+    P = np.atleast_1d(np.asarray(P, dtype=float))
+    D = np.atleast_1d(np.asarray(D, dtype=float))
+    if guess is None or certify:
+        out = []
+        for Pi, Di in zip(P, D, strict=True):
+            r = _rightmost_roots(m, c, k, float(Pi), float(Di), delay, count=2)
+            out.append(complex(r[0].real, abs(r[0].imag)))
+        return np.array(out)
+    s, _ = _newton(np.asarray(guess, dtype=complex), m, c, k, P, D, delay)
+    return s.real + 1j * np.abs(s.imag)
+
+
+# --------------------------------------------------------------------------------------------
+# eqs. (26)-(35): alphas, forward and inverse maps
+
+
+def alphas(
+    sigma: np.ndarray | float,
+    omega_d: np.ndarray | float,
+    delay: float,
+    *,
+    printed: bool = False,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Delay coefficients α₁, α₂ of eqs. (28)–(29), corrected per ERRATA 1.
+
+    Parameters
+    ----------
+    sigma : array_like
+        Decay rate σᵢ of the closed-loop dominant mode, 1/s.
+    omega_d : array_like
+        Its damped frequency ω_dᵢ, rad/s (> 0).
+    delay : float
+        Loop delay Δt, s.
+    printed : bool, default False
+        Return the paper's misprinted α₁ = e^{σΔt}[cos Δφ − (σ/ω_d) sin Δφ] instead (kept only to
+        demonstrate the erratum; do not use).
+
+    Returns
+    -------
+    alpha1 : ndarray
+        α₁ = e^{σΔt} cos Δφ, with Δφ = ω_dΔt (eq. 26). Dimensionless.
+    alpha2 : ndarray
+        α₂ = e^{σΔt} sin(Δφ)/ω_d, s. (Its Δφ → 0 limit, Δt e^{σΔt}, is used when ω_d = 0.)
+    """
+    sigma = np.asarray(sigma, dtype=float)
+    omega_d = np.asarray(omega_d, dtype=float)
+    e = np.exp(sigma * delay)
+    dphi = omega_d * delay
+    a1 = e * np.cos(dphi)
+    a2 = e * delay * np.sinc(dphi / np.pi)
+    if printed:
+        a1 = a1 - sigma * a2
+    return a1, a2
+
+
+@dataclass(frozen=True)
+class LoopModes:
+    """Dominant closed-loop modes of a set of runs and the equivalent parameters (eqs. 31–33).
+
+    Attributes
+    ----------
+    sigma : ndarray
+        σᵢ, 1/s (dominant root −σᵢ + iω_dᵢ).
+    omega_d : ndarray
+        ω_dᵢ, rad/s.
+    c_eq, k_eq : ndarray
+        cᵢ = c + c′ᵢ (N·s/m) and kᵢ = k + k′ᵢ (N/m), eq. (32).
+    c_prime, k_prime : ndarray
+        c′ᵢ (N·s/m) and k′ᵢ (N/m), eq. (32).
+    """
+
+    sigma: np.ndarray
+    omega_d: np.ndarray
+    c_eq: np.ndarray
+    k_eq: np.ndarray
+    c_prime: np.ndarray
+    k_prime: np.ndarray
+
+    @property
+    def omega0_sq(self) -> np.ndarray:
+        """ω₀ᵢ² = σᵢ² + ω_dᵢ², 1/s² (eq. 4 for the underdamped loop)."""
+        return self.sigma**2 + self.omega_d**2
+
+
+def inverse_map(
+    sigma: np.ndarray | float,
+    omega_d: np.ndarray | float,
+    P: np.ndarray | float,
+    D: np.ndarray | float,
+    delay: float,
+    *,
+    compensate: bool = True,
+    printed_alpha1: bool = False,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Equivalent feedback damping c′ᵢ and stiffness k′ᵢ from a measured mode (eqs. 29, 32).
+
+    Parameters
+    ----------
+    sigma, omega_d : array_like
+        Measured σᵢ (1/s) and ω_dᵢ (rad/s) of each run's decay.
+    P, D : array_like
+        The run's gains, N/m and N·s/m.
+    delay : float
+        Loop delay Δt, s.
+    compensate : bool, default True
+        With False, ignore the delay: c′ᵢ = Dᵢ, k′ᵢ = Pᵢ (the paper's "without compensation").
+    printed_alpha1 : bool, default False
+        Use the paper's misprinted α₁ (ERRATA 1), for demonstration only.
+
+    Returns
+    -------
+    c_prime : ndarray
+        c′ᵢ = (α₁ + σα₂)Dᵢ − α₂Pᵢ, N·s/m (eq. 32a).
+    k_prime : ndarray
+        k′ᵢ = (α₁ − σα₂)Pᵢ + ω₀ᵢ²α₂Dᵢ, N/m (eq. 32b), with ω₀ᵢ² = σᵢ² + ω_dᵢ².
+    """
+    sigma = np.asarray(sigma, dtype=float)
+    omega_d = np.asarray(omega_d, dtype=float)
+    P = np.asarray(P, dtype=float)
+    D = np.asarray(D, dtype=float)
+    if not compensate:
+        return np.broadcast_to(D, sigma.shape).copy(), np.broadcast_to(P, sigma.shape).copy()
+    a1, a2 = alphas(sigma, omega_d, delay, printed=printed_alpha1)
+    w0sq = sigma**2 + omega_d**2
+    c_prime = (a1 + sigma * a2) * D - a2 * P
+    k_prime = (a1 - sigma * a2) * P + w0sq * a2 * D
+    return c_prime, k_prime
+
+
+def forward_map(
+    plant: Plant, P: np.ndarray | float, D: np.ndarray | float, delay: float
+) -> LoopModes:
+    """Plant + gains → dominant modes σᵢ, ω_dᵢ and the equivalent cᵢ, kᵢ (eqs. 31–32).
+
+    Parameters
+    ----------
+    plant : Plant
+        The plant.
+    P, D : array_like
+        Gains of each run, N/m and N·s/m.
+    delay : float
+        Loop delay Δt, s.
+
+    Returns
+    -------
+    LoopModes
+        Exact dominant roots (certified) and, through eq. (32) with the corrected α₁, the
+        equivalent parameters; by construction cᵢ = 2mσᵢ and kᵢ = m(σᵢ² + ω_dᵢ²) (eq. 33).
+    """
+    delay = v.nonnegative("delay", delay, "s")
+    P = np.atleast_1d(np.asarray(P, dtype=float))
+    D = np.atleast_1d(np.asarray(D, dtype=float))
+    s = dominant_roots(plant.m, plant.c, plant.k, P, D, delay)
+    sigma, omega_d = -s.real, s.imag
+    cp, kp = inverse_map(sigma, omega_d, P, D, delay)
+    return LoopModes(sigma, omega_d, plant.c + cp, plant.k + kp, cp, kp)
