@@ -1,4 +1,4 @@
-"""phoid — identify m, c, k (and f_c, Δt) of second-order systems by parametric harmonic oscillation.
+"""phoid — identify m, c, k (and f_c, Δt) of second-order systems by parametric oscillation.
 
 The public API is re-exported here; see the module docstrings for the seed-paper equations each
 function implements.

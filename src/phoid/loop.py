@@ -193,7 +193,7 @@ def count_roots_right_of(
             raise ValueError(f"abscissa a = {a:g} 1/s passes through a characteristic root")
         dang = np.angle(np.roll(f, -1) / f)
         if np.max(np.abs(dang)) < 0.5:
-            return int(round(dang.sum() / (2 * np.pi)))
+            return round(float(dang.sum()) / (2 * np.pi))
         n *= 2
     raise RuntimeError("argument-principle count did not resolve; the loop is pathological")
 

@@ -23,7 +23,7 @@ import numpy as np
 
 from phoid import _validate as v
 
-__all__ = ["Plant", "modal_basis", "free_response"]
+__all__ = ["Plant", "free_response", "modal_basis"]
 
 
 def modal_basis(
