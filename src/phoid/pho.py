@@ -1,0 +1,349 @@
+"""m, c, k from the runs' measured dominant modes (seed eqs. 32–35).
+
+Two estimators, both pure functions of the per-run measurements (σᵢ, ω_dᵢ and their covariance)
+and the known gains Pᵢ, Dᵢ and delay Δt:
+
+``fit_lines`` — the paper's route: delay-corrected c′ᵢ, k′ᵢ (eq. 32, corrected α₁), then the two
+straight lines c′ᵢ = 2mσᵢ − c and k′ᵢ = mω₀ᵢ² − k (eq. 35) by ordinary least squares. Kept for
+reproduction and comparison; it ignores how precisely each run was measured and so is
+inefficient with noisy data.
+
+``fit_modes`` — the efficient estimator: weighted (generalised) least squares of m, c, k directly
+to all runs' (σᵢ, ω_dᵢ), through the exact dominant root sᵢ(m, c, k) of
+m s² + c s + k + (Dᵢ s + Pᵢ)e^{−sΔt} = 0, each run weighted by the inverse covariance of its own
+decay fit. Because each run's decay fit is the maximum-likelihood estimate of (σᵢ, ω_dᵢ) with the
+nuisance amplitude, phase and offset profiled out, this second stage is (asymptotically) the
+maximum-likelihood estimate of m, c, k from all the data and reaches the Cramér–Rao bound.
+The Jacobian comes from implicit differentiation of the characteristic equation:
+∂s/∂θ = −(∂f/∂θ)/(∂f/∂s) with ∂f/∂(m, c, k) = (s², s, 1).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import stats
+
+from phoid.errors import IdentificationError
+from phoid.loop import (
+    _rightmost_roots,
+    characteristic,
+    count_roots_right_of,
+    dominant_roots,
+    inverse_map,
+)
+
+__all__ = ["Estimate", "LineFit", "MCKFit", "fit_lines", "fit_modes"]
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """A physical estimate with its one-standard-deviation uncertainty.
+
+    Attributes
+    ----------
+    value : float
+        The estimate, in ``unit``.
+    stderr : float or None
+        One standard error, same unit (None when unknown).
+    unit : str
+        SI unit, as printed in the JSON output (e.g. ``"N s/m"``).
+    """
+
+    value: float
+    stderr: float | None
+    unit: str
+
+    def to_dict(self) -> dict:
+        """Plain JSON-ready dict ``{"value", "stderr", "unit"}``."""
+        return {
+            "value": float(self.value),
+            "stderr": None if self.stderr is None else float(self.stderr),
+            "unit": self.unit,
+        }
+
+
+@dataclass(frozen=True)
+class LineFit:
+    """Ordinary least-squares fit of y = slope·x + intercept (one line of eq. 35).
+
+    Attributes
+    ----------
+    slope, intercept : float
+        Fitted slope and intercept (units of y per unit of x, and of y).
+    slope_stderr, intercept_stderr : float
+        Their standard errors from the residual scatter (nan with only two points).
+    x, y : ndarray
+        The fitted points.
+    """
+
+    slope: float
+    intercept: float
+    slope_stderr: float
+    intercept_stderr: float
+    x: np.ndarray
+    y: np.ndarray
+
+
+def _ols(x: np.ndarray, y: np.ndarray) -> LineFit:
+    A = np.c_[x, np.ones_like(x)]
+    coef, *_ = np.linalg.lstsq(A, y, rcond=None)
+    n = x.size
+    if n > 2:
+        r = y - A @ coef
+        s2 = float(r @ r) / (n - 2)
+        cov = s2 * np.linalg.inv(A.T @ A)
+        se = np.sqrt(np.diag(cov))
+    else:
+        se = np.array([math.nan, math.nan])
+    return LineFit(float(coef[0]), float(coef[1]), float(se[0]), float(se[1]), x, y)
+
+
+@dataclass(frozen=True)
+class MCKFit:
+    """m, c, k from a set of runs, with covariance and diagnostics.
+
+    Attributes
+    ----------
+    m, c, k : float
+        Mass (kg), viscous damping (N·s/m), stiffness (N/m).
+    cov : ndarray
+        (3, 3) covariance of (m, c, k).
+    estimator : str
+        ``"gls"`` (:func:`fit_modes`) or ``"ols"`` (:func:`fit_lines`).
+    compensated : bool
+        Whether the delay was compensated (eqs. 28–32) or ignored.
+    c_prime, k_prime : ndarray
+        Per-run equivalent feedback damping and stiffness, N·s/m and N/m (eq. 32), evaluated at
+        the measured σᵢ, ω_dᵢ.
+    c_line, k_line : LineFit or None
+        The two eq. (35) lines (OLS), kept for plots and for the paper's route.
+    chi2, dof : float, int
+        Weighted residual sum of squares and degrees of freedom (gls only; nan otherwise).
+    warnings : tuple of str
+    """
+
+    m: float
+    c: float
+    k: float
+    cov: np.ndarray
+    estimator: str
+    compensated: bool
+    c_prime: np.ndarray
+    k_prime: np.ndarray
+    c_line: LineFit | None = None
+    k_line: LineFit | None = None
+    chi2: float = math.nan
+    dof: int = 0
+    warnings: tuple[str, ...] = field(default_factory=tuple)
+
+    @property
+    def stderr(self) -> np.ndarray:
+        """Standard errors of (m, c, k)."""
+        return np.sqrt(np.clip(np.diag(self.cov), 0.0, None))
+
+
+def _check_inputs(sigma, omega_d, P, D):
+    sigma = np.atleast_1d(np.asarray(sigma, dtype=float))
+    omega_d = np.atleast_1d(np.asarray(omega_d, dtype=float))
+    P = np.atleast_1d(np.asarray(P, dtype=float))
+    D = np.atleast_1d(np.asarray(D, dtype=float))
+    n = sigma.size
+    if not (omega_d.size == P.size == D.size == n):
+        raise ValueError("`sigma`, `omega_d`, `P` and `D` must have one entry per run")
+    if n == 0:
+        raise IdentificationError("no usable runs: nothing to identify")
+    gains = np.unique(np.c_[P, D], axis=0)
+    if gains.shape[0] < 2:
+        raise IdentificationError(
+            "all runs have the same gains (P, D): the lines of eq. (35) are undetermined; "
+            "record runs with at least two different gain pairs"
+        )
+    return sigma, omega_d, P, D
+
+
+def fit_lines(
+    sigma: np.ndarray,
+    omega_d: np.ndarray,
+    P: np.ndarray,
+    D: np.ndarray,
+    delay: float,
+    *,
+    compensate: bool = True,
+) -> MCKFit:
+    """The paper's route: eq. (32) then the two lines of eq. (35) by ordinary least squares.
+
+    Parameters
+    ----------
+    sigma, omega_d : array_like
+        Measured decay rate σᵢ (1/s) and damped frequency ω_dᵢ (rad/s) of each run.
+    P, D : array_like
+        Gains, N/m and N·s/m.
+    delay : float
+        Loop delay Δt, s.
+    compensate : bool, default True
+        Correct c′ᵢ, k′ᵢ for the delay (eqs. 28–32 with the corrected α₁); False uses
+        c′ᵢ = Dᵢ, k′ᵢ = Pᵢ (the paper's "without compensation").
+
+    Returns
+    -------
+    MCKFit
+        m is the slope of the stiffness line k′ᵢ = mω₀ᵢ² − k (the better conditioned of the two;
+        the damping line's slope is in ``c_line``), c and k the negated intercepts. The
+        covariance is block-diagonal from the two independent OLS fits.
+    """
+    sigma, omega_d, P, D = _check_inputs(sigma, omega_d, P, D)
+    cp, kp = inverse_map(sigma, omega_d, P, D, delay, compensate=compensate)
+    cl = _ols(2.0 * sigma, cp)
+    kl = _ols(sigma**2 + omega_d**2, kp)
+    cov = np.diag([kl.slope_stderr**2, cl.intercept_stderr**2, kl.intercept_stderr**2])
+    warnings: list[str] = []
+    if sigma.size < 3:
+        warnings.append("only two runs: the eq. (35) lines have no residual, stderr unknown")
+    return MCKFit(
+        m=kl.slope, c=-cl.intercept, k=-kl.intercept, cov=cov, estimator="ols",
+        compensated=compensate, c_prime=cp, k_prime=kp, c_line=cl, k_line=kl,
+        warnings=tuple(warnings),
+    )
+
+
+def _is_dominant(s, m, c, k, P, D, delay) -> bool:
+    """True if the root s (Im s ≥ 0) and its conjugate are the rightmost roots of the loop.
+
+    A cheap argument-principle count just left of s settles it; only when another root lies very
+    close to the left does it fall back to the full certified root computation.
+    """
+    a = s.real - max(0.5, 0.5 * abs(s.real))  # 1/s: far enough from s to count cheaply
+    n_expected = 1 if s.imag == 0 else 2
+    try:
+        if count_roots_right_of(a, m, c, k, P, D, delay) == n_expected:
+            return True
+    except (RuntimeError, ValueError):
+        pass
+    r0 = _rightmost_roots(m, c, k, P, D, delay, count=2)[0]
+    return abs(r0.real - s.real) <= 1e-6 * max(1.0, abs(r0))
+
+
+def _whiteners(cov: np.ndarray) -> np.ndarray:
+    """Per-run matrices Wᵢ^{1/2} with Wᵢ = Covᵢ⁻¹ (so that ‖Wᵢ^{1/2} rᵢ‖² = rᵢᵀWᵢrᵢ)."""
+    out = np.empty_like(cov)
+    for i, C in enumerate(cov):
+        L = np.linalg.cholesky(C)
+        out[i] = np.linalg.inv(L)
+    return out
+
+
+def fit_modes(
+    sigma: np.ndarray,
+    omega_d: np.ndarray,
+    cov: np.ndarray,
+    P: np.ndarray,
+    D: np.ndarray,
+    delay: float,
+    *,
+    start: tuple[float, float, float] | None = None,
+    max_iter: int = 50,
+) -> MCKFit:
+    """Weighted least squares of m, c, k to all runs' modes through the exact loop roots.
+
+    Parameters
+    ----------
+    sigma, omega_d : array_like
+        Measured σᵢ (1/s) and ω_dᵢ (rad/s) of each run's dominant mode.
+    cov : array_like
+        (n, 2, 2) covariance of each run's (σᵢ, ω_dᵢ).
+    P, D : array_like
+        Gains, N/m and N·s/m.
+    delay : float
+        Loop delay Δt, s.
+    start : (m, c, k), optional
+        Starting point; by default the compensated eq. (35) OLS solution.
+    max_iter : int
+        Gauss–Newton iterations at most.
+
+    Returns
+    -------
+    MCKFit
+        Estimates minimising Σ rᵢᵀ Covᵢ⁻¹ rᵢ, rᵢ = (σ̂ᵢ − σᵢ(θ), ω̂_dᵢ − ω_dᵢ(θ)), with the
+        covariance (JᵀWJ)⁻¹. If χ² exceeds its 99.9 % quantile the runs disagree more than their
+        own noise explains (model error such as friction or a wrong delay): the covariance is
+        then scaled by χ²/dof and a warning says so.
+
+    Raises
+    ------
+    IdentificationError
+        If the fit cannot converge or the tracked root stops being the dominant one.
+    """
+    sigma, omega_d, P, D = _check_inputs(sigma, omega_d, P, D)
+    cov = np.asarray(cov, dtype=float).reshape(sigma.size, 2, 2)
+    lines = fit_lines(sigma, omega_d, P, D, delay)
+    theta = np.array(start if start is not None else (lines.m, lines.c, lines.k), dtype=float)
+    Wh = _whiteners(cov)
+    meas = np.c_[sigma, omega_d]
+    s = -sigma + 1j * omega_d
+
+    def residual_and_jacobian(th, s_guess):
+        m, c, k = th
+        s_mod = dominant_roots(m, c, k, P, D, delay, s_guess)
+        _, df = characteristic(s_mod, m, c, k, P, D, delay)
+        ds = -np.stack([s_mod**2, s_mod, np.ones_like(s_mod)], axis=1) / df[:, None]
+        model = np.c_[-s_mod.real, s_mod.imag]
+        # d(meas - model)/dθ = (d Re s, -d Im s)/dθ, shape (n, 2, 3)
+        jac = np.stack([ds.real, -ds.imag], axis=1)
+        r = np.einsum("nij,nj->ni", Wh, meas - model).ravel()
+        J = np.einsum("nij,njk->nik", Wh, jac).reshape(-1, 3)
+        return r, J, s_mod
+
+    r, J, s = residual_and_jacobian(theta, s)
+    chi2 = float(r @ r)
+    converged = False
+    scale = np.maximum(np.abs(theta), 1e-12)
+    for _ in range(max_iter):
+        Js = J * scale
+        step = -np.linalg.lstsq(Js, r, rcond=None)[0] * scale
+        lam = 1.0
+        while lam > 1e-6:
+            trial = theta + lam * step
+            if trial[0] > 0:
+                r_t, J_t, s_t = residual_and_jacobian(trial, s)
+                chi2_t = float(r_t @ r_t)
+                if np.isfinite(chi2_t) and chi2_t <= chi2 * (1 + 1e-12):
+                    break
+            lam *= 0.5
+        else:
+            break
+        done = np.all(np.abs(lam * step) <= 1e-12 * scale)
+        theta, r, J, s, chi2 = trial, r_t, J_t, s_t, chi2_t
+        if done:
+            converged = True
+            break
+    else:
+        converged = np.all(np.abs(step) <= 1e-8 * scale)
+    if not converged and not np.all(np.abs(step) <= 1e-8 * scale):
+        raise IdentificationError("the weighted fit of m, c, k did not converge")
+    # the tracked roots must be the dominant ones at the solution (certified check)
+    m, c, k = theta
+    for i in range(sigma.size):
+        if not _is_dominant(s[i], m, c, k, float(P[i]), float(D[i]), delay):
+            raise IdentificationError(
+                f"run {i + 1}: the fitted mode is not the loop's dominant root at the solution"
+            )
+    JtJ = J.T @ J
+    covp = np.linalg.inv(JtJ)
+    dof = 2 * sigma.size - 3
+    warnings: list[str] = []
+    if dof > 0 and chi2 > stats.chi2.ppf(0.999, dof):
+        red = chi2 / dof
+        covp = covp * red
+        warnings.append(
+            f"the runs disagree more than their noise explains (chi2/dof = {red:.2f}); "
+            "stderr scaled up accordingly: check the delay, friction or unmodelled dynamics"
+        )
+    cp, kp = inverse_map(sigma, omega_d, P, D, delay)
+    return MCKFit(
+        m=float(theta[0]), c=float(theta[1]), k=float(theta[2]), cov=covp, estimator="gls",
+        compensated=True, c_prime=cp, k_prime=kp, c_line=lines.c_line, k_line=lines.k_line,
+        chi2=chi2, dof=dof, warnings=tuple(warnings),
+    )
