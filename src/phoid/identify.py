@@ -1,0 +1,446 @@
+"""Identify m, c, k from a PHO experiment set: runs → decay fits → loop → m, c, k.
+
+The pipeline (ARCHITECTURE.md): each run's free decay is fitted for its dominant mode
+(:func:`phoid.decay.fit_decay`), the modes are mapped through the delayed loop (eqs. 28–32) and
+m, c, k follow from all runs together (:mod:`phoid.pho`).
+
+Right after the release the delayed loop also rings in its fast non-dominant modes. They are
+skipped rather than modelled: a first pass (skipping 3Δt) gives a rough plant, whose exact loop
+roots give each run's gap g = Re s₁ − Re s₂ between the dominant and the next root; the second pass
+starts each fit once e^{−g t} has fallen below a fraction of the noise relative to the amplitude
+(or 1e−10 for noise-free data), so the transient cannot bias σᵢ, ω_dᵢ.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from phoid.decay import DecayFit, fit_decay
+from phoid.errors import IdentificationError
+from phoid.loop import _rightmost_roots
+from phoid.pho import Estimate, MCKFit, fit_lines, fit_modes
+
+__all__ = ["Identification", "RunMode", "identify", "measure_modes"]
+
+_SKIP_FLOOR = 1e-10  # relative size of the skipped transient for noise-free data
+_SKIP_NOISE_FRACTION = 0.01  # transient below 1 % of the noise sd is negligible
+
+
+@dataclass(frozen=True)
+class RunMode:
+    """One run's measured dominant mode and its place in eq. (35).
+
+    Attributes
+    ----------
+    file : str
+        Data file of the run (as named in the manifest).
+    P, D : float
+        Gains, N/m and N·s/m.
+    sigma, omega_d : float
+        Decay rate (1/s) and damped frequency (rad/s) of the dominant mode.
+    sigma_stderr, omega_d_stderr : float
+        Their standard errors.
+    c_prime, k_prime : float
+        Equivalent feedback damping (N·s/m) and stiffness (N/m), eq. (32).
+    cycles : float
+        Oscillation cycles used (above the noise floor).
+    residual_rms : float
+        RMS of the decay fit's residual, m.
+    used : bool
+        False when the run was set aside (see ``warnings``).
+    warnings : tuple of str
+    fit : DecayFit or None
+        The full decay fit (None when the run could not be fitted at all).
+    """
+
+    file: str
+    P: float
+    D: float
+    sigma: float
+    omega_d: float
+    sigma_stderr: float
+    omega_d_stderr: float
+    c_prime: float
+    k_prime: float
+    cycles: float
+    residual_rms: float
+    used: bool
+    warnings: tuple[str, ...] = ()
+    fit: DecayFit | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready dict with the spec's keys (file, P, D, sigma, omega_d, c_prime, k_prime,
+        cycles) and extra diagnostics."""
+
+        def num(x):
+            return None if x is None or not math.isfinite(x) else float(x)
+
+        return {
+            "file": self.file,
+            "P": float(self.P),
+            "D": float(self.D),
+            "sigma": num(self.sigma),
+            "omega_d": num(self.omega_d),
+            "c_prime": num(self.c_prime),
+            "k_prime": num(self.k_prime),
+            "cycles": num(self.cycles),
+            "sigma_stderr": num(self.sigma_stderr),
+            "omega_d_stderr": num(self.omega_d_stderr),
+            "residual_rms": num(self.residual_rms),
+            "used": self.used,
+            "warnings": list(self.warnings),
+        }
+
+
+@dataclass(frozen=True)
+class Identification:
+    """Result of :func:`identify`: m, c, k with uncertainties, per-run modes, warnings.
+
+    Attributes
+    ----------
+    m, c, k : Estimate
+        Mass (kg), viscous damping (N s/m), stiffness (N/m).
+    delay : float
+        Loop delay used, s.
+    delay_source : str
+        ``"given"`` (from the manifest or the caller).
+    runs : tuple of RunMode
+    fit : MCKFit
+        The underlying fit (covariance, eq. 35 lines, χ²).
+    warnings : tuple of str
+    source : str
+        Where the data came from (a path or a description).
+    """
+
+    m: Estimate
+    c: Estimate
+    k: Estimate
+    delay: float
+    delay_source: str
+    runs: tuple[RunMode, ...]
+    fit: MCKFit
+    warnings: tuple[str, ...] = ()
+    source: str = ""
+    data: tuple[tuple[np.ndarray, np.ndarray], ...] = field(default=(), repr=False)
+
+    @property
+    def cov(self) -> np.ndarray:
+        """(3, 3) covariance of (m, c, k)."""
+        return self.fit.cov
+
+    @property
+    def omega0(self) -> Estimate:
+        """Open-loop natural frequency ω₀ = √(k/m), rad/s (eq. 5), delta-method stderr."""
+        m, k = self.m.value, self.k.value
+        if not (m > 0 and k > 0):
+            return Estimate(0.0 if k == 0 else math.nan, None, "rad/s")
+        w = math.sqrt(k / m)
+        g = np.array([-0.5 * w / m, 0.0, 0.5 * w / k])
+        return Estimate(w, float(math.sqrt(max(g @ self.cov @ g, 0.0))), "rad/s")
+
+    @property
+    def zeta(self) -> Estimate:
+        """Open-loop damping ratio ζ = c/(2√(mk)) (eq. 10), delta-method stderr."""
+        m, c, k = self.m.value, self.c.value, self.k.value
+        if not (m > 0 and k > 0):
+            return Estimate(math.inf, None, "")
+        z = c / (2 * math.sqrt(m * k))
+        g = np.array([-0.5 * z / m, z / c if c != 0 else 1 / (2 * math.sqrt(m * k)), -0.5 * z / k])
+        return Estimate(z, float(math.sqrt(max(g @ self.cov @ g, 0.0))), "")
+
+    def summary(self) -> dict[str, Any]:
+        """The JSON object of ``phoid identify --json`` (shared/spec/experiment-format.md)."""
+        out: dict[str, Any] = {
+            "method": "pho",
+            "m": self.m.to_dict(),
+            "c": self.c.to_dict(),
+            "k": self.k.to_dict(),
+            "delay": {"value": float(self.delay), "stderr": None, "unit": "s",
+                      "source": self.delay_source},
+            "runs": [r.to_dict() for r in self.runs],
+            "warnings": list(self.warnings),
+        }
+        w0 = self.omega0
+        if math.isfinite(w0.value):
+            out["omega0"] = w0.to_dict()
+        z = self.zeta
+        if math.isfinite(z.value):
+            out["zeta"] = z.to_dict()
+        out["estimator"] = self.fit.estimator
+        out["correlation"] = _correlation(self.cov)
+        return out
+
+    def report(self) -> str:
+        """A plain-text report: estimates with ± one stderr, per-run table, warnings."""
+        from phoid.report import identification_text
+
+        return identification_text(self)
+
+    def plot(self, out_dir: str | Any) -> list:
+        """Write per-run decay fits with residuals and the two eq. (35) lines as PNG files.
+
+        Returns the list of paths written.
+        """
+        from phoid.report import plot_identification
+
+        return plot_identification(self, out_dir)
+
+
+def _correlation(cov: np.ndarray) -> dict[str, float | None]:
+    sd = np.sqrt(np.clip(np.diag(cov), 0, None))
+    names = ("m", "c", "k")
+    out: dict[str, float | None] = {}
+    for i in range(3):
+        for j in range(i + 1, 3):
+            d = sd[i] * sd[j]
+            out[f"{names[i]}-{names[j]}"] = float(cov[i, j] / d) if d > 0 else None
+    return out
+
+
+# ------------------------------------------------------------------------------------------
+
+
+def _skip_for(gap: float, amplitude: float, noise: float) -> float:
+    """Time (s) for a transient decaying e^{−gap·t} faster than the dominant mode to vanish."""
+    eps = max(_SKIP_FLOOR, _SKIP_NOISE_FRACTION * noise / max(abs(amplitude), 1e-300))
+    eps = min(eps, 1e-2)
+    return math.log(1.0 / eps) / gap
+
+
+def _fit_run(t, x, skip, release):
+    try:
+        return fit_decay(t, x, release=release, skip=skip), None
+    except (ValueError, RuntimeError, np.linalg.LinAlgError) as exc:
+        return None, str(exc)
+
+
+def _unusable(fit: DecayFit) -> str | None:
+    """Reason to set a run aside, or None. Runs with few cycles are kept (weighted)."""
+    for w in fit.warnings:
+        lw = w.lower()
+        if any(key in lw for key in ("clip", "saturat", "grow", "unstable", "not converge",
+                                     "no oscillation", "not oscillat")):
+            return w
+    if not (np.all(np.isfinite(fit.cov)) and fit.cov[0, 0] > 0 and fit.cov[1, 1] > 0):
+        return "the decay fit has no usable covariance"
+    if not fit.omega_d > 0:
+        return "no oscillation found"
+    return None
+
+
+def measure_modes(
+    data: Sequence[tuple[np.ndarray, np.ndarray]],
+    P: np.ndarray,
+    D: np.ndarray,
+    delay: float,
+    *,
+    names: Sequence[str] | None = None,
+) -> tuple[list[DecayFit | None], list[str | None], list[float]]:
+    """Fit each run's dominant mode, skipping the loop's fast transient (two passes).
+
+    Parameters
+    ----------
+    data : sequence of (t, x)
+        Each run's time (s) and position (m) arrays.
+    P, D : array_like
+        Gains, N/m and N·s/m.
+    delay : float
+        Loop delay Δt, s.
+    names : sequence of str, optional
+        Run names for messages.
+
+    Returns
+    -------
+    fits : list of DecayFit or None
+    reasons : list of str or None
+        Why a run was set aside (None if usable).
+    skips : list of float
+        The skip (s after release) used for each run.
+    """
+    n = len(data)
+    names = list(names) if names is not None else [f"run {i + 1}" for i in range(n)]
+    P = np.asarray(P, dtype=float)
+    D = np.asarray(D, dtype=float)
+    skip0 = 3.0 * delay
+    fits: list[DecayFit | None] = []
+    reasons: list[str | None] = []
+    for t, x in data:
+        f, err = _fit_run(t, x, skip0, None)
+        fits.append(f)
+        reasons.append(err if f is None else _unusable(f))
+    skips = [skip0] * n
+    if delay == 0.0:
+        # no delay: the closed loop is exactly second order, nothing to skip
+        return fits, reasons, skips
+    ok = [i for i in range(n) if reasons[i] is None]
+    rough: tuple[float, float, float] | None = None
+    if len({(P[i], D[i]) for i in ok}) >= 2:
+        try:
+            lines = fit_lines([fits[i].sigma for i in ok], [fits[i].omega_d for i in ok],
+                              P[ok], D[ok], delay)
+            if lines.m > 0:
+                rough = (lines.m, lines.c, lines.k)
+        except (ValueError, np.linalg.LinAlgError):
+            rough = None
+    for i in range(n):
+        f = fits[i]
+        if f is None or rough is None:
+            continue
+        try:
+            roots = _rightmost_roots(*rough, float(P[i]), float(D[i]), delay, count=3)
+        except (RuntimeError, ValueError):
+            continue
+        dom = roots[0].real
+        rest = roots[np.abs(roots.real - dom) > 1e-9 * max(1.0, abs(dom))]
+        if rest.size == 0:
+            continue
+        gap = dom - rest[0].real
+        noise = f.noise_sd if math.isfinite(f.noise_sd) else 0.0
+        skip = _skip_for(gap, f.amplitude, noise)
+        # never skip so much that fewer than ~3 cycles remain above the noise
+        period = 2 * math.pi / f.omega_d if f.omega_d > 0 else math.inf
+        skip = min(skip, max(skip0, (f.t_end - f.release) - 3 * period))
+        if abs(skip - skip0) > 1e-12:
+            g, err = _fit_run(data[i][0], data[i][1], skip, f.release)
+            if g is not None:
+                fits[i], reasons[i], skips[i] = g, _unusable(g), skip
+    return fits, reasons, skips
+
+
+def identify(
+    experiment: Any,
+    *,
+    delay: float | None = None,
+    estimator: str = "gls",
+    compensate: bool = True,
+) -> Identification:
+    """Identify m, c, k from a PHO experiment set.
+
+    Parameters
+    ----------
+    experiment : phoid.io.ExperimentSet
+        The runs (t, x, P, D) and the loop delay (``[loop] delay``), as read by
+        :func:`phoid.io.read_experiment`.
+    delay : float, optional
+        Loop delay Δt (s), overriding the manifest's.
+    estimator : {"gls", "ols"}
+        ``"gls"``: the efficient weighted fit through the exact loop roots (default).
+        ``"ols"``: the paper's eq. (35) lines by ordinary least squares.
+    compensate : bool, default True
+        Correct for the delay (eqs. 28–32). False reproduces the paper's uncompensated column
+        (only with ``estimator="ols"``).
+
+    Returns
+    -------
+    Identification
+
+    Raises
+    ------
+    IdentificationError
+        When the data cannot determine m, c, k (no usable runs, all gains equal, …).
+    """
+    if estimator not in ("gls", "ols"):
+        raise ValueError(f"`estimator` must be 'gls' or 'ols'; got {estimator!r}")
+    if estimator == "gls" and not compensate:
+        raise ValueError("`compensate=False` is only available with estimator='ols'")
+    if getattr(experiment, "method", "pho") != "pho":
+        raise IdentificationError(
+            f"{experiment.path}: method = {experiment.method!r} is not a PHO set"
+        )
+    runs = list(experiment.runs)
+    if not runs:
+        raise IdentificationError(f"{experiment.path}: no runs")
+    if delay is None:
+        delay = experiment.delay
+    if delay is None:
+        raise IdentificationError(
+            f"{experiment.path}: [loop] delay is not given; estimating it is not supported yet"
+        )
+    return identify_data(
+        [(r.t, r.x) for r in runs],
+        np.array([r.P for r in runs], dtype=float),
+        np.array([r.D for r in runs], dtype=float),
+        float(delay),
+        files=[r.file for r in runs],
+        names=[getattr(r, "name", r.file) for r in runs],
+        estimator=estimator,
+        compensate=compensate,
+        source=str(experiment.path),
+    )
+
+
+def identify_data(
+    data: Sequence[tuple[np.ndarray, np.ndarray]],
+    P: np.ndarray,
+    D: np.ndarray,
+    delay: float,
+    *,
+    files: Sequence[str] | None = None,
+    names: Sequence[str] | None = None,
+    estimator: str = "gls",
+    compensate: bool = True,
+    source: str = "",
+) -> Identification:
+    """:func:`identify` on plain arrays: ``data`` is a sequence of (t, x) per run.
+
+    Parameters are as in :func:`identify`; ``files``/``names`` label the runs.
+    """
+    n = len(data)
+    if n == 0:
+        raise IdentificationError("no runs")
+    files = list(files) if files is not None else [f"run{i + 1}" for i in range(n)]
+    names = list(names) if names is not None else files
+    fits, reasons, _skips = measure_modes(data, P, D, delay, names=names)
+    warnings: list[str] = []
+    for i, f in enumerate(fits):
+        if reasons[i] is not None:
+            warnings.append(f"{names[i]}: set aside: {reasons[i]}")
+        elif f is not None:
+            warnings.extend(f"{names[i]}: {w}" for w in f.warnings)
+    used = [i for i in range(n) if reasons[i] is None]
+    if not used:
+        raise IdentificationError(
+            "no usable runs: " + "; ".join(f"{names[i]}: {reasons[i]}" for i in range(n))
+        )
+    sig = np.array([fits[i].sigma for i in used])
+    wd = np.array([fits[i].omega_d for i in used])
+    cov = np.array([fits[i].cov for i in used])
+    if estimator == "gls":
+        mck = fit_modes(sig, wd, cov, P[used], D[used], delay)
+    else:
+        mck = fit_lines(sig, wd, P[used], D[used], delay, compensate=compensate)
+    warnings.extend(mck.warnings)
+    if len(used) < 3:
+        warnings.append(f"only {len(used)} usable runs: m, c, k are barely determined")
+    se = mck.stderr
+    runs: list[RunMode] = []
+    j = 0
+    for i in range(n):
+        f = fits[i]
+        if i in used:
+            cp, kp = float(mck.c_prime[j]), float(mck.k_prime[j])
+            j += 1
+        else:
+            cp = kp = math.nan
+        runs.append(RunMode(
+            file=files[i], P=float(P[i]), D=float(D[i]),
+            sigma=f.sigma if f else math.nan, omega_d=f.omega_d if f else math.nan,
+            sigma_stderr=f.sigma_stderr if f else math.nan,
+            omega_d_stderr=f.omega_d_stderr if f else math.nan,
+            c_prime=cp, k_prime=kp, cycles=f.cycles if f else math.nan,
+            residual_rms=f.residual_rms if f else math.nan, used=i in used,
+            warnings=tuple(([reasons[i]] if reasons[i] else []) + (list(f.warnings) if f else [])),
+            fit=f,
+        ))
+    return Identification(
+        m=Estimate(mck.m, float(se[0]), "kg"),
+        c=Estimate(mck.c, float(se[1]), "N s/m"),
+        k=Estimate(mck.k, float(se[2]), "N/m"),
+        delay=delay, delay_source="given", runs=tuple(runs), fit=mck,
+        warnings=tuple(warnings), source=source, data=tuple(data),
+    )
