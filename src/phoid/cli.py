@@ -138,6 +138,103 @@ def identify(
         typer.echo(f"{len(written)} figures written to {plots}", err=as_json)
 
 
+def _numbers(name: str, text: str) -> list[float]:
+    """Parse '1,2,3' or 'start:stop:count' (inclusive linspace) into floats."""
+    import numpy as np
+
+    text = text.strip()
+    try:
+        if ":" in text:
+            parts = text.split(":")
+            if len(parts) != 3:
+                raise ValueError
+            a, b, n = float(parts[0]), float(parts[1]), int(parts[2])
+            if n < 1:
+                raise ValueError
+            return np.linspace(a, b, n).tolist()
+        return [float(v) for v in text.split(",") if v.strip()]
+    except ValueError:
+        raise ValueError(
+            f"`{name}` must be comma-separated numbers or start:stop:count; got {text!r}"
+        ) from None
+
+
+@app.command()
+def simulate(
+    out: Annotated[Path, typer.Argument(help="Folder to write the experiment set into.")],
+    m: Annotated[float, typer.Option("--m", help="Mass, kg.")] = 2.0,
+    c: Annotated[float, typer.Option("--c", help="Viscous damping, N s/m.")] = 1.0,
+    k: Annotated[float, typer.Option("--k", help="Stiffness, N/m.")] = 64.0,
+    fc: Annotated[float, typer.Option("--fc", help="Coulomb friction force, N.")] = 0.0,
+    P: Annotated[str, typer.Option(
+        "--P", help="Proportional gains, N/m: '1,2,3' or start:stop:count. Default: the "
+                    "paper's Table 1 sweep.")] = "0.25:25:19",
+    D: Annotated[str, typer.Option(
+        "--D", help="Derivative gains, N s/m, paired with --P (same count, or one value for "
+                    "all runs).")] = "0.6:6:19",
+    delay: Annotated[float, typer.Option(help="Loop delay, s.")] = 0.1,
+    duration: Annotated[float, typer.Option(help="Record length after release, s.")] = 15.0,
+    fs: Annotated[float, typer.Option(help="Sample rate, Hz.")] = 1000.0,
+    x0: Annotated[float, typer.Option(help="Release position, m.")] = 0.01,
+    hold: Annotated[float, typer.Option(
+        help="Held segment before the release (controller on), s.")] = 0.2,
+    noise: Annotated[float, typer.Option(help="Sensor noise standard deviation, m.")] = 0.0,
+    quantum: Annotated[float, typer.Option(
+        help="Encoder quantisation step, m (0: none).")] = 0.0,
+    offset: Annotated[float, typer.Option(help="Constant sensor offset, m.")] = 0.0,
+    seed: Annotated[int | None, typer.Option(help="Random seed for the noise.")] = None,
+    omit_delay: Annotated[bool, typer.Option(
+        "--omit-delay", help="Do not write [loop] delay into the manifest (to rehearse "
+                             "estimating it).")] = False,
+    gzip: Annotated[bool, typer.Option(help="Compress the data files (.csv.gz).")] = True,
+    overwrite: Annotated[bool, typer.Option(help="Replace an existing set in OUT.")] = False,
+) -> None:
+    """Simulate a PHO experiment and write it as a phoid/1 experiment set.
+
+    The plant m x'' + c x' + k x + fc sign(x') = u runs under u = -[D x'(t - delay) +
+    P x(t - delay)], held at x0 for --hold seconds with the controller on, then released; the
+    recorded position gets the offset, white noise and quantisation asked for. Columns t, x and
+    the applied feedback force u. Use it to rehearse an experiment or to build test fixtures.
+    """
+    import numpy as np
+
+    from phoid.io import run_from_arrays, write_experiment
+    from phoid.plant import Plant
+    from phoid.simulate import simulate as _simulate
+
+    try:
+        Ps = _numbers("P", P)
+        Ds = _numbers("D", D)
+        if len(Ds) == 1:
+            Ds = Ds * len(Ps)
+        if len(Ps) == 1:
+            Ps = Ps * len(Ds)
+        if len(Ps) != len(Ds) or not Ps:
+            raise ValueError(f"`P` and `D` must have the same number of runs; "
+                             f"got {len(Ps)} and {len(Ds)}")
+        plant = Plant(m, c, k, fc)
+        rng = np.random.default_rng(seed)
+        sim = _simulate(plant, np.array(Ps), np.array(Ds), delay=delay, duration=duration,
+                        fs=fs, x0=x0, hold=hold, noise=noise, quantum=quantum, offset=offset,
+                        rng=rng)
+        runs = [
+            run_from_arrays(sim.t, sim.x[i], u=sim.u[i], P=Ps[i], D=Ds[i], index=i + 1)
+            for i in range(len(Ps))
+        ]
+        truth = {"m": m, "c": c, "k": k, "fc": fc, "delay": delay, "noise": noise,
+                 "quantum": quantum, "offset": offset, "x0": x0, "hold": hold}
+        if seed is not None:
+            truth["seed"] = seed
+        path = write_experiment(
+            out, runs, method="pho", delay=None if omit_delay else delay,
+            title=f"phoid simulate: m={m:g} kg, c={c:g} N s/m, k={k:g} N/m",
+            extra={"simulated": truth}, gzip=gzip, overwrite=overwrite,
+        )
+    except (ValueError, OSError) as exc:
+        _fail(str(exc))
+    typer.echo(f"wrote {len(Ps)} runs to {path}")
+
+
 def main() -> None:
     """Console entry point."""
     try:

@@ -1,0 +1,97 @@
+"""The command line: `phoid simulate` and `phoid identify`, output contract and bad input."""
+
+import json
+import shutil
+
+import pytest
+from typer.testing import CliRunner
+
+from phoid.cli import app
+
+runner = CliRunner()
+
+
+def one_line_error(result, *needles):
+    """Exit status 2, a single 'phoid: error:' line on stderr naming the needles, no traceback."""
+    assert result.exit_code == 2, result.output
+    err = result.stderr.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("phoid: error:"), result.stderr
+    assert "Traceback" not in result.output
+    for n in needles:
+        assert n in err[0], (n, err[0])
+
+
+@pytest.fixture(scope="module")
+def simulated(tmp_path_factory):
+    out = tmp_path_factory.mktemp("sets") / "sim"
+    r = runner.invoke(app, ["simulate", str(out), "--P", "0.25:25:10", "--D", "0.6:6:10",
+                            "--noise", "1e-4", "--quantum", "1e-6", "--offset", "-3e-4",
+                            "--seed", "5", "--duration", "12"])
+    assert r.exit_code == 0, r.output
+    return out
+
+
+def test_simulate_then_identify_json(simulated):
+    r = runner.invoke(app, ["identify", str(simulated), "--json"])
+    assert r.exit_code == 0, r.output
+    data = json.loads(r.stdout)  # stdout holds exactly one JSON object
+    truth = {"m": 2.0, "c": 1.0, "k": 64.0}  # the plant given to `phoid simulate`
+    for q, v in truth.items():
+        assert abs(data[q]["value"] - v) < 3 * data[q]["stderr"]  # 3-sigma, one seeded set
+    assert data["delay"]["source"] == "given" and len(data["runs"]) == 10
+
+
+def test_identify_text_and_plots(simulated, tmp_path):
+    r = runner.invoke(app, ["identify", str(simulated), "--plots", str(tmp_path / "p")])
+    assert r.exit_code == 0, r.output
+    assert "m = " in r.stdout and "k = " in r.stdout
+    pngs = sorted(p.name for p in (tmp_path / "p").glob("*.png"))
+    assert "eq35-lines.png" in pngs and len(pngs) == 11  # 10 runs + the lines figure
+
+
+def test_identify_ols_and_no_compensation(simulated):
+    r = runner.invoke(app, ["identify", str(simulated), "--json", "--estimator", "ols",
+                            "--no-compensation"])
+    assert r.exit_code == 0, r.output
+    assert json.loads(r.stdout)["estimator"] == "ols"
+    r = runner.invoke(app, ["identify", str(simulated), "--no-compensation"])
+    one_line_error(r, "compensate")
+
+
+def test_identify_missing_set(tmp_path):
+    one_line_error(runner.invoke(app, ["identify", str(tmp_path / "nope")]), "nope")
+
+
+def test_identify_bad_manifest_names_file(simulated, tmp_path):
+    bad = tmp_path / "bad"
+    shutil.copytree(simulated, bad)
+    (bad / "experiment.toml").write_text("format = 'phoid/1'\n[[run]\nfile = 'x'\n")
+    one_line_error(runner.invoke(app, ["identify", str(bad)]), "experiment.toml")
+
+
+def test_identify_bad_cell_names_file_run_and_column(simulated, tmp_path):
+    bad = tmp_path / "bad"
+    shutil.copytree(simulated, bad)
+    import gzip
+
+    f = bad / "run03.csv.gz"
+    lines = gzip.decompress(f.read_bytes()).decode().splitlines()
+    lines[56] = lines[56].split(",")[0] + ",abc," + lines[56].split(",")[2]
+    f.write_bytes(gzip.compress(("\n".join(lines) + "\n").encode()))
+    one_line_error(runner.invoke(app, ["identify", str(bad)]), "run03.csv.gz", "'x'", "57")
+
+
+def test_identify_same_gains(tmp_path):
+    out = tmp_path / "same"
+    r = runner.invoke(app, ["simulate", str(out), "--P", "5,5,5", "--D", "1", "--duration", "6"])
+    assert r.exit_code == 0, r.output
+    one_line_error(runner.invoke(app, ["identify", str(out)]), "same gains")
+
+
+def test_simulate_bad_values(tmp_path):
+    one_line_error(runner.invoke(app, ["simulate", str(tmp_path / "a"), "--m", "-1"]), "`m`")
+    one_line_error(runner.invoke(app, ["simulate", str(tmp_path / "b"), "--P", "1,2",
+                                       "--D", "1,2,3"]), "same number")
+    one_line_error(runner.invoke(app, ["simulate", str(tmp_path / "c"), "--P", "1:x:3"]), "`P`")
+    one_line_error(runner.invoke(app, ["simulate", str(tmp_path / "d"), "--delay", "-0.1"]),
+                   "delay")
