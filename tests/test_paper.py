@@ -23,11 +23,13 @@ def test_with_compensation_exact(result):
 
 
 def test_measured_modes_match_exact_roots(result):
-    # noise-free records: each run's fitted mode equals the certified loop root to 1e-8
+    # noise-free records: each run's fitted mode equals the certified loop root. 1e-8 covers
+    # the simulator (~1e-11 of x0 against jitcdde) and the loop modes the fit leaves out
+    # (below 1e-12 of the amplitude when the fit starts), amplified by the fit's conditioning.
     import numpy as np
 
     np.testing.assert_allclose(result.sigma, result.sigma_exact, rtol=1e-8)
-    np.testing.assert_allclose(result.omega_d, result.omega_d_exact, rtol=1e-9)
+    np.testing.assert_allclose(result.omega_d, result.omega_d_exact, rtol=1e-8)
 
 
 def test_without_compensation_shows_the_papers_finding(result):

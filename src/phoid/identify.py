@@ -4,11 +4,14 @@ The pipeline (ARCHITECTURE.md): each run's free decay is fitted for its dominant
 (:func:`phoid.decay.fit_decay`), the modes are mapped through the delayed loop (eqs. 28–32) and
 m, c, k follow from all runs together (:mod:`phoid.pho`).
 
-Right after the release the delayed loop also rings in its fast non-dominant modes. They are
-skipped rather than modelled: a first pass (skipping 3Δt) gives a rough plant, whose exact loop
-roots give each run's gap g = Re s₁ − Re s₂ between the dominant and the next root; the second pass
-starts each fit once e^{−g t} has fallen below a fraction of the noise relative to the amplitude
-(or 1e−10 for noise-free data), so the transient cannot bias σᵢ, ω_dᵢ.
+Right after the release the delayed loop also rings in its fast non-dominant modes, which would
+bias a single-mode fit. A first pass skips 3Δt and gives a rough plant; its exact loop roots give
+each run's next two modes, which the second pass fits alongside the dominant one (free amplitudes,
+rates fixed) right from the release. The fit starts as soon as the first mode left out — whose
+amplitude follows from its residue x₀N(s)/f′(s), N(s) = ms + c + De^{−sΔt} − P(1 − e^{−sΔt})/s —
+is below 0.3 noise sd (or 1e−12 of the amplitude for noise-free data). This keeps the information
+of the first instants: m, c, k come within a few per cent of the Cramér–Rao bound, where skipping
+the transient instead costs 13–35 %.
 """
 
 from __future__ import annotations
@@ -22,13 +25,14 @@ import numpy as np
 
 from phoid.decay import DecayFit, fit_decay
 from phoid.errors import IdentificationError
-from phoid.loop import _rightmost_roots
+from phoid.loop import _rightmost_roots, characteristic
 from phoid.pho import Estimate, MCKFit, fit_lines, fit_modes
 
 __all__ = ["Identification", "RunMode", "identify", "measure_modes"]
 
-_SKIP_FLOOR = 1e-10  # relative size of the skipped transient for noise-free data
-_SKIP_NOISE_FRACTION = 0.01  # transient below 1 % of the noise sd is negligible
+_N_FAST = 2  # non-dominant loop modes fitted alongside the dominant one
+_OMIT_NOISE_FRACTION = 0.3  # the fit starts once the first omitted mode is below 0.3 noise sd
+_OMIT_FLOOR = 1e-12  # … or below 1e-12 of the release amplitude (noise-free records)
 
 
 @dataclass(frozen=True)
@@ -205,16 +209,32 @@ def _correlation(cov: np.ndarray) -> dict[str, float | None]:
 # ------------------------------------------------------------------------------------------
 
 
-def _skip_for(gap: float, amplitude: float, noise: float) -> float:
-    """Time (s) for a transient decaying e^{−gap·t} faster than the dominant mode to vanish."""
-    eps = max(_SKIP_FLOOR, _SKIP_NOISE_FRACTION * noise / max(abs(amplitude), 1e-300))
-    eps = min(eps, 1e-2)
-    return math.log(1.0 / eps) / gap
+def _residue(s, m, c, k, P, D, delay) -> complex:
+    """Amplitude per metre of release of the mode e^{st} after a release from a held position.
+
+    With the history x = x₀ on [−Δt, 0], X(s) = x₀N(s)/f(s) with
+    N(s) = m s + c + D e^{−sΔt} − P (1 − e^{−sΔt})/s (from eq. 23), so the mode's residue is
+    N(s)/f′(s).
+    """
+    e = np.exp(-s * delay)
+    p_term = P * (1 - e) / s if s != 0 else P * delay
+    _, df = characteristic(s, m, c, k, P, D, delay)
+    return complex((m * s + c + D * e - p_term) / df)
 
 
-def _fit_run(t, x, skip, release):
+def _modes(roots: np.ndarray) -> list[complex]:
+    """Distinct modes (one root of each conjugate pair, Im ≥ 0), rightmost first."""
+    out: list[complex] = []
+    for r in roots:
+        r = complex(r.real, abs(r.imag))
+        if not any(abs(r - o) <= 1e-9 * max(1.0, abs(o)) for o in out):
+            out.append(r)
+    return out
+
+
+def _fit_run(t, x, skip, release, fast_roots=None):
     try:
-        return fit_decay(t, x, release=release, skip=skip), None
+        return fit_decay(t, x, release=release, skip=skip, fast_roots=fast_roots), None
     except (ValueError, RuntimeError, np.linalg.LinAlgError) as exc:
         return None, str(exc)
 
@@ -292,23 +312,27 @@ def measure_modes(
         if f is None or rough is None:
             continue
         try:
-            roots = _rightmost_roots(*rough, float(P[i]), float(D[i]), delay, count=3)
+            roots = _rightmost_roots(*rough, float(P[i]), float(D[i]), delay,
+                                     count=2 * _N_FAST + 4)
         except (RuntimeError, ValueError):
             continue
-        dom = roots[0].real
-        rest = roots[np.abs(roots.real - dom) > 1e-9 * max(1.0, abs(dom))]
-        if rest.size == 0:
+        modes = _modes(roots)
+        if len(modes) < _N_FAST + 2:
             continue
-        gap = dom - rest[0].real
+        fast, omitted = modes[1:_N_FAST + 1], modes[_N_FAST + 1]
+        # release amplitude scale and the first omitted mode's share of it (its residue)
+        t, x = data[i]
+        x0 = float(np.max(np.abs(np.asarray(x) - f.offset)))
+        a_omit = 2.0 * abs(_residue(omitted, *rough, float(P[i]), float(D[i]), delay)) * x0
         noise = f.noise_sd if math.isfinite(f.noise_sd) else 0.0
-        skip = _skip_for(gap, f.amplitude, noise)
-        # never skip so much that fewer than ~3 cycles remain above the noise
+        level = max(_OMIT_NOISE_FRACTION * noise, _OMIT_FLOOR * x0)
+        skip = max(0.0, math.log(a_omit / level) / -omitted.real) if a_omit > level else 0.0
+        # never skip so much that fewer than ~3 cycles remain
         period = 2 * math.pi / f.omega_d if f.omega_d > 0 else math.inf
         skip = min(skip, max(skip0, (f.t_end - f.release) - 3 * period))
-        if abs(skip - skip0) > 1e-12:
-            g, err = _fit_run(data[i][0], data[i][1], skip, f.release)
-            if g is not None:
-                fits[i], reasons[i], skips[i] = g, _unusable(g), skip
+        g, _err = _fit_run(t, x, skip, f.release, np.array(fast))
+        if g is not None:
+            fits[i], reasons[i], skips[i] = g, _unusable(g), skip
     return fits, reasons, skips
 
 
