@@ -25,11 +25,11 @@ import numpy as np
 from scipy.optimize import curve_fit
 
 from phoid.decay import logdec
-from phoid.identify import identify_data, measure_modes
+from phoid.identification import identify_data, measure_modes
 from phoid.io import read_experiment
 from phoid.paper import PAPER_D, PAPER_DELAY, PAPER_P, PAPER_PLANT
 from phoid.pho import fit_lines
-from phoid.simulate import simulate
+from phoid.simulation import simulate
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared"
 TRUE = np.array([PAPER_PLANT.m, PAPER_PLANT.c, PAPER_PLANT.k])

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from phoid import IdentificationError
-from phoid.identify import identify, identify_data
+from phoid.identification import identify, identify_data
 from phoid.io import read_experiment
 
 

@@ -118,7 +118,7 @@ def identify(
     Prints the estimates with +- one standard error and units, the open-loop zeta and omega0,
     a per-run table and any warnings.
     """
-    from phoid.identify import identify as _identify
+    from phoid.identification import identify as _identify
     from phoid.io import read_experiment
 
     try:
@@ -200,7 +200,7 @@ def simulate(
 
     from phoid.io import run_from_arrays, write_experiment
     from phoid.plant import Plant
-    from phoid.simulate import simulate as _simulate
+    from phoid.simulation import simulate as _simulate
 
     try:
         Ps = _numbers("P", P)

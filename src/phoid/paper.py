@@ -19,11 +19,11 @@ from typing import Any
 
 import numpy as np
 
-from phoid.identify import measure_modes
+from phoid.identification import measure_modes
 from phoid.loop import forward_map
 from phoid.pho import MCKFit, fit_lines
 from phoid.plant import Plant
-from phoid.simulate import simulate
+from phoid.simulation import simulate
 
 __all__ = [
     "PAPER_D",

@@ -13,7 +13,7 @@ from matplotlib.figure import Figure
 from phoid.loop import inverse_map
 
 if TYPE_CHECKING:
-    from phoid.identify import Identification
+    from phoid.identification import Identification
     from phoid.paper import PaperResult
 
 __all__ = ["figure1", "identification_text", "plot_identification"]
