@@ -22,6 +22,7 @@ delay in the system temporary directory, so only the first use per machine pays 
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import os
 import shutil
@@ -72,15 +73,20 @@ def compile_module(delay: float) -> tuple[str, float]:
         warnings.simplefilter("ignore", DeprecationWarning)
         warnings.simplefilter("ignore", UserWarning)
         dde = jitcdde(f, control_pars=[m, c, k, P, D], verbose=False)
-        dde.compile_C(simplify=False, modulename=name)
-        src = get_module_path(dde._modulename, dde._tmpfile())
         os.makedirs(os.path.dirname(path), exist_ok=True)
-        tmp = path + f".{os.getpid()}.tmp"
-        shutil.copy(src, tmp)
-        os.replace(tmp, path)  # atomic: parallel test workers never see half a file
-        if getattr(dde, "_tmpdir", None) is not None:
-            dde._tmpdir.cleanup()
-            dde._tmpdir = None
+        try:
+            # jitcxde builds the C module with setuptools in the working directory, which would
+            # read the project's own pyproject.toml: build in the cache folder instead
+            with contextlib.chdir(os.path.dirname(path)):
+                dde.compile_C(simplify=False, modulename=name)
+            src = get_module_path(dde._modulename, dde._tmpfile())
+            tmp = path + f".{os.getpid()}.tmp"
+            shutil.copy(src, tmp)
+            os.replace(tmp, path)  # atomic: parallel test workers never see half a file
+        finally:
+            if getattr(dde, "_tmpdir", None) is not None:
+                dde._tmpdir.cleanup()
+                dde._tmpdir = None
     return path, time.perf_counter() - t0
 
 
