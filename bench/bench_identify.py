@@ -3,11 +3,12 @@
 Three pipelines on the same records:
 
 * **phoid** — ``phoid.identify`` (dominant-mode fit per run, weighted fit through exact roots);
-* **curve_fit + OLS** — per run ``scipy.optimize.curve_fit`` of offset + A e^{−σt}cos(ωt + φ)
-  on the same window phoid uses, then eq. (35) by ordinary least squares (what a careful
-  notebook user would write);
-* **log-decrement + OLS** — ``phoid.decay.logdec`` per run (peaks, sub-sample interpolation,
-  noise-floor cut-off), then eq. (35) by OLS (the paper's route).
+* **curve_fit + OLS** — per run ``scipy.optimize.curve_fit`` of offset + e^{−σt}(a cos ωt +
+  b sin ωt) from the release + 3Δt (past the loop's fast transient), started from an FFT peak
+  and a Hilbert-envelope slope, then eq. (35) by ordinary least squares (what a careful notebook
+  user would write);
+* **log-decrement + OLS** — ``phoid.decay.logdec`` per run from the release + 3Δt (peaks,
+  sub-sample interpolation, noise-floor cut-off), then eq. (35) by OLS (the paper's route).
 
 Accuracy is a Monte Carlo over noisy replicas of the Table 1 set made by phoid's simulator (0.1 mm
 noise, 1 µm quantisation, −0.3 mm offset, 0.2 s hold, as in ../shared/data/paper-sample), judged
@@ -24,8 +25,8 @@ from pathlib import Path
 import numpy as np
 from scipy.optimize import curve_fit
 
-from phoid.decay import logdec
-from phoid.identification import identify_data, measure_modes
+from phoid.decay import detect_release, logdec
+from phoid.identification import identify_data
 from phoid.io import read_experiment
 from phoid.paper import PAPER_D, PAPER_DELAY, PAPER_P, PAPER_PLANT
 from phoid.pho import fit_lines
@@ -45,34 +46,48 @@ def _damped(t, off, a, b, s, w):
     return off + e * (a * np.cos(w * t) + b * np.sin(w * t))
 
 
-def curve_fit_pipeline(data, P, D, delay, windows):
-    """Per-run curve_fit on the given windows (t0, t1), then eq. (35) by OLS."""
+def _naive_guess(tt: np.ndarray, xx: np.ndarray) -> list[float]:
+    """Start values a notebook user would compute: FFT peak and Hilbert-envelope slope."""
+    from scipy.signal import hilbert
+
+    off = xx[-max(len(xx) // 10, 1):].mean()
+    y = xx - off
+    dt = tt[1] - tt[0]
+    n = 1 << (len(y) * 4 - 1).bit_length()
+    spec = np.abs(np.fft.rfft(y, n))
+    w = 2 * np.pi * np.fft.rfftfreq(n, dt)[np.argmax(spec[1:]) + 1]
+    env = np.abs(hilbert(y))
+    keep = env > 0.2 * env.max()
+    sl = np.polyfit(tt[keep][: len(tt) // 2], np.log(env[keep][: len(tt) // 2]), 1)[0]
+    return [off, y[0], 0.0, max(-sl, 1e-3), w]
+
+
+def curve_fit_pipeline(data, P, D, delay, releases):
+    """Per-run curve_fit from release + 3Δt (past the loop's fast transient), then eq. (35) OLS."""
     sig, om = [], []
-    for (t, x), (t0, guess) in zip(data, windows, strict=True):
-        sel = t >= t0
-        tt, xx = t[sel] - t0, x[sel]
-        p0 = [xx[-len(xx) // 10:].mean(), xx[0] - xx[-1], 0.0, guess[0], guess[1]]
-        popt, _ = curve_fit(_damped, tt, xx, p0=p0, maxfev=20000)
+    for (t, x), tr in zip(data, releases, strict=True):
+        sel = t >= tr + 3 * delay
+        tt, xx = t[sel] - t[sel][0], x[sel]
+        popt, _ = curve_fit(_damped, tt, xx, p0=_naive_guess(tt, xx), maxfev=20000)
         sig.append(popt[3])
         om.append(abs(popt[4]))
     f = fit_lines(np.array(sig), np.array(om), P, D, delay)
     return np.array([f.m, f.c, f.k])
 
 
-def logdec_pipeline(data, P, D, delay, windows):
-    """Per-run logarithmic decrement on the same windows, then eq. (35) by OLS."""
+def logdec_pipeline(data, P, D, delay, releases):
+    """Per-run logarithmic decrement from release + 3Δt, then eq. (35) by OLS (the paper)."""
     sig, om = [], []
-    for (t, x), (t0, _g) in zip(data, windows, strict=True):
-        f = logdec(t, x, skip=0.0, release=t0)
+    for (t, x), tr in zip(data, releases, strict=True):
+        f = logdec(t, x, release=tr, skip=3 * delay)
         sig.append(f.sigma)
         om.append(f.omega_d)
     f = fit_lines(np.array(sig), np.array(om), P, D, delay)
     return np.array([f.m, f.c, f.k])
 
 
-def _windows(data):
-    fits, _reasons, _ = measure_modes(data, PAPER_P, PAPER_D, PAPER_DELAY)
-    return [(f.t_start, (f.sigma, f.omega_d)) for f in fits]
+def _releases(data):
+    return [detect_release(t, x) for t, x in data]
 
 
 def speed(repeats: int = 7) -> dict:
@@ -81,12 +96,11 @@ def speed(repeats: int = 7) -> dict:
     data = [(r.t, r.x) for r in exp.runs]
     P = np.array([r.P for r in exp.runs])
     D = np.array([r.D for r in exp.runs])
-    win = _windows(data)
     out = {}
     for name, fn in (
         ("phoid", lambda: identify_data(data, P, D, exp.delay)),
-        ("curve_fit+OLS", lambda: curve_fit_pipeline(data, P, D, exp.delay, win)),
-        ("logdec+OLS", lambda: logdec_pipeline(data, P, D, exp.delay, win)),
+        ("curve_fit+OLS", lambda: curve_fit_pipeline(data, P, D, exp.delay, _releases(data))),
+        ("logdec+OLS", lambda: logdec_pipeline(data, P, D, exp.delay, _releases(data))),
     ):
         times = []
         for _ in range(repeats):
@@ -120,13 +134,13 @@ def monte_carlo(replicas: int = 200, seed: int = 2026) -> dict:
             r = identify_data(data, PAPER_P, PAPER_D, PAPER_DELAY)
             est["phoid"].append([r.m.value, r.c.value, r.k.value])
             se.append([r.m.stderr, r.c.stderr, r.k.stderr])
-            win = [(rr.fit.t_start, (rr.sigma, rr.omega_d)) for rr in r.runs]
+            rel = [rr.fit.release for rr in r.runs]
             try:
                 est["curve_fit+OLS"].append(curve_fit_pipeline(data, PAPER_P, PAPER_D,
-                                                               PAPER_DELAY, win))
+                                                               PAPER_DELAY, rel))
             except RuntimeError:
                 est["curve_fit+OLS"].append([math.nan] * 3)
-            est["logdec+OLS"].append(logdec_pipeline(data, PAPER_P, PAPER_D, PAPER_DELAY, win))
+            est["logdec+OLS"].append(logdec_pipeline(data, PAPER_P, PAPER_D, PAPER_DELAY, rel))
         done += nb
     se = np.array(se)
     out = {"replicas": replicas, "crb_sd": dict(zip("mck", crb.tolist(), strict=True))}
