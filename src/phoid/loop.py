@@ -103,8 +103,13 @@ def characteristic(
     return f, df
 
 
-def _newton(s, m, c, k, P, D, delay, iters=50):
-    """Vectorised Newton iteration on f; returns refined roots and the final |f| residual."""
+def _newton(s, m, c, k, P, D, delay, iters=30):
+    """Vectorised Newton iteration on f; returns refined roots and the final |f| residual.
+
+    Iterates until every start has converged or ``iters`` is reached; starts that have not
+    converged by then (spurious eigenvalues of the discretisation) keep a large residual and are
+    discarded by the callers.
+    """
     s = np.array(s, dtype=complex)
     for _ in range(iters):
         f, df = characteristic(s, m, c, k, P, D, delay)
@@ -238,7 +243,7 @@ def _rightmost_roots(m, c, k, P, D, tau, *, count=6, verify=True):
     """:func:`characteristic_roots` on raw numbers (m > 0; c, k of any sign)."""
     if tau == 0.0:
         return _quadratic_roots(m, c + D, k + P)
-    n = 32
+    n = 16 if count <= 3 else 32  # doubled until the certificate (argument principle) agrees
     for _attempt in range(6):
         eig = _generator_eigs(m, c, k, P, D, tau, n)
         eig = eig[np.isfinite(eig)]
@@ -288,11 +293,11 @@ def _quadratic_roots(a2: float, a1: float, a0: float) -> np.ndarray:
 
 
 def _unique(z: np.ndarray, rtol: float = 1e-8) -> np.ndarray:
-    out: list[complex] = []
-    for zi in z:
-        if not any(abs(zi - o) <= rtol * max(abs(o), 1.0) for o in out):
-            out.append(complex(zi))
-    return np.array(out, dtype=complex)
+    """z without near-duplicates (first occurrence kept)."""
+    z = np.asarray(z, dtype=complex)
+    close = np.abs(z[:, None] - z[None, :]) <= rtol * np.maximum(np.abs(z)[None, :], 1.0)
+    dup = np.any(np.tril(close, -1), axis=1)
+    return z[~dup]
 
 
 def _sort_pairs(z: np.ndarray) -> np.ndarray:
