@@ -93,3 +93,14 @@ def test_same_gains_and_no_runs_are_errors():
         fit_lines(s, w, [1.0, 1.0, 1.0], [0.5, 0.5, 0.5], 0.1)
     with pytest.raises(IdentificationError, match="no usable runs"):
         fit_modes([], [], np.zeros((0, 2, 2)), [], [], 0.1)
+
+
+def test_converges_when_a_parameter_is_zero():
+    # k = 0 (mass-damper, eq. 9): convergence is judged on the experiment's scale of k, not on
+    # k itself, so exact modes with rounding-level covariance still converge (to 1e-9 of P's)
+    plant = Plant(1.0, 10.0, 0.0)
+    P, D = np.linspace(50, 400, 8), np.linspace(-9, -5, 8)
+    modes = forward_map(plant, P, D, 0.01)
+    fit = fit_modes(modes.sigma, modes.omega_d, run_cov(1e-14, 1e-14, n=8), P, D, 0.01)
+    assert abs(fit.m - 1.0) < 1e-9 and abs(fit.c - 10.0) < 1e-8 and abs(fit.k) < 1e-9 * 400
+    assert not fit.warnings  # the numerical floor keeps chi2 honest at rounding level

@@ -280,6 +280,11 @@ def fit_modes(
     cov = np.asarray(cov, dtype=float).reshape(sigma.size, 2, 2)
     lines = fit_lines(sigma, omega_d, P, D, delay)
     theta = np.array(start if start is not None else (lines.m, lines.c, lines.k), dtype=float)
+    # numerical floor: decay fits of noise-free records are exact only to ~1e-9 of |s_i|
+    # (simulation and rounding), so a covariance at rounding level would turn that into a
+    # spurious chi2; 1e-9 |s_i| in each of sigma, omega_d is far below any real noise
+    floor = (1e-9 * np.hypot(sigma, omega_d)) ** 2
+    cov = cov + floor[:, None, None] * np.eye(2)
     Wh = _whiteners(cov)
     meas = np.c_[sigma, omega_d]
     s = -sigma + 1j * omega_d
@@ -299,7 +304,15 @@ def fit_modes(
     r, J, s = residual_and_jacobian(theta, s)
     chi2 = float(r @ r)
     converged = False
-    scale = np.maximum(np.abs(theta), 1e-12)
+    # convergence is judged against each parameter's scale in this experiment, not against
+    # its value, which may be ~0 (k of a mass-damper, c of an undamped plant)
+    m_scale = max(abs(theta[0]), 1e-300)
+    scale = np.array([
+        m_scale,
+        max(abs(theta[1]), float(np.max(np.abs(D))), float(np.max(2 * m_scale * np.abs(sigma)))),
+        max(abs(theta[2]), float(np.max(np.abs(P))),
+            float(np.max(m_scale * (sigma**2 + omega_d**2)))),
+    ])
     for _ in range(max_iter):
         Js = J * scale
         step = -np.linalg.lstsq(Js, r, rcond=None)[0] * scale
