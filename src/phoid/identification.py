@@ -161,7 +161,13 @@ class Identification:
         return Estimate(z, float(math.sqrt(max(g @ self.cov @ g, 0.0))), "")
 
     def summary(self) -> dict[str, Any]:
-        """The JSON object of ``phoid identify --json`` (shared/spec/experiment-format.md)."""
+        """The JSON object of ``phoid identify --json`` (shared/spec/experiment-format.md).
+
+        Top-level keys are the spec's (method, m, c, k, delay, runs, warnings) plus the optional
+        ``omega0`` and ``zeta`` in the same {value, stderr, unit} shape; each run carries the
+        spec's keys plus sigma_stderr, omega_d_stderr, residual_rms, used and its warnings. The
+        full covariance of (m, c, k) is :attr:`cov` (not in the JSON).
+        """
         out: dict[str, Any] = {
             "method": "pho",
             "m": self.m.to_dict(),
@@ -178,8 +184,6 @@ class Identification:
         z = self.zeta
         if math.isfinite(z.value):
             out["zeta"] = z.to_dict()
-        out["estimator"] = self.fit.estimator
-        out["correlation"] = _correlation(self.cov)
         return out
 
     def report(self) -> str:
@@ -196,17 +200,6 @@ class Identification:
         from phoid.report import plot_identification
 
         return plot_identification(self, out_dir)
-
-
-def _correlation(cov: np.ndarray) -> dict[str, float | None]:
-    sd = np.sqrt(np.clip(np.diag(cov), 0, None))
-    names = ("m", "c", "k")
-    out: dict[str, float | None] = {}
-    for i in range(3):
-        for j in range(i + 1, 3):
-            d = sd[i] * sd[j]
-            out[f"{names[i]}-{names[j]}"] = float(cov[i, j] / d) if d > 0 else None
-    return out
 
 
 # ------------------------------------------------------------------------------------------
