@@ -888,7 +888,7 @@ def _check_fast_roots(fast_roots) -> np.ndarray:
 
 
 def fit_decay(
-    t, x, *, release=None, skip=0.0, t_end=None, noise_sd=None, fast_roots=None
+    t, x, *, release=None, skip=0.0, t_end=None, noise_sd=None, fast_roots=None, guess=None
 ) -> DecayFit:
     """Decay rate σ and damped frequency ω_d of the dominant mode by maximum likelihood.
 
@@ -916,6 +916,9 @@ def fit_decay(
         mode) — e.g. the closed loop's next roots from the current plant estimate. With them
         the fit can start at the release (``skip`` = 0) and keep the information of the first
         instants instead of discarding it.
+    guess : (float, float), optional
+        Starting (σ, ω_d) (1/s, rad/s), e.g. from an earlier fit of the same record; skips the
+        FFT/ESPRIT starting stage. The record is then taken to be oscillatory.
 
     Returns
     -------
@@ -996,10 +999,16 @@ def fit_decay(
         noise = hold_sd if hold_sd else _diff_noise(xw[-4096:])
     noise = max(noise, 1e-15 * ptp)
 
-    # start: FFT period, ESPRIT on the block-averaged active part
+    # start: FFT period, ESPRIT on the block-averaged active part (or the caller's guess)
     xg, dt, udt = _uniform(tau, xw)
-    per = _dominant_period(xg)
-    sig, om, oscill, n_act = _initial_guess(xg, dt, per, noise)
+    if guess is not None:
+        sig = v.finite("guess[0]", guess[0], "1/s")
+        om = v.positive("guess[1]", guess[1], "rad/s")
+        oscill, n_act = True, 0
+        per = 2 * math.pi / (om * dt)
+    else:
+        per = _dominant_period(xg)
+        sig, om, oscill, n_act = _initial_guess(xg, dt, per, noise)
     if oscill and n_act > 40 * per:
         # barely damped: the start saw 40 periods of many more; fit block means (~32 a period)
         # of windows growing fourfold, each from the last, before the full-resolution fit

@@ -28,7 +28,7 @@ from scipy import stats
 
 from phoid.decay import DecayFit, fit_decay
 from phoid.errors import IdentificationError
-from phoid.loop import _rightmost_roots, characteristic
+from phoid.loop import _rightmost_roots_many, characteristic
 from phoid.pho import Estimate, MCKFit, fit_lines, fit_modes
 
 __all__ = ["Identification", "RunMode", "identify", "measure_modes"]
@@ -233,9 +233,10 @@ def _modes(roots: np.ndarray) -> list[complex]:
     return out
 
 
-def _fit_run(t, x, skip, release, fast_roots=None):
+def _fit_run(t, x, skip, release, fast_roots=None, guess=None):
     try:
-        return fit_decay(t, x, release=release, skip=skip, fast_roots=fast_roots), None
+        return fit_decay(t, x, release=release, skip=skip, fast_roots=fast_roots,
+                         guess=guess), None
     except (ValueError, RuntimeError, np.linalg.LinAlgError) as exc:
         return None, str(exc)
 
@@ -434,16 +435,20 @@ def _measure(data, P, D, delay, *, rough=None, first=None, noise=None):
         except (ValueError, np.linalg.LinAlgError):
             rough = None
     releases = _model_releases(data, fits, rough, P, D, delay) if rough else [None] * n
+    all_roots: list[np.ndarray | None] = [None] * n
+    todo = [i for i in range(n) if fits[i] is not None]
+    if rough is not None and todo:
+        try:
+            for i, r in zip(todo, _rightmost_roots_many(*rough, P[todo], D[todo], delay,
+                                                        count=2 * _N_FAST + 4), strict=True):
+                all_roots[i] = r
+        except (RuntimeError, ValueError):
+            pass
     for i in range(n):
         f = fits[i]
-        if f is None or rough is None:
+        if f is None or rough is None or all_roots[i] is None:
             continue
-        try:
-            roots = _rightmost_roots(*rough, float(P[i]), float(D[i]), delay,
-                                     count=2 * _N_FAST + 4)
-        except (RuntimeError, ValueError):
-            continue
-        modes = _modes(roots)
+        modes = _modes(all_roots[i])
         if len(modes) < _N_FAST + 2:
             continue
         fast, omitted = modes[1:_N_FAST + 1], modes[_N_FAST + 1]
@@ -459,7 +464,7 @@ def _measure(data, P, D, delay, *, rough=None, first=None, noise=None):
         period = 2 * math.pi / f.omega_d if f.omega_d > 0 else math.inf
         skip = min(skip, max(skip0, (f.t_end - f.release) - 3 * period))
         release = f.release if releases[i] is None else releases[i]
-        g, _err = _fit_run(t, x, skip, release, np.array(fast))
+        g, _err = _fit_run(t, x, skip, release, np.array(fast), guess=(f.sigma, f.omega_d))
         if g is not None:
             fits[i], reasons[i], skips[i] = g, _unusable(g), skip
     return first, fits, reasons, skips, rough
