@@ -137,9 +137,30 @@ def main() -> int:
             failures.append(f"phoid 3-stderr coverage for {q} = {ph['coverage_3se'][q]:.1%}")
     lines += ["", "## Targets", ""]
     if failures:
-        lines += [f"- MISSED: {f}" for f in failures]
+        lines += [f"- MISSED (accuracy): {f}" for f in failures]
     else:
-        lines.append("- all accuracy targets met")
+        lines.append("- accuracy: all targets met (phoid RMSE ≤ 1.1 × CRB, ±3 stderr coverage "
+                     "≥ 99 %, simulator within 1e-6 x0 of jitcdde)")
+    # speed targets are reported, never enforced (wall-clock times depend on the machine)
+    t_ph = ident_speed["phoid"]["median_s"]
+    ratio_cf = ident_speed["curve_fit+OLS"]["median_s"] / t_ph
+    speed = [
+        ("identification ≤ 100 ms", t_ph <= 0.1, f"{t_ph * 1e3:.0f} ms"),
+        ("identification ≥ 10× the curve_fit pipeline", ratio_cf >= 10, f"{ratio_cf:.1f}×"),
+    ]
+    if ratio is not None:
+        speed.append(("simulation ≥ 20× jitcdde", ratio >= 20, f"{ratio:.0f}×"))
+    for name, ok, got in speed:
+        lines.append(f"- speed: {name}: {'met' if ok else 'NOT MET'} ({got})")
+    lines += [
+        "",
+        "Where the identification time goes (cProfile, sample set): two decay fits per run "
+        "(~1.5 ms each, mostly fixed per-call cost: starting guess, Gauss-Newton iterations on "
+        "15 000 samples), the loop roots of every run (certified by the argument principle, "
+        "continued from run to run), the model-fitted release times and the weighted fit. "
+        "Changes made after profiling: root continuation across runs and starting the second "
+        "pass from the first pass's mode (137 → 105 ms).",
+    ]
     (ROOT / "BENCHMARKS.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
     return 1 if failures else 0
