@@ -98,3 +98,21 @@ def test_simulate_bad_values(tmp_path):
     one_line_error(runner.invoke(app, ["simulate", str(tmp_path / "c"), "--P", "1:x:3"]), "`P`")
     one_line_error(runner.invoke(app, ["simulate", str(tmp_path / "d"), "--delay", "-0.1"]),
                    "delay")
+
+
+@pytest.mark.parametrize(
+    ("edit", "needle"),
+    [
+        (lambda t: t.replace('file = "run01.csv.gz"', 'file = "run01.csv.gz"\nadded_mass = 0.5', 1),
+         "added_mass"),
+        (lambda t: t.replace("[loop]\n", "[loop]\nsample_time = 0.001\n", 1), "sample_time"),
+    ],
+)
+def test_identify_refuses_keys_it_cannot_honour_yet(simulated, tmp_path, edit, needle):
+    # the format carries these for later capabilities; ignoring them would give a wrong number
+    bad = tmp_path / "later"
+    shutil.copytree(simulated, bad)
+    manifest = bad / "experiment.toml"
+    manifest.write_text(edit(manifest.read_text()))
+    assert needle in manifest.read_text()
+    one_line_error(runner.invoke(app, ["identify", str(bad)]), needle, "not supported")

@@ -513,6 +513,20 @@ def identify(
     runs = list(experiment.runs)
     if not runs:
         raise IdentificationError(f"{experiment.path}: no runs")
+    # keys the format carries for later capabilities: refuse them rather than ignore them and
+    # return a number that silently assumes the wrong model
+    added = [r.name for r in runs if getattr(r, "added_mass", 0.0)]
+    if added:
+        raise IdentificationError(
+            f"{experiment.path}: {added[0]}: added_mass is not supported by the identification "
+            "yet; remove it and subtract the known mass from the result by hand"
+        )
+    loop_keys = sorted(set(getattr(experiment, "loop", {}) or {}) - {"delay"})
+    if loop_keys:
+        raise IdentificationError(
+            f"{experiment.path}: [loop] {loop_keys[0]}: digital-loop settings are not supported "
+            "by the identification yet (it models a continuous loop with a pure delay)"
+        )
     if delay is None:
         delay = experiment.delay
     if delay is None:
