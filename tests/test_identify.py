@@ -94,3 +94,23 @@ def test_run_with_slow_second_root_is_refined_without_false_warning():
         assert abs(getattr(r, q).value / v - 1) <= 1e-6
     exact = forward_map(plant, P, D, 0.1)
     assert abs(r.runs[-1].sigma / exact.sigma[-1] - 1) < 1e-6
+
+
+def test_no_delay_loop_noise_free_and_noisy():
+    # Δt = 0: the closed loop is exactly second order (eq. 31 with c'_i = D_i, k'_i = P_i);
+    # noise-free records give m, c, k to 1e-6 (issue 3); a noisy seeded set is within 3 stderr
+    from phoid import Plant, simulate
+
+    plant = Plant(2.0, 1.0, 64.0)
+    P, D = np.linspace(0.25, 25, 10), np.linspace(0.6, 6, 10)
+    sim = simulate(plant, P, D, delay=0.0, duration=15, fs=1000, x0=0.01, hold=0.2)
+    r = identify_data([(sim.t, sim.x[i]) for i in range(10)], P, D, 0.0)
+    assert r.warnings == ()
+    for q, v in (("m", 2.0), ("c", 1.0), ("k", 64.0)):
+        assert abs(getattr(r, q).value / v - 1) <= 1e-6
+    rng = np.random.default_rng(11)
+    sim = simulate(plant, P, D, delay=0.0, duration=15, fs=1000, x0=0.01, hold=0.2,
+                   noise=1e-4, quantum=1e-6, rng=rng)
+    r = identify_data([(sim.t, sim.x[i]) for i in range(10)], P, D, 0.0)
+    for q, v in (("m", 2.0), ("c", 1.0), ("k", 64.0)):
+        assert abs(getattr(r, q).value - v) < 3 * getattr(r, q).stderr

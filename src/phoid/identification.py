@@ -422,9 +422,6 @@ def _measure(data, P, D, delay, *, rough=None, first=None, noise=None):
         first = (list(fits), list(reasons))
     fits, reasons = list(first[0]), list(first[1])
     skips = [skip0] * n
-    if delay == 0.0:
-        # no delay: the closed loop is exactly second order, nothing to skip
-        return first, fits, reasons, skips, rough
     ok = [i for i in range(n) if reasons[i] is None]
     if rough is None and len({(P[i], D[i]) for i in ok}) >= 2:
         try:
@@ -448,23 +445,29 @@ def _measure(data, P, D, delay, *, rough=None, first=None, noise=None):
         f = fits[i]
         if f is None or rough is None or all_roots[i] is None:
             continue
-        modes = _modes(all_roots[i])
-        if len(modes) < _N_FAST + 2:
-            continue
-        fast, omitted = modes[1:_N_FAST + 1], modes[_N_FAST + 1]
-        # release amplitude scale and the first omitted mode's share of it (its residue)
         t, x = data[i]
-        x0 = float(np.max(np.abs(np.asarray(x) - f.offset)))
-        a_omit = 2.0 * abs(_residue(omitted, *rough, float(P[i]), float(D[i]), delay)) * x0
-        nsd = f.noise_sd if noise is None or noise[i] is None else min(f.noise_sd, noise[i])
-        nsd = nsd if math.isfinite(nsd) else 0.0
-        level = max(_OMIT_NOISE_FRACTION * nsd, _OMIT_FLOOR * x0)
-        skip = max(0.0, math.log(a_omit / level) / -omitted.real) if a_omit > level else 0.0
-        # never skip so much that fewer than ~3 cycles remain
-        period = 2 * math.pi / f.omega_d if f.omega_d > 0 else math.inf
-        skip = min(skip, max(skip0, (f.t_end - f.release) - 3 * period))
+        if delay == 0.0:
+            # no delay: the closed loop is exactly second order; only the release is refined
+            if releases[i] is None:
+                continue
+            fast, skip = None, 0.0
+        else:
+            modes = _modes(all_roots[i])
+            if len(modes) < _N_FAST + 2:
+                continue
+            fast, omitted = np.array(modes[1:_N_FAST + 1]), modes[_N_FAST + 1]
+            # release amplitude scale and the first omitted mode's share of it (its residue)
+            x0 = float(np.max(np.abs(np.asarray(x) - f.offset)))
+            a_omit = 2.0 * abs(_residue(omitted, *rough, float(P[i]), float(D[i]), delay)) * x0
+            nsd = f.noise_sd if noise is None or noise[i] is None else min(f.noise_sd, noise[i])
+            nsd = nsd if math.isfinite(nsd) else 0.0
+            level = max(_OMIT_NOISE_FRACTION * nsd, _OMIT_FLOOR * x0)
+            skip = max(0.0, math.log(a_omit / level) / -omitted.real) if a_omit > level else 0.0
+            # never skip so much that fewer than ~3 cycles remain
+            period = 2 * math.pi / f.omega_d if f.omega_d > 0 else math.inf
+            skip = min(skip, max(skip0, (f.t_end - f.release) - 3 * period))
         release = f.release if releases[i] is None else releases[i]
-        g, _err = _fit_run(t, x, skip, release, np.array(fast), guess=(f.sigma, f.omega_d))
+        g, _err = _fit_run(t, x, skip, release, fast, guess=(f.sigma, f.omega_d))
         if g is not None:
             fits[i], reasons[i], skips[i] = g, _unusable(g), skip
     return first, fits, reasons, skips, rough
