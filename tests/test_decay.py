@@ -653,3 +653,65 @@ def test_sample_set_is_fast(sample):
             fit_decay(t, x, skip=0.2)
         passes.append(time.perf_counter() - t0)
     assert np.median(passes) < 19 * 0.020
+
+
+# --------------------------------------------------------------------------------------------
+# internals of the solver: the tabulated evaluator against the sample-by-sample one
+
+
+@pytest.mark.parametrize("n", [15000, 15360, 4099, 64])
+@pytest.mark.parametrize("fast", [None, [-36.6 + 0j, -44.1 + 72.8j]])
+def test_table_evaluator_matches_direct(n, fast):
+    # the blocked exponential tables (moment map, padding of the last block, squared tables,
+    # fused residual) must give the same K, G x, β, residual and G r as the plain sums
+    rng = np.random.default_rng(n)
+    dt = 1e-3
+    tau = dt * np.arange(n)
+    x = 2e-4 + mode(tau, 0.5, 6.2) + 1e-4 * rng.standard_normal(n)
+    fr = None if fast is None else np.array(fast)
+    tab = decay._evaluator(tau, x, dt, fr)
+    direct = decay._Direct(tau, x, np.zeros(0, complex) if fr is None else fr)
+    assert isinstance(tab, decay._Table)
+    for sig, om in ((0.5, 6.2), (0.47, 6.25), (-0.1, 3.0), (2.0, 40.0)):
+        p, q = tab(sig, om), direct(sig, om)
+        scale = np.abs(q.K).max()
+        np.testing.assert_allclose(p.K, q.K, rtol=1e-9, atol=1e-12 * scale)
+        np.testing.assert_allclose(p.Gx, q.Gx, rtol=1e-9, atol=1e-12 * np.abs(q.Gx).max())
+        if n >= 1000:  # over 64 ms the columns are nearly collinear: β is ill-conditioned
+            np.testing.assert_allclose(p.beta, q.beta, rtol=1e-8, atol=1e-12)
+        r1, g1 = tab.residual(p)
+        r2, g2 = direct.residual(q)
+        np.testing.assert_allclose(r1, r2, rtol=0, atol=1e-12 if n >= 1000 else 1e-9)
+        # G r cancels: compare on the scale |G_i| |r| of its terms
+        tol = (1e-10 if n >= 1000 else 1e-7) * np.sqrt(np.diagonal(q.K)) * np.linalg.norm(r2)
+        assert np.all(np.abs(g1 - g2) <= tol)
+
+
+@pytest.mark.parametrize("fast", [None, [-36.6 + 0j, -44.1 + 72.8j]])
+def test_normal_equations_match_explicit_jacobian(fast):
+    # (JᵀJ)⁻¹ and Jᵀr from K (rotated rows for σ, ω_d) against J formed column by column
+    rng = np.random.default_rng(3)
+    dt = 1e-3
+    tau = dt * np.arange(3000)
+    x = mode(tau, 0.8, 7.0) + 1e-4 * rng.standard_normal(tau.size)
+    fr = None if fast is None else np.array(fast)
+    ev = decay._evaluator(tau, x, dt, fr)
+    p = ev(0.78, 7.03)
+    p.normal()  # (JᵀJ)⁻¹ is kept on the point: the call with the exact G r must reuse it right
+    r, Gr = ev.residual(p)
+    Minv, g = p.normal(Gr)
+    fresh = ev(0.78, 7.03)
+    M2, g2 = fresh.normal(ev.residual(fresh)[1])
+    np.testing.assert_array_equal(Minv, M2)
+    np.testing.assert_array_equal(g, g2)
+    a, b = p.beta[1:3]
+    z = np.exp(complex(-p.sig, p.om) * tau)
+    C, S = z.real, z.imag
+    cols = [np.ones_like(tau), C, S]
+    if fr is not None:
+        F = decay._fast_columns(tau, decay._check_fast_roots(fr))
+        cols += [np.pad(f, (0, tau.size - f.size)) for f in F]
+    cols += [-(a * tau * C + b * tau * S), b * tau * C - a * tau * S]
+    J = np.array(cols)
+    np.testing.assert_allclose(g, J @ r, rtol=1e-8, atol=1e-10 * np.abs(J @ r).max())
+    np.testing.assert_allclose(Minv, np.linalg.inv(J @ J.T), rtol=1e-7)

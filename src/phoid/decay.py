@@ -29,6 +29,7 @@ it with the roots given (``fast_roots``); see its Notes for the rule and the cos
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field, replace
 
@@ -48,7 +49,6 @@ _RELEASE_NSD = 8.0
 _MAXIT = 50
 #: a fitted mode weaker than this many noise sds (its norm over the window) is no oscillation
 _MIN_MODE_SNR = 10.0
-_TRIL5 = np.tril_indices(5, -1)
 #: logdec: extrema whose amplitude is below this many noise sds end the peak sequence
 _LOGDEC_FLOOR_NSD = 5.0
 
@@ -195,9 +195,8 @@ def _check_record(t, x) -> tuple[np.ndarray, np.ndarray]:
         raise ValueError(f"`t` and `x` must have the same length; got {t.size} and {x.size}")
     if t.size < MIN_SAMPLES:
         raise ValueError(f"`x` must hold at least {MIN_SAMPLES} samples; got {t.size}")
-    dt = np.diff(t)
-    if not np.all(dt > 0):
-        i = int(np.argmin(dt > 0))
+    if not (t[1:] > t[:-1]).all():
+        i = int(np.argmin(t[1:] > t[:-1]))
         raise ValueError(
             f"`t` must be strictly increasing; got t[{i}] = {t[i]:.9g} s, "
             f"t[{i + 1}] = {t[i + 1]:.9g} s"
@@ -267,19 +266,22 @@ def _release(t: np.ndarray, x: np.ndarray) -> tuple[int, float | None]:
         return 0, None
     # change point: x = L for t < τ, L + a (t − τ)² after (a held mass starts from rest, so the
     # motion leaves the held level quadratically); least squares over τ at the samples ≤ i1.
-    u = t[: i1 + 1] - t[i1]
-    y = x[: i1 + 1]
-    j = np.arange(i1 + 1)
+    m = i1 + 1
+    u = t[:m] - t[i1]
+    y = x[:m]
     # suffix sums over i ≥ j of u^p and y u^p, p = 0..4 (reverse cumulative sums)
-    P = np.vstack([u**p for p in range(5)])
+    P = np.empty((5, m))
+    P[0] = 1.0
+    P[1] = u
+    np.multiply(u, u, out=P[2])
+    np.multiply(P[2], u, out=P[3])
+    np.multiply(P[2], P[2], out=P[4])
     Sp = np.cumsum(P[:, ::-1], axis=1)[:, ::-1]
     Syp = np.cumsum((P[:3] * y)[:, ::-1], axis=1)[:, ::-1]
-    uj = u[j]
-    # q_i = (u_i − u_j)², Σq and Σq² over i ≥ j, Σ y q over i ≥ j
-    s_q = Sp[2] - 2 * uj * Sp[1] + uj**2 * Sp[0]
-    s_qq = Sp[4] - 4 * uj * Sp[3] + 6 * uj**2 * Sp[2] - 4 * uj**3 * Sp[1] + uj**4 * Sp[0]
-    s_yq = Syp[2] - 2 * uj * Syp[1] + uj**2 * Syp[0]
-    m = i1 + 1
+    # q_i = (u_i − u_j)², Σq and Σq² over i ≥ j, Σ y q over i ≥ j (u_j = P[1, j], u_j^p = P[p, j])
+    s_q = Sp[2] - 2 * u * Sp[1] + P[2] * Sp[0]
+    s_qq = Sp[4] - 4 * u * Sp[3] + 6 * P[2] * Sp[2] - 4 * P[3] * Sp[1] + P[4] * Sp[0]
+    s_yq = Syp[2] - 2 * u * Syp[1] + P[2] * Syp[0]
     s_y = float(np.sum(y))
     s_yy = float(np.sum(y * y))
     det = m * s_qq - s_q**2
@@ -299,22 +301,29 @@ def _release(t: np.ndarray, x: np.ndarray) -> tuple[int, float | None]:
     tt = t[lo : i2 + 1]
     yy = x[lo : i2 + 1]
     U = np.maximum(tt[None, :] - t[cand][:, None], 0.0) / max(t[i2] - t[lo], 1e-300)
-    U2 = U * U
-    U4 = U2 * U2
     y0 = yy - level
-    s2, s4, s6, s8 = U2.sum(1), U4.sum(1), (U4 * U2).sum(1), (U4 * U4).sum(1)
+    # U², U⁴, U⁶, U⁸ and their sums
+    Q = np.empty((4, *U.shape))
+    np.multiply(U, U, out=Q[0])
+    np.multiply(Q[0], Q[0], out=Q[1])
+    np.multiply(Q[1], Q[0], out=Q[2])
+    np.multiply(Q[1], Q[1], out=Q[3])
+    s2, s4, s6, s8 = Q.sum(axis=2)
     AtA = np.empty((cand.size, 3, 3))
     AtA[:, 0, 0] = yy.size
     AtA[:, 0, 1] = AtA[:, 1, 0] = s2
     AtA[:, 0, 2] = AtA[:, 2, 0] = AtA[:, 1, 1] = s4
     AtA[:, 1, 2] = AtA[:, 2, 1] = s6
     AtA[:, 2, 2] = s8
-    Aty = np.stack([np.full(cand.size, y0.sum()), U2 @ y0, U4 @ y0], axis=1)
+    Aty = np.empty((cand.size, 3))
+    Aty[:, 0] = y0.sum()
+    Aty[:, 1] = Q[0] @ y0
+    Aty[:, 2] = Q[1] @ y0
     try:
         coef = np.linalg.solve(AtA, Aty[..., None])[..., 0]
     except np.linalg.LinAlgError:
         return j0, _hold_sd(x, j0)
-    sse2 = float(y0 @ y0) - np.einsum("ci,ci->c", coef, Aty)
+    sse2 = float(y0 @ y0) - (coef * Aty).sum(1)
     jr = int(cand[np.argmin(sse2)])
     return jr, _hold_sd(x, jr)
 
@@ -368,7 +377,11 @@ def _uniform_step(tau: np.ndarray) -> float | None:
     """The sampling interval if ``tau`` is uniform to 10⁻⁹ of a step, else None."""
     n = tau.size
     dt = (tau[-1] - tau[0]) / (n - 1)
-    dev = np.max(np.abs(tau - (tau[0] + dt * np.arange(n))))
+    g = np.arange(n, dtype=float)  # the grid τ₀ + n dt, then its deviation, in place
+    g *= dt
+    g += tau[0]
+    g -= tau
+    dev = max(float(g.max()), -float(g.min()))
     return float(dt) if dev <= 1e-9 * dt else None
 
 
@@ -394,66 +407,194 @@ def _direct_basis(tau: np.ndarray, sig: float, om: float) -> np.ndarray:
     return G
 
 
-def _fast_columns(tau: np.ndarray, roots: np.ndarray) -> np.ndarray:
+def _fast_columns(tau: np.ndarray, roots: np.ndarray, dt: float | None = None) -> np.ndarray:
     """e^{rτ} (real roots) or its real and imaginary parts (complex), over the samples where
-    some column is above 10⁻¹⁶ of its start."""
+    some column is above 10⁻¹⁶ of its start. With ``dt`` (uniform sampling, τ − τ₀ = n dt)
+    the complex ones come from two short tables, e^{r dt (64 b + j)} = W_b F_j."""
     span = 37.0 / float(np.min(-roots.real))
     nf = int(np.searchsorted(tau, tau[0] + span, side="right"))
     tf = tau[:nf] - tau[0]
-    cols = []
-    for r in roots:
-        e = np.exp(r * tf)
-        cols.append(e.real)
+    cols = np.empty((roots.size + int(np.count_nonzero(roots.imag)), nf))
+    i = 0
+    for r in roots.tolist():
         if r.imag != 0:
-            cols.append(e.imag)
-    return np.array(cols)
+            if dt is not None and nf > 256:
+                ls = r * dt
+                Ft = np.exp(ls * np.arange(64.0))
+                Wt = np.exp((ls * 64) * np.arange(-(-nf // 64), dtype=float))
+                e = np.multiply.outer(Wt, Ft).ravel()[:nf]
+            else:
+                e = np.exp(r * tf)
+            cols[i] = e.real
+            cols[i + 1] = e.imag
+            i += 2
+        else:
+            np.exp(r.real * tf, out=cols[i])
+            i += 1
+    return cols
 
 
 class _Point:
     """The linear part solved at one (σ, ω_d): ``K`` = G Gᵀ, ``Gx`` = G x, ``beta`` the linear
     parameters (x_off, a, b, c₁ … c_k), ``sse`` the residual sum of squares."""
 
-    __slots__ = ("Gx", "K", "beta", "lin", "om", "sig", "sse")
+    __slots__ = ("Gx", "K", "beta", "cache", "lin", "minv", "om", "sig", "sse")
 
     def gradient(self) -> np.ndarray:
         """G r for r = x − model (the linear rows vanish at the linear optimum)."""
         return self.Gx - self.K[:, self.lin] @ self.beta
 
     def normal(self, Gr: np.ndarray | None = None):
-        """(JᵀJ)⁻¹ and Jᵀr for the parameters (linear …, σ, ω_d), J = T G."""
-        a, b = self.beta[1], self.beta[2]
-        m = self.K.shape[0]
-        T = np.zeros((m, m))
-        T[np.arange(m - 2), self.lin] = 1.0
-        T[m - 2, 3:5] = -a, -b
-        T[m - 1, 3:5] = b, -a
-        M = T @ self.K @ T.T
-        g = T @ (self.gradient() if Gr is None else Gr)
-        d = np.sqrt(np.diag(M))
-        if not np.all(d > 0):
+        """(JᵀJ)⁻¹ and Jᵀr for the parameters (linear …, σ, ω_d), J = T G.
+
+        (JᵀJ)⁻¹ depends on the point only: it is kept, and a second call (the exact gradient
+        after the tabulated one) only rotates the new G r."""
+        a, b = float(self.beta[1]), float(self.beta[2])
+        K = self.K
+        m = K.shape[0]
+        G = self.gradient() if Gr is None else Gr
+        if self.minv is not None:
+            if m == 5:
+                g = G.copy()
+            else:
+                g = G[_lin_index(m - 5)[2]]
+            g3, g4 = float(g[-2]), float(g[-1])
+            g[-2] = -a * g3 - b * g4
+            g[-1] = b * g3 - a * g4
+            return self.minv, g
+        # T = [[I_lin, 0], [0, R]] after ordering the rows (linear …, 3, 4), R = [[−a, −b],
+        # [b, −a]]: M = T K Tᵀ and T G r with the rotation applied to the last two rows/columns
+        if m == 5:
+            Minv, g = _normal5(K, G, a, b)
+            self.minv = Minv
+            return Minv, g
+        else:
+            _, _, perm, pix = _lin_index(m - 5)
+            M = K[pix]
+            g = G[perm]
+        i, j = m - 2, m - 1
+        ci, cj = M[:, i].copy(), M[:, j].copy()
+        c3 = -a * ci - b * cj
+        c4 = b * ci - a * cj
+        M[:, i] = c3
+        M[:, j] = c4
+        M[i, :] = c3
+        M[j, :] = c4
+        k33, k34, k44 = float(ci[i]), float(ci[j]), float(cj[j])
+        M[i, i] = a * a * k33 + 2 * a * b * k34 + b * b * k44
+        M[j, j] = b * b * k33 - 2 * a * b * k34 + a * a * k44
+        M[i, j] = M[j, i] = a * b * (k44 - k33) + (a * a - b * b) * k34
+        g3, g4 = float(g[i]), float(g[j])
+        g[i] = -a * g3 - b * g4
+        g[j] = b * g3 - a * g4
+        d = np.sqrt(np.diagonal(M))
+        if not (d > 0).all():
             return None, g
+        dd = np.multiply.outer(d, d)
         try:
-            Minv = np.linalg.inv(M / np.outer(d, d)) / np.outer(d, d)
+            Minv = np.linalg.inv(M / dd) / dd
         except np.linalg.LinAlgError:
             return None, g
+        self.minv = Minv
         return Minv, g
+
+
+@functools.lru_cache(maxsize=16)
+def _lin_index(k: int):
+    """For k fast columns: the linear parameters' rows ``lin`` (0, 1, 2, 5 … 4 + k), the
+    index of their block of K, and the row order (lin …, 3, 4) with its block index."""
+    lin = np.array([0, 1, 2, *range(5, 5 + k)])
+    perm = np.array([*lin.tolist(), 3, 4])
+    for a in (lin, perm):
+        a.setflags(write=False)
+    return lin, np.ix_(lin, lin), perm, np.ix_(perm, perm)
+
+
+def _normal5(K: np.ndarray, G: np.ndarray, a: float, b: float):
+    """:meth:`_Point.normal` for the 5 parameters (x_off, a, b, σ, ω_d), in scalars."""
+    k0, k1, k2, k3, k4 = K.tolist()
+    g0, g1, g2, g3, g4 = G.tolist()
+    # rows/columns 3, 4 rotated by R = [[−a, −b], [b, −a]]
+    c3 = [-a * k0[3] - b * k0[4], -a * k1[3] - b * k1[4], -a * k2[3] - b * k2[4]]
+    c4 = [b * k0[3] - a * k0[4], b * k1[3] - a * k1[4], b * k2[3] - a * k2[4]]
+    k33, k34, k44 = k3[3], k3[4], k4[4]
+    m33 = a * a * k33 + 2 * a * b * k34 + b * b * k44
+    m44 = b * b * k33 - 2 * a * b * k34 + a * a * k44
+    m34 = a * b * (k44 - k33) + (a * a - b * b) * k34
+    M = np.array(
+        [
+            [k0[0], k0[1], k0[2], c3[0], c4[0]],
+            [k1[0], k1[1], k1[2], c3[1], c4[1]],
+            [k2[0], k2[1], k2[2], c3[2], c4[2]],
+            [c3[0], c3[1], c3[2], m33, m34],
+            [c4[0], c4[1], c4[2], m34, m44],
+        ]
+    )
+    g = np.array([g0, g1, g2, -a * g3 - b * g4, b * g3 - a * g4])
+    diag = (k0[0], k1[1], k2[2], m33, m44)
+    if not all(v > 0 for v in diag):  # also False for NaN
+        return None, g
+    d = np.sqrt(diag)
+    dd = np.multiply.outer(d, d)
+    try:
+        Minv = np.linalg.inv(M / dd) / dd
+    except np.linalg.LinAlgError:
+        return None, g
+    return Minv, g
+
+
+def _solve3(k: list, y: list) -> np.ndarray | None:
+    """Solution of the symmetric 3 × 3 system k β = y, equilibrated to a unit diagonal, by
+    Gaussian elimination with partial pivoting; None if a diagonal entry is not positive or a
+    pivot vanishes (singular)."""
+    d0, d1, d2 = k[0][0], k[1][1], k[2][2]
+    if not (d0 > 0 and d1 > 0 and d2 > 0):
+        return None
+    d = (math.sqrt(d0), math.sqrt(d1), math.sqrt(d2))
+    A = [[k[i][j] / (d[i] * d[j]) for j in range(3)] + [y[i] / d[i]] for i in range(3)]
+    for c in range(3):
+        piv = max(range(c, 3), key=lambda i: abs(A[i][c]))
+        if A[piv][c] == 0.0:
+            return None
+        if piv != c:
+            A[c], A[piv] = A[piv], A[c]
+        rc = A[c]
+        for i in range(c + 1, 3):
+            f = A[i][c] / rc[c]
+            if f != 0.0:
+                ri = A[i]
+                for j in range(c, 4):
+                    ri[j] -= f * rc[j]
+    x2 = A[2][3] / A[2][2]
+    x1 = (A[1][3] - A[1][2] * x2) / A[1][1]
+    x0 = (A[0][3] - A[0][1] * x1 - A[0][2] * x2) / A[0][0]
+    return np.array([x0 / d[0], x1 / d[1], x2 / d[2]])
 
 
 class _Evaluator:
     """Solves the linear part at any (σ, ω_d); subclasses supply the 5 × 5 base sums."""
 
-    def __init__(self, tau: np.ndarray, x: np.ndarray, fast: np.ndarray):
+    def __init__(self, tau: np.ndarray, x: np.ndarray, fast: np.ndarray, dt=None):
         self.tau, self.x = tau, x
         self.xx = float(x @ x)
         # rounding of the RSS expansion xᵀx − βᵀGx, allowed for when comparing steps
         self.floor = 1e-13 * self.xx + 1e-300
-        self.F = _fast_columns(tau, fast) if fast.size else np.zeros((0, 0))
+        self.F = _fast_columns(tau, fast, dt) if fast.size else np.zeros((0, 0))
         k = self.F.shape[0]
         self.nf = self.F.shape[1] if k else 0
-        self.lin = np.r_[0, 1, 2, np.arange(5, 5 + k)].astype(int)
+        self.lin, self.lin_ix = _lin_index(k)[:2]
         if k:
             self.FF = _gram(self.F)
             self.Fx = self.F @ x[: self.nf]
+            # cross sums with the damped mode: Σ F, and (F; τF) · e^{sτ} in one product
+            self.tf = tau[: self.nf] - tau[0]
+            self.Fsum = self.F.sum(axis=1)
+            self.FT = np.vstack([self.F, self.F * self.tf])
+
+    def _head(self, sig, om):
+        """e^{s(τ − τ₀)} over the fast columns' span (after ``_base`` at the same point)."""
+        with np.errstate(over="ignore", invalid="ignore", under="ignore"):
+            return np.exp(complex(-sig, om) * self.tf)
 
     def _base(self, sig, om):  # pragma: no cover - abstract
         raise NotImplementedError
@@ -464,29 +605,54 @@ class _Evaluator:
     def __call__(self, sig: float, om: float) -> _Point | None:
         K5, Gx5 = self._base(sig, om)
         if self.nf:
-            Gp = _direct_basis(self.tau[: self.nf] - self.tau[0], sig, om)
-            X = Gp @ self.F.T
-            K = np.block([[K5, X], [X.T, self.FF]])
-            Gx = np.r_[Gx5, self.Fx]
+            # K = [[K5, X], [Xᵀ, FF]], X = G F ᵀ over the span: rows 1, C, S, τC, τS
+            k = self.F.shape[0]
+            zh = self._head(sig, om)
+            P = self.FT @ zh.view(float).reshape(-1, 2)
+            K = np.empty((5 + k, 5 + k))
+            K[:5, :5] = K5
+            X = K[:5, 5:]
+            X[0] = self.Fsum
+            X[1] = P[:k, 0]
+            X[2] = P[:k, 1]
+            X[3] = P[k:, 0]
+            X[4] = P[k:, 1]
+            K[5:, :5] = X.T
+            K[5:, 5:] = self.FF
+            Gx = np.concatenate((Gx5, self.Fx))
         else:
             K, Gx = K5, Gx5
         lin = self.lin
-        Kl = K[np.ix_(lin, lin)]
-        d = np.sqrt(np.diag(Kl))
-        if not (np.all(d > 0) and np.all(np.isfinite(K)) and np.all(np.isfinite(Gx))):
+        if not (np.isfinite(K).all() and np.isfinite(Gx).all()):
             return None
-        try:
-            beta = np.linalg.solve(Kl / np.outer(d, d), Gx[lin] / d) / d
-        except np.linalg.LinAlgError:
-            return None
+        if self.nf:
+            Kl, Gl = K[self.lin_ix], Gx[lin]
+            d = np.sqrt(np.diagonal(Kl))
+            if not (d > 0).all():
+                return None
+            try:
+                beta = np.linalg.solve(Kl / np.multiply.outer(d, d), Gl / d) / d
+            except np.linalg.LinAlgError:
+                return None
+        else:  # lin = 0, 1, 2
+            Gl = Gx[:3]
+            beta = _solve3(K[:3, :3].tolist(), Gl.tolist())
+            if beta is None:
+                return None
         p = _Point()
         p.sig, p.om, p.K, p.Gx, p.beta, p.lin = sig, om, K, Gx, beta, lin
+        p.cache = self._cache
+        p.minv = None
         # at the linear optimum RSS = xᵀx − βᵀ(Gx)_lin; recomputed from residuals at the end
-        p.sse = max(self.xx - float(beta @ Gx[lin]), 0.0)
+        p.sse = max(self.xx - float(beta @ Gl), 0.0)
         return p
+
+    #: per-point data a subclass's ``_base`` leaves for ``_model_base`` at the same point
+    _cache = None
 
     def residual(self, p: _Point) -> tuple[np.ndarray, np.ndarray]:
         """Residual r (sample by sample, no cancellation) and G r."""
+        self._cache = p.cache
         C, S = self._model_base(p.sig, p.om)
         r = self.x - (p.beta[0] + p.beta[1] * C + p.beta[2] * S)
         if self.nf:
@@ -497,6 +663,7 @@ class _Evaluator:
 
     def model(self, p: _Point) -> np.ndarray:
         """The fitted dominant mode plus offset (no fast modes)."""
+        self._cache = p.cache
         C, S = self._model_base(p.sig, p.om)
         return p.beta[0] + p.beta[1] * C + p.beta[2] * S
 
@@ -518,24 +685,77 @@ class _Direct(_Evaluator):
         return np.array([r.sum(), C @ r, S @ r, C @ tr, S @ tr])
 
 
+@functools.lru_cache(maxsize=32)
+def _table_constants(B: int, nb: int, dt: float):
+    """Per-shape constants of :class:`_Table` (cached: every record of a set shares them)."""
+    # j^p and b^p, p = 0, 1, 2, from one table of the larger range
+    m = max(B, nb)
+    pw = np.empty((m, 3))
+    pw[:, 0] = 1.0
+    pw[:, 1] = np.arange(m, dtype=float)
+    np.multiply(pw[:, 1], pw[:, 1], out=pw[:, 2])
+    jpow, bpow = pw[:B], pw[:nb]
+    j, b = jpow[:, 1], bpow[:, 1]
+    # exponents of one table [F_j; W_b] = e^{s dt [j; B b]} and its power sums in one
+    # product: Pw is block diagonal (j^p on the first B rows, b^p on the next nb)
+    jb = np.concatenate((j, B * b))
+    Pw = np.zeros((B + nb, 6), complex)
+    Pw[:B, :3] = jpow
+    Pw[B:, 3:] = bpow
+    # Σ_n n^p w^n = Σ_{p_b, p_j} c · (Σ_b b^{p_b} W_b)(Σ_j j^{p_j} F_j), n = bB + j
+    Cm = np.zeros((3, 3, 3))
+    Cm[0, 0, 0] = 1.0
+    Cm[1, 0, 1], Cm[0, 1, 1] = B, 1.0
+    Cm[2, 0, 2], Cm[1, 1, 2], Cm[0, 2, 2] = B * B, 2.0 * B, 1.0
+    Cm = Cm.reshape(9, 3).astype(complex)
+    bB = float((nb - 1) * B)
+    Cpad = np.array([[1.0, bB, bB * bB], [0.0, 1.0, 2.0 * bB], [0.0, 0.0, 1.0]], complex)
+    # K (flattened 5 × 5) as a linear map of the moments' real and imaginary parts,
+    # index 6p + 2t + c for moment p of table t (w = e^{s dt}, e^{2s dt}, e^{−2σ dt}), part c
+    A = np.zeros((25, 18))
+
+    def put(i, k, terms):
+        for coef, p_, t_, c_ in terms:
+            A[5 * i + k, 6 * p_ + 2 * t_ + c_] = coef
+            A[5 * k + i, 6 * p_ + 2 * t_ + c_] = coef
+
+    h, h1, h2 = 0.5, 0.5 * dt, 0.5 * dt * dt
+    put(0, 1, [(1.0, 0, 0, 0)])
+    put(0, 2, [(1.0, 0, 0, 1)])
+    put(0, 3, [(dt, 1, 0, 0)])
+    put(0, 4, [(dt, 1, 0, 1)])
+    put(1, 1, [(h, 0, 2, 0), (h, 0, 1, 0)])
+    put(1, 2, [(h, 0, 1, 1)])
+    put(1, 3, [(h1, 1, 2, 0), (h1, 1, 1, 0)])
+    put(1, 4, [(h1, 1, 1, 1)])
+    put(2, 2, [(h, 0, 2, 0), (-h, 0, 1, 0)])
+    put(2, 3, [(h1, 1, 1, 1)])
+    put(2, 4, [(h1, 1, 2, 0), (-h1, 1, 1, 0)])
+    put(3, 3, [(h2, 2, 2, 0), (h2, 2, 1, 0)])
+    put(3, 4, [(h2, 2, 1, 1)])
+    put(4, 4, [(h2, 2, 2, 0), (-h2, 2, 1, 0)])
+    out = (jpow, bpow, j, b, jb, Pw, Cm, Cpad, A)
+    for arr in out:
+        arr.setflags(write=False)
+    return out
+
+
 class _Table(_Evaluator):
     """Uniform sampling τ_n = n·dt: every sum over n of n^p e^{sτ_n} (p ≤ 2) and of
     y_n n^p e^{sτ_n} (p ≤ 1) factorises over n = bB + j into √n-sized exponential tables, so
     one (σ, ω_d) costs one pass over x and no transcendental function per sample."""
 
     def __init__(self, tau: np.ndarray, x: np.ndarray, fast: np.ndarray, dt: float):
-        super().__init__(tau, x, fast)
+        super().__init__(tau, x, fast, dt)
         n = x.size
         B = int(min(512, max(16, 2 ** round(math.log2(math.sqrt(n))))))
         nb = -(-n // B)
         self.n, self.B, self.nb, self.dt = n, B, nb, dt
         self.X = self._blocked(x)
-        self.j = np.arange(B, dtype=float)
-        self.b = np.arange(nb, dtype=float)
-        self.pad = np.arange(n, nb * B, dtype=float)
-        self.jpow = np.stack([np.ones(B), self.j, self.j**2], axis=1)
-        self.bpow = np.stack([np.ones(nb), self.b, self.b**2], axis=1)
-        self.padpow = np.stack([np.ones(self.pad.size), self.pad, self.pad**2], axis=1)
+        consts = _table_constants(B, nb, float(dt))
+        self.jpow, self.bpow, self.j, self.b, self.jb = consts[:5]
+        self.Pw, self.Cm, self.Cpad, self.Amap = consts[5:]
+        self.j0 = n - (nb - 1) * B  # first padding index of the last block
         self.sx = float(x.sum())
 
     def _blocked(self, y):
@@ -544,53 +764,50 @@ class _Table(_Evaluator):
         return Y.reshape(self.nb, self.B)
 
     def _tables(self, sig, om):
+        c = self._cache
+        if c is not None and c[0] == sig and c[1] == om:
+            return c[2], c[3]
         ls = complex(-sig, om) * self.dt
         with np.errstate(over="ignore", invalid="ignore", under="ignore"):
             return np.exp(ls * self.j), np.exp((ls * self.B) * self.b)
 
     def _data(self, X, F, W):
         """Σ_n y_n w^n and Σ_n n y_n w^n for blocked data X (zero-padded), w^n = W_b F_j."""
-        Fm = np.empty((self.B, 4))
-        Fm[:, 0] = F.real
-        Fm[:, 1] = F.imag
-        Fm[:, 2] = self.j * F.real
-        Fm[:, 3] = self.j * F.imag
-        P = X @ Fm
-        P0 = P[:, 0] + 1j * P[:, 1]
-        P1 = P[:, 2] + 1j * P[:, 3]
-        return W @ P0, self.B * ((self.b * W) @ P0) + W @ P1
+        Fm = np.empty((self.B, 2), complex)
+        Fm[:, 0] = F
+        np.multiply(self.j, F, out=Fm[:, 1])
+        # columns Re F, Im F, Re jF, Im jF; the product back as complex (P0, P1)
+        P = (X @ Fm.view(float)).view(complex)
+        P0 = P[:, 0]
+        return W @ P0, self.B * ((self.b * W) @ P0) + W @ P[:, 1]
 
     def _base(self, sig, om):
         """K from the moments Σ n^p w^n (p ≤ 2) of w = e^{s dt}, e^{2s dt} and e^{−2σ dt}:
-        C² = (|z|² + Re z²)/2, S² = (|z|² − Re z²)/2, CS = Im z²/2 for z = e^{sτ}."""
-        ls = complex(-sig, om) * self.dt
-        lv = np.array([ls, 2 * ls, 2 * ls.real])
+        C² = (|z|² + Re z²)/2, S² = (|z|² − Re z²)/2, CS = Im z²/2 for z = e^{sτ}.
+
+        The tables of e^{2s dt} and e^{−2σ dt} are those of e^{s dt} squared; the zero padding
+        of the last block is taken off with that block's partial sums."""
         B = self.B
         with np.errstate(over="ignore", invalid="ignore", under="ignore"):
-            Ft = np.exp(np.multiply.outer(lv, self.j))  # (3 tables, B)
-            Wt = np.exp(np.multiply.outer(lv * B, self.b))  # (3 tables, nb)
-            Fs = Ft @ self.jpow  # Σ_j j^p F_j
-            Ws = Wt @ self.bpow  # Σ_b b^p W_b
-            m0 = Ws[:, 0] * Fs[:, 0]
-            m1 = B * Ws[:, 1] * Fs[:, 0] + Ws[:, 0] * Fs[:, 1]
-            m2 = B * B * Ws[:, 2] * Fs[:, 0] + 2 * B * Ws[:, 1] * Fs[:, 1] + Ws[:, 0] * Fs[:, 2]
-            if self.pad.size:
-                pm = np.exp(np.multiply.outer(lv, self.pad)) @ self.padpow
-                m0 = m0 - pm[:, 0]
-                m1 = m1 - pm[:, 1]
-                m2 = m2 - pm[:, 2]
-            dt = self.dt
-            z0, q0, r0 = m0[0], m0[1], m0[2].real
-            z1, q1, r1 = m1[0] * dt, m1[1] * dt, m1[2].real * dt
-            q2, r2 = m2[1] * dt * dt, m2[2].real * dt * dt
-            K = np.empty((5, 5))
-            K[0] = self.n, z0.real, z0.imag, z1.real, z1.imag
-            K[1, 1:] = (r0 + q0.real) / 2, q0.imag / 2, (r1 + q1.real) / 2, q1.imag / 2
-            K[2, 2:] = (r0 - q0.real) / 2, q1.imag / 2, (r1 - q1.real) / 2
-            K[3, 3:] = (r2 + q2.real) / 2, q2.imag / 2
-            K[4, 4] = (r2 - q2.real) / 2
-            K[_TRIL5] = K.T[_TRIL5]
-            s0, s1 = self._data(self.X, Ft[0], Wt[0])
+            e = np.exp(complex(-sig * self.dt, om * self.dt) * self.jb)
+            T = np.empty((3, e.size), complex)
+            T[0] = e
+            np.multiply(e, e, out=T[1])
+            T[2] = e.real * e.real + e.imag * e.imag
+            S = T @ self.Pw  # (table, [Σ j^p F_j, Σ b^p W_b])
+            # moments m[t, p] = Σ_n n^p w_t^n over the padded blocks
+            WF = S[:, 3:, None] * S[:, None, :3]
+            m = WF.reshape(3, 9) @ self.Cm
+            if self.j0 < B:
+                # padding n = (nb − 1)B + j, j ≥ j0: the last block's partial sums
+                Ps = T[:, self.j0 : B] @ self.Pw[self.j0 : B, :3]
+                m -= T[:, -1:] * (Ps @ self.Cpad)
+            K = (self.Amap @ m.T.copy().view(float).ravel()).reshape(5, 5)
+            K[0, 0] = self.n
+            F, W = e[:B], e[B:]
+            s0, s1 = self._data(self.X, F, W)
+        self._cache = (sig, om, F, W)
+        dt = self.dt
         Gx = np.array([self.sx, s0.real, s0.imag, s1.real * dt, s1.imag * dt])
         return K, Gx
 
@@ -599,6 +816,31 @@ class _Table(_Evaluator):
         with np.errstate(over="ignore", invalid="ignore", under="ignore"):
             z = np.multiply.outer(W, F).ravel()[: self.n]
         return z.real, z.imag
+
+    def residual(self, p: _Point) -> tuple[np.ndarray, np.ndarray]:
+        """Residual r (sample by sample, no cancellation) and G r, formed in blocks:
+        a C + b S = Re((a − ib) z), z_{bB+j} = W_b F_j."""
+        self._cache = p.cache
+        F, W = self._tables(p.sig, p.om)
+        beta = p.beta
+        with np.errstate(over="ignore", invalid="ignore", under="ignore"):
+            mode = np.multiply.outer(W * complex(beta[1], -beta[2]), F)
+        R = self.X - mode.real
+        R -= beta[0]
+        flat = R.reshape(-1)
+        flat[self.n :] = 0.0  # the padding stays out of every sum
+        r = flat[: self.n]
+        if self.nf:
+            r[: self.nf] -= beta[3:] @ self.F
+        s0, s1 = self._data(R, F, W)
+        Gr5 = np.array([r.sum(), s0.real, s0.imag, s1.real * self.dt, s1.imag * self.dt])
+        Gr = np.concatenate((Gr5, self.F @ r[: self.nf])) if self.nf else Gr5
+        return r, Gr
+
+    def _head(self, sig, om):
+        F, W = self._tables(sig, om)
+        with np.errstate(over="ignore", invalid="ignore", under="ignore"):
+            return np.multiply.outer(W[: -(-self.nf // self.B)], F).ravel()[: self.nf]
 
     def _project(self, r, sig, om, C, S):
         F, W = self._tables(sig, om)
@@ -631,10 +873,14 @@ def _gauss_newton(ev, sig, om, *, maxit=None, rtol_se=0.05):
         Minv, g = p.normal()
         if Minv is None:
             return p, False, it
-        step = (Minv @ g)[-2:]
-        se = np.sqrt(np.maximum(np.diag(Minv)[-2:] * p.sse / dof, 0.0))
+        step = (Minv[-2:] @ g).tolist()
+        v = p.sse / dof
+        se0 = math.sqrt(max(float(Minv[-2, -2]) * v, 0.0))
+        se1 = math.sqrt(max(float(Minv[-1, -1]) * v, 0.0))
         scale = abs(p.sig) + abs(p.om)
-        if np.all(np.abs(step) <= np.maximum(rtol_se * se, 1e-10 * scale)):
+        if abs(step[0]) <= max(rtol_se * se0, 1e-10 * scale) and abs(step[1]) <= max(
+            rtol_se * se1, 1e-10 * scale
+        ):
             return p, True, it
         if it == maxit:
             break
@@ -648,7 +894,7 @@ def _gauss_newton(ev, sig, om, *, maxit=None, rtol_se=0.05):
             lam *= 0.5
         if new is None:
             # no descent: at the rounding floor if the step is tiny, else stuck
-            return p, bool(np.all(np.abs(step) <= 1e-6 * scale)), it
+            return p, abs(step[0]) <= 1e-6 * scale and abs(step[1]) <= 1e-6 * scale, it
         p = new
     return p, False, maxit
 
@@ -697,10 +943,17 @@ def _esprit(y: np.ndarray, dt: float, order: int = 3) -> tuple[np.ndarray, np.nd
     n = y.size
     L = max(order + 1, min(n // 3, 20))
     K = n - L + 1
-    H = np.lib.stride_tricks.sliding_window_view(y, K)[:L]
+    H = y[np.add.outer(np.arange(L), np.arange(K))]  # Hankel matrix, L × K
     w, U = np.linalg.eigh(H @ H.T)
     Us = U[:, np.argsort(w)[::-1][:order]]
-    Phi = np.linalg.lstsq(Us[:-1], Us[1:], rcond=None)[0]
+    # least squares Us[:-1] Φ = Us[1:]: with orthonormal columns Us[:-1]ᵀUs[:-1] = I − vvᵀ
+    # (v the last row), well conditioned unless |v| ≈ 1; normal equations then, else lstsq
+    v = Us[-1]
+    if float(v @ v) < 0.5:
+        A = Us[:-1]
+        Phi = np.linalg.solve(A.T @ A, A.T @ Us[1:])
+    else:
+        Phi = np.linalg.lstsq(Us[:-1], Us[1:], rcond=None)[0]
     z = np.linalg.eigvals(Phi).astype(complex)
     with np.errstate(divide="ignore", invalid="ignore", over="ignore", under="ignore"):
         s = np.log(z) / dt
@@ -764,10 +1017,13 @@ def _polish(ev, p: _Point, rtol_se: float = 0.05):
         m = p.K.shape[0]
         return p, r, np.full((m, m), np.nan)
     for _ in range(3):
-        step = (Minv @ g)[-2:]
+        step = (Minv[-2:] @ g).tolist()
         sse = float(r @ r)
-        se = np.sqrt(np.maximum(np.diag(Minv)[-2:] * sse / max(r.size - p.K.shape[0], 1), 0.0))
-        if np.all(np.abs(step) <= np.maximum(rtol_se * se, 1e-15 * (abs(p.sig) + abs(p.om)))):
+        v = sse / max(r.size - p.K.shape[0], 1)
+        se0 = math.sqrt(max(float(Minv[-2, -2]) * v, 0.0))
+        se1 = math.sqrt(max(float(Minv[-1, -1]) * v, 0.0))
+        tiny = 1e-15 * (abs(p.sig) + abs(p.om))
+        if abs(step[0]) <= max(rtol_se * se0, tiny) and abs(step[1]) <= max(rtol_se * se1, tiny):
             break
         q = ev(p.sig + step[0], abs(p.om + step[1]))
         if q is None:
@@ -950,7 +1206,7 @@ def fit_decay(
     fitted on block means of windows growing fourfold, each started from the last.
     On uniform sampling every sum the solver needs (Σ τᵖ e^{2sτ}, Σ x τᵖ e^{sτ}, …) is formed
     from two √n-long exponential tables (n = bB + j), with no transcendental per sample; one
-    fit of 15 000 samples takes about 2 ms.
+    fit of 15 000 samples takes about 1–1.4 ms.
 
     Covariance: RSS/(n − p) · (JᵀJ)⁻¹ with J the n × p Jacobian of all p parameters (5, plus
     the fast modes' amplitudes) at the optimum, its (σ, ω_d) block taken — the Cramér–Rao bound
