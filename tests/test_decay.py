@@ -715,3 +715,26 @@ def test_normal_equations_match_explicit_jacobian(fast):
     J = np.array(cols)
     np.testing.assert_allclose(g, J @ r, rtol=1e-8, atol=1e-10 * np.abs(J @ r).max())
     np.testing.assert_allclose(Minv, np.linalg.inv(J @ J.T), rtol=1e-7)
+
+
+def test_model_with_fast_modes_reproduces_the_fit_residual(sample_set_path):
+    # The fitted fast modes are part of the model: the residual of the whole model over the
+    # window must be the fit's own (residual_rms, to rounding), and the dominant mode alone is
+    # visibly worse right after the release (the fast loop modes are ~0.5 mm there).
+    import phoid
+    from phoid.loop import _rightmost_roots
+
+    run = phoid.read_experiment(sample_set_path).runs[18]
+    roots = _rightmost_roots(2.0, 1.0, 64.0, run.P, run.D, 0.1, count=8)
+    fast = [complex(r) for r in roots[2:] if r.imag >= 0][:2]
+    fit = phoid.fit_decay(run.t, run.x, release=0.2, fast_roots=fast)
+    assert len(fit.fast_modes) == 2
+    sel = (run.t >= fit.t_start) & (run.t <= fit.t_end)
+    res = run.x[sel] - fit.model(run.t[sel], fast=True)
+    assert np.sqrt(np.mean(res**2)) == pytest.approx(fit.residual_rms, rel=1e-9)
+    # over the first 50 ms the dominant mode alone leaves a systematic residual (the fast
+    # modes' mean) far beyond the noise's standard error, the whole model does not (4 se)
+    early = sel & (run.t < fit.t_start + 0.05)
+    se = fit.noise_sd / np.sqrt(np.count_nonzero(early))
+    assert abs(np.mean(run.x[early] - fit.model(run.t[early]))) > 10 * se
+    assert abs(np.mean(run.x[early] - fit.model(run.t[early], fast=True))) < 4 * se

@@ -96,6 +96,9 @@ class DecayFit:
     method : str
         ``"mode-fit"`` (:func:`fit_decay`) or ``"logdec"`` (:func:`logdec`).
     warnings : tuple of str
+    fast_modes : tuple of (complex, complex)
+        The non-dominant modes fitted alongside (``fast_roots``): pairs (root r, 1/s; complex
+        amplitude A, m), contributing Re(A e^{r(t − t_ref)}) for t ≥ t_ref.
         Reasons to distrust the estimate; empty when there are none.
     """
 
@@ -115,6 +118,7 @@ class DecayFit:
     residual_rms: float
     method: str
     warnings: tuple[str, ...] = ()
+    fast_modes: tuple[tuple[complex, complex], ...] = ()
 
     def __post_init__(self) -> None:
         cov = np.array(self.cov, dtype=float, copy=True).reshape(2, 2)
@@ -137,13 +141,16 @@ class DecayFit:
         """The dominant root s = −σ + iω_d, 1/s."""
         return complex(-self.sigma, self.omega_d)
 
-    def model(self, t: np.ndarray | float) -> np.ndarray:
+    def model(self, t: np.ndarray | float, *, fast: bool = False) -> np.ndarray:
         """The fitted dominant mode x(t) = offset + A e^{−στ} sin(ω_d τ − φ₀), τ = t − t_ref.
 
         Parameters
         ----------
         t : array_like
             Times, s.
+        fast : bool, default False
+            Add the fitted non-dominant modes (:attr:`fast_modes`) for t ≥ t_ref: the whole
+            fitted model, e.g. for residuals right after the release.
 
         Returns
         -------
@@ -153,7 +160,12 @@ class DecayFit:
         tau = np.asarray(t, dtype=float) - self.t_ref
         with np.errstate(over="ignore", invalid="ignore"):
             env = self.amplitude * np.exp(-self.sigma * tau)
-            return self.offset + env * np.sin(self.omega_d * tau - self.phase)
+            out = self.offset + env * np.sin(self.omega_d * tau - self.phase)
+            if fast:
+                after = np.maximum(tau, 0.0)
+                for r, A in self.fast_modes:
+                    out = out + np.where(tau >= 0, np.real(A * np.exp(r * after)), 0.0)
+        return out
 
     def summary(self) -> dict:
         """Plain JSON-ready summary (floats, strings, lists; NaN becomes None)."""
@@ -1297,6 +1309,15 @@ def fit_decay(
     rss = float(r @ r)
     s2 = rss / max(n - p.K.shape[0], 1)
     amp, phase = _phase_amp(a, b)
+    # the fast columns are e^{rτ} (real r) or Re, Im of e^{rτ}: amplitude A with Re(A e^{rτ})
+    fast_modes, j = [], 3
+    for root in fast.tolist():
+        if root.imag != 0:
+            fast_modes.append((complex(root), complex(p.beta[j], -p.beta[j + 1])))
+            j += 2
+        else:
+            fast_modes.append((complex(root), complex(p.beta[j])))
+            j += 1
     fit = DecayFit(
         sigma=float(sig),
         omega_d=float(om),
@@ -1313,6 +1334,7 @@ def fit_decay(
         noise_sd=math.sqrt(s2),
         residual_rms=math.sqrt(rss / n),
         method="mode-fit",
+        fast_modes=tuple(fast_modes),
     )
     floor = noise_sd if noise_sd is not None else max(fit.noise_sd, 1e-15 * ptp)
     cycles = _cycles(amp, sig, om, float(tw[-1] - tw[0]), floor)

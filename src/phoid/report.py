@@ -87,8 +87,9 @@ def plot_identification(ident: Identification, out_dir: str | Path) -> list[Path
         ax, axr = fig.subplots(2, 1, sharex=True, height_ratios=[3, 1])
         ax.plot(t, x * 1e3, lw=0.6, color="0.5", label="record")
         sel = (t >= r.fit.t_start) & (t <= r.fit.t_end)
-        model = r.fit.model(t[sel])
-        ax.plot(t[sel], model * 1e3, lw=1.0, color="C0", label="fitted dominant mode")
+        model = r.fit.model(t[sel], fast=True)
+        label = "fitted dominant mode" + (" + fast loop modes" if r.fit.fast_modes else "")
+        ax.plot(t[sel], model * 1e3, lw=1.0, color="C0", label=label)
         ax.axvline(r.fit.release, color="C3", ls=":", lw=1, label="release")
         ax.set_ylabel("x (mm)")
         ax.set_title(f"{r.file}: P = {r.P:g} N/m, D = {r.D:g} N s/m, "
