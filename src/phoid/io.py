@@ -174,6 +174,18 @@ def _optional_number(where: str, key: str, value: Any, **kw: Any) -> float | Non
     return None if value is None else _number(where, key, value, **kw)
 
 
+def _checked_extra(where: str, extra: Any, known: Any, what: str) -> Mapping[str, Any]:
+    """Validate the unknown keys kept beside a table's known ones and freeze them."""
+    extra = extra if extra is not None else {}
+    if not isinstance(extra, Mapping):
+        _fail(where, f"`extra` must be a mapping; got {_kind(extra)}")
+    for k in extra:
+        if not isinstance(k, str) or k in known:
+            _fail(where, f"`extra` may not hold the key {_show(k)}: it is not an extra key")
+    _case_clash(where, extra, known, what)
+    return _freeze(extra)
+
+
 def _case_clash(where: str, keys: Iterable[str], known: Sequence[str], table: str) -> None:
     """Reject keys that differ from a known key only by letter case."""
     lower = {k.lower(): k for k in known}
@@ -335,14 +347,7 @@ class Run:
         set_(self, "omega", _optional_number(where, "omega", self.omega, minimum=0.0,
                                              strict=True))
         set_(self, "added_mass", _number(where, "added_mass", self.added_mass, minimum=0.0))
-        extra = self.extra if self.extra is not None else {}
-        if not isinstance(extra, Mapping):
-            _fail(where, f"`extra` must be a mapping; got {_kind(extra)}")
-        for k in extra:
-            if not isinstance(k, str) or k in _RUN_KEYS:
-                _fail(where, f"`extra` may not hold the key {_show(k)}: it is not an extra key")
-        _case_clash(where, extra, _RUN_KEYS, "the run's table")
-        set_(self, "extra", _freeze(extra))
+        set_(self, "extra", _checked_extra(where, self.extra, _RUN_KEYS, "the run's table"))
 
     @property
     def name(self) -> str:
@@ -426,14 +431,7 @@ class ExperimentSet:
         set_(self, "mass", _optional_number(where, "mass", self.mass, minimum=0.0,
                                             strict=True))
         set_(self, "loop", _freeze(loop))
-        extra = self.extra if self.extra is not None else {}
-        if not isinstance(extra, Mapping):
-            _fail(where, f"`extra` must be a mapping; got {_kind(extra)}")
-        for k in extra:
-            if not isinstance(k, str) or k in _TOP_KEYS:
-                _fail(where, f"`extra` may not hold the key {_show(k)}: it is not an extra key")
-        _case_clash(where, extra, _TOP_KEYS, "the manifest")
-        set_(self, "extra", _freeze(extra))
+        set_(self, "extra", _checked_extra(where, self.extra, _TOP_KEYS, "the manifest"))
         runs = tuple(self.runs) if isinstance(self.runs, Iterable) else self.runs
         if not isinstance(runs, tuple) or not runs:
             _fail(where, "no runs: the manifest needs at least one [[run]] table")
