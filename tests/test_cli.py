@@ -116,3 +116,20 @@ def test_identify_refuses_keys_it_cannot_honour_yet(simulated, tmp_path, edit, n
     manifest.write_text(edit(manifest.read_text()))
     assert needle in manifest.read_text()
     one_line_error(runner.invoke(app, ["identify", str(bad)]), needle, "not supported")
+
+
+def test_unexpected_failure_is_one_line_exit_1(monkeypatch, capsys):
+    # a fault inside phoid (not the user's) still never shows a traceback
+    import phoid.cli as cli
+    import phoid.paper as paper
+
+    def boom(**_kw):
+        raise RuntimeError("root certification failed\nsecond line")
+
+    monkeypatch.setattr(paper, "reproduce_table1", boom)
+    monkeypatch.setattr("sys.argv", ["phoid", "paper"])
+    with pytest.raises(SystemExit) as exit_info:
+        cli.main()
+    assert exit_info.value.code == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "internal error" in err[0] and "root certification" in err[0]

@@ -74,3 +74,8 @@ def test_bad_option_value_is_one_line_exit_2(tmp_path):
     assert r.exit_code == 2
     assert "Traceback" not in r.output
     assert "fs" in r.output
+
+
+def test_too_short_a_record_is_a_user_error(tmp_path):
+    r = CliRunner().invoke(app, ["paper", "--duration", "0.05", "--out", str(tmp_path)])
+    assert r.exit_code == 2 and "duration" in r.output and "Traceback" not in r.output

@@ -236,11 +236,25 @@ def simulate(
 
 
 def main() -> None:
-    """Console entry point."""
+    """Console entry point.
+
+    Errors a user can cause exit with status 2 and one line (see the commands). Anything else is
+    a fault of phoid's: it too is reported in one line, with exit status 1, never a traceback
+    (set PHOID_DEBUG=1 to see one).
+    """
+    import os
+
     try:
         app()
     except KeyboardInterrupt:
         sys.exit(130)
+    except Exception as exc:  # the last line of defence of a command-line tool
+        if os.environ.get("PHOID_DEBUG"):
+            raise
+        msg = " ".join(str(exc).split()) or type(exc).__name__
+        print(f"phoid: internal error ({type(exc).__name__}): {msg} -- please report it",
+              file=sys.stderr)
+        sys.exit(1)
 
 
 if __name__ == "__main__":
