@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from phoid import _validate as v
-from phoid.plant import Plant
+from phoid.plant import Plant, _quadratic_roots
 
 __all__ = [
     "DelayedPD",
@@ -327,22 +327,6 @@ def _rightmost_roots_many(m, c, k, P, D, tau, *, count=6):
         cut = next((g + 1 for g in gaps if g + 1 >= count), r.size)
         trimmed.append(r[:cut])
     return trimmed
-
-
-def _quadratic_roots(a2: float, a1: float, a0: float) -> np.ndarray:
-    """Roots of a2 s² + a1 s + a0 (a2 > 0), rightmost first, without cancellation."""
-    sigma = a1 / (2 * a2)
-    w0sq = a0 / a2
-    q = sigma * sigma - w0sq
-    w = math.sqrt(abs(q))
-    if q >= 0:
-        if sigma > 0:
-            slow, fast = -w0sq / (sigma + w), -sigma - w
-        else:
-            slow = -sigma + w
-            fast = w0sq / slow if slow != 0 else -sigma - w
-        return np.array([complex(slow), complex(fast)])
-    return np.array([complex(-sigma, w), complex(-sigma, -w)])
 
 
 def _unique(z: np.ndarray, rtol: float = 1e-8) -> np.ndarray:

@@ -98,6 +98,26 @@ def free_response(
     return x, xdot
 
 
+def _quadratic_roots(a2: float, a1: float, a0: float) -> np.ndarray:
+    """Roots of a2 s² + a1 s + a0 (a2 > 0), rightmost first, without cancellation.
+
+    Real roots: the slow one is −ω₀²/(σ + w) (σ = a1/2a2, ω₀² = a0/a2, w = √(σ² − ω₀²)), so it
+    keeps full precision for ζ ≫ 1 (eqs. 3–5); also used for the delay-free closed loop.
+    """
+    sigma = a1 / (2 * a2)
+    w0sq = a0 / a2
+    q = sigma * sigma - w0sq
+    w = math.sqrt(abs(q))
+    if q >= 0:
+        if sigma > 0:
+            slow, fast = -w0sq / (sigma + w), -sigma - w
+        else:
+            slow = -sigma + w
+            fast = w0sq / slow if slow != 0 else -sigma - w
+        return np.array([complex(slow), complex(fast)])
+    return np.array([complex(-sigma, w), complex(-sigma, -w)])
+
+
 @dataclass(frozen=True)
 class Plant:
     """A mass–spring–damper with optional Coulomb friction (seed eq. 1).
@@ -168,14 +188,7 @@ class Plant:
 
         Computed without cancellation: for real roots the slow one is −ω₀²/(σ + w).
         """
-        s, w0sq = self.sigma, self.k / self.m
-        q = s * s - w0sq
-        w = math.sqrt(abs(q))
-        if q >= 0:
-            fast = -s - w
-            slow = -w0sq / (s + w) if s + w > 0 else 0.0
-            return np.array([complex(slow), complex(fast)])
-        return np.array([complex(-s, w), complex(-s, -w)])
+        return _quadratic_roots(self.m, self.c, self.k)
 
     def free_response(
         self, t: np.ndarray | float, x0: float, v0: float = 0.0
