@@ -36,8 +36,9 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from phoid import _validate as v
+from phoid._threads import single_blas_thread
 
-__all__ = ["DecayFit", "detect_release", "fit_decay", "logdec"]
+__all__ = ["DecayFit", "DecayStart", "detect_release", "fit_decay", "logdec", "start_decay"]
 
 #: fewest samples a record (and a fitted window) must hold
 MIN_SAMPLES = 16
@@ -1019,6 +1020,89 @@ def _initial_guess(xg: np.ndarray, dt: float, per: float, noise: float):
     return sig, math.pi / T, False, n_act
 
 
+def _staged(xg: np.ndarray, dt: float, per: float, sig: float, om: float) -> tuple[float, float]:
+    """Refine a start (σ, ω_d) made from 40 periods of a barely damped record with many more:
+    fit block means (~32 a period) of windows growing fourfold, each from the last."""
+    q = max(1, int(per // 32))
+    yb = _blocks(xg, q)
+    tb = dt * (q * np.arange(yb.size) + 0.5 * (q - 1))
+    lim = 40 * per * dt
+    while True:
+        m = int(np.searchsorted(tb, lim, side="right"))
+        if m >= MIN_SAMPLES:
+            r = _gauss_newton(_evaluator(tb[:m], yb[:m], dt * q), sig, om)
+            if r is not None:
+                sig, om = r[0].sig, r[0].om
+        if lim >= tb[-1]:
+            break
+        lim = min(4.0 * lim, tb[-1])
+    return sig, om
+
+
+@dataclass(frozen=True)
+class DecayStart:
+    """What :func:`start_decay` learns from a record cheaply: enough to plan a full fit.
+
+    Attributes
+    ----------
+    sigma, omega_d : float
+        Estimate of the dominant mode (1/s, rad/s): the Gauss–Newton optimum of
+        :func:`fit_decay` (or only its ESPRIT start, see :func:`start_decay`).
+    oscillating : bool
+        Whether a complex dominant pair was found and, with ``refine``, the fit converged on it
+        (else σ, ω_d are no more than a bland start).
+    release : float
+        Release time, s (detected, as in :func:`detect_release`).
+    offset : float
+        Median of the window, m (a rough level for amplitude scales).
+    noise_sd : float
+        Noise sd, m: of the held segment, else from second differences of the tail.
+    t_start, t_end : float
+        The window, s.
+    """
+
+    sigma: float
+    omega_d: float
+    oscillating: bool
+    release: float
+    offset: float
+    noise_sd: float
+    t_start: float
+    t_end: float
+
+
+def start_decay(t, x, *, release=None, skip=0.0, refine=True) -> DecayStart:
+    """The first stages of :func:`fit_decay`: release, noise, window, start and Gauss–Newton.
+
+    What is left out is what a full fit adds for reporting: the exact residual, covariance and
+    warnings. :func:`fit_decay` with ``guess=(start.sigma, start.omega_d)`` and
+    ``release=start.release`` continues from it. With ``refine=False`` only the ESPRIT start
+    is made (within about one standard error of the optimum on the seed paper's sweep, but
+    lost on records where a slow non-dominant real mode is strong). Raises ValueError as
+    :func:`fit_decay` does for unusable input.
+    """
+    t, x = _check_record(t, x)
+    release, hold_sd, tw, xw = _window(t, x, release, skip, None)
+    tau = tw - tw[0]
+    noise = hold_sd if hold_sd else _diff_noise(xw[-4096:])
+    noise = max(noise, 1e-15 * float(np.ptp(xw)))
+    xg, dt, _udt = _uniform(tau, xw)
+    per = _dominant_period(xg)
+    sig, om, oscill, n_act = _initial_guess(xg, dt, per, noise)
+    if oscill and n_act > 40 * per:
+        sig, om = _staged(xg, dt, per, sig, om)
+    if refine and oscill:
+        # a start the fit cannot confirm (no convergence) is no oscillating start
+        res = _gauss_newton(_evaluator(tau, xw, _udt), sig, om)
+        oscill = res is not None and res[1]
+        if oscill:
+            sig, om = res[0].sig, res[0].om
+    return DecayStart(
+        sigma=float(sig), omega_d=float(om), oscillating=bool(oscill), release=float(release),
+        offset=_med(xw), noise_sd=float(noise), t_start=float(tw[0]), t_end=float(tw[-1]),
+    )
+
+
 def _polish(ev, p: _Point, rtol_se: float = 0.05):
     """Exact residual at the Gauss–Newton optimum (sample by sample) and up to three more
     steps with the exact gradient while they are not negligible (below ``rtol_se`` standard
@@ -1155,6 +1239,7 @@ def _check_fast_roots(fast_roots) -> np.ndarray:
     return np.array(keep, dtype=complex)
 
 
+@single_blas_thread
 def fit_decay(
     t, x, *, release=None, skip=0.0, t_end=None, noise_sd=None, fast_roots=None, guess=None
 ) -> DecayFit:
@@ -1278,21 +1363,7 @@ def fit_decay(
         per = _dominant_period(xg)
         sig, om, oscill, n_act = _initial_guess(xg, dt, per, noise)
     if oscill and n_act > 40 * per:
-        # barely damped: the start saw 40 periods of many more; fit block means (~32 a period)
-        # of windows growing fourfold, each from the last, before the full-resolution fit
-        q = max(1, int(per // 32))
-        yb = _blocks(xg, q)
-        tb = dt * (q * np.arange(yb.size) + 0.5 * (q - 1))
-        lim = 40 * per * dt
-        while True:
-            m = int(np.searchsorted(tb, lim, side="right"))
-            if m >= MIN_SAMPLES:
-                r = _gauss_newton(_evaluator(tb[:m], yb[:m], dt * q), sig, om)
-                if r is not None:
-                    sig, om = r[0].sig, r[0].om
-            if lim >= tb[-1]:
-                break
-            lim = min(4.0 * lim, tb[-1])
+        sig, om = _staged(xg, dt, per, sig, om)
     ev = _evaluator(tau, xw, udt, fast)
     res = _gauss_newton(ev, sig, om)
     if res is None:  # the start overflowed: fall back to a bland one
@@ -1468,6 +1539,7 @@ def _extrema(tw, xw, offset, noise, per_t):
     return lobes
 
 
+@single_blas_thread
 def logdec(t, x, *, release=None, skip=0.0) -> DecayFit:
     """σ and ω_d by the logarithmic decrement of all the extrema above the noise floor.
 

@@ -26,7 +26,8 @@ from typing import Any
 import numpy as np
 from scipy import stats
 
-from phoid.decay import DecayFit, fit_decay
+from phoid._threads import single_blas_thread
+from phoid.decay import DecayFit, fit_decay, start_decay
 from phoid.errors import IdentificationError
 from phoid.loop import _rightmost_roots_many, characteristic
 from phoid.pho import Estimate, MCKFit, fit_lines, fit_modes
@@ -235,8 +236,10 @@ def _modes(roots: np.ndarray) -> list[complex]:
 
 def _fit_run(t, x, skip, release, fast_roots=None, guess=None):
     try:
-        return fit_decay(t, x, release=release, skip=skip, fast_roots=fast_roots,
-                         guess=guess), None
+        # the undecorated function: identify_data already runs with one BLAS thread
+        fit = fit_decay.__wrapped__(t, x, release=release, skip=skip, fast_roots=fast_roots,
+                                    guess=guess)
+        return fit, None
     except (ValueError, RuntimeError, np.linalg.LinAlgError) as exc:
         return None, str(exc)
 
@@ -400,11 +403,23 @@ def measure_modes(
     return fits, reasons, skips
 
 
+def _start_run(t, x, skip):
+    try:
+        return start_decay(t, x, skip=skip), None
+    except (ValueError, RuntimeError, np.linalg.LinAlgError) as exc:
+        return None, str(exc)
+
+
 def _measure(data, P, D, delay, *, rough=None, first=None, noise=None):
     """Both passes of :func:`measure_modes`; with ``rough`` (m, c, k) given, the loop modes come
-    from it, and with ``first`` (the first pass's fits and reasons) that pass is not redone.
-    ``noise`` (m, per run) replaces the first pass's residual sd as the noise level (that
-    residual includes the fast modes the first pass does not model).
+    from it, and with ``first`` (the first pass's starts) that pass is not redone. ``noise``
+    (m, per run) replaces the first pass's noise level.
+
+    The first pass is only the starting stage of the decay fit (:func:`phoid.decay.start_decay`:
+    release, noise, window, and (σ, ω_d) from ESPRIT on the record after 3Δt): it is within
+    about one standard error of a full fit, which is all the rough plant needs, at a third of
+    the cost. Each run is then fitted once, in full: from the release with the loop's fast
+    modes where the rough plant gives them, else a single mode after 3Δt.
 
     Returns (first, fits, reasons, skips, rough).
     """
@@ -413,28 +428,24 @@ def _measure(data, P, D, delay, *, rough=None, first=None, noise=None):
     D = np.asarray(D, dtype=float)
     skip0 = 3.0 * delay
     if first is None:
-        fits: list[DecayFit | None] = []
-        reasons: list[str | None] = []
-        for t, x in data:
-            f, err = _fit_run(t, x, skip0, None)
-            fits.append(f)
-            reasons.append(err if f is None else _unusable(f))
-        first = (list(fits), list(reasons))
-    fits, reasons = list(first[0]), list(first[1])
+        first = [_start_run(t, x, skip0) for t, x in data]
+    starts = [st for st, _err in first]
+    fits: list[DecayFit | None] = [None] * n
+    reasons: list[str | None] = [err for _st, err in first]
     skips = [skip0] * n
-    ok = [i for i in range(n) if reasons[i] is None]
+    ok = [i for i in range(n) if starts[i] is not None and starts[i].oscillating]
     if rough is None and len({(P[i], D[i]) for i in ok}) >= 2:
         try:
-            lines = fit_lines([fits[i].sigma for i in ok], [fits[i].omega_d for i in ok],
+            lines = fit_lines([starts[i].sigma for i in ok], [starts[i].omega_d for i in ok],
                               P[ok], D[ok], delay)
             if lines.m > 0:
                 rough = (lines.m, lines.c, lines.k)
         except (ValueError, np.linalg.LinAlgError):
             rough = None
-    releases = _model_releases(data, fits, rough, P, D, delay) if rough else [None] * n
+    releases = _model_releases(data, starts, rough, P, D, delay) if rough else [None] * n
     all_roots: list[np.ndarray | None] = [None] * n
-    todo = [i for i in range(n) if fits[i] is not None]
-    if rough is not None and todo:
+    todo = [i for i in range(n) if starts[i] is not None]
+    if rough is not None and todo and delay > 0.0:
         try:
             for i, r in zip(todo, _rightmost_roots_many(*rough, P[todo], D[todo], delay,
                                                         count=2 * _N_FAST + 4), strict=True):
@@ -442,34 +453,41 @@ def _measure(data, P, D, delay, *, rough=None, first=None, noise=None):
         except (RuntimeError, ValueError):
             pass
     for i in range(n):
-        f = fits[i]
-        if f is None or rough is None or all_roots[i] is None:
+        st = starts[i]
+        if st is None:
             continue
         t, x = data[i]
-        if delay == 0.0:
-            # no delay: the closed loop is exactly second order; only the release is refined
-            if releases[i] is None:
-                continue
-            fast, skip = None, 0.0
-        else:
-            modes = _modes(all_roots[i])
-            if len(modes) < _N_FAST + 2:
-                continue
+        g = None
+        release = st.release if releases[i] is None else releases[i]
+        if st.oscillating and releases[i] is not None and delay == 0.0:
+            # no delay: the closed loop is exactly second order; fit from the refined release
+            g, _err = _fit_run(t, x, 0.0, release, None, guess=(st.sigma, st.omega_d))
+            skip = 0.0
+        elif all_roots[i] is not None and len(modes := _modes(all_roots[i])) >= _N_FAST + 2:
             fast, omitted = np.array(modes[1:_N_FAST + 1]), modes[_N_FAST + 1]
             # release amplitude scale and the first omitted mode's share of it (its residue)
-            x0 = float(np.max(np.abs(np.asarray(x) - f.offset)))
+            x0 = float(np.max(np.abs(np.asarray(x) - st.offset)))
             a_omit = 2.0 * abs(_residue(omitted, *rough, float(P[i]), float(D[i]), delay)) * x0
-            nsd = f.noise_sd if noise is None or noise[i] is None else min(f.noise_sd, noise[i])
+            nsd = st.noise_sd if noise is None or noise[i] is None else min(st.noise_sd, noise[i])
             nsd = nsd if math.isfinite(nsd) else 0.0
             level = max(_OMIT_NOISE_FRACTION * nsd, _OMIT_FLOOR * x0)
             skip = max(0.0, math.log(a_omit / level) / -omitted.real) if a_omit > level else 0.0
             # never skip so much that fewer than ~3 cycles remain
-            period = 2 * math.pi / f.omega_d if f.omega_d > 0 else math.inf
-            skip = min(skip, max(skip0, (f.t_end - f.release) - 3 * period))
-        release = f.release if releases[i] is None else releases[i]
-        g, _err = _fit_run(t, x, skip, release, fast, guess=(f.sigma, f.omega_d))
-        if g is not None:
-            fits[i], reasons[i], skips[i] = g, _unusable(g), skip
+            period = 2 * math.pi / st.omega_d if st.omega_d > 0 else math.inf
+            skip = min(skip, max(skip0, (st.t_end - st.release) - 3 * period))
+            # start from the run's own mode, or where the data gave none, the rough loop's
+            guess = (st.sigma, st.omega_d) if st.oscillating else (-modes[0].real, modes[0].imag)
+            if guess[1] > 0:
+                g, _err = _fit_run(t, x, skip, release, fast, guess=guess)
+        if g is None:
+            # no loop modes (no rough plant, a non-oscillating start, or that fit failed): one
+            # mode after 3Δt from the data-only start, as a plain fit_decay would do
+            skip = skip0
+            g, err = _fit_run(t, x, skip0, st.release)
+            if g is None:
+                reasons[i] = err
+                continue
+        fits[i], reasons[i], skips[i] = g, _unusable(g), skip
     return first, fits, reasons, skips, rough
 
 
@@ -551,6 +569,7 @@ def identify(
     )
 
 
+@single_blas_thread
 def identify_data(
     data: Sequence[tuple[np.ndarray, np.ndarray]],
     P: np.ndarray,
@@ -584,7 +603,7 @@ def identify_data(
         wd = np.array([fits[i].omega_d for i in used])
         cov = np.array([fits[i].cov for i in used])
         if estimator == "gls":
-            return fit_modes(sig, wd, cov, P[used], D[used], delay)
+            return fit_modes.__wrapped__(sig, wd, cov, P[used], D[used], delay)
         return fit_lines(sig, wd, P[used], D[used], delay, compensate=compensate)
 
     mck = combine(fits, used)

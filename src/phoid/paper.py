@@ -19,6 +19,7 @@ from typing import Any
 
 import numpy as np
 
+from phoid._threads import single_blas_thread
 from phoid.identification import measure_modes
 from phoid.loop import forward_map
 from phoid.pho import MCKFit, fit_lines
@@ -128,6 +129,7 @@ class PaperResult:
         return "\n".join(rows)
 
 
+@single_blas_thread
 def reproduce_table1(*, duration: float = 15.0, fs: float = 1000.0, x0: float = 0.01,
                      hold: float = 0.2) -> PaperResult:
     """Simulate the paper's 19 runs and identify m, c, k with and without compensation.

@@ -26,6 +26,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import stats
 
+from phoid._threads import single_blas_thread
 from phoid.errors import IdentificationError
 from phoid.loop import (
     _rightmost_roots,
@@ -235,6 +236,7 @@ def _whiteners(cov: np.ndarray) -> np.ndarray:
     return out
 
 
+@single_blas_thread
 def fit_modes(
     sigma: np.ndarray,
     omega_d: np.ndarray,

@@ -1,0 +1,40 @@
+"""One BLAS thread inside phoid's hot paths.
+
+phoid's numerical work is many small matrix products (a few thousand elements at most). With
+OpenBLAS's default of one thread per core, each such product wakes a thread pool whose workers
+spin while they wait: on an idle machine that costs a little, on a busy one (another process on
+every core — a test runner, a second phoid) it made an identification ten times slower (77 ms
+of CPU time became 950 ms on the 2-core development machine). The public entry points that do
+the work therefore run with the BLAS pools limited to one thread, through threadpoolctl (the
+library scikit-learn and joblib use for this), and restore the caller's setting on return.
+"""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Callable
+from typing import Any, TypeVar
+
+F = TypeVar("F", bound=Callable[..., Any])
+
+_controller: Any = None
+
+
+def _limit() -> Any:
+    global _controller
+    if _controller is None:
+        from threadpoolctl import ThreadpoolController
+
+        _controller = ThreadpoolController()
+    return _controller.limit(limits=1, user_api="blas")
+
+
+def single_blas_thread(func: F) -> F:
+    """Decorator: run ``func`` with every BLAS thread pool limited to one thread."""
+
+    @functools.wraps(func)
+    def wrapper(*args: Any, **kwargs: Any) -> Any:
+        with _limit():
+            return func(*args, **kwargs)
+
+    return wrapper  # type: ignore[return-value]
