@@ -586,17 +586,30 @@ def test_run_with_fewer_than_three_cycles_is_flagged():
 
 
 def test_delay_omitted_from_manifest(tmp_path):
+    # three distinct gain pairs: the delay is estimated with m, c, k (issue 6), and the JSON
+    # says so with a stderr; the truth (MIXED.delay) lies within 3 of them
     data, P, D, _ = Design(MIXED.plant, MIXED.delay,
                            ((1000.0, 4.0, ((0.8, 6.0), (1.5, 12.0), (1.0, 16.0))),)).simulate()
     path = write_set(tmp_path / "nd", data, P, D, None)
-    with pytest.raises(IdentificationError, match=r"\[loop\] delay is not given"):
-        identify(read_experiment(path))
-    for extra in ([], ["--json"]):
-        one_line_error(runner.invoke(app, ["identify", str(tmp_path / "nd"), *extra]),
-                       str(path), "[loop] delay")
-    # the delay given on the command line instead: identified
+    res = identify(read_experiment(path))
+    assert res.delay_source == "estimated" and res.delay_stderr > 0
+    assert abs(res.delay - MIXED.delay) < 3 * res.delay_stderr
+    r = runner.invoke(app, ["identify", str(tmp_path / "nd"), "--json"])
+    assert r.exit_code == 0, r.output
+    out = json.loads(r.stdout)
+    assert out["delay"]["source"] == "estimated" and out["delay"]["stderr"] > 0
+    # the delay given on the command line instead: used as given
     r = runner.invoke(app, ["identify", str(tmp_path / "nd"), "--json", "--delay", "0.02"])
     assert r.exit_code == 0, r.output
+    assert json.loads(r.stdout)["delay"] == {"value": 0.02, "stderr": None, "unit": "s",
+                                              "source": "given"}
+    # two distinct gain pairs cannot fix a delay: one-line error naming the set
+    path2 = write_set(tmp_path / "nd2", data[:2], P[:2], D[:2], None)
+    with pytest.raises(IdentificationError, match="at least three"):
+        identify(read_experiment(path2))
+    for extra in ([], ["--json"]):
+        one_line_error(runner.invoke(app, ["identify", str(tmp_path / "nd2"), *extra]),
+                       str(path2), "three")
 
 
 # --------------------------------------------------------------------------------------------

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -30,7 +30,7 @@ from phoid._threads import single_blas_thread
 from phoid.decay import DecayFit, fit_decay, start_decay
 from phoid.errors import IdentificationError
 from phoid.loop import _rightmost_roots_many, characteristic
-from phoid.pho import Estimate, MCKFit, fit_lines, fit_modes
+from phoid.pho import Estimate, MCKFit, delay_profile, fit_lines, fit_modes
 
 __all__ = ["Identification", "RunMode", "identify", "measure_modes"]
 
@@ -114,9 +114,11 @@ class Identification:
     m, c, k : Estimate
         Mass (kg), viscous damping (N s/m), stiffness (N/m).
     delay : float
-        Loop delay used, s.
+        Loop delay used (given) or estimated, s.
     delay_source : str
-        ``"given"`` (from the manifest or the caller).
+        ``"given"`` (from the manifest or the caller) or ``"estimated"``.
+    delay_stderr : float or None
+        Standard error of an estimated delay, s.
     runs : tuple of RunMode
     fit : MCKFit
         The underlying fit (covariance, eq. 35 lines, χ²).
@@ -134,6 +136,7 @@ class Identification:
     fit: MCKFit
     warnings: tuple[str, ...] = ()
     source: str = ""
+    delay_stderr: float | None = None
     data: tuple[tuple[np.ndarray, np.ndarray], ...] = field(default=(), repr=False)
 
     @property
@@ -174,8 +177,9 @@ class Identification:
             "m": self.m.to_dict(),
             "c": self.c.to_dict(),
             "k": self.k.to_dict(),
-            "delay": {"value": float(self.delay), "stderr": None, "unit": "s",
-                      "source": self.delay_source},
+            "delay": {"value": float(self.delay),
+                      "stderr": None if self.delay_stderr is None else float(self.delay_stderr),
+                      "unit": "s", "source": self.delay_source},
             "runs": [r.to_dict() for r in self.runs],
             "warnings": list(self.warnings),
         }
@@ -550,17 +554,16 @@ def identify(
         )
     if delay is None:
         delay = experiment.delay
-    if delay is None:
+    if delay is None and estimator != "gls":
         raise IdentificationError(
-            f"{experiment.path}: [loop] delay is not given, and estimating the loop delay is "
-            "not supported yet: add `delay = <seconds>` to the manifest's [loop] table (or pass "
-            "the delay: phoid identify --delay)"
+            f"{experiment.path}: [loop] delay is not given: estimating it needs the weighted "
+            "fit (estimator 'gls'), or give the delay (phoid identify --delay)"
         )
     return identify_data(
         [(r.t, r.x) for r in runs],
         np.array([r.P for r in runs], dtype=float),
         np.array([r.D for r in runs], dtype=float),
-        float(delay),
+        None if delay is None else float(delay),
         files=[r.file for r in runs],
         names=[getattr(r, "name", r.file) for r in runs],
         estimator=estimator,
@@ -574,7 +577,7 @@ def identify_data(
     data: Sequence[tuple[np.ndarray, np.ndarray]],
     P: np.ndarray,
     D: np.ndarray,
-    delay: float,
+    delay: float | None,
     *,
     files: Sequence[str] | None = None,
     names: Sequence[str] | None = None,
@@ -584,13 +587,91 @@ def identify_data(
 ) -> Identification:
     """:func:`identify` on plain arrays: ``data`` is a sequence of (t, x) per run.
 
-    Parameters are as in :func:`identify`; ``files``/``names`` label the runs.
+    Parameters are as in :func:`identify`; ``files``/``names`` label the runs. ``delay=None``
+    estimates the loop delay with m, c, k (see :func:`_estimate_delay`).
     """
     n = len(data)
     if n == 0:
         raise IdentificationError("no runs")
     files = list(files) if files is not None else [f"run{i + 1}" for i in range(n)]
     names = list(names) if names is not None else files
+    P = np.asarray(P, dtype=float)
+    D = np.asarray(D, dtype=float)
+    if delay is None:
+        if estimator != "gls":
+            raise IdentificationError("estimating the loop delay needs estimator='gls'")
+        return _estimate_delay(data, P, D, files=files, names=names, source=source)
+    return _identify_core(data, P, D, float(delay), files=files, names=names,
+                          estimator=estimator, compensate=compensate, source=source)
+
+
+_DELAY_GRID = 400  # candidate delays of the starting profile
+
+
+def _estimate_delay(data, P, D, *, files, names, source) -> Identification:
+    """m, c, k and the loop delay Δt together (the manifest gives no delay).
+
+    Only the right delay maps all runs' modes onto one plant (eq. 35's points collinear, with
+    one slope), so with three or more distinct gain pairs Δt is identifiable. Start: each run's
+    mode from the release on (:func:`phoid.decay.start_decay`, no transient skipped: a slightly
+    biased but robust first look), then the profile of :func:`phoid.pho.delay_profile` over
+    0 … π/max ω_d (a delay of half the fastest run's period; the loop's phase lag at that delay
+    is already beyond what a PD loop rings with). Then the full pipeline at that delay with
+    Δt fitted alongside m, c, k through the exact roots (:func:`phoid.pho.fit_modes`), twice:
+    the second time with the transient skip and fast modes of the first estimate.
+    """
+    n = len(data)
+    where = f"{source}: " if source else ""
+    starts = [_start_run(t, x, 0.0)[0] for t, x in data]
+    ok = [i for i in range(n) if starts[i] is not None and starts[i].oscillating]
+    if len({(P[i], D[i]) for i in ok}) < 3:
+        raise IdentificationError(
+            f"{where}[loop] delay is not given and cannot be estimated: that needs at least three "
+            f"runs with distinct gains (P, D) that oscillate; {len(ok)} such runs found. Give "
+            "the delay ([loop] delay in the manifest, or phoid identify --delay)"
+        )
+    sig = np.array([starts[i].sigma for i in ok])
+    wd = np.array([starts[i].omega_d for i in ok])
+    hi = math.pi / float(np.max(wd))
+    grid = np.linspace(0.0, hi, _DELAY_GRID + 1)
+    prof = delay_profile(sig, wd, P[ok], D[ok], grid)
+    j = int(np.argmin(prof))
+    if j == grid.size - 1:
+        raise IdentificationError(
+            f"{where}the loop delay estimate hits its upper bound ({hi:.4g} s, half the period "
+            "of the fastest run): the runs do not look like one plant under a delayed PD loop; "
+            "give the delay, or check the gains"
+        )
+    tau = float(grid[j])
+    notes: list[str] = []
+    result = None
+    for _ in range(3):
+        try:
+            result = _identify_core(data, P, D, tau, files=files, names=names, source=source,
+                                    estimate_delay=True)
+        except IdentificationError as exc:
+            raise IdentificationError(f"{where}estimating the loop delay: {exc}") from None
+        moved = abs(result.delay - tau)
+        tau = result.delay
+        if moved <= 0.1 * (result.delay_stderr or 0.0) + 1e-12 * max(tau, 1.0):
+            break
+    assert result is not None
+    if not tau > 0.0:
+        notes.append("the loop delay estimate is 0 (its lower bound): the loop behaves as if "
+                     "it had no delay")
+    elif result.delay_stderr is not None and result.delay_stderr > 0.2 * tau:
+        notes.append(f"the loop delay is poorly determined ({tau:.4g} ± "
+                     f"{result.delay_stderr:.2g} s): spread the gains more, or give the delay")
+    if notes:
+        result = replace(result, warnings=tuple(notes) + result.warnings)
+    return result
+
+
+def _identify_core(data, P, D, delay, *, files, names, estimator="gls", compensate=True,
+                   source="", estimate_delay=False, notes=()) -> Identification:
+    """The pipeline at one delay: measure modes, combine (estimating the delay too if asked,
+    ``delay`` then being its start), refine on misfit, and assemble the result."""
+    n = len(data)
     first, fits, reasons, _skips, rough = _measure(data, P, D, delay)
     used = [i for i in range(n) if reasons[i] is None]
     if not used:
@@ -603,7 +684,8 @@ def identify_data(
         wd = np.array([fits[i].omega_d for i in used])
         cov = np.array([fits[i].cov for i in used])
         if estimator == "gls":
-            return fit_modes.__wrapped__(sig, wd, cov, P[used], D[used], delay)
+            return fit_modes.__wrapped__(sig, wd, cov, P[used], D[used], delay,
+                                         estimate_delay=estimate_delay)
         return fit_lines(sig, wd, P[used], D[used], delay, compensate=compensate)
 
     mck = combine(fits, used)
@@ -628,13 +710,26 @@ def identify_data(
         if not mck2.chi2 / max(mck2.dof, 1) < mck.chi2 / max(mck.dof, 1):
             break
         fits, reasons, used, mck, rough = fits2, reasons2, used2, mck2, (mck2.m, mck2.c, mck2.k)
-    warnings: list[str] = []
+    warnings: list[str] = list(notes)
     for i, f in enumerate(fits):
         if reasons[i] is not None:
             warnings.append(f"{names[i]}: set aside: {reasons[i]}")
         elif f is not None:
             warnings.extend(f"{names[i]}: {w}" for w in f.warnings)
     warnings.extend(mck.warnings)
+    if len(used) >= 3 and np.ptp(D[used]) == 0.0:
+        # P-only loops (the seed's Discussion): damping varies between runs only through the
+        # delay, so the damping line's points crowd together; say how much that costs
+        sd = np.sqrt(np.diag(mck.cov))
+        corr = mck.cov / np.outer(sd, sd)
+        rho = float(np.max(np.abs(corr[np.triu_indices(3, 1)])))
+        warnings.append(
+            f"all runs have the same D ({D[used][0]:g} N s/m, a P-only sweep): the runs' "
+            "damping differs only through the delay, so c rests on the delay being right; "
+            f"conditioning: largest correlation of m, c, k {rho:.3f}, condition number of "
+            f"their correlation matrix {float(np.linalg.cond(corr)):.3g}, c known to "
+            f"{100 * sd[1] / max(abs(mck.c), 1e-300):.2g} %"
+        )
     if len(used) < 3:
         warnings.append(f"only {len(used)} usable runs: m, c, k are barely determined")
     se = mck.stderr
@@ -661,6 +756,8 @@ def identify_data(
         m=Estimate(mck.m, float(se[0]), "kg"),
         c=Estimate(mck.c, float(se[1]), "N s/m"),
         k=Estimate(mck.k, float(se[2]), "N/m"),
-        delay=delay, delay_source="given", runs=tuple(runs), fit=mck,
+        delay=delay if mck.delay is None else mck.delay,
+        delay_source="estimated" if mck.delay_stderr is not None else "given",
+        delay_stderr=mck.delay_stderr, runs=tuple(runs), fit=mck,
         warnings=tuple(warnings), source=source, data=tuple(data),
     )

@@ -36,7 +36,7 @@ from phoid.loop import (
     inverse_map,
 )
 
-__all__ = ["Estimate", "LineFit", "MCKFit", "fit_lines", "fit_modes"]
+__all__ = ["Estimate", "LineFit", "MCKFit", "delay_profile", "fit_lines", "fit_modes"]
 
 
 @dataclass(frozen=True)
@@ -124,6 +124,14 @@ class MCKFit:
     chi2, dof : float, int
         Weighted residual sum of squares and degrees of freedom (gls only; nan otherwise).
     warnings : tuple of str
+    delay : float or None
+        The loop delay Δt, s: estimated with m, c, k (``fit_modes(..., estimate_delay=True)``)
+        or the given one.
+    delay_stderr : float or None
+        Standard error of an estimated delay, s (None when it was given).
+    cov_full : ndarray or None
+        (4, 4) covariance of (m, c, k, Δt) when the delay was estimated; ``cov`` is its
+        (m, c, k) block, so the stderr of m, c, k include the delay's uncertainty.
     """
 
     m: float
@@ -139,6 +147,9 @@ class MCKFit:
     chi2: float = math.nan
     dof: int = 0
     warnings: tuple[str, ...] = field(default_factory=tuple)
+    delay: float | None = None
+    delay_stderr: float | None = None
+    cov_full: np.ndarray | None = None
 
     @property
     def stderr(self) -> np.ndarray:
@@ -247,6 +258,7 @@ def fit_modes(
     *,
     start: tuple[float, float, float] | None = None,
     max_iter: int = 50,
+    estimate_delay: bool = False,
 ) -> MCKFit:
     """Weighted least squares of m, c, k to all runs' modes through the exact loop roots.
 
@@ -259,11 +271,15 @@ def fit_modes(
     P, D : array_like
         Gains, N/m and N·s/m.
     delay : float
-        Loop delay Δt, s.
+        Loop delay Δt, s; with ``estimate_delay`` the starting value.
     start : (m, c, k), optional
         Starting point; by default the compensated eq. (35) OLS solution.
     max_iter : int
         Gauss–Newton iterations at most.
+    estimate_delay : bool, default False
+        Fit Δt too (θ = m, c, k, Δt). Only the right delay makes all runs' modes consistent
+        with one plant (eq. 35's points collinear), so with at least three distinct gain pairs
+        it is identifiable; ∂s/∂Δt = s(Ds + P)e^{−sΔt}/f′(s) by the implicit function theorem.
 
     Returns
     -------
@@ -282,6 +298,13 @@ def fit_modes(
     cov = np.asarray(cov, dtype=float).reshape(sigma.size, 2, 2)
     lines = fit_lines(sigma, omega_d, P, D, delay)
     theta = np.array(start if start is not None else (lines.m, lines.c, lines.k), dtype=float)
+    npar = 4 if estimate_delay else 3
+    if estimate_delay:
+        if len({(float(a), float(b)) for a, b in zip(P, D, strict=True)}) < 3:
+            raise IdentificationError(
+                "estimating the loop delay needs at least three distinct gain pairs (P, D)"
+            )
+        theta = np.r_[theta, delay]
     # numerical floor: decay fits of noise-free records are exact only to ~1e-9 of |s_i|
     # (simulation and rounding), so a covariance at rounding level would turn that into a
     # spurious chi2; 1e-9 |s_i| in each of sigma, omega_d is far below any real noise
@@ -292,15 +315,19 @@ def fit_modes(
     s = -sigma + 1j * omega_d
 
     def residual_and_jacobian(th, s_guess):
-        m, c, k = th
-        s_mod = dominant_roots(m, c, k, P, D, delay, s_guess)
-        _, df = characteristic(s_mod, m, c, k, P, D, delay)
-        ds = -np.stack([s_mod**2, s_mod, np.ones_like(s_mod)], axis=1) / df[:, None]
+        m, c, k = th[:3]
+        tau = th[3] if estimate_delay else delay
+        s_mod = dominant_roots(m, c, k, P, D, tau, s_guess)
+        _, df = characteristic(s_mod, m, c, k, P, D, tau)
+        cols = [s_mod**2, s_mod, np.ones_like(s_mod)]
+        if estimate_delay:  # ∂f/∂Δt = −s(Ds + P)e^{−sΔt}
+            cols.append(-s_mod * (D * s_mod + P) * np.exp(-s_mod * tau))
+        ds = -np.stack(cols, axis=1) / df[:, None]
         model = np.c_[-s_mod.real, s_mod.imag]
         # d(meas - model)/dθ = (d Re s, -d Im s)/dθ, shape (n, 2, 3)
         jac = np.stack([ds.real, -ds.imag], axis=1)
         r = np.einsum("nij,nj->ni", Wh, meas - model).ravel()
-        J = np.einsum("nij,njk->nik", Wh, jac).reshape(-1, 3)
+        J = np.einsum("nij,njk->nik", Wh, jac).reshape(-1, npar)
         return r, J, s_mod
 
     r, J, s = residual_and_jacobian(theta, s)
@@ -314,14 +341,15 @@ def fit_modes(
         max(abs(theta[1]), float(np.max(np.abs(D))), float(np.max(2 * m_scale * np.abs(sigma)))),
         max(abs(theta[2]), float(np.max(np.abs(P))),
             float(np.max(m_scale * (sigma**2 + omega_d**2)))),
-    ])
+    ][:3] + ([max(abs(theta[3]), 1e-3 / float(np.max(np.hypot(sigma, omega_d))))]
+             if estimate_delay else []))
     for _ in range(max_iter):
         Js = J * scale
         step = -np.linalg.lstsq(Js, r, rcond=None)[0] * scale
         lam = 1.0
         while lam > 1e-6:
             trial = theta + lam * step
-            if trial[0] > 0:
+            if trial[0] > 0 and (not estimate_delay or trial[3] >= 0):
                 r_t, J_t, s_t = residual_and_jacobian(trial, s)
                 chi2_t = float(r_t @ r_t)
                 if np.isfinite(chi2_t) and chi2_t <= chi2 * (1 + 1e-12):
@@ -339,15 +367,16 @@ def fit_modes(
     if not converged and not np.all(np.abs(step) <= 1e-8 * scale):
         raise IdentificationError("the weighted fit of m, c, k did not converge")
     # the tracked roots must be the dominant ones at the solution (certified check)
-    m, c, k = theta
+    m, c, k = theta[:3]
+    tau = float(theta[3]) if estimate_delay else delay
     for i in range(sigma.size):
-        if not _is_dominant(s[i], m, c, k, float(P[i]), float(D[i]), delay):
+        if not _is_dominant(s[i], m, c, k, float(P[i]), float(D[i]), tau):
             raise IdentificationError(
                 f"run {i + 1}: the fitted mode is not the loop's dominant root at the solution"
             )
     JtJ = J.T @ J
     covp = np.linalg.inv(JtJ)
-    dof = 2 * sigma.size - 3
+    dof = 2 * sigma.size - npar
     warnings: list[str] = []
     if dof > 0 and chi2 > stats.chi2.ppf(0.999, dof):
         red = chi2 / dof
@@ -356,9 +385,60 @@ def fit_modes(
             f"the runs disagree more than their noise explains (chi2/dof = {red:.2f}); "
             "stderr scaled up accordingly: check the delay, friction or unmodelled dynamics"
         )
-    cp, kp = inverse_map(sigma, omega_d, P, D, delay)
+    cp, kp = inverse_map(sigma, omega_d, P, D, tau)
+    if estimate_delay:
+        lines = fit_lines(sigma, omega_d, P, D, tau)
     return MCKFit(
-        m=float(theta[0]), c=float(theta[1]), k=float(theta[2]), cov=covp, estimator="gls",
-        compensated=True, c_prime=cp, k_prime=kp, c_line=lines.c_line, k_line=lines.k_line,
-        chi2=chi2, dof=dof, warnings=tuple(warnings),
+        m=float(theta[0]), c=float(theta[1]), k=float(theta[2]), cov=covp[:3, :3],
+        estimator="gls", compensated=True, c_prime=cp, k_prime=kp, c_line=lines.c_line,
+        k_line=lines.k_line, chi2=chi2, dof=dof, warnings=tuple(warnings), delay=tau,
+        delay_stderr=float(math.sqrt(max(covp[3, 3], 0.0))) if estimate_delay else None,
+        cov_full=covp if estimate_delay else None,
     )
+
+
+def delay_profile(
+    sigma: np.ndarray,
+    omega_d: np.ndarray,
+    P: np.ndarray,
+    D: np.ndarray,
+    delays: np.ndarray,
+) -> np.ndarray:
+    """How far the runs' modes are from one plant, for each candidate loop delay (a start).
+
+    For each Δt the modes are mapped to c′ᵢ, k′ᵢ (eq. 32) and the two lines of eq. (35) are fitted
+    jointly with one mass, c′ᵢ = 2mσᵢ − c and k′ᵢ = mω₀ᵢ² − k, each line's residuals scaled by the
+    spread of its c′ᵢ or k′ᵢ. Only the right delay makes the points collinear with a common
+    slope, so the returned residual sum of squares is smallest near it; :func:`fit_modes` with
+    ``estimate_delay=True`` then refines the minimum through the exact roots.
+
+    Parameters
+    ----------
+    sigma, omega_d : array_like
+        Measured σᵢ (1/s) and ω_dᵢ (rad/s).
+    P, D : array_like
+        Gains, N/m and N·s/m.
+    delays : array_like
+        Candidate delays, s (≥ 0).
+
+    Returns
+    -------
+    ndarray
+        The scaled residual sum of squares at each candidate (dimensionless).
+    """
+    sigma, omega_d, P, D = _check_inputs(sigma, omega_d, P, D)
+    n = sigma.size
+    w0sq = sigma**2 + omega_d**2
+    out = np.empty(np.size(delays))
+    for j, tau in enumerate(np.atleast_1d(np.asarray(delays, dtype=float))):
+        cp, kp = inverse_map(sigma, omega_d, P, D, float(tau))
+        sc = max(float(np.std(cp)), 1e-300)
+        sk = max(float(np.std(kp)), 1e-300)
+        A = np.zeros((2 * n, 3))
+        A[:n, 0], A[:n, 1] = 2.0 * sigma / sc, -1.0 / sc
+        A[n:, 0], A[n:, 2] = w0sq / sk, -1.0 / sk
+        y = np.r_[cp / sc, kp / sk]
+        coef = np.linalg.lstsq(A, y, rcond=None)[0]
+        r = y - A @ coef
+        out[j] = float(r @ r) if np.all(np.isfinite(r)) else math.inf
+    return out

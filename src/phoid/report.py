@@ -29,9 +29,9 @@ def _fmt(value: float, se: float | None) -> str:
 def identification_text(ident: Identification) -> str:
     """Plain-text report of an identification: estimates, derived ζ and ω₀, runs, warnings."""
     lines = [f"phoid identify: {ident.source}" if ident.source else "phoid identify"]
-    lines.append(
-        f"  estimator {ident.fit.estimator}, delay {ident.delay:g} s ({ident.delay_source})"
-    )
+    delay = (f"{ident.delay:g} s" if ident.delay_stderr is None
+             else f"{_fmt(ident.delay, ident.delay_stderr)} s")
+    lines.append(f"  estimator {ident.fit.estimator}, delay {delay} ({ident.delay_source})")
     lines.append("")
     for name, est in (("m", ident.m), ("c", ident.c), ("k", ident.k)):
         lines.append(f"  {name} = {_fmt(est.value, est.stderr)} {est.unit}")
