@@ -101,21 +101,23 @@ def test_simulate_bad_values(tmp_path):
 
 
 @pytest.mark.parametrize(
-    ("edit", "needle"),
+    ("edit", "needles"),
     [
+        # not modelled yet: refused rather than ignored (ignoring it would give a wrong number)
         (lambda t: t.replace('file = "run01.csv.gz"', 'file = "run01.csv.gz"\nadded_mass = 0.5', 1),
-         "added_mass"),
-        (lambda t: t.replace("[loop]\n", "[loop]\nsample_time = 0.001\n", 1), "sample_time"),
+         ("added_mass", "not supported")),
+        # a digital loop's delay is delay_samples: a continuous delay beside it is ambiguous
+        (lambda t: t.replace("[loop]\n", "[loop]\nsample_time = 0.001\n", 1),
+         ("sample_time", "delay_samples", "one or the other")),
     ],
 )
-def test_identify_refuses_keys_it_cannot_honour_yet(simulated, tmp_path, edit, needle):
-    # the format carries these for later capabilities; ignoring them would give a wrong number
+def test_identify_refuses_keys_it_cannot_honour(simulated, tmp_path, edit, needles):
     bad = tmp_path / "later"
     shutil.copytree(simulated, bad)
     manifest = bad / "experiment.toml"
     manifest.write_text(edit(manifest.read_text()))
-    assert needle in manifest.read_text()
-    one_line_error(runner.invoke(app, ["identify", str(bad)]), needle, "not supported")
+    assert needles[0] in manifest.read_text()
+    one_line_error(runner.invoke(app, ["identify", str(bad)]), *needles)
 
 
 def test_unexpected_failure_is_one_line_exit_1(monkeypatch, capsys):

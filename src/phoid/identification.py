@@ -119,6 +119,8 @@ class Identification:
         ``"given"`` (from the manifest or the caller) or ``"estimated"``.
     delay_stderr : float or None
         Standard error of an estimated delay, s.
+    digital : phoid.digital.DigitalPD or None
+        The sampled loop the modes were modelled with (None: a continuous loop with a delay).
     runs : tuple of RunMode
     fit : MCKFit
         The underlying fit (covariance, eq. 35 lines, χ²).
@@ -137,6 +139,7 @@ class Identification:
     warnings: tuple[str, ...] = ()
     source: str = ""
     delay_stderr: float | None = None
+    digital: Any = None
     data: tuple[tuple[np.ndarray, np.ndarray], ...] = field(default=(), repr=False)
 
     @property
@@ -183,6 +186,12 @@ class Identification:
             "runs": [r.to_dict() for r in self.runs],
             "warnings": list(self.warnings),
         }
+        if self.digital is not None:
+            # a format extension, only for sampled loops: which model the modes went through
+            g = self.digital
+            out["loop"] = {"model": "digital", "sample_time": g.sample_time,
+                           "delay_samples": g.delay_samples, "velocity": g.velocity,
+                           "cutoff": g.cutoff}
         w0 = self.omega0
         if math.isfinite(w0.value):
             out["omega0"] = w0.to_dict()
@@ -414,7 +423,17 @@ def _start_run(t, x, skip):
         return None, str(exc)
 
 
-def _measure(data, P, D, delay, *, rough=None, first=None, noise=None):
+def _digital_modes_of(rough, P, D, digital):
+    """Per run: the sampled loop's finite roots (decreasing real part) and their amplitudes
+    for a unit release (phoid.digital.digital_residues), from the rough plant."""
+    from phoid.digital import digital_residues, digital_roots
+
+    roots = digital_roots(*rough, P, D, digital).s
+    s_res, amp = digital_residues(*rough, P, D, digital)
+    return roots, s_res, amp
+
+
+def _measure(data, P, D, delay, *, rough=None, first=None, noise=None, digital=None):
     """Both passes of :func:`measure_modes`; with ``rough`` (m, c, k) given, the loop modes come
     from it, and with ``first`` (the first pass's starts) that pass is not redone. ``noise``
     (m, per run) replaces the first pass's noise level.
@@ -446,10 +465,21 @@ def _measure(data, P, D, delay, *, rough=None, first=None, noise=None):
                 rough = (lines.m, lines.c, lines.k)
         except (ValueError, np.linalg.LinAlgError):
             rough = None
-    releases = _model_releases(data, starts, rough, P, D, delay) if rough else [None] * n
+    releases = ([None] * n if digital is not None or not rough
+                else _model_releases(data, starts, rough, P, D, delay))
     all_roots: list[np.ndarray | None] = [None] * n
     todo = [i for i in range(n) if starts[i] is not None]
-    if rough is not None and todo and delay > 0.0:
+    amps: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+    if rough is not None and todo and digital is not None:
+        try:
+            roots, s_res, amp = _digital_modes_of(rough, P[todo], D[todo], digital)
+            for j, i in enumerate(todo):
+                r = roots[j][np.isfinite(roots[j])]
+                all_roots[i] = r
+                amps[i] = (s_res[j], amp[j])
+        except (RuntimeError, ValueError, np.linalg.LinAlgError):
+            pass
+    elif rough is not None and todo and delay > 0.0:
         try:
             for i, r in zip(todo, _rightmost_roots_many(*rough, P[todo], D[todo], delay,
                                                         count=2 * _N_FAST + 4), strict=True):
@@ -467,15 +497,37 @@ def _measure(data, P, D, delay, *, rough=None, first=None, noise=None):
             # no delay: the closed loop is exactly second order; fit from the refined release
             g, _err = _fit_run(t, x, 0.0, release, None, guess=(st.sigma, st.omega_d))
             skip = 0.0
-        elif all_roots[i] is not None and len(modes := _modes(all_roots[i])) >= _N_FAST + 2:
-            fast, omitted = np.array(modes[1:_N_FAST + 1]), modes[_N_FAST + 1]
+        elif all_roots[i] is not None and (
+            len(modes := _modes(all_roots[i])) >= _N_FAST + 2
+            or (digital is not None and len(modes) >= 1)
+        ):
+            rest = modes[1:]
+            if digital is not None:
+                # a root on the negative real z axis rings at the controller's Nyquist rate,
+                # (−1)ⁿ: not a column the decay fit can hold; it can only be skipped
+                nyq = 0.99 * math.pi / digital.sample_time
+                fitted = [q for q in rest if abs(q.imag) < nyq][:_N_FAST]
+            else:
+                fitted = rest[:_N_FAST]
+            fast = np.array(fitted, dtype=complex)
+            left = [q for q in rest if q not in fitted]
+            omitted = left[0] if left else None
             # release amplitude scale and the first omitted mode's share of it (its residue)
             x0 = float(np.max(np.abs(np.asarray(x) - st.offset)))
-            a_omit = 2.0 * abs(_residue(omitted, *rough, float(P[i]), float(D[i]), delay)) * x0
+            if omitted is None:
+                a_omit = 0.0
+            elif digital is not None:
+                s_res, amp = amps[i]
+                a_omit = 2.0 * float(np.max(np.abs(amp[np.abs(s_res - omitted) <= 1e-9 * max(
+                    1.0, abs(omitted))]), initial=0.0)) * x0
+            else:
+                a_omit = 2.0 * abs(_residue(omitted, *rough, float(P[i]), float(D[i]),
+                                            delay)) * x0
             nsd = st.noise_sd if noise is None or noise[i] is None else min(st.noise_sd, noise[i])
             nsd = nsd if math.isfinite(nsd) else 0.0
             level = max(_OMIT_NOISE_FRACTION * nsd, _OMIT_FLOOR * x0)
-            skip = max(0.0, math.log(a_omit / level) / -omitted.real) if a_omit > level else 0.0
+            skip = (max(0.0, math.log(a_omit / level) / -omitted.real)
+                    if omitted is not None and a_omit > level else 0.0)
             # never skip so much that fewer than ~3 cycles remain
             period = 2 * math.pi / st.omega_d if st.omega_d > 0 else math.inf
             skip = min(skip, max(skip0, (st.t_end - st.release) - 3 * period))
@@ -546,11 +598,19 @@ def identify(
             f"{experiment.path}: {added[0]}: added_mass is not supported by the identification "
             "yet; remove it and subtract the known mass from the result by hand"
         )
-    loop_keys = sorted(set(getattr(experiment, "loop", {}) or {}) - {"delay"})
-    if loop_keys:
-        raise IdentificationError(
-            f"{experiment.path}: [loop] {loop_keys[0]}: digital-loop settings are not supported "
-            "by the identification yet (it models a continuous loop with a pure delay)"
+    digital = _digital_loop(experiment)
+    if digital is not None:
+        if delay is not None or experiment.delay is not None:
+            raise IdentificationError(
+                f"{experiment.path}: [loop] delay: a digital loop (sample_time) takes its delay "
+                "as delay_samples, in whole samples; give one or the other"
+            )
+        return identify_data(
+            [(r.t, r.x) for r in runs],
+            np.array([r.P for r in runs], dtype=float),
+            np.array([r.D for r in runs], dtype=float),
+            None, files=[r.file for r in runs], names=[getattr(r, "name", r.file) for r in runs],
+            estimator=estimator, source=str(experiment.path), digital=digital,
         )
     if delay is None:
         delay = experiment.delay
@@ -584,11 +644,14 @@ def identify_data(
     estimator: str = "gls",
     compensate: bool = True,
     source: str = "",
+    digital: Any = None,
 ) -> Identification:
     """:func:`identify` on plain arrays: ``data`` is a sequence of (t, x) per run.
 
     Parameters are as in :func:`identify`; ``files``/``names`` label the runs. ``delay=None``
-    estimates the loop delay with m, c, k (see :func:`_estimate_delay`).
+    estimates the loop delay with m, c, k (see :func:`_estimate_delay`). ``digital``
+    (a :class:`phoid.digital.DigitalPD`; its gains are ignored) models a sampled loop exactly;
+    ``delay`` is then ignored (the loop's own d·T_s is used for the starting lines).
     """
     n = len(data)
     if n == 0:
@@ -597,6 +660,14 @@ def identify_data(
     names = list(names) if names is not None else files
     P = np.asarray(P, dtype=float)
     D = np.asarray(D, dtype=float)
+    if digital is not None:
+        if estimator != "gls":
+            raise IdentificationError("a digital loop needs the weighted fit (estimator='gls')")
+        # starting lines: the continuous loop with the delay of the samples, plus half a sample
+        # (the hold) and, for a backward difference, half a sample more on the velocity
+        res = _identify_core(data, P, D, digital.delay + 0.5 * digital.sample_time,
+                             files=files, names=names, source=source, digital=digital)
+        return replace(res, delay=digital.delay)
     if delay is None:
         if estimator != "gls":
             raise IdentificationError("estimating the loop delay needs estimator='gls'")
@@ -667,12 +738,44 @@ def _estimate_delay(data, P, D, *, files, names, source) -> Identification:
     return result
 
 
+_DIGITAL_KEYS = ("sample_time", "delay_samples", "velocity", "cutoff")
+
+
+def _digital_loop(experiment: Any):
+    """The manifest's digital loop ([loop] sample_time, …) as a DigitalPD, or None."""
+    from phoid.digital import DigitalPD
+
+    loop = dict(getattr(experiment, "loop", {}) or {})
+    unknown = sorted(set(loop) - {"delay", *_DIGITAL_KEYS})
+    if unknown:
+        raise IdentificationError(
+            f"{experiment.path}: [loop] {unknown[0]}: unknown key (known: delay, "
+            + ", ".join(_DIGITAL_KEYS) + ")"
+        )
+    if "sample_time" not in loop:
+        extra = [key for key in _DIGITAL_KEYS if key in loop]
+        if extra:
+            raise IdentificationError(
+                f"{experiment.path}: [loop] {extra[0]}: needs [loop] sample_time (s), the "
+                "controller's sampling period"
+            )
+        return None
+    try:
+        return DigitalPD(
+            P=0.0, D=0.0, sample_time=loop["sample_time"],
+            delay_samples=loop.get("delay_samples", 0),
+            velocity=loop.get("velocity", "backward-difference"), cutoff=loop.get("cutoff"),
+        )
+    except (ValueError, TypeError) as exc:
+        raise IdentificationError(f"{experiment.path}: [loop]: {exc}") from None
+
+
 def _identify_core(data, P, D, delay, *, files, names, estimator="gls", compensate=True,
-                   source="", estimate_delay=False, notes=()) -> Identification:
+                   source="", estimate_delay=False, notes=(), digital=None) -> Identification:
     """The pipeline at one delay: measure modes, combine (estimating the delay too if asked,
     ``delay`` then being its start), refine on misfit, and assemble the result."""
     n = len(data)
-    first, fits, reasons, _skips, rough = _measure(data, P, D, delay)
+    first, fits, reasons, _skips, rough = _measure(data, P, D, delay, digital=digital)
     used = [i for i in range(n) if reasons[i] is None]
     if not used:
         raise IdentificationError(
@@ -685,7 +788,7 @@ def _identify_core(data, P, D, delay, *, files, names, estimator="gls", compensa
         cov = np.array([fits[i].cov for i in used])
         if estimator == "gls":
             return fit_modes.__wrapped__(sig, wd, cov, P[used], D[used], delay,
-                                         estimate_delay=estimate_delay)
+                                         estimate_delay=estimate_delay, digital=digital)
         return fit_lines(sig, wd, P[used], D[used], delay, compensate=compensate)
 
     mck = combine(fits, used)
@@ -697,7 +800,7 @@ def _identify_core(data, P, D, delay, *, files, names, estimator="gls", compensa
         if estimator != "gls" or rough is None or not _misfit(mck):
             break
         _first, fits2, reasons2, _s, _r = _measure(
-            data, P, D, delay, rough=(mck.m, mck.c, mck.k), first=first,
+            data, P, D, delay, rough=(mck.m, mck.c, mck.k), first=first, digital=digital,
             noise=[f.noise_sd if f is not None else None for f in fits],
         )
         used2 = [i for i in range(n) if reasons2[i] is None]
@@ -758,6 +861,6 @@ def _identify_core(data, P, D, delay, *, files, names, estimator="gls", compensa
         k=Estimate(mck.k, float(se[2]), "N/m"),
         delay=delay if mck.delay is None else mck.delay,
         delay_source="estimated" if mck.delay_stderr is not None else "given",
-        delay_stderr=mck.delay_stderr, runs=tuple(runs), fit=mck,
+        delay_stderr=mck.delay_stderr, runs=tuple(runs), fit=mck, digital=digital,
         warnings=tuple(warnings), source=source, data=tuple(data),
     )

@@ -22,11 +22,13 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from scipy import stats
 
 from phoid._threads import single_blas_thread
+from phoid.digital import digital_is_dominant, digital_modes
 from phoid.errors import IdentificationError
 from phoid.loop import (
     _rightmost_roots,
@@ -259,6 +261,7 @@ def fit_modes(
     start: tuple[float, float, float] | None = None,
     max_iter: int = 50,
     estimate_delay: bool = False,
+    digital: Any = None,
 ) -> MCKFit:
     """Weighted least squares of m, c, k to all runs' modes through the exact loop roots.
 
@@ -280,6 +283,11 @@ def fit_modes(
         Fit Δt too (θ = m, c, k, Δt). Only the right delay makes all runs' modes consistent
         with one plant (eq. 35's points collinear), so with at least three distinct gain pairs
         it is identifiable; ∂s/∂Δt = s(Ds + P)e^{−sΔt}/f′(s) by the implicit function theorem.
+    digital : phoid.digital.DigitalPD, optional
+        A sampled (digital) loop: the modes are then the roots of its exact characteristic
+        polynomial (:func:`phoid.digital.digital_modes`) instead of the continuous delayed
+        loop's; ``delay`` only serves the starting eq. (35) lines (an equivalent continuous
+        delay). Not with ``estimate_delay``.
 
     Returns
     -------
@@ -299,6 +307,8 @@ def fit_modes(
     lines = fit_lines(sigma, omega_d, P, D, delay)
     theta = np.array(start if start is not None else (lines.m, lines.c, lines.k), dtype=float)
     npar = 4 if estimate_delay else 3
+    if digital is not None and estimate_delay:
+        raise ValueError("`estimate_delay` is not available for a digital loop")
     if estimate_delay:
         if len({(float(a), float(b)) for a, b in zip(P, D, strict=True)}) < 3:
             raise IdentificationError(
@@ -317,12 +327,15 @@ def fit_modes(
     def residual_and_jacobian(th, s_guess):
         m, c, k = th[:3]
         tau = th[3] if estimate_delay else delay
-        s_mod = dominant_roots(m, c, k, P, D, tau, s_guess)
-        _, df = characteristic(s_mod, m, c, k, P, D, tau)
-        cols = [s_mod**2, s_mod, np.ones_like(s_mod)]
-        if estimate_delay:  # ∂f/∂Δt = −s(Ds + P)e^{−sΔt}
-            cols.append(-s_mod * (D * s_mod + P) * np.exp(-s_mod * tau))
-        ds = -np.stack(cols, axis=1) / df[:, None]
+        if digital is not None:
+            s_mod, ds = digital_modes(m, c, k, P, D, digital, s_guess)
+        else:
+            s_mod = dominant_roots(m, c, k, P, D, tau, s_guess)
+            _, df = characteristic(s_mod, m, c, k, P, D, tau)
+            cols = [s_mod**2, s_mod, np.ones_like(s_mod)]
+            if estimate_delay:  # ∂f/∂Δt = −s(Ds + P)e^{−sΔt}
+                cols.append(-s_mod * (D * s_mod + P) * np.exp(-s_mod * tau))
+            ds = -np.stack(cols, axis=1) / df[:, None]
         model = np.c_[-s_mod.real, s_mod.imag]
         # d(meas - model)/dθ = (d Re s, -d Im s)/dθ, shape (n, 2, 3)
         jac = np.stack([ds.real, -ds.imag], axis=1)
@@ -369,7 +382,14 @@ def fit_modes(
     # the tracked roots must be the dominant ones at the solution (certified check)
     m, c, k = theta[:3]
     tau = float(theta[3]) if estimate_delay else delay
-    for i in range(sigma.size):
+    if digital is not None:
+        dom = digital_is_dominant(s, m, c, k, P, D, digital, rtol=1e-6)
+        if not np.all(dom):
+            raise IdentificationError(
+                f"run {int(np.argmin(dom)) + 1}: the fitted mode is not the sampled loop's "
+                "dominant root at the solution"
+            )
+    for i in range(sigma.size if digital is None else 0):
         if not _is_dominant(s[i], m, c, k, float(P[i]), float(D[i]), tau):
             raise IdentificationError(
                 f"run {i + 1}: the fitted mode is not the loop's dominant root at the solution"
