@@ -54,7 +54,9 @@ class RunMode:
     sigma_stderr, omega_d_stderr : float
         Their standard errors.
     c_prime, k_prime : float
-        Equivalent feedback damping (N·s/m) and stiffness (N/m), eq. (32).
+        Equivalent feedback damping (N·s/m) and stiffness (N/m), eq. (32); for a run with an
+        added mass Δm the known part is taken off (c′ − 2Δmσ, k′ − Δmω₀²), so that every run's
+        point lies on the lines of the mass without additions.
     cycles : float
         Oscillation cycles used (above the noise floor).
     residual_rms : float
@@ -64,6 +66,8 @@ class RunMode:
     warnings : tuple of str
     fit : DecayFit or None
         The full decay fit (None when the run could not be fitted at all).
+    added_mass : float
+        Known mass added for this run, kg (0: none).
     """
 
     file: str
@@ -80,6 +84,7 @@ class RunMode:
     used: bool
     warnings: tuple[str, ...] = ()
     fit: DecayFit | None = None
+    added_mass: float = 0.0
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready dict with the spec's keys (file, P, D, sigma, omega_d, c_prime, k_prime,
@@ -102,7 +107,7 @@ class RunMode:
             "residual_rms": num(self.residual_rms),
             "used": self.used,
             "warnings": list(self.warnings),
-        }
+        } | ({"added_mass": float(self.added_mass)} if self.added_mass else {})
 
 
 @dataclass(frozen=True)
@@ -285,7 +290,7 @@ def _unusable(fit: DecayFit) -> str | None:
 _REL_HALF = 32  # model-fitted release: samples searched either side of the detected one
 
 
-def _model_releases(data, fits, rough, P, D, delay) -> list[float | None]:
+def _model_releases(data, fits, rough, P, D, delay, dm=None) -> list[float | None]:
     """Release times fitted with each loop's own response from rest (None where not done).
 
     The data-only detection (:func:`phoid.decay.detect_release`: a quadratic, then an even
@@ -335,9 +340,10 @@ def _model_releases(data, fits, rough, P, D, delay) -> list[float | None]:
         hi = int(np.searchsorted(t, t_end, side="right"))
         if hi < j0 + half + 4:
             continue
-        jobs.setdefault(float(f"{dt:.12g}"), []).append((i, max(j0 - 2 * half, 0), hi, j0))
-    plant = Plant(m, max(c, 0.0), max(k, 0.0))
-    for dt, items in jobs.items():
+        key = (float(f"{dt:.12g}"), 0.0 if dm is None else float(dm[i]))
+        jobs.setdefault(key, []).append((i, max(j0 - 2 * half, 0), hi, j0))
+    for (dt, added), items in jobs.items():
+        plant = Plant(m + added, max(c, 0.0), max(k, 0.0))
         idx = [it[0] for it in items]
         span = max(float(data[i][0][hi - 1] - data[i][0][j0 - half]) for i, _, hi, j0 in items)
         try:
@@ -433,7 +439,8 @@ def _digital_modes_of(rough, P, D, digital):
     return roots, s_res, amp
 
 
-def _measure(data, P, D, delay, *, rough=None, first=None, noise=None, digital=None):
+def _measure(data, P, D, delay, *, rough=None, first=None, noise=None, digital=None,
+             added_mass=None):
     """Both passes of :func:`measure_modes`; with ``rough`` (m, c, k) given, the loop modes come
     from it, and with ``first`` (the first pass's starts) that pass is not redone. ``noise``
     (m, per run) replaces the first pass's noise level.
@@ -449,6 +456,7 @@ def _measure(data, P, D, delay, *, rough=None, first=None, noise=None, digital=N
     n = len(data)
     P = np.asarray(P, dtype=float)
     D = np.asarray(D, dtype=float)
+    dm = np.zeros(n) if added_mass is None else np.asarray(added_mass, dtype=float)
     skip0 = 3.0 * delay
     if first is None:
         first = [_start_run(t, x, skip0) for t, x in data]
@@ -460,13 +468,13 @@ def _measure(data, P, D, delay, *, rough=None, first=None, noise=None, digital=N
     if rough is None and len({(P[i], D[i]) for i in ok}) >= 2:
         try:
             lines = fit_lines([starts[i].sigma for i in ok], [starts[i].omega_d for i in ok],
-                              P[ok], D[ok], delay)
+                              P[ok], D[ok], delay, added_mass=dm[ok])
             if lines.m > 0:
                 rough = (lines.m, lines.c, lines.k)
         except (ValueError, np.linalg.LinAlgError):
             rough = None
     releases = ([None] * n if digital is not None or not rough
-                else _model_releases(data, starts, rough, P, D, delay))
+                else _model_releases(data, starts, rough, P, D, delay, dm))
     all_roots: list[np.ndarray | None] = [None] * n
     todo = [i for i in range(n) if starts[i] is not None]
     amps: dict[int, tuple[np.ndarray, np.ndarray]] = {}
@@ -481,9 +489,14 @@ def _measure(data, P, D, delay, *, rough=None, first=None, noise=None, digital=N
             pass
     elif rough is not None and todo and delay > 0.0:
         try:
-            for i, r in zip(todo, _rightmost_roots_many(*rough, P[todo], D[todo], delay,
-                                                        count=2 * _N_FAST + 4), strict=True):
-                all_roots[i] = r
+            # one continuation per added mass (usually one group: no mass added)
+            for added in np.unique(dm[todo]):
+                grp = [i for i in todo if dm[i] == added]
+                rm, rc, rk = rough
+                for i, r in zip(grp, _rightmost_roots_many(rm + added, rc, rk, P[grp], D[grp],
+                                                           delay, count=2 * _N_FAST + 4),
+                                strict=True):
+                    all_roots[i] = r
         except (RuntimeError, ValueError):
             pass
     for i in range(n):
@@ -521,8 +534,8 @@ def _measure(data, P, D, delay, *, rough=None, first=None, noise=None, digital=N
                 a_omit = 2.0 * float(np.max(np.abs(amp[np.abs(s_res - omitted) <= 1e-9 * max(
                     1.0, abs(omitted))]), initial=0.0)) * x0
             else:
-                a_omit = 2.0 * abs(_residue(omitted, *rough, float(P[i]), float(D[i]),
-                                            delay)) * x0
+                a_omit = 2.0 * abs(_residue(omitted, rough[0] + dm[i], rough[1], rough[2],
+                                            float(P[i]), float(D[i]), delay)) * x0
             nsd = st.noise_sd if noise is None or noise[i] is None else min(st.noise_sd, noise[i])
             nsd = nsd if math.isfinite(nsd) else 0.0
             level = max(_OMIT_NOISE_FRACTION * nsd, _OMIT_FLOOR * x0)
@@ -590,16 +603,14 @@ def identify(
     runs = list(experiment.runs)
     if not runs:
         raise IdentificationError(f"{experiment.path}: no runs")
-    # keys the format carries for later capabilities: refuse them rather than ignore them and
-    # return a number that silently assumes the wrong model
-    added = [r.name for r in runs if getattr(r, "added_mass", 0.0)]
-    if added:
-        raise IdentificationError(
-            f"{experiment.path}: {added[0]}: added_mass is not supported by the identification "
-            "yet; remove it and subtract the known mass from the result by hand"
-        )
+    added_mass = np.array([getattr(r, "added_mass", 0.0) for r in runs], dtype=float)
     digital = _digital_loop(experiment)
     if digital is not None:
+        if np.any(added_mass):
+            raise IdentificationError(
+                f"{experiment.path}: added_mass: not supported with a digital loop "
+                "([loop] sample_time) yet"
+            )
         if delay is not None or experiment.delay is not None:
             raise IdentificationError(
                 f"{experiment.path}: [loop] delay: a digital loop (sample_time) takes its delay "
@@ -624,6 +635,7 @@ def identify(
         np.array([r.P for r in runs], dtype=float),
         np.array([r.D for r in runs], dtype=float),
         None if delay is None else float(delay),
+        added_mass=added_mass if np.any(added_mass) else None,
         files=[r.file for r in runs],
         names=[getattr(r, "name", r.file) for r in runs],
         estimator=estimator,
@@ -645,6 +657,7 @@ def identify_data(
     compensate: bool = True,
     source: str = "",
     digital: Any = None,
+    added_mass: np.ndarray | None = None,
 ) -> Identification:
     """:func:`identify` on plain arrays: ``data`` is a sequence of (t, x) per run.
 
@@ -652,6 +665,8 @@ def identify_data(
     estimates the loop delay with m, c, k (see :func:`_estimate_delay`). ``digital``
     (a :class:`phoid.digital.DigitalPD`; its gains are ignored) models a sampled loop exactly;
     ``delay`` is then ignored (the loop's own d·T_s is used for the starting lines).
+    ``added_mass`` (kg, per run) is a known mass added in each run (the paper's added-mass
+    trick): run i's loop has mass m + Δmᵢ and the estimate is the mass without additions.
     """
     n = len(data)
     if n == 0:
@@ -660,7 +675,13 @@ def identify_data(
     names = list(names) if names is not None else files
     P = np.asarray(P, dtype=float)
     D = np.asarray(D, dtype=float)
+    if added_mass is not None:
+        added_mass = np.broadcast_to(np.asarray(added_mass, dtype=float), (n,)).copy()
+        if not np.all(np.isfinite(added_mass) & (added_mass >= 0)):
+            raise ValueError(f"`added_mass` must be finite and ≥ 0 kg; got {added_mass}")
     if digital is not None:
+        if added_mass is not None and np.any(added_mass):
+            raise IdentificationError("added_mass is not supported with a digital loop yet")
         if estimator != "gls":
             raise IdentificationError("a digital loop needs the weighted fit (estimator='gls')")
         # starting lines: the continuous loop with the delay of the samples, plus half a sample
@@ -671,15 +692,17 @@ def identify_data(
     if delay is None:
         if estimator != "gls":
             raise IdentificationError("estimating the loop delay needs estimator='gls'")
-        return _estimate_delay(data, P, D, files=files, names=names, source=source)
+        return _estimate_delay(data, P, D, files=files, names=names, source=source,
+                               added_mass=added_mass)
     return _identify_core(data, P, D, float(delay), files=files, names=names,
-                          estimator=estimator, compensate=compensate, source=source)
+                          estimator=estimator, compensate=compensate, source=source,
+                          added_mass=added_mass)
 
 
 _DELAY_GRID = 400  # candidate delays of the starting profile
 
 
-def _estimate_delay(data, P, D, *, files, names, source) -> Identification:
+def _estimate_delay(data, P, D, *, files, names, source, added_mass=None) -> Identification:
     """m, c, k and the loop delay Δt together (the manifest gives no delay).
 
     Only the right delay maps all runs' modes onto one plant (eq. 35's points collinear, with
@@ -705,7 +728,8 @@ def _estimate_delay(data, P, D, *, files, names, source) -> Identification:
     wd = np.array([starts[i].omega_d for i in ok])
     hi = math.pi / float(np.max(wd))
     grid = np.linspace(0.0, hi, _DELAY_GRID + 1)
-    prof = delay_profile(sig, wd, P[ok], D[ok], grid)
+    dm = np.zeros(n) if added_mass is None else np.asarray(added_mass, dtype=float)
+    prof = delay_profile(sig, wd, P[ok], D[ok], grid, added_mass=dm[ok])
     j = int(np.argmin(prof))
     if j == grid.size - 1:
         raise IdentificationError(
@@ -719,7 +743,7 @@ def _estimate_delay(data, P, D, *, files, names, source) -> Identification:
     for _ in range(3):
         try:
             result = _identify_core(data, P, D, tau, files=files, names=names, source=source,
-                                    estimate_delay=True)
+                                    estimate_delay=True, added_mass=dm)
         except IdentificationError as exc:
             raise IdentificationError(f"{where}estimating the loop delay: {exc}") from None
         moved = abs(result.delay - tau)
@@ -771,11 +795,14 @@ def _digital_loop(experiment: Any):
 
 
 def _identify_core(data, P, D, delay, *, files, names, estimator="gls", compensate=True,
-                   source="", estimate_delay=False, notes=(), digital=None) -> Identification:
+                   source="", estimate_delay=False, notes=(), digital=None,
+                   added_mass=None) -> Identification:
     """The pipeline at one delay: measure modes, combine (estimating the delay too if asked,
     ``delay`` then being its start), refine on misfit, and assemble the result."""
     n = len(data)
-    first, fits, reasons, _skips, rough = _measure(data, P, D, delay, digital=digital)
+    dm = np.zeros(n) if added_mass is None else np.asarray(added_mass, dtype=float)
+    first, fits, reasons, _skips, rough = _measure(data, P, D, delay, digital=digital,
+                                                   added_mass=dm)
     used = [i for i in range(n) if reasons[i] is None]
     if not used:
         raise IdentificationError(
@@ -788,8 +815,10 @@ def _identify_core(data, P, D, delay, *, files, names, estimator="gls", compensa
         cov = np.array([fits[i].cov for i in used])
         if estimator == "gls":
             return fit_modes.__wrapped__(sig, wd, cov, P[used], D[used], delay,
-                                         estimate_delay=estimate_delay, digital=digital)
-        return fit_lines(sig, wd, P[used], D[used], delay, compensate=compensate)
+                                         estimate_delay=estimate_delay, digital=digital,
+                                         added_mass=dm[used])
+        return fit_lines(sig, wd, P[used], D[used], delay, compensate=compensate,
+                         added_mass=dm[used])
 
     mck = combine(fits, used)
     # The second pass took the loop's fast modes from a rough plant (first pass). Where that
@@ -801,6 +830,7 @@ def _identify_core(data, P, D, delay, *, files, names, estimator="gls", compensa
             break
         _first, fits2, reasons2, _s, _r = _measure(
             data, P, D, delay, rough=(mck.m, mck.c, mck.k), first=first, digital=digital,
+            added_mass=dm,
             noise=[f.noise_sd if f is not None else None for f in fits],
         )
         used2 = [i for i in range(n) if reasons2[i] is None]
@@ -853,7 +883,7 @@ def _identify_core(data, P, D, delay, *, files, names, estimator="gls", compensa
             c_prime=cp, k_prime=kp, cycles=f.cycles if f else math.nan,
             residual_rms=f.residual_rms if f else math.nan, used=i in used,
             warnings=tuple(([reasons[i]] if reasons[i] else []) + (list(f.warnings) if f else [])),
-            fit=f,
+            fit=f, added_mass=float(dm[i]),
         ))
     return Identification(
         m=Estimate(mck.m, float(se[0]), "kg"),

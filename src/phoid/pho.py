@@ -178,6 +178,16 @@ def _check_inputs(sigma, omega_d, P, D):
     return sigma, omega_d, P, D
 
 
+def _added(added_mass, n: int) -> np.ndarray:
+    """Per-run added mass as an array (zeros if None), checked finite and ≥ 0."""
+    if added_mass is None:
+        return np.zeros(n)
+    dm = np.broadcast_to(np.asarray(added_mass, dtype=float), (n,)).copy()
+    if not np.all(np.isfinite(dm) & (dm >= 0)):
+        raise ValueError(f"`added_mass` must be finite and ≥ 0 kg; got {dm.tolist()}")
+    return dm
+
+
 def fit_lines(
     sigma: np.ndarray,
     omega_d: np.ndarray,
@@ -186,6 +196,7 @@ def fit_lines(
     delay: float,
     *,
     compensate: bool = True,
+    added_mass: np.ndarray | None = None,
 ) -> MCKFit:
     """The paper's route: eq. (32) then the two lines of eq. (35) by ordinary least squares.
 
@@ -200,6 +211,10 @@ def fit_lines(
     compensate : bool, default True
         Correct c′ᵢ, k′ᵢ for the delay (eqs. 28–32 with the corrected α₁); False uses
         c′ᵢ = Dᵢ, k′ᵢ = Pᵢ (the paper's "without compensation").
+    added_mass : array_like, optional
+        Known mass Δmᵢ added in each run (kg): run i's plant mass is m + Δmᵢ, so its points
+        are moved by the known part, c′ᵢ − 2Δmᵢσᵢ = 2mσᵢ − c and k′ᵢ − Δmᵢω₀ᵢ² = mω₀ᵢ² − k
+        (eq. 35 with m + Δmᵢ); m is the mass without additions.
 
     Returns
     -------
@@ -210,6 +225,9 @@ def fit_lines(
     """
     sigma, omega_d, P, D = _check_inputs(sigma, omega_d, P, D)
     cp, kp = inverse_map(sigma, omega_d, P, D, delay, compensate=compensate)
+    dm = _added(added_mass, sigma.size)
+    cp = cp - 2.0 * dm * sigma
+    kp = kp - dm * (sigma**2 + omega_d**2)
     cl = _ols(2.0 * sigma, cp)
     kl = _ols(sigma**2 + omega_d**2, kp)
     cov = np.diag([kl.slope_stderr**2, cl.intercept_stderr**2, kl.intercept_stderr**2])
@@ -262,6 +280,7 @@ def fit_modes(
     max_iter: int = 50,
     estimate_delay: bool = False,
     digital: Any = None,
+    added_mass: np.ndarray | None = None,
 ) -> MCKFit:
     """Weighted least squares of m, c, k to all runs' modes through the exact loop roots.
 
@@ -288,6 +307,9 @@ def fit_modes(
         polynomial (:func:`phoid.digital.digital_modes`) instead of the continuous delayed
         loop's; ``delay`` only serves the starting eq. (35) lines (an equivalent continuous
         delay). Not with ``estimate_delay``.
+    added_mass : array_like, optional
+        Known mass added in each run, kg (the paper's added-mass trick): run i's loop has mass
+        m + Δmᵢ; the estimate is the mass without additions.
 
     Returns
     -------
@@ -304,7 +326,10 @@ def fit_modes(
     """
     sigma, omega_d, P, D = _check_inputs(sigma, omega_d, P, D)
     cov = np.asarray(cov, dtype=float).reshape(sigma.size, 2, 2)
-    lines = fit_lines(sigma, omega_d, P, D, delay)
+    dm = _added(added_mass, sigma.size)
+    if digital is not None and np.any(dm):
+        raise ValueError("`added_mass` is not available with a digital loop")
+    lines = fit_lines(sigma, omega_d, P, D, delay, added_mass=dm)
     theta = np.array(start if start is not None else (lines.m, lines.c, lines.k), dtype=float)
     npar = 4 if estimate_delay else 3
     if digital is not None and estimate_delay:
@@ -330,8 +355,8 @@ def fit_modes(
         if digital is not None:
             s_mod, ds = digital_modes(m, c, k, P, D, digital, s_guess)
         else:
-            s_mod = dominant_roots(m, c, k, P, D, tau, s_guess)
-            _, df = characteristic(s_mod, m, c, k, P, D, tau)
+            s_mod = dominant_roots(m + dm, c, k, P, D, tau, s_guess)
+            _, df = characteristic(s_mod, m + dm, c, k, P, D, tau)
             cols = [s_mod**2, s_mod, np.ones_like(s_mod)]
             if estimate_delay:  # ∂f/∂Δt = −s(Ds + P)e^{−sΔt}
                 cols.append(-s_mod * (D * s_mod + P) * np.exp(-s_mod * tau))
@@ -390,7 +415,7 @@ def fit_modes(
                 "dominant root at the solution"
             )
     for i in range(sigma.size if digital is None else 0):
-        if not _is_dominant(s[i], m, c, k, float(P[i]), float(D[i]), tau):
+        if not _is_dominant(s[i], m + dm[i], c, k, float(P[i]), float(D[i]), tau):
             raise IdentificationError(
                 f"run {i + 1}: the fitted mode is not the loop's dominant root at the solution"
             )
@@ -406,8 +431,10 @@ def fit_modes(
             "stderr scaled up accordingly: check the delay, friction or unmodelled dynamics"
         )
     cp, kp = inverse_map(sigma, omega_d, P, D, tau)
+    cp = cp - 2.0 * dm * sigma
+    kp = kp - dm * (sigma**2 + omega_d**2)
     if estimate_delay:
-        lines = fit_lines(sigma, omega_d, P, D, tau)
+        lines = fit_lines(sigma, omega_d, P, D, tau, added_mass=dm)
     return MCKFit(
         m=float(theta[0]), c=float(theta[1]), k=float(theta[2]), cov=covp[:3, :3],
         estimator="gls", compensated=True, c_prime=cp, k_prime=kp, c_line=lines.c_line,
@@ -423,6 +450,7 @@ def delay_profile(
     P: np.ndarray,
     D: np.ndarray,
     delays: np.ndarray,
+    added_mass: np.ndarray | None = None,
 ) -> np.ndarray:
     """How far the runs' modes are from one plant, for each candidate loop delay (a start).
 
@@ -449,9 +477,11 @@ def delay_profile(
     sigma, omega_d, P, D = _check_inputs(sigma, omega_d, P, D)
     n = sigma.size
     w0sq = sigma**2 + omega_d**2
+    dm = _added(added_mass, n)
     out = np.empty(np.size(delays))
     for j, tau in enumerate(np.atleast_1d(np.asarray(delays, dtype=float))):
         cp, kp = inverse_map(sigma, omega_d, P, D, float(tau))
+        cp, kp = cp - 2.0 * dm * sigma, kp - dm * w0sq
         sc = max(float(np.std(cp)), 1e-300)
         sk = max(float(np.std(kp)), 1e-300)
         A = np.zeros((2 * n, 3))
