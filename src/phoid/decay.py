@@ -255,8 +255,11 @@ def _hold_sd(x: np.ndarray, j: int) -> float | None:
     return sd if sd <= 1.5 * _diff_noise(seg) + 1e-300 else None
 
 
-def _release(t: np.ndarray, x: np.ndarray) -> tuple[int, float | None]:
-    """Index of the release sample and the sd of the held segment (None if too short)."""
+def _release(t: np.ndarray, x: np.ndarray, refine: bool = True) -> tuple[int, float | None]:
+    """Index of the release sample and the sd of the held segment (None if too short).
+
+    ``refine=False`` stops after the quadratic change point (a few samples off, typically),
+    for callers that refine the release with a model of their own."""
     n = x.size
     sd = _diff_noise(x[:2048])
     n0 = max(3, min(20, n // 50))
@@ -304,6 +307,8 @@ def _release(t: np.ndarray, x: np.ndarray) -> tuple[int, float | None]:
         sse = s_yy - L * s_y - a * s_yq
     sse = np.where(np.isfinite(sse) & (det > 0), sse, np.inf)
     j0 = int(np.argmin(sse))
+    if not refine:
+        return j0, _hold_sd(x, j0)
     # refine on a longer stretch (until 4× the threshold) with x = L + a u² + b u⁴, u = (t − τ)₊
     # (the free response from rest is even in u), over candidates near the first estimate
     far = np.flatnonzero(np.abs(x[i1:m_search] - level) > 4 * thr)
@@ -1071,18 +1076,22 @@ class DecayStart:
     t_end: float
 
 
-def start_decay(t, x, *, release=None, skip=0.0, refine=True) -> DecayStart:
+def start_decay(
+    t, x, *, release=None, skip=0.0, refine=True, coarse_release=False
+) -> DecayStart:
     """The first stages of :func:`fit_decay`: release, noise, window, start and Gauss–Newton.
 
     What is left out is what a full fit adds for reporting: the exact residual, covariance and
     warnings. :func:`fit_decay` with ``guess=(start.sigma, start.omega_d)`` and
     ``release=start.release`` continues from it. With ``refine=False`` only the ESPRIT start
     is made (within about one standard error of the optimum on the seed paper's sweep, but
-    lost on records where a slow non-dominant real mode is strong). Raises ValueError as
-    :func:`fit_decay` does for unusable input.
+    lost on records where a slow non-dominant real mode is strong). ``coarse_release=True``
+    detects the release by its first stage only (the quadratic change point; the refinement
+    with an even quartic is left out), for callers that refine it with a model of their own.
+    Raises ValueError as :func:`fit_decay` does for unusable input.
     """
     t, x = _check_record(t, x)
-    release, hold_sd, tw, xw = _window(t, x, release, skip, None)
+    release, hold_sd, tw, xw = _window(t, x, release, skip, None, not coarse_release)
     tau = tw - tw[0]
     noise = hold_sd if hold_sd else _diff_noise(xw[-4096:])
     noise = max(noise, 1e-15 * float(np.ptp(xw)))
@@ -1153,10 +1162,10 @@ def _clipped(x: np.ndarray, model: np.ndarray, noise: float) -> bool:
     return False
 
 
-def _window(t, x, release, skip, t_end):
+def _window(t, x, release, skip, t_end, refine_release=True):
     skip = v.nonnegative("skip", skip, "s")
     if release is None:
-        j, hold_sd = _release(t, x)
+        j, hold_sd = _release(t, x, refine_release)
         release = float(t[j])
     else:
         release = v.finite("release", release, "s")

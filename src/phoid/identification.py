@@ -27,7 +27,7 @@ import numpy as np
 from scipy import stats
 
 from phoid._threads import single_blas_thread
-from phoid.decay import DecayFit, fit_decay, start_decay
+from phoid.decay import DecayFit, detect_release, fit_decay, start_decay
 from phoid.errors import IdentificationError
 from phoid.loop import _rightmost_roots_many, characteristic
 from phoid.pho import Estimate, MCKFit, delay_profile, fit_lines, fit_modes
@@ -422,9 +422,9 @@ def measure_modes(
     return fits, reasons, skips
 
 
-def _start_run(t, x, skip):
+def _start_run(t, x, skip, coarse_release=False):
     try:
-        return start_decay(t, x, skip=skip), None
+        return start_decay(t, x, skip=skip, coarse_release=coarse_release), None
     except (ValueError, RuntimeError, np.linalg.LinAlgError) as exc:
         return None, str(exc)
 
@@ -459,7 +459,10 @@ def _measure(data, P, D, delay, *, rough=None, first=None, noise=None, digital=N
     dm = np.zeros(n) if added_mass is None else np.asarray(added_mass, dtype=float)
     skip0 = 3.0 * delay
     if first is None:
-        first = [_start_run(t, x, skip0) for t, x in data]
+        # the release is refined below with the loop's own response (continuous loops), so
+        # the data-only detection may stop at its first stage; where that refit is not made,
+        # the full data-only detection is run then
+        first = [_start_run(t, x, skip0, coarse_release=digital is None) for t, x in data]
     starts = [st for st, _err in first]
     fits: list[DecayFit | None] = [None] * n
     reasons: list[str | None] = [err for _st, err in first]
@@ -505,7 +508,12 @@ def _measure(data, P, D, delay, *, rough=None, first=None, noise=None, digital=N
             continue
         t, x = data[i]
         g = None
-        release = st.release if releases[i] is None else releases[i]
+        if releases[i] is not None:
+            release = releases[i]
+        elif digital is None:
+            release = detect_release(t, x)
+        else:
+            release = st.release
         if st.oscillating and releases[i] is not None and delay == 0.0:
             # no delay: the closed loop is exactly second order; fit from the refined release
             g, _err = _fit_run(t, x, 0.0, release, None, guess=(st.sigma, st.omega_d))
@@ -552,7 +560,7 @@ def _measure(data, P, D, delay, *, rough=None, first=None, noise=None, digital=N
             # no loop modes (no rough plant, a non-oscillating start, or that fit failed): one
             # mode after 3Δt from the data-only start, as a plain fit_decay would do
             skip = skip0
-            g, err = _fit_run(t, x, skip0, st.release)
+            g, err = _fit_run(t, x, skip0, release)
             if g is None:
                 reasons[i] = err
                 continue
