@@ -108,3 +108,33 @@ def test_bad_digital_manifest(tmp_path, loop, delay, needle):
     out = runner.invoke(app, ["identify", str(tmp_path / "bad")])
     assert out.exit_code == 2 and len(out.stderr.strip().splitlines()) == 1
     assert "Traceback" not in out.output
+
+
+def test_simulate_and_identify_a_digital_set_from_the_cli(tmp_path):
+    out = tmp_path / "d"
+    r = runner.invoke(app, ["simulate", str(out), "--m", "1", "--c", "2", "--k", "100",
+                            "--P", "20:200:10", "--D", "0.5:5:10", "--sample-time", "0.002",
+                            "--delay-samples", "3", "--fs", "500", "--duration", "10",
+                            "--noise", "1e-5", "--seed", "4"])
+    assert r.exit_code == 0, r.output
+    exp = read_experiment(out)
+    assert exp.delay is None and dict(exp.loop) == {
+        "sample_time": 0.002, "delay_samples": 3, "velocity": "backward-difference"}
+    r = runner.invoke(app, ["identify", str(out), "--json"])
+    assert r.exit_code == 0, r.output
+    s = json.loads(r.stdout)
+    assert s["loop"]["model"] == "digital"
+    for q, v in (("m", 1.0), ("c", 2.0), ("k", 100.0)):
+        assert abs(s[q]["value"] - v) < 3 * s[q]["stderr"]
+    text = runner.invoke(app, ["identify", str(out)]).stdout
+    assert "digital loop (exact sampled model)" in text
+
+
+@pytest.mark.parametrize(("args", "needle"), [
+    (["--delay-samples", "2"], "--delay-samples needs --sample-time"),
+    (["--sample-time", "0.002", "--delay", "0.006"], "do not give --delay"),
+])
+def test_simulate_digital_option_errors(tmp_path, args, needle):
+    r = runner.invoke(app, ["simulate", str(tmp_path / "x"), "--P", "20,40", "--D", "1,2",
+                            *args])
+    assert r.exit_code == 2 and needle in r.stderr and "Traceback" not in r.output

@@ -9,7 +9,21 @@ function implements.
 """
 
 from phoid.decay import DecayFit, detect_release, fit_decay, logdec
+from phoid.digital import DigitalPD, DigitalRoots, digital_modes, digital_roots
 from phoid.errors import ExperimentError, IdentificationError, PhoidError
+from phoid.fisher import CramerRao, cramer_rao
+from phoid.forced import (
+    ForcedIdentification,
+    ForcedRun,
+    ResponseFit,
+    fit_response,
+    identify_forced,
+    identify_forced_data,
+    simulate_forced,
+    two_frequency,
+)
+from phoid.free import FreeIdentification, FreeRun, identify_free, identify_free_data
+from phoid.friction import FrictionFit, friction_evidence, identify_friction
 from phoid.identification import Identification, RunMode, identify, identify_data
 from phoid.io import ExperimentSet, Run, read_experiment, run_from_arrays, write_experiment
 from phoid.loop import (
@@ -22,42 +36,68 @@ from phoid.loop import (
     is_stable,
 )
 from phoid.pho import Estimate, MCKFit, fit_lines, fit_modes
+from phoid.planning import Design, DesignError, PlannedRun, design
 from phoid.plant import Plant, free_response
 from phoid.simulation import Simulation, simulate
 
 __version__ = "0.1.0"
 
 __all__ = [
+    "CramerRao",
     "DecayFit",
     "DelayedPD",
+    "Design",
+    "DesignError",
+    "DigitalPD",
+    "DigitalRoots",
     "Estimate",
     "ExperimentError",
     "ExperimentSet",
+    "ForcedIdentification",
+    "ForcedRun",
+    "FreeIdentification",
+    "FreeRun",
+    "FrictionFit",
     "Identification",
     "IdentificationError",
     "LoopModes",
     "MCKFit",
     "PhoidError",
+    "PlannedRun",
     "Plant",
+    "ResponseFit",
     "Run",
     "RunMode",
     "Simulation",
     "__version__",
     "alphas",
     "characteristic_roots",
+    "cramer_rao",
+    "design",
     "detect_release",
+    "digital_modes",
+    "digital_roots",
     "fit_decay",
     "fit_lines",
     "fit_modes",
+    "fit_response",
     "forward_map",
     "free_response",
+    "friction_evidence",
     "identify",
     "identify_data",
+    "identify_forced",
+    "identify_forced_data",
+    "identify_free",
+    "identify_free_data",
+    "identify_friction",
     "inverse_map",
     "is_stable",
     "logdec",
     "read_experiment",
     "run_from_arrays",
     "simulate",
+    "simulate_forced",
+    "two_frequency",
     "write_experiment",
 ]

@@ -100,8 +100,9 @@ def identify(
         "--json", help="Print the result as one JSON object (the phoid/1 spec) on standard "
                        "output; warnings also go to standard error.")] = False,
     plots: Annotated[Path | None, typer.Option(
-        "--plots", help="Write per-run decay fits with residuals and the eq. (35) lines with "
-                        "error bars as PNG files into this folder.")] = None,
+        "--plots", help="Write per-run fits with residuals and the eq. (35) lines (pho) or "
+                        "eq. (20) lines (forced) with error bars as PNG files into this "
+                        "folder.")] = None,
     estimator: Annotated[str, typer.Option(
         help="'gls': weighted fit of m, c, k through the exact loop roots (efficient, default); "
              "'ols': the paper's eq. (35) lines by ordinary least squares.")] = "gls",
@@ -110,8 +111,19 @@ def identify(
     no_compensation: Annotated[bool, typer.Option(
         "--no-compensation", help="Ignore the loop delay (the paper's uncompensated column; "
                                   "only with --estimator ols).")] = False,
+    mass: Annotated[float | None, typer.Option(
+        "--mass", help="Known mass, kg, for a free-decay set (overrides the manifest's "
+                       "`mass`): c and k are then given too.")] = None,
+    friction: Annotated[bool, typer.Option(
+        "--friction", help="pho: fit Coulomb friction f_c too (JSON key fc), by a full-record "
+                           "fit through the stick-slip simulator (seconds, not milliseconds; "
+                           "the loop delay must be known).")] = False,
 ) -> None:
-    """Identify m, c, k (with standard errors) from a recorded PHO experiment set.
+    """Identify m, c, k (with standard errors) from a recorded experiment set.
+
+    The set's method decides how: "pho" (below), "forced" (a sine sweep: R and rho per
+    frequency, then m, c, k from eq. 20) or "free" (free releases: sigma, omega0, zeta, the two
+    roots, c/m and k/m; c and k too with --mass).
 
     Each run's free decay is fitted for its dominant mode (decay rate sigma and damped frequency
     omega_d with their uncertainty); the delay-corrected modes of all runs then give m, c, k.
@@ -123,8 +135,23 @@ def identify(
 
     try:
         exp = read_experiment(experiment)
-        result = _identify(exp, delay=delay, estimator=estimator,
-                           compensate=not no_compensation)
+        if friction and (exp.method != "pho" or estimator != "gls" or no_compensation
+                         or plots is not None):
+            raise ValueError("--friction applies to pho sets, without --estimator ols, "
+                             "--no-compensation or --plots")
+        if exp.method == "pho":
+            if mass is not None:
+                raise ValueError("--mass applies to free-decay sets (method = \"free\") only")
+            if friction:
+                from phoid.friction import identify_friction_set
+
+                result = identify_friction_set(exp, delay=delay)
+            else:
+                result = _identify(exp, delay=delay, estimator=estimator,
+                                   compensate=not no_compensation)
+        else:
+            result = _identify_other(exp, mass=mass, delay=delay, estimator=estimator,
+                                     no_compensation=no_compensation)
         written = result.plot(plots) if plots is not None else []
     except (ValueError, OSError) as exc:
         _fail(str(exc))
@@ -136,6 +163,24 @@ def identify(
         typer.echo(result.report())
     if written:
         typer.echo(f"{len(written)} figures written to {plots}", err=as_json)
+
+
+def _identify_other(exp, *, mass, delay, estimator, no_compensation):
+    """Identify a forced or free-decay set (the PHO-only options are refused)."""
+    for flag, given in (("--delay", delay is not None), ("--estimator", estimator != "gls"),
+                        ("--no-compensation", no_compensation)):
+        if given:
+            raise ValueError(f"{flag} applies to pho sets only; {exp.path} is a "
+                             f"{exp.method} set")
+    if exp.method == "forced":
+        from phoid.forced import identify_forced
+
+        if mass is not None:
+            raise ValueError("--mass applies to free-decay sets only (a forced set gives m)")
+        return identify_forced(exp)
+    from phoid.free import identify_free
+
+    return identify_free(exp, mass=mass)
 
 
 def _numbers(name: str, text: str) -> list[float]:
@@ -161,6 +206,7 @@ def _numbers(name: str, text: str) -> list[float]:
 
 @app.command()
 def simulate(
+    ctx: typer.Context,
     out: Annotated[Path, typer.Argument(help="Folder to write the experiment set into.")],
     m: Annotated[float, typer.Option("--m", help="Mass, kg.")] = 2.0,
     c: Annotated[float, typer.Option("--c", help="Viscous damping, N s/m.")] = 1.0,
@@ -172,6 +218,10 @@ def simulate(
     D: Annotated[str, typer.Option(
         "--D", help="Derivative gains, N s/m, paired with --P (same count, or one value for "
                     "all runs).")] = "0.6:6:19",
+    schedule: Annotated[Path | None, typer.Option(
+        "--schedule", help="Take the runs (P, D, file names) and, unless given here, the delay, "
+                           "--fs, --duration, --noise and --x0 from a schedule written by "
+                           "`phoid design --out` (instead of --P/--D).")] = None,
     delay: Annotated[float, typer.Option(help="Loop delay, s.")] = 0.1,
     duration: Annotated[float, typer.Option(help="Record length after release, s.")] = 15.0,
     fs: Annotated[float, typer.Option(help="Sample rate, Hz.")] = 1000.0,
@@ -186,15 +236,48 @@ def simulate(
     omit_delay: Annotated[bool, typer.Option(
         "--omit-delay", help="Do not write [loop] delay into the manifest (to rehearse "
                              "estimating it).")] = False,
+    sample_time: Annotated[float | None, typer.Option(
+        "--sample-time", help="pho: a digital controller sampling x every SAMPLE_TIME s "
+                              "(zero-order hold; --fs a whole multiple of its rate); the "
+                              "delay is then --delay-samples whole periods, not --delay.")
+    ] = None,
+    delay_samples: Annotated[int, typer.Option(
+        "--delay-samples", help="digital: periods between sampling and applying the command.")
+    ] = 0,
+    velocity: Annotated[str, typer.Option(
+        help="digital: velocity estimator, 'backward-difference' or 'filtered' (with "
+             "--cutoff).")] = "backward-difference",
+    cutoff: Annotated[float | None, typer.Option(
+        help="digital: cut-off of the filtered velocity, rad/s.")] = None,
     gzip: Annotated[bool, typer.Option(help="Compress the data files (.csv.gz).")] = True,
     overwrite: Annotated[bool, typer.Option(help="Replace an existing set in OUT.")] = False,
+    method: Annotated[str, typer.Option(
+        "--method", help="'pho' (PD loop, default), 'forced' (a sine sweep, no loop: one run "
+                         "per --omega, column F) or 'free' (one free release, no loop).")
+    ] = "pho",
+    B: Annotated[float, typer.Option(
+        "--B", help="forced: force amplitude, N.")] = 1.0,
+    omega: Annotated[str, typer.Option(
+        "--omega", help="forced: forcing frequencies, rad/s: '2,5,9' or start:stop:count.")
+    ] = "2:14:8",
+    v0: Annotated[float, typer.Option(
+        "--v0", help="free: velocity given at the release, m/s.")] = 0.0,
+    write_mass: Annotated[bool, typer.Option(
+        "--write-mass", help="free: write the mass into the manifest as the known mass.")
+    ] = False,
 ) -> None:
     """Simulate a PHO experiment and write it as a phoid/1 experiment set.
+
+    With --method forced: the plant (no loop) rests for --hold seconds (at --x0 if given, else
+    at 0), then F = B sin(omega (t - hold)) acts; one run per --omega, columns t, x, F. With
+    --method free: the plant is held at --x0 for --hold seconds and released (with --v0); one
+    run, columns t, x.
 
     The plant m x'' + c x' + k x + fc sign(x') = u runs under u = -[D x'(t - delay) +
     P x(t - delay)], held at x0 for --hold seconds with the controller on, then released; the
     recorded position gets the offset, white noise and quantisation asked for. Columns t, x and
-    the applied feedback force u. Use it to rehearse an experiment or to build test fixtures.
+    the applied feedback force u. Use it to rehearse an experiment or to build test fixtures;
+    --schedule rehearses a schedule written by `phoid design --out` (same runs and file names).
     """
     import numpy as np
 
@@ -202,7 +285,36 @@ def simulate(
     from phoid.plant import Plant
     from phoid.simulation import simulate as _simulate
 
+    if method != "pho":
+        _simulate_other(ctx, out, method=method, m=m, c=c, k=k, fc=fc, B=B, omega=omega,
+                        duration=duration, fs=fs, x0=x0, v0=v0, hold=hold, noise=noise,
+                        quantum=quantum, offset=offset, seed=seed, write_mass=write_mass,
+                        gzip=gzip, overwrite=overwrite)
+        return
     try:
+        given = {n for n in ("B", "omega", "v0", "write_mass")
+                 if getattr(ctx.get_parameter_source(n), "name", "") != "DEFAULT"}
+        if given:
+            raise ValueError(f"--{sorted(given)[0].replace('_', '-')} does not apply to "
+                             "--method pho")
+        names = None
+        if schedule is not None:
+            from phoid.planning import read_schedule
+
+            given = {n for n in ("P", "D", "delay", "fs", "duration", "noise", "x0")
+                     if getattr(ctx.get_parameter_source(n), "name", "") != "DEFAULT"}
+            if given & {"P", "D"}:
+                raise ValueError("give either --schedule or --P/--D, not both")
+            sched = read_schedule(schedule)
+            P = ",".join(map(repr, sched["P"].tolist()))
+            D = ",".join(map(repr, sched["D"].tolist()))
+            names = sched["files"]
+            if "delay" not in given and sched["delay"] is not None:
+                delay = sched["delay"]
+            fs = sched.get("fs", fs) if "fs" not in given else fs
+            duration = sched.get("duration", duration) if "duration" not in given else duration
+            noise = sched.get("noise", noise) if "noise" not in given else noise
+            x0 = sched.get("amplitude", x0) if "x0" not in given else x0
         Ps = _numbers("P", P)
         Ds = _numbers("D", D)
         if len(Ds) == 1:
@@ -214,25 +326,211 @@ def simulate(
                              f"got {len(Ps)} and {len(Ds)}")
         plant = Plant(m, c, k, fc)
         rng = np.random.default_rng(seed)
-        sim = _simulate(plant, np.array(Ps), np.array(Ds), delay=delay, duration=duration,
+        digital: dict = {}
+        loop_table = None
+        if sample_time is not None:
+            if getattr(ctx.get_parameter_source("delay"), "name", "") != "DEFAULT":
+                raise ValueError("a digital loop's delay is --delay-samples (whole periods of "
+                                 "--sample-time); do not give --delay with --sample-time")
+            digital = {"sample_time": sample_time, "delay_samples": delay_samples,
+                       "velocity": velocity, "cutoff": cutoff}
+            loop_table = {key: val for key, val in digital.items() if val is not None}
+            delay = delay_samples * sample_time
+        else:
+            stray = [n for n in ("delay_samples", "velocity", "cutoff")
+                     if getattr(ctx.get_parameter_source(n), "name", "") != "DEFAULT"]
+            if stray:
+                raise ValueError(f"--{stray[0].replace('_', '-')} needs --sample-time")
+        sim = _simulate(plant, np.array(Ps), np.array(Ds),
+                        **({} if digital else {"delay": delay}), duration=duration,
                         fs=fs, x0=x0, hold=hold, noise=noise, quantum=quantum, offset=offset,
-                        rng=rng)
+                        rng=rng, **digital)
         runs = [
             run_from_arrays(sim.t, sim.x[i], u=sim.u[i], P=Ps[i], D=Ds[i], index=i + 1)
             for i in range(len(Ps))
         ]
         truth = {"m": m, "c": c, "k": k, "fc": fc, "delay": delay, "noise": noise,
-                 "quantum": quantum, "offset": offset, "x0": x0, "hold": hold}
+                 "quantum": quantum, "offset": offset, "x0": x0, "hold": hold,
+                 **(loop_table or {})}
         if seed is not None:
             truth["seed"] = seed
         path = write_experiment(
-            out, runs, method="pho", delay=None if omit_delay else delay,
+            out, runs, method="pho", delay=None if omit_delay or digital else delay,
+            loop=loop_table,
             title=f"phoid simulate: m={m:g} kg, c={c:g} N s/m, k={k:g} N/m",
-            extra={"simulated": truth}, gzip=gzip, overwrite=overwrite,
+            extra={"simulated": truth}, gzip=gzip, overwrite=overwrite, names=names,
         )
     except (ValueError, OSError) as exc:
         _fail(str(exc))
     typer.echo(f"wrote {len(Ps)} runs to {path}")
+
+
+def _simulate_other(ctx, out, *, method, m, c, k, fc, B, omega, duration, fs, x0, v0, hold,
+                    noise, quantum, offset, seed, write_mass, gzip, overwrite) -> None:
+    """`phoid simulate --method forced|free`: a sine sweep or a free release, no loop."""
+    import numpy as np
+
+    from phoid.io import write_experiment
+    from phoid.plant import Plant
+
+    def given(name: str) -> bool:
+        return getattr(ctx.get_parameter_source(name), "name", "") != "DEFAULT"
+
+    try:
+        if method not in ("forced", "free"):
+            raise ValueError(f"`method` must be 'pho', 'forced' or 'free'; got {method!r}")
+        own = {"forced": ("B", "omega"), "free": ("v0", "write_mass")}
+        for name in ("P", "D", "schedule", "delay", "omit_delay", "sample_time",
+                     "delay_samples", "velocity", "cutoff", *own["free" if method ==
+                                                                      "forced" else "forced"]):
+            if given(name):
+                raise ValueError(f"--{name.replace('_', '-')} does not apply to "
+                                 f"--method {method}")
+        plant = Plant(m, c, k, fc)
+        rng = np.random.default_rng(seed)
+        truth = {"m": m, "c": c, "k": k, "fc": fc, "noise": noise, "quantum": quantum,
+                 "offset": offset, "hold": hold}
+        if seed is not None:
+            truth["seed"] = seed
+        title = f"phoid simulate --method {method}: m={m:g} kg, c={c:g} N s/m, k={k:g} N/m"
+        if method == "forced":
+            from phoid.forced import simulate_forced
+
+            omegas = _numbers("omega", omega)
+            rest = x0 if given("x0") else 0.0
+            runs = simulate_forced(plant, omegas, B=B, duration=duration, fs=fs, hold=hold,
+                                   x0=rest, noise=noise, quantum=quantum, offset=offset,
+                                   rng=rng)
+            truth.update({"B": B, "omega": omegas, "x0": rest})
+            path = write_experiment(out, runs, method="forced", title=title,
+                                    extra={"simulated": truth}, gzip=gzip, overwrite=overwrite)
+        else:
+            from phoid.io import run_from_arrays
+            from phoid.simulation import simulate as _simulate
+
+            sim = _simulate(plant, 0.0, 0.0, duration=duration, fs=fs, x0=x0, v0=v0,
+                            hold=hold, noise=noise, quantum=quantum, offset=offset, rng=rng)
+            runs = [run_from_arrays(sim.t, sim.x[0], index=1)]
+            truth.update({"x0": x0, "v0": v0})
+            path = write_experiment(out, runs, method="free", title=title,
+                                    mass=m if write_mass else None,
+                                    extra={"simulated": truth}, gzip=gzip, overwrite=overwrite)
+    except (ValueError, OSError) as exc:
+        _fail(str(exc))
+    typer.echo(f"wrote {len(runs)} runs to {path}")
+
+
+def _band(text: str) -> tuple[float, float]:
+    """Parse the zeta band 'lo:hi'."""
+    parts = text.split(":")
+    try:
+        lo, hi = (float(p) for p in parts)
+    except ValueError:
+        raise ValueError(f"`zeta` must be a band lo:hi, e.g. 0.03:0.2; got {text!r}") from None
+    return lo, hi
+
+
+@app.command()
+def design(
+    m: Annotated[str | None, typer.Option(
+        "--m", help="Prior mass, kg: a value or a range lo:hi.")] = None,
+    c: Annotated[str | None, typer.Option(
+        "--c", help="Prior viscous damping, N s/m: a value or a range lo:hi.")] = None,
+    k: Annotated[str | None, typer.Option(
+        "--k", help="Prior stiffness, N/m: a value or a range lo:hi.")] = None,
+    delay: Annotated[float | None, typer.Option(
+        help="Loop delay, s (with --check: default the set's).")] = None,
+    runs: Annotated[int, typer.Option(help="Number of runs.")] = 10,
+    pmax: Annotated[float | None, typer.Option(help="Limit on |P|, N/m.")] = None,
+    dmax: Annotated[float | None, typer.Option(help="Limit on |D|, N s/m.")] = None,
+    max_freq: Annotated[float | None, typer.Option(
+        "--max-freq", help="Highest damped frequency of a run, rad/s (rig bandwidth); "
+                           "0.2 x the Nyquist rate caps it in any case.")] = None,
+    fs: Annotated[float | None, typer.Option(help="Sample rate, Hz [1000].")] = None,
+    duration: Annotated[float | None, typer.Option(
+        help="Record length after the release, s [10].")] = None,
+    noise: Annotated[float | None, typer.Option(
+        help="Sensor noise standard deviation, m [1e-5].")] = None,
+    amplitude: Annotated[float | None, typer.Option(
+        help="Release amplitude x0, m [0.01].")] = None,
+    zeta: Annotated[str, typer.Option(
+        help="Band of the dominant mode's damping ratio at the nominal plant, lo:hi.")
+    ] = "0.03:0.2",
+    min_cycles: Annotated[float, typer.Option(
+        "--min-cycles", help="Fewest cycles above the noise floor within the record.")] = 5.0,
+    delay_margin: Annotated[float | None, typer.Option(
+        "--delay-margin", help="Least extra delay each loop must tolerate, s "
+                               "[max(0.2 delay, 1/fs)].")] = None,
+    tolerance: Annotated[float, typer.Option(
+        help="Relative width of the safety checks around a prior given as one value.")
+    ] = 0.1,
+    out: Annotated[Path | None, typer.Option(
+        "--out", "-o", help="Write the schedule as an experiment.toml skeleton (a folder or a "
+                            ".toml path) for the rig operator to fill in.")] = None,
+    plot: Annotated[Path | None, typer.Option(
+        "--plot", help="Write the root locus and predicted uncertainties as PNG.")] = None,
+    as_json: Annotated[bool, typer.Option(
+        "--json", help="Print one JSON object (runs, predicted, warnings) on standard output."
+    )] = False,
+    check_set: Annotated[Path | None, typer.Option(
+        "--check", help="Evaluate the gains of an existing set or skeleton instead of "
+                        "designing; without --m/--c/--k its data are identified first.")] = None,
+    overwrite: Annotated[bool, typer.Option(help="Replace an existing --out file.")] = False,
+) -> None:
+    """Design the gains of a PHO experiment: every run rings stably, m, c, k come out best.
+
+    From a prior guess of the plant (each of --m, --c, --k a value or a range lo:hi), the loop
+    delay and the rig's limits, proposes --runs pairs (P, D) such that, for every plant in the
+    prior, each closed loop is stable with margin and rings with its damping ratio in the band,
+    and prints each run's predicted sigma, omega_d, zeta, cycles above the noise floor and
+    stability margins with the predicted (Cramer-Rao) standard errors of m, c, k for the given
+    noise, sample rate and record length. --out writes the schedule as an experiment.toml
+    skeleton; --check evaluates an existing set's gains the same way and exits with status 1
+    when any run is unsafe on the prior.
+    """
+    from phoid.planning import check_experiment
+    from phoid.planning import design as make_design
+
+    try:
+        settings = {key: val for key, val in {
+            "fs": fs, "duration": duration, "noise": noise, "amplitude": amplitude,
+            "pmax": pmax, "dmax": dmax, "max_freq": max_freq, "delay_margin": delay_margin,
+        }.items() if val is not None}
+        settings.update(zeta=_band(zeta), min_cycles=min_cycles, tolerance=tolerance)
+        if check_set is not None:
+            if out is not None:
+                raise ValueError("`--out` writes a designed schedule; it cannot be used with "
+                                 "--check")
+            result = check_experiment(check_set, m, c, k, delay=delay, **settings)
+        else:
+            missing = [f"--{n}" for n, val in (("m", m), ("c", c), ("k", k)) if val is None]
+            if missing:
+                raise ValueError(f"give the prior plant: {', '.join(missing)} missing "
+                                 "(a value or a range lo:hi each)")
+            if delay is None:
+                raise ValueError("give the loop delay --delay (s)")
+            result = make_design(m, c, k, delay=delay, runs=runs, **settings)
+        written = result.write(out, overwrite=overwrite) if out is not None else None
+        if plot is not None:
+            import matplotlib.pyplot as plt
+
+            plt.close(result.plot(plot))
+    except (ValueError, OSError) as exc:
+        _fail(str(exc))
+    if as_json:
+        typer.echo(json.dumps(result.summary(), indent=1))
+        for w in result.warnings:
+            typer.echo(f"phoid: warning: {w}", err=True)
+    else:
+        typer.echo(result.report())
+    if written is not None:
+        typer.echo(f"schedule written to {written}", err=as_json)
+    if plot is not None:
+        typer.echo(f"figure written to {plot}", err=as_json)
+    if check_set is not None and not result.safe:
+        # a check that finds a run unsafe must fail a script that runs it before the rig does
+        typer.echo("phoid: some runs are unsafe on the prior (see UNSAFE above)", err=True)
+        raise typer.Exit(1)
 
 
 def main() -> None:

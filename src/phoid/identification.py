@@ -21,7 +21,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from scipy import stats
@@ -31,6 +31,10 @@ from phoid.decay import DecayFit, detect_release, fit_decay, start_decay
 from phoid.errors import IdentificationError
 from phoid.loop import _rightmost_roots_many, characteristic
 from phoid.pho import Estimate, MCKFit, delay_profile, fit_lines, fit_modes
+
+if TYPE_CHECKING:
+    from phoid.forced import ForcedIdentification
+    from phoid.free import FreeIdentification
 
 __all__ = ["Identification", "RunMode", "identify", "measure_modes"]
 
@@ -574,7 +578,7 @@ def identify(
     delay: float | None = None,
     estimator: str = "gls",
     compensate: bool = True,
-) -> Identification:
+) -> Identification | ForcedIdentification | FreeIdentification:
     """Identify m, c, k from a PHO experiment set.
 
     Parameters
@@ -594,6 +598,9 @@ def identify(
     Returns
     -------
     Identification
+        For ``method = "forced"`` or ``"free"`` sets the result of
+        :func:`phoid.forced.identify_forced` or :func:`phoid.free.identify_free` (a known mass
+        for a free set: :func:`phoid.free.identify_free` with ``mass=``).
 
     Raises
     ------
@@ -604,10 +611,23 @@ def identify(
         raise ValueError(f"`estimator` must be 'gls' or 'ols'; got {estimator!r}")
     if estimator == "gls" and not compensate:
         raise ValueError("`compensate=False` is only available with estimator='ols'")
-    if getattr(experiment, "method", "pho") != "pho":
-        raise IdentificationError(
-            f"{experiment.path}: method = {experiment.method!r} is not a PHO set"
-        )
+    method = getattr(experiment, "method", "pho")
+    if method in ("forced", "free"):
+        # the other methods of the format, with their own estimators; PHO-only options refused
+        if delay is not None or estimator != "gls" or not compensate:
+            raise IdentificationError(
+                f"{experiment.path}: method = {method!r}: `delay`, `estimator` and "
+                "`compensate` apply to PHO sets only"
+            )
+        if method == "forced":
+            from phoid.forced import identify_forced
+
+            return identify_forced(experiment)
+        from phoid.free import identify_free
+
+        return identify_free(experiment)
+    if method != "pho":
+        raise IdentificationError(f"{experiment.path}: method = {method!r} is not known")
     runs = list(experiment.runs)
     if not runs:
         raise IdentificationError(f"{experiment.path}: no runs")
@@ -858,6 +878,13 @@ def _identify_core(data, P, D, delay, *, files, names, estimator="gls", compensa
         elif f is not None:
             warnings.extend(f"{names[i]}: {w}" for w in f.warnings)
     warnings.extend(mck.warnings)
+    misfits = [i for i in used if any(w.startswith("misfit") for w in fits[i].warnings)]
+    if digital is None and len(misfits) >= max(2, len(used) // 2):
+        warnings.append(
+            f"{len(misfits)} of {len(used)} runs do not decay like a linear loop (residuals well "
+            "above the noise): if the rig has Coulomb friction, identify with friction "
+            "(phoid identify --friction, phoid.friction.identify_friction), which fits f_c too"
+        )
     if len(used) >= 3 and np.ptp(D[used]) == 0.0:
         # P-only loops (the seed's Discussion): damping varies between runs only through the
         # delay, so the damping line's points crowd together; say how much that costs

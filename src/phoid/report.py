@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
@@ -32,6 +32,11 @@ def identification_text(ident: Identification) -> str:
     delay = (f"{ident.delay:g} s" if ident.delay_stderr is None
              else f"{_fmt(ident.delay, ident.delay_stderr)} s")
     lines.append(f"  estimator {ident.fit.estimator}, delay {delay} ({ident.delay_source})")
+    g = getattr(ident, "digital", None)
+    if g is not None:
+        filt = f", cut-off {g.cutoff:g} rad/s" if g.cutoff is not None else ""
+        lines.append(f"  digital loop (exact sampled model): T_s = {g.sample_time:g} s, "
+                     f"{g.delay_samples}-sample delay, {g.velocity} velocity{filt}")
     lines.append("")
     for name, est in (("m", ident.m), ("c", ident.c), ("k", ident.k)):
         lines.append(f"  {name} = {_fmt(est.value, est.stderr)} {est.unit}")
@@ -191,3 +196,26 @@ def figure1(result: PaperResult, out_dir: str | Path) -> tuple[Path, Path]:
         ax.legend(fontsize=8)
         paths.append(_save(fig, out / f"figure1{tag}.png"))
     return paths[0], paths[1]
+
+
+def friction_text(fit: Any) -> str:
+    """Plain-text report of a friction fit (:class:`phoid.friction.FrictionFit`)."""
+    lines = ["phoid identify --friction (full-record fit through the stick–slip simulator)"]
+    lines.append(f"  delay {fit.delay:g} s (given), χ²/dof {fit.chi2_red:.3g}, "
+                 f"{'converged' if fit.converged else 'NOT converged'}")
+    lines.append("")
+    for name, est in (("m", fit.m), ("c", fit.c), ("k", fit.k), ("fc", fit.fc)):
+        lines.append(f"  {name} = {_fmt(est.value, est.stderr)} {est.unit}")
+    lines.append("")
+    lines.append(f"  {'run':<16}{'P N/m':>10}{'D N s/m':>10}{'σ 1/s':>10}{'ω_d rad/s':>11}"
+                 f"{'x0 m':>11}{'sticks at s':>13}{'resid m':>10}")
+    for r in fit.runs:
+        stick = f"{r.stick_time:.4g}" if r.stick_time is not None else "-"
+        mark = "" if r.used else "  (set aside)"
+        lines.append(f"  {r.name:<16}{r.P:>10.4g}{r.D:>10.4g}{r.sigma:>10.4g}"
+                     f"{r.omega_d:>11.5g}{r.x0:>11.3g}{stick:>13}{r.residual_rms:>10.2g}{mark}")
+    if fit.warnings:
+        lines.append("")
+        lines.append("warnings:")
+        lines.extend(f"  - {w}" for w in fit.warnings)
+    return "\n".join(lines)

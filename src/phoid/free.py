@@ -1,0 +1,956 @@
+"""Free-decay identification (``method = "free"``): σ, ω₀, ζ and both roots, for every damping.
+
+A free release of the plant m x'' + c x' + k x = 0 (no feedback) follows the unified response of
+the seed's eq. (2) with eqs. (3)–(8), valid for underdamped, critically damped and overdamped
+plants alike (ERRATA 4):
+
+    x(t) = x_off + x₀ [C(τ) + σ S(τ)] + v₀ S(τ),   τ = t − t₀ ≥ 0,
+
+with C, S the fundamental solutions of :func:`phoid.plant.modal_basis` (e^{−στ}cosh wτ and
+e^{−στ}sinh(wτ)/w for q = σ² − ω₀² ≥ 0, their trigonometric forms for q < 0, and the w → 0 limit
+of eq. (11) at critical damping), x₀ and v₀ the position (from the offset) and velocity at the
+release t₀. An overdamped release is a sum of two real exponentials, on which the logarithmic
+decrement has nothing to measure; this module never assumes an oscillation. It fits the two rates
+(σ, ω₀²) — shared by all releases of a set — by variable-projection Gauss–Newton (Levenberg–
+Marquardt safeguarded): for each trial (σ, ω₀²) the offsets, x₀ and v₀ of every release follow by
+linear least squares, and Kaufman's step updates the rates. When a release starts from a held
+segment (the mass at rest, then let go), the fit starts where the motion has surely begun (3
+samples in a row more than 8 noise sd off the held level): a held sample left in the window
+would bias the decay, while the few samples skipped, within a few noise sd of the held level,
+carry almost no information. The state (x₀, v₀) is fitted at the window's start and carried
+back to the detected release (:func:`phoid.decay.detect_release`'s rule) for the report.
+(Fitting the release time as a parameter, with the record held before it, was tried and
+dropped: for a release from rest x leaves the held level quadratically, so t₀ trades off
+against v₀ far from linearly, and over Monte Carlo replicas of a critically damped release the
+linearised stderr of ζ was too small — sd of the standardised error 1.3, |z| up to 6.)
+
+Only ratios are identifiable from a free decay: c/m = 2σ (eq. 3) and k/m = ω₀² (eq. 5). With a
+known mass m (``--mass``, or ``mass`` in the manifest) c = 2σm and k = ω₀²m follow, with the
+mass taken as exact.
+
+Uncertainties are the Gauss–Newton covariance of all parameters (rates, offsets, x₀, v₀) with
+each run weighted by its own residual noise variance — the Cramér–Rao bound of this model at the
+estimate — propagated to ω₀ = √(ω₀²), ζ = σ/ω₀ (eq. 10) and the roots
+s = −σ ± √(σ² − ω₀²) (eq. 4) by the delta method.
+
+The fitting engine (:func:`_fit_modal`) is shared with :mod:`phoid.forced`, whose start-up
+transient is the same free response added to the steady state.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from phoid import _validate as v
+from phoid._threads import single_blas_thread
+from phoid.decay import _diff_noise, _esprit, _release
+from phoid.errors import IdentificationError
+from phoid.pho import Estimate
+from phoid.plant import free_response, modal_basis
+
+__all__ = ["FreeIdentification", "FreeRun", "identify_free", "identify_free_data"]
+
+#: fewest samples a record must hold after its release
+MIN_SAMPLES = 16
+#: a record whose peak-to-peak motion is within this many noise sds never moved
+_STILL_NSD = 12.0
+#: relative standard error above which an estimate is flagged as poorly determined
+_POOR = 0.1
+#: the roots are "critical within uncertainty" when |σ² − ω₀²| is below this many stderr
+_CRITICAL_NSE = 2.0
+
+
+# --------------------------------------------------------------------------------------------
+# the engine: shared modal rates, per-run linear coefficients (variable projection)
+
+
+@dataclass(frozen=True)
+class _Segment:
+    """One run's window for :func:`_fit_modal`.
+
+    ``fixed`` holds the columns that do not depend on the rates (offset; for forced runs the
+    steady-state cosine and sine); the free-response columns B₁ = C + σS and B₂ = S at
+    τ = t − t₀ are appended (their coefficients are x₀ and v₀ at t₀, eq. 8).
+    """
+
+    t: np.ndarray
+    x: np.ndarray
+    fixed: np.ndarray
+    t0: float
+
+
+@dataclass(frozen=True)
+class _ModalFit:
+    """Result of :func:`_fit_modal`.
+
+    The rates (σ, ω₀²) and their covariance ``cov`` (zero when they were held fixed); per run:
+    the linear coefficients (``fixed`` columns, then x₀, v₀), their covariance including the
+    rates' uncertainty, their sensitivity ``K`` (n_coef × 2) to the rates (so that
+    cov(cᵢ, cⱼ) = Kᵢ cov Kⱼᵀ for i ≠ j), residual and residual noise sd.
+    """
+
+    sigma: float
+    w0sq: float
+    cov: np.ndarray
+    coef: tuple[np.ndarray, ...]
+    coef_cov: tuple[np.ndarray, ...]
+    K: tuple[np.ndarray, ...]
+    noise: tuple[float, ...]
+    resid: tuple[np.ndarray, ...]
+    fit_rates: bool
+    converged: bool
+    iterations: int
+
+
+def _release_basis(tau: np.ndarray, sigma: float, w0sq: float) -> tuple[np.ndarray, np.ndarray]:
+    """B₁ = C + σS (x₀ = 1, v₀ = 0) and B₂ = S (x₀ = 0, v₀ = 1) at τ, eqs. (2)–(8)."""
+    C, S = modal_basis(tau, sigma, w0sq)
+    return C + sigma * S, S
+
+
+class _Prep:
+    """Per-run constants of the projection: the fixed columns' orthonormal basis Qf (n × p),
+    their triangular factor, the record with its fixed part removed, and τ = t − t₀."""
+
+    def __init__(self, seg: _Segment) -> None:
+        self.seg = seg
+        self.tau = seg.t - seg.t0
+        self.Qf, self.Rf = np.linalg.qr(seg.fixed)
+        self.xt = seg.x - self.Qf @ (self.Qf.T @ seg.x)
+        self.n = seg.t.size
+
+
+class _State:
+    """Linear least squares of every run at the rates (σ, ω₀²), by Frisch–Waugh: the two
+    free-response columns B = (B₁, B₂) are projected off the fixed columns, B̃ = B − QfQfᵀB, and
+    their coefficients β = (x₀, v₀) solve B̃ᵀB̃β = B̃ᵀx̃ (2 × 2, eigen-decomposed: a direction
+    whose singular value is below 10⁻¹⁰ of the columns' scale is dropped, e.g. B₁ ∝ the offset
+    when ω₀² = 0). Per run: (Qb, β, residual, B)."""
+
+    def __init__(self, preps: Sequence[_Prep], sigma: float, w0sq: float,
+                 weights: np.ndarray) -> None:
+        self.sigma, self.w0sq = float(sigma), float(w0sq)
+        self.sse_w = math.inf
+        self.items: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []
+        for p in preps:
+            with np.errstate(over="ignore", invalid="ignore"):
+                B = np.column_stack(_release_basis(p.tau, self.sigma, self.w0sq))
+            # trial rates whose response grows beyond any record's scale: reject them
+            if not np.abs(B).max() < 1e100:
+                return
+            Bt = B - p.Qf @ (p.Qf.T @ B)
+            ev, V = np.linalg.eigh(Bt.T @ Bt)
+            scale = max(float(np.max(np.einsum("ij,ij->j", B, B))), 1e-300)
+            keep = ev > 1e-20 * scale
+            sv = np.sqrt(ev[keep])
+            Qb = (Bt @ V[:, keep]) / sv
+            proj = Qb.T @ p.xt
+            beta = V[:, keep] @ (proj / sv)
+            r = p.xt - Qb @ proj
+            self.items.append((Qb, beta, r, B))
+        self.rss = np.array([float(item[2] @ item[2]) for item in self.items])
+        self.sse_w = float(weights @ self.rss)
+
+
+def _jacobian(preps: Sequence[_Prep], st: _State, weights: np.ndarray):
+    """Kaufman's normal matrix M and gradient g of the weighted SSE in (σ, ω₀²), and each
+    run's raw model derivative (n × 2).
+
+    With C = e^{−στ}ch(q, τ), S = e^{−στ}sh(q, τ), q = σ² − ω₀², the derivative in σ at fixed
+    q is exact and free: ∂B₁/∂σ = −τB₁ + B₂, ∂B₂/∂σ = −τB₂. The one in ω₀² at fixed σ (that is,
+    −∂/∂q) is a forward difference of :func:`_release_basis` with a step of 10⁻⁷ of the rate
+    scale squared (relative error ~10⁻⁷, far below what matters for a Gauss–Newton step or a
+    standard error); then ∂/∂σ at fixed ω₀² = ∂/∂σ|_q − 2σ ∂/∂ω₀²|_σ.
+    """
+    sigma, w0sq = st.sigma, st.w0sq
+    span = max(float(p.tau[-1]) for p in preps)
+    scale = max(abs(sigma) + math.sqrt(abs(w0sq)), 1.0 / span)
+    hw = 1e-7 * scale * scale
+    M = np.zeros((2, 2))
+    g = np.zeros(2)
+    raws = []
+    for i, p in enumerate(preps):
+        Qb, beta, r, B = st.items[i]
+        a, b = beta
+        base = B @ beta
+        with np.errstate(over="ignore", invalid="ignore"):
+            p1, p2 = _release_basis(p.tau, sigma, w0sq + hw)
+        d_w = (a * p1 + b * p2 - base) / hw
+        d_s = a * B[:, 1] - p.tau * base - 2.0 * sigma * d_w
+        J = np.column_stack([d_s, d_w])
+        Jt = J - p.Qf @ (p.Qf.T @ J)
+        Jt -= Qb @ (Qb.T @ Jt)
+        M += weights[i] * (Jt.T @ Jt)
+        g += weights[i] * (Jt.T @ r)
+        raws.append(J)
+    return M, g, raws
+
+
+def _noise_from(preps: Sequence[_Prep], st: _State, fit_rates: bool) -> np.ndarray:
+    """Each run's white-noise sd from its residual, √(RSS/dof) (a floor of 10⁻¹³ of its range
+    keeps noise-free records finite)."""
+    total = sum(p.n for p in preps)
+    out = []
+    for p, rss in zip(preps, st.rss, strict=True):
+        k = p.seg.fixed.shape[1] + 2 + (2 * p.n / total if fit_rates else 0.0)
+        dof = max(p.n - k, 1.0)
+        out.append(max(math.sqrt(rss / dof), 1e-13 * float(np.ptp(p.seg.x)), 1e-300))
+    return np.array(out)
+
+
+def _pick_start(segs: Sequence[_Segment], cands: Sequence[tuple[float, float]],
+                weights: np.ndarray) -> tuple[float, float]:
+    """Starting rates (σ, ω₀²) for :func:`_fit_modal`: the best of the candidates after a
+    short refinement.
+
+    Every candidate is scored by the weighted residual sum of squares on the runs thinned to
+    ~4096 samples (the first 2048 kept, where a fast mode lives, every d-th of the rest); the
+    four best distinct ones are refined there by :func:`_fit_modal` (at most 15 steps) and the
+    lowest refined score wins. A single score ranks starts poorly when the SSE surface has
+    more than one valley (a weakly excited fast mode: a critically damped pair at the slow
+    root is a local minimum), hence the refinement.
+    """
+    thin = []
+    for s in segs:
+        d = max(1, (s.t.size - 2048) // 2048)
+        keep = np.r_[np.arange(min(2048, s.t.size)), np.arange(2048, s.t.size, d)]
+        thin.append(_Segment(t=s.t[keep], x=s.x[keep], fixed=s.fixed[keep], t0=s.t0))
+    preps = [_Prep(s) for s in thin]
+
+    def score(sg: float, wq: float) -> float:
+        if not (math.isfinite(sg) and math.isfinite(wq)):
+            return math.inf
+        st = _State(preps, sg, wq, weights)
+        return st.sse_w if math.isfinite(st.sse_w) else math.inf
+
+    scored = sorted((score(sg, wq), sg, wq) for sg, wq in cands)
+    top: list[tuple[float, float]] = []
+    for sse, sg, wq in scored:
+        if not math.isfinite(sse):
+            break
+        if all(abs(sg - a) > 1e-3 * (abs(a) + 1e-12) or abs(wq - b) > 1e-3 * (abs(b) + 1e-12)
+               for a, b in top):
+            top.append((sg, wq))
+        if len(top) == 4:
+            break
+    if not top:
+        return cands[-1]
+    best, best_sse = top[0], math.inf
+    for sg, wq in top:
+        try:
+            fit = _fit_modal(thin, sg, wq, noise=1.0 / np.sqrt(weights), maxit=15)
+        except (IdentificationError, np.linalg.LinAlgError):
+            continue
+        sse = score(fit.sigma, fit.w0sq)
+        if sse < best_sse:
+            best, best_sse = (fit.sigma, fit.w0sq), sse
+    return best
+
+
+def _fit_modal(
+    segs: Sequence[_Segment],
+    sigma: float,
+    w0sq: float,
+    *,
+    noise: Sequence[float],
+    fit_rates: bool = True,
+    maxit: int = 60,
+) -> _ModalFit:
+    """Fit the shared rates (σ, ω₀²) and every run's linear coefficients.
+
+    Levenberg–Marquardt on the variable projection (Kaufman's Jacobian), each run weighted by
+    1/noiseᵢ², the noise re-estimated from that run's residual after every accepted step
+    (``noise`` only weighs the starting point). Stops when the step is below 10⁻³ stderr. With
+    ``fit_rates`` False the rates stay at the values given (no rate uncertainty is
+    propagated).
+
+    Covariance: the Gauss–Newton inverse of the full weighted normal matrix (rates and all
+    linear coefficients), taken block-wise: cov(rates) = M⁻¹ (M the Schur complement, i.e.
+    Kaufman's normal matrix), cov(cᵢ) = (GᵢᵀWᵢGᵢ)⁻¹ + Kᵢ M⁻¹ Kᵢᵀ, Kᵢ = −Gᵢ⁺Jᵢ.
+    """
+    preps = [_Prep(s) for s in segs]
+    weights = 1.0 / np.square(np.asarray(noise, dtype=float))
+    st = _State(preps, sigma, w0sq, weights)
+    if not math.isfinite(st.sse_w):
+        raise IdentificationError("the free-response model overflows at the starting rates")
+
+    def reweight(state: _State) -> np.ndarray:
+        # each run's weight from its own residual (the relative weights are what matter)
+        w = 1.0 / np.square(_noise_from(preps, state, fit_rates))
+        state.sse_w = float(w @ state.rss)
+        return w
+
+    weights = reweight(st)
+    converged = not fit_rates
+    iterations = 0
+    lam = 1e-4
+    for _ in range(maxit if fit_rates else 0):
+        iterations += 1
+        M, g, _raws = _jacobian(preps, st, weights)
+        dg = np.maximum(np.diag(M), 1e-300)
+        new = None
+        while lam < 1e10:
+            try:
+                delta = np.linalg.solve(M + lam * np.diag(dg), g)
+            except np.linalg.LinAlgError:
+                lam *= 10
+                continue
+            trial = _State(preps, st.sigma + delta[0], st.w0sq + delta[1], weights)
+            if math.isfinite(trial.sse_w) and trial.sse_w <= st.sse_w:
+                new = trial
+                break
+            lam *= 10
+        if new is None:
+            converged = True  # no descent left: at the minimum to rounding
+            break
+        try:
+            se = np.sqrt(np.abs(np.diag(np.linalg.inv(M))))
+        except np.linalg.LinAlgError:
+            se = np.full(2, np.inf)
+        gain = st.sse_w - new.sse_w
+        st = new
+        weights = reweight(st)
+        lam = max(lam / 10, 1e-12)
+        if np.all(np.abs(delta) <= 1e-3 * se) or gain <= 1e-13 * max(st.sse_w, 1e-300):
+            converged = True
+            break
+    M, _g, raws = _jacobian(preps, st, weights)
+    cov = np.zeros((2, 2))
+    if fit_rates:
+        try:
+            cov = np.linalg.inv(M)
+        except np.linalg.LinAlgError:
+            cov = np.linalg.pinv(M)
+    coefs, ccovs, Ks, resids = [], [], [], []
+    for i, p in enumerate(preps):
+        # the full design at the solution, once: coefficients, (GᵀG)⁻¹ and G⁺J (SVD)
+        G = np.column_stack([p.seg.fixed, *_release_basis(p.tau, st.sigma, st.w0sq)])
+        U, sv, Vt = np.linalg.svd(G, full_matrices=False)
+        keep = sv > sv[0] * 1e-12
+        U, sv, Vt = U[:, keep], sv[keep], Vt[keep]
+        coef = Vt.T @ ((U.T @ p.seg.x) / sv)
+        K = -(Vt.T @ ((U.T @ raws[i]) / sv[:, None])) if fit_rates else np.zeros((coef.size, 2))
+        coefs.append(coef)
+        ccovs.append((Vt.T / sv**2) @ Vt / weights[i] + K @ cov @ K.T)
+        Ks.append(K)
+        resids.append(st.items[i][2])
+    return _ModalFit(
+        sigma=st.sigma, w0sq=st.w0sq, cov=cov, coef=tuple(coefs), coef_cov=tuple(ccovs),
+        K=tuple(Ks), noise=tuple(float(1 / math.sqrt(w)) for w in weights),
+        resid=tuple(resids), fit_rates=fit_rates, converged=converged, iterations=iterations,
+    )
+
+
+def _esprit_rates(t: np.ndarray, y: np.ndarray, noise: float, *,
+                  grid: bool = False) -> list[tuple[float, float]]:
+    """Starting (σ, ω₀²) from ESPRIT (order 3: an offset and two modes) on the active part of
+    ``y`` (until it stays within 5 noise sd of its final level), block-averaged to ≤ ~1024
+    points; one candidate per pair of roots that can be a real plant's (a conjugate pair or
+    two real roots).
+
+    With ``grid``, each real decaying root r found is also paired with a second real root at
+    r (critical damping) and at 12 log-spaced multiples of r up to half the sampling rate: in a
+    release from rest the fast exponential of an overdamped plant is weak and mostly gone
+    before the fit window starts, and ESPRIT then places it poorly, while r — the slow root —
+    is well found."""
+    n = y.size
+    if n < 8:
+        return []
+    tail = y[-max(n // 10, 1):]
+    level = float(np.median(tail))
+    far = np.flatnonzero(np.abs(y - level) > 5.0 * noise)
+    n_act = min(n, max(int(far[-1]) + 1 if far.size else n, 64))
+    tt, yy = t[:n_act], y[:n_act]
+    dt = (tt[-1] - tt[0]) / (n_act - 1)
+    yg = np.interp(tt[0] + dt * np.arange(n_act), tt, yy)
+    q = max(1, n_act // 1024)
+    m = n_act // q
+    yb = yg[: m * q].reshape(m, q).mean(axis=1)
+    if yb.size < 8:
+        return []
+    try:
+        with np.errstate(all="ignore"):
+            s, _energy = _esprit(yb, q * dt, order=3)
+    except (np.linalg.LinAlgError, ValueError):
+        return []
+    out = []
+    s = s[np.isfinite(s)]
+    for i in range(s.size):
+        for j in range(i + 1, s.size):
+            a, b = s[i], s[j]
+            tol = 1e-6 * max(abs(a), abs(b), 1.0)
+            real_pair = abs(a.imag) <= tol and abs(b.imag) <= tol
+            conj_pair = abs(a - b.conjugate()) <= 1e-6 * max(abs(a), 1.0) and abs(a.imag) > tol
+            if real_pair or conj_pair:
+                out.append((float(-(a + b).real / 2), float((a * b).real)))
+    if grid:
+        fastest = 0.5 / float(np.median(np.diff(t)))
+        for r in s:
+            if abs(r.imag) <= 1e-6 * max(abs(r), 1.0) and 0 < -r.real < fastest / 1.5:
+                slow = float(r.real)
+                for f in np.r_[slow, slow * np.geomspace(1.5, fastest / -slow, 12)]:
+                    out.append((-(slow + f) / 2, slow * f))
+    return out
+
+
+# --------------------------------------------------------------------------------------------
+# results
+
+
+def _num(x: float | None) -> float | None:
+    return None if x is None or not math.isfinite(x) else float(x)
+
+
+@dataclass(frozen=True)
+class FreeRun:
+    """One release of a free-decay set, as fitted.
+
+    Attributes
+    ----------
+    file : str
+        Data file (as named in the manifest).
+    release : float
+        Release time t₀, s: detected when the record holds a held segment (``held``), else the
+        first sample analysed.
+    held : bool
+        Whether a held segment before the release was found and modelled.
+    x0, v0 : float
+        Position (m, from the offset) and velocity (m/s) at ``release``, eq. (8), from the
+        fitted response.
+    offset : float
+        Constant sensor offset (rest position), m.
+    t_start, t_end : float
+        First and last sample times analysed, s.
+    n_samples : int
+        Samples analysed.
+    noise_sd : float
+        White-noise sd from the residuals, m.
+    residual_rms : float
+        RMS residual, m.
+    snr : float
+        Norm of the fitted motion over the noise sd (its square root of energy, in noise sds).
+    used : bool
+        False when the run was set aside (see ``warnings``).
+    warnings : tuple of str
+    """
+
+    file: str
+    release: float
+    held: bool
+    x0: float
+    v0: float
+    offset: float
+    t_start: float
+    t_end: float
+    n_samples: int
+    noise_sd: float
+    residual_rms: float
+    snr: float
+    used: bool
+    warnings: tuple[str, ...] = ()
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready dict of the run."""
+        return {
+            "file": self.file,
+            "release": _num(self.release),
+            "held": self.held,
+            "x0": _num(self.x0),
+            "v0": _num(self.v0),
+            "offset": _num(self.offset),
+            "t_start": _num(self.t_start),
+            "t_end": _num(self.t_end),
+            "n_samples": int(self.n_samples),
+            "noise_sd": _num(self.noise_sd),
+            "residual_rms": _num(self.residual_rms),
+            "snr": _num(self.snr),
+            "used": self.used,
+            "warnings": list(self.warnings),
+        }
+
+
+@dataclass(frozen=True)
+class FreeIdentification:
+    """Result of :func:`identify_free`: σ, ω₀, ζ, the roots, c/m and k/m (and c, k for a known
+    mass), with uncertainties.
+
+    Attributes
+    ----------
+    sigma : Estimate
+        Decay rate σ = c/(2m), 1/s (eq. 3).
+    omega0 : Estimate
+        Natural frequency ω₀ = √(k/m), rad/s (eq. 5).
+    zeta : Estimate
+        Damping ratio ζ = σ/ω₀ (eq. 10).
+    c_over_m, k_over_m : Estimate
+        2σ (1/s) and ω₀² (1/s²): what a free decay determines of the plant.
+    roots : tuple of complex
+        The two roots of s² + 2σs + ω₀² = 0, 1/s, rightmost first (eq. 4).
+    roots_stderr : tuple of (float or None, float or None)
+        Standard errors of each root's real and imaginary parts (None when the damping is
+        critical within its uncertainty: the split of the roots is then undetermined).
+    regime : str
+        ``"underdamped"``, ``"critical"`` (σ² − ω₀² within 2 stderr of 0) or ``"overdamped"``.
+    cov : ndarray, shape (2, 2)
+        Covariance of (σ, ω₀²).
+    mass : float or None
+        The known mass (kg) used for c and k, if any.
+    m, c, k : Estimate or None
+        Known mass (stderr 0), c = 2σm (N s/m) and k = ω₀²m (N/m); None without a mass.
+    runs : tuple of FreeRun
+    warnings : tuple of str
+    source : str
+    """
+
+    sigma: Estimate
+    omega0: Estimate
+    zeta: Estimate
+    c_over_m: Estimate
+    k_over_m: Estimate
+    roots: tuple[complex, complex]
+    roots_stderr: tuple[tuple[float | None, float | None], ...]
+    regime: str
+    cov: np.ndarray = field(repr=False)
+    mass: float | None = None
+    m: Estimate | None = None
+    c: Estimate | None = None
+    k: Estimate | None = None
+    runs: tuple[FreeRun, ...] = ()
+    warnings: tuple[str, ...] = ()
+    source: str = ""
+    data: tuple[tuple[np.ndarray, np.ndarray], ...] = field(default=(), repr=False)
+
+    def model(self, i: int, t: np.ndarray | float) -> np.ndarray:
+        """Fitted position of run ``i`` (0-based) at times ``t`` (s), m."""
+        r = self.runs[i]
+        B1, B2 = _release_basis(np.asarray(t, dtype=float) - r.release, self.sigma.value,
+                                self.k_over_m.value)
+        return r.offset + r.x0 * B1 + r.v0 * B2
+
+    def summary(self) -> dict[str, Any]:
+        """The JSON object of ``phoid identify --json`` for a free set.
+
+        Keys: ``method`` ("free"), ``sigma`` (1/s), ``omega0`` (rad/s), ``zeta``, ``c_over_m``
+        (1/s), ``k_over_m`` (1/s^2), each ``{"value", "stderr", "unit"}``; ``regime``;
+        ``roots``: two objects ``{"re", "im", "re_stderr", "im_stderr", "unit": "1/s"}``,
+        rightmost first (stderr null when the damping is critical within its uncertainty);
+        ``runs``; ``warnings``. With a known mass also ``m`` (the given mass, stderr 0,
+        ``"source": "given"``), ``c`` and ``k``.
+        """
+        out: dict[str, Any] = {
+            "method": "free",
+            "sigma": self.sigma.to_dict(),
+            "omega0": self.omega0.to_dict(),
+            "zeta": self.zeta.to_dict(),
+            "c_over_m": self.c_over_m.to_dict(),
+            "k_over_m": self.k_over_m.to_dict(),
+            "regime": self.regime,
+            "roots": [
+                {"re": float(s.real), "im": float(s.imag), "re_stderr": _num(se[0]),
+                 "im_stderr": _num(se[1]), "unit": "1/s"}
+                for s, se in zip(self.roots, self.roots_stderr, strict=True)
+            ],
+        }
+        for key in ("omega0", "zeta"):
+            if not math.isfinite(getattr(self, key).value):
+                out[key] = {"value": None, "stderr": None, "unit": getattr(self, key).unit}
+        if self.m is not None and self.c is not None and self.k is not None:
+            out["m"] = {**self.m.to_dict(), "source": "given"}
+            out["c"] = self.c.to_dict()
+            out["k"] = self.k.to_dict()
+        out["runs"] = [r.to_dict() for r in self.runs]
+        out["warnings"] = list(self.warnings)
+        return out
+
+    def report(self) -> str:
+        """Plain-text report: σ, ω₀, ζ, roots, c/m, k/m (c, k with a known mass), runs."""
+        from phoid.report import _fmt
+
+        lines = [f"phoid identify (free decay): {self.source}" if self.source
+                 else "phoid identify (free decay)", ""]
+        for name, est in (("σ", self.sigma), ("ω₀", self.omega0), ("ζ", self.zeta),
+                          ("c/m", self.c_over_m), ("k/m", self.k_over_m)):
+            val = _fmt(est.value, est.stderr) if math.isfinite(est.value) else "undefined"
+            lines.append(f"  {name:<4}= {val} {est.unit}".rstrip())
+        lines.append(f"  regime: {self.regime}")
+        for j, (s, se) in enumerate(zip(self.roots, self.roots_stderr, strict=True), 1):
+            re = _fmt(s.real, se[0])
+            im = _fmt(abs(s.imag), se[1])
+            sign = "+" if s.imag >= 0 else "−"
+            lines.append(f"  root {j}: {re} {sign} {im}i 1/s")
+        if self.m is not None and self.c is not None and self.k is not None:
+            lines.append(f"  with the known mass m = {self.m.value:g} kg:")
+            lines.append(f"  c = {_fmt(self.c.value, self.c.stderr)} {self.c.unit}")
+            lines.append(f"  k = {_fmt(self.k.value, self.k.stderr)} {self.k.unit}")
+        else:
+            lines.append("  (m, c, k are not separately identifiable from a free decay: "
+                         "give the mass with --mass to get c and k)")
+        lines.append("")
+        lines.append(f"  {'run':<18}{'release s':>11}{'held':>6}{'x0 m':>12}{'v0 m/s':>12}"
+                     f"{'samples':>9}{'resid m':>10}")
+        for r in self.runs:
+            mark = "" if r.used else "  (set aside)"
+            lines.append(f"  {r.file:<18}{r.release:>11.5g}{'yes' if r.held else 'no':>6}"
+                         f"{r.x0:>12.4g}{r.v0:>12.4g}{r.n_samples:>9d}"
+                         f"{r.residual_rms:>10.2g}{mark}")
+        if self.warnings:
+            lines += ["", "warnings:"] + [f"  - {w}" for w in self.warnings]
+        return "\n".join(lines)
+
+    def plot(self, out_dir: str | Path) -> list[Path]:
+        """Write one PNG per run (record, fitted free response, residual) into ``out_dir``.
+
+        Returns the list of paths written.
+        """
+        from matplotlib.figure import Figure
+
+        from phoid.report import _save
+
+        out = Path(out_dir)
+        out.mkdir(parents=True, exist_ok=True)
+        written = []
+        for i, r in enumerate(self.runs):
+            if not r.used or i >= len(self.data):
+                continue
+            t, x = self.data[i]
+            sel = (t >= r.t_start) & (t <= r.t_end)
+            model = self.model(i, t[sel])
+            fig = Figure(figsize=(8, 5.5), layout="constrained")
+            ax, axr = fig.subplots(2, 1, sharex=True, height_ratios=[3, 1])
+            ax.plot(t, x * 1e3, lw=0.6, color="0.5", label="record")
+            ax.plot(t[sel], model * 1e3, lw=1.0, color="C0", label="fitted free response")
+            ax.axvline(r.release, color="C3", ls=":", lw=1, label="release")
+            ax.set_ylabel("x (mm)")
+            ax.set_title(f"{r.file}: σ = {self.sigma.value:.5g} 1/s, "
+                         f"ω₀ = {self.omega0.value:.5g} rad/s, ζ = {self.zeta.value:.4g}")
+            ax.legend(loc="upper right", fontsize=8)
+            axr.plot(t[sel], (x[sel] - model) * 1e3, lw=0.5, color="C1")
+            axr.set_ylabel("residual (mm)")
+            axr.set_xlabel("t (s)")
+            stem = Path(r.file).name.split(".")[0]
+            written.append(_save(fig, out / f"free-{i + 1:02d}-{stem}.png"))
+        return written
+
+
+# --------------------------------------------------------------------------------------------
+# derived quantities
+
+
+def _derived(sigma: float, w0sq: float, cov: np.ndarray):
+    """ω₀, ζ, roots and their stderr by the delta method (eqs. 4, 5, 10)."""
+    var_s, var_w = float(cov[0, 0]), float(cov[1, 1])
+    if w0sq > 0:
+        w0 = math.sqrt(w0sq)
+        omega0 = Estimate(w0, math.sqrt(max(var_w, 0.0)) / (2 * w0), "rad/s")
+        g = np.array([1 / w0, -sigma / (2 * w0**3)])
+        zeta = Estimate(sigma / w0, math.sqrt(max(float(g @ cov @ g), 0.0)), "")
+    else:
+        omega0 = Estimate(0.0 if w0sq == 0 else math.nan, None, "rad/s")
+        zeta = Estimate(math.nan, None, "")
+    q = sigma * sigma - w0sq
+    gq = np.array([2 * sigma, -1.0])
+    se_q = math.sqrt(max(float(gq @ cov @ gq), 0.0))
+    w = math.sqrt(abs(q))
+    se_s = math.sqrt(max(var_s, 0.0))
+    if abs(q) <= _CRITICAL_NSE * se_q or q == 0.0:
+        regime = "critical"
+    else:
+        regime = "overdamped" if q > 0 else "underdamped"
+    if q >= 0:
+        slow = -w0sq / (sigma + w) if sigma > 0 else -sigma + w
+        fast = -sigma - w
+        roots = (complex(slow), complex(fast))
+    else:
+        roots = (complex(-sigma, w), complex(-sigma, -w))
+    if regime == "critical":
+        ses: tuple[tuple[float | None, float | None], ...] = ((None, None), (None, None))
+    elif q > 0:
+        # s = −σ ± √q: ∂/∂σ = −1 ± σ/w, ∂/∂ω₀² = ∓1/(2w)
+        out = []
+        for sgn in (1.0, -1.0):
+            gr = np.array([-1 + sgn * sigma / w, -sgn / (2 * w)])
+            out.append((math.sqrt(max(float(gr @ cov @ gr), 0.0)), 0.0))
+        ses = tuple(out)
+    else:
+        # s = −σ ± i√(−q): ∂Im/∂σ = −σ/w, ∂Im/∂ω₀² = 1/(2w)
+        gi = np.array([-sigma / w, 1 / (2 * w)])
+        se_im = math.sqrt(max(float(gi @ cov @ gi), 0.0))
+        ses = ((se_s, se_im), (se_s, se_im))
+    return omega0, zeta, roots, ses, regime, q, se_q
+
+
+# --------------------------------------------------------------------------------------------
+# the public functions
+
+
+def identify_free(experiment: Any, *, mass: float | None = None) -> FreeIdentification:
+    """Identify σ, ω₀, ζ and both roots from a free-decay experiment set (eqs. 2–15).
+
+    Parameters
+    ----------
+    experiment : phoid.io.ExperimentSet
+        A set with ``method = "free"``: one or more releases (t, x) of the same plant without
+        feedback, as read by :func:`phoid.io.read_experiment`.
+    mass : float, optional
+        Known mass, kg (> 0); overrides the manifest's ``mass``. With a mass, c and k are
+        returned too.
+
+    Returns
+    -------
+    FreeIdentification
+
+    Raises
+    ------
+    IdentificationError
+        If the set is not a free set, a run carries feedback gains or an added mass, or no run
+        can be fitted (every record too short or never moving).
+    """
+    where = str(getattr(experiment, "path", ""))
+    method = getattr(experiment, "method", "free")
+    if method != "free":
+        raise IdentificationError(f"{where}: method = {method!r} is not a free-decay set")
+    runs = list(experiment.runs)
+    if not runs:
+        raise IdentificationError(f"{where}: no runs")
+    for r in runs:
+        if (r.P or 0.0) != 0.0 or (r.D or 0.0) != 0.0:
+            raise IdentificationError(
+                f"{where}: {r.name}: P = {r.P}, D = {r.D}: a free-decay run has no feedback "
+                "(use method = \"pho\" for runs under PD feedback)")
+        if getattr(r, "added_mass", 0.0):
+            raise IdentificationError(
+                f"{where}: {r.name}: added_mass is not supported for free-decay sets (every "
+                "release must be of the same plant)")
+    if mass is None:
+        mass = getattr(experiment, "mass", None)
+    result = identify_free_data(
+        [(r.t, r.x) for r in runs], mass=mass, files=[r.file for r in runs],
+        names=[r.name for r in runs], source=where,
+    )
+    loop = getattr(experiment, "loop", None) or {}
+    if loop:
+        extra = ("[loop] is ignored for a free-decay set (no feedback)",)
+        result = _with_warnings(result, extra)
+    return result
+
+
+def _with_warnings(result: FreeIdentification, extra: tuple[str, ...]) -> FreeIdentification:
+    from dataclasses import replace
+
+    return replace(result, warnings=tuple(result.warnings) + extra)
+
+
+@single_blas_thread
+def identify_free_data(
+    data: Sequence[tuple[Any, Any]],
+    *,
+    mass: float | None = None,
+    files: Sequence[str] | None = None,
+    names: Sequence[str] | None = None,
+    source: str = "",
+) -> FreeIdentification:
+    """:func:`identify_free` on plain arrays: ``data`` is a sequence of (t, x) per release.
+
+    Parameters
+    ----------
+    data : sequence of (array_like, array_like)
+        Each release's sample times (s, strictly increasing) and positions (m).
+    mass : float, optional
+        Known mass, kg (> 0).
+    files, names : sequence of str, optional
+        Labels of the runs (file names for the results, names for messages).
+    source : str
+        Where the data came from, for the report.
+
+    Returns
+    -------
+    FreeIdentification
+
+    Raises
+    ------
+    IdentificationError
+        If no run can be fitted.
+    ValueError
+        For malformed arrays (NaN/inf, lengths differ, t not increasing) or a bad ``mass``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from phoid.plant import free_response
+    >>> t = np.arange(4000) / 1000.0                  # 4 s at 1 kHz
+    >>> x, _ = free_response(t, 3.0, 100.0, 0.01, 0.0)  # σ = 3 1/s, ω₀ = 10 rad/s
+    >>> res = identify_free_data([(t, x)])
+    >>> round(res.zeta.value, 6), round(res.omega0.value, 6), res.regime
+    (0.3, 10.0, 'underdamped')
+
+    Notes
+    -----
+    Per run: the white-noise sd from second differences; a record whose peak-to-peak motion is
+    within 12 noise sds never moved and is set aside, as is one with fewer than 16 samples after
+    its release. The release is found by :func:`phoid.decay.detect_release`'s rule; when a held
+    segment precedes it, the release time joins the fit (within ±32 samples). Starting rates:
+    ESPRIT (an offset and two modes) on each run's motion, every admissible pair of roots
+    tried, the best by the residual sum of squares. Then :func:`_fit_modal`.
+    """
+    n = len(data)
+    if n == 0:
+        raise IdentificationError("no runs")
+    if mass is not None:
+        mass = v.positive("mass", mass, "kg")
+    files = list(files) if files is not None else [f"run{i + 1}" for i in range(n)]
+    names = list(names) if names is not None else files
+    arrays: list[tuple[np.ndarray, np.ndarray]] = []
+    segs: list[_Segment] = []
+    seg_of: list[int | None] = []
+    reasons: list[str | None] = []
+    noise0: list[float] = []
+    releases: list[tuple[float, bool]] = [(math.nan, False)] * n
+    for i, (t, x) in enumerate(data):
+        try:
+            t = v.finite_array("t", t, ndim=1)
+            x = v.finite_array("x", x, ndim=1)
+        except ValueError as exc:
+            raise ValueError(f"{names[i]}: {exc}") from None
+        if t.shape != x.shape:
+            raise ValueError(f"{names[i]}: `t` and `x` must have the same length; "
+                             f"got {t.size} and {x.size}")
+        if t.size >= 2 and not (np.diff(t) > 0).all():
+            raise ValueError(f"{names[i]}: `t` must be strictly increasing")
+        arrays.append((t, x))
+        seg_of.append(None)
+        if t.size < MIN_SAMPLES:
+            reasons.append(f"too short: {t.size} samples (at least {MIN_SAMPLES} are needed)")
+            continue
+        nsd = _diff_noise(x)
+        ptp = float(np.ptp(x))
+        if not ptp > _STILL_NSD * nsd or ptp == 0.0:
+            reasons.append(f"x never moves: its peak-to-peak {ptp:.3g} m is within the noise "
+                           f"(sd {nsd:.3g} m)")
+            continue
+        j, hold_sd = _release(t, x)
+        held = hold_sd is not None and j >= 10
+        if held:
+            # the window starts where the motion has surely begun: the first of 3 samples in
+            # a row more than 8 noise sd off the held level (a held sample left in would bias
+            # the fit; the few samples lost carry almost no information, the motion there
+            # being within a few noise sd of the held level)
+            level = float(np.mean(x[: j + 1]))
+            out = np.abs(x - level) > 8.0 * max(float(hold_sd), nsd)
+            hits = np.flatnonzero(out[:-2] & out[1:-1] & out[2:])
+            hits = hits[hits > j]
+            start = int(hits[0]) if hits.size else j + 1
+        else:
+            start = j if j > 2 else 0
+        after = t.size - start
+        if after < MIN_SAMPLES:
+            reasons.append(f"too short: {after} samples after the release (at least "
+                           f"{MIN_SAMPLES} are needed)")
+            continue
+        seg = _Segment(t=t[start:], x=x[start:], fixed=np.ones((after, 1)), t0=float(t[start]))
+        releases[i] = (float(t[j]) if held else float(t[start]), held)
+        reasons.append(None)
+        seg_of[i] = len(segs)
+        segs.append(seg)
+        noise0.append(max(nsd, 1e-13 * ptp))
+    if not segs:
+        raise IdentificationError(
+            (f"{source}: " if source else "") + "no usable runs: "
+            + "; ".join(f"{names[i]}: {reasons[i]}" for i in range(n)))
+    fit = _best_fit(segs, noise0)
+
+    cov = fit.cov
+    sigma, w0sq = fit.sigma, fit.w0sq
+    se_s = math.sqrt(max(cov[0, 0], 0.0))
+    se_w = math.sqrt(max(cov[1, 1], 0.0))
+    omega0, zeta, roots, ses, regime, q, se_q = _derived(sigma, w0sq, cov)
+    warnings: list[str] = []
+    runs: list[FreeRun] = []
+    for i in range(n):
+        t, x = arrays[i]
+        k_seg = seg_of[i]
+        if k_seg is None:
+            warnings.append(f"{names[i]}: set aside: {reasons[i]}")
+            runs.append(FreeRun(file=files[i], release=math.nan, held=False, x0=math.nan,
+                                v0=math.nan, offset=math.nan,
+                                t_start=float(t[0]) if t.size else math.nan,
+                                t_end=float(t[-1]) if t.size else math.nan,
+                                n_samples=int(t.size), noise_sd=math.nan,
+                                residual_rms=math.nan, snr=0.0, used=False,
+                                warnings=(reasons[i] or "",)))
+            continue
+        s = segs[k_seg]
+        coef = fit.coef[k_seg]
+        r = fit.resid[k_seg]
+        nsd = fit.noise[k_seg]
+        motion = s.x - coef[0] - r
+        snr = float(np.linalg.norm(motion)) / nsd
+        rw: list[str] = []
+        if snr < 10:
+            rw.append(f"the motion is barely above the noise ({snr:.1f} noise sd in all)")
+        warnings.extend(f"{names[i]}: {w}" for w in rw)
+        # the state at the release, from the fitted state at the window's start (eq. 8)
+        t_rel = releases[i][0]
+        x_rel, v_rel = free_response(t_rel - s.t0, sigma, w0sq, coef[1], coef[2])
+        runs.append(FreeRun(
+            file=files[i], release=t_rel, held=releases[i][1], x0=float(x_rel),
+            v0=float(v_rel), offset=float(coef[0]), t_start=float(s.t[0]),
+            t_end=float(s.t[-1]), n_samples=int(s.t.size), noise_sd=nsd,
+            residual_rms=float(math.sqrt(float(r @ r) / r.size)), snr=snr, used=True,
+            warnings=tuple(rw),
+        ))
+    if not fit.converged:
+        warnings.append("the free-response fit did not converge; the estimates may be poor")
+    if not sigma > 0:
+        warnings.append(f"σ = {sigma:.4g} 1/s ≤ 0: the record does not decay (no damping, or "
+                        "growth: not a passive plant)")
+    if not w0sq > 0:
+        warnings.append(f"ω₀² = {w0sq:.4g} 1/s² ≤ 0: no restoring spring (k ≈ 0); ω₀ and ζ "
+                        "are undefined")
+    for label, est in (("ω₀", omega0), ("ζ", zeta)):
+        if est.stderr is not None and math.isfinite(est.value) and est.value != 0 \
+                and est.stderr > _POOR * abs(est.value):
+            warnings.append(f"{label} is poorly determined (relative stderr "
+                            f"{est.stderr / abs(est.value):.0%}): the records are too short "
+                            "or too noisy")
+    if regime == "critical":
+        spread = math.sqrt(abs(q) + _CRITICAL_NSE * se_q)
+        warnings.append(
+            f"the damping is critical within its uncertainty (σ² − ω₀² = {q:.3g} ± {se_q:.2g} "
+            f"1/s²): the two roots are not separately determined (both within ±{spread:.3g} "
+            f"1/s of −σ = {-sigma:.5g} 1/s), so their stderr are not given")
+    m_est = c_est = k_est = None
+    if mass is not None:
+        m_est = Estimate(mass, 0.0, "kg")
+        c_est = Estimate(2 * sigma * mass, 2 * se_s * mass, "N s/m")
+        k_est = Estimate(w0sq * mass, se_w * mass, "N/m")
+    return FreeIdentification(
+        sigma=Estimate(sigma, se_s, "1/s"), omega0=omega0, zeta=zeta,
+        c_over_m=Estimate(2 * sigma, 2 * se_s, "1/s"),
+        k_over_m=Estimate(w0sq, se_w, "1/s^2"),
+        roots=roots, roots_stderr=ses, regime=regime, cov=cov.copy(), mass=mass,
+        m=m_est, c=c_est, k=k_est, runs=tuple(runs), warnings=tuple(warnings),
+        source=source, data=tuple(arrays),
+    )
+
+
+def _best_fit(segs: list[_Segment], noise: list[float]) -> _ModalFit:
+    """Starting rates from the three runs with the largest motion (ESPRIT root pairs, each run
+    started 0, 2 and 8 samples into its window: a kink or a stray sample at the start can throw
+    ESPRIT off) and a slow fallback; the start with the lowest weighted SSE is refined by
+    :func:`_fit_modal`."""
+    cands: list[tuple[float, float]] = []
+    order = np.argsort([-float(np.ptp(s.x)) / nz for s, nz in zip(segs, noise, strict=True)])
+    for k in order[:3]:
+        s = segs[int(k)]
+        for lag in (0, 2, 8):
+            cands += _esprit_rates(s.t[lag:], s.x[lag:], noise[int(k)], grid=lag == 0)
+    span = max(float(s.t[-1] - s.t0) for s in segs)
+    cands.append((2.0 / span, (2 * math.pi / span) ** 2))
+    start = _pick_start(segs, cands, 1.0 / np.square(noise))
+    return _fit_modal(segs, start[0], start[1], noise=noise)
