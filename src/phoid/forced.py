@@ -65,7 +65,7 @@ from phoid.free import (
     _State,
 )
 from phoid.io import Run, run_from_arrays
-from phoid.pho import Estimate
+from phoid.pho import Estimate, open_loop_omega0, open_loop_zeta
 
 __all__ = [
     "ForcedIdentification",
@@ -600,23 +600,12 @@ class ForcedIdentification:
     @property
     def omega0(self) -> Estimate:
         """ω₀ = √(k/m), rad/s (eq. 5), delta-method stderr."""
-        m, k = self.m.value, self.k.value
-        if not (m > 0 and k > 0):
-            return Estimate(math.nan, None, "rad/s")
-        w = math.sqrt(k / m)
-        g = np.array([-0.5 * w / m, 0.0, 0.5 * w / k])
-        return Estimate(w, math.sqrt(max(float(g @ self.cov @ g), 0.0)), "rad/s")
+        return open_loop_omega0(self.m.value, self.k.value, self.cov)
 
     @property
     def zeta(self) -> Estimate:
         """ζ = c/(2√(mk)) (eq. 10), delta-method stderr."""
-        m, c, k = self.m.value, self.c.value, self.k.value
-        if not (m > 0 and k > 0):
-            return Estimate(math.nan, None, "")
-        s = 2 * math.sqrt(m * k)
-        z = c / s
-        g = np.array([-0.5 * z / m, 1 / s, -0.5 * z / k])
-        return Estimate(z, math.sqrt(max(float(g @ self.cov @ g), 0.0)), "")
+        return open_loop_zeta(self.m.value, self.c.value, self.k.value, self.cov)
 
     def summary(self) -> dict[str, Any]:
         """The JSON object of ``phoid identify --json`` for a forced set.

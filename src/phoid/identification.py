@@ -30,7 +30,15 @@ from phoid._threads import single_blas_thread
 from phoid.decay import DecayFit, detect_release, fit_decay, start_decay
 from phoid.errors import IdentificationError
 from phoid.loop import _rightmost_roots_many, characteristic
-from phoid.pho import Estimate, MCKFit, delay_profile, fit_lines, fit_modes
+from phoid.pho import (
+    Estimate,
+    MCKFit,
+    delay_profile,
+    fit_lines,
+    fit_modes,
+    open_loop_omega0,
+    open_loop_zeta,
+)
 
 if TYPE_CHECKING:
     from phoid.forced import ForcedIdentification
@@ -159,22 +167,12 @@ class Identification:
     @property
     def omega0(self) -> Estimate:
         """Open-loop natural frequency ω₀ = √(k/m), rad/s (eq. 5), delta-method stderr."""
-        m, k = self.m.value, self.k.value
-        if not (m > 0 and k > 0):
-            return Estimate(0.0 if k == 0 else math.nan, None, "rad/s")
-        w = math.sqrt(k / m)
-        g = np.array([-0.5 * w / m, 0.0, 0.5 * w / k])
-        return Estimate(w, float(math.sqrt(max(g @ self.cov @ g, 0.0))), "rad/s")
+        return open_loop_omega0(self.m.value, self.k.value, self.cov)
 
     @property
     def zeta(self) -> Estimate:
         """Open-loop damping ratio ζ = c/(2√(mk)) (eq. 10), delta-method stderr."""
-        m, c, k = self.m.value, self.c.value, self.k.value
-        if not (m > 0 and k > 0):
-            return Estimate(math.inf, None, "")
-        z = c / (2 * math.sqrt(m * k))
-        g = np.array([-0.5 * z / m, z / c if c != 0 else 1 / (2 * math.sqrt(m * k)), -0.5 * z / k])
-        return Estimate(z, float(math.sqrt(max(g @ self.cov @ g, 0.0))), "")
+        return open_loop_zeta(self.m.value, self.c.value, self.k.value, self.cov)
 
     def summary(self) -> dict[str, Any]:
         """The JSON object of ``phoid identify --json`` (shared/spec/experiment-format.md).

@@ -159,6 +159,27 @@ class MCKFit:
         return np.sqrt(np.clip(np.diag(self.cov), 0.0, None))
 
 
+def open_loop_omega0(m: float, k: float, cov: np.ndarray) -> Estimate:
+    """Open-loop natural frequency ω₀ = √(k/m), rad/s (eq. 5), with its delta-method stderr
+    from the (3, 3) covariance of (m, c, k); 0 for k = 0, nan where undefined."""
+    if not (m > 0 and k > 0):
+        return Estimate(0.0 if k == 0 else math.nan, None, "rad/s")
+    w = math.sqrt(k / m)
+    g = np.array([-0.5 * w / m, 0.0, 0.5 * w / k])
+    return Estimate(w, float(math.sqrt(max(g @ cov @ g, 0.0))), "rad/s")
+
+
+def open_loop_zeta(m: float, c: float, k: float, cov: np.ndarray) -> Estimate:
+    """Open-loop damping ratio ζ = c/(2√(mk)) (eq. 10), with its delta-method stderr from the
+    (3, 3) covariance of (m, c, k); inf for k = 0 (a mass–damper), nan where undefined."""
+    if not (m > 0 and k > 0):
+        return Estimate(math.inf if m > 0 and k == 0 else math.nan, None, "")
+    s = 2 * math.sqrt(m * k)
+    z = c / s
+    g = np.array([-0.5 * z / m, 1 / s, -0.5 * z / k])
+    return Estimate(z, float(math.sqrt(max(g @ cov @ g, 0.0))), "")
+
+
 def _check_inputs(sigma, omega_d, P, D):
     sigma = np.atleast_1d(np.asarray(sigma, dtype=float))
     omega_d = np.atleast_1d(np.asarray(omega_d, dtype=float))

@@ -95,7 +95,7 @@ import numpy as np
 from phoid import _validate as v
 from phoid.decay import MIN_CYCLES
 from phoid.errors import PhoidError
-from phoid.fisher import mode_information, release_amplitude
+from phoid.fisher import _safe_inverse, mode_information, release_amplitude
 from phoid.loop import _rightmost_roots, characteristic
 from phoid.pho import Estimate
 
@@ -961,8 +961,8 @@ def _result(P, D, prior: _Prior, st: DesignSettings, kind: str,
         ev = _evaluate(P, D, s0, prior, st, s_grid=s)
     info = _run_information(ev, prior, st)
     total = info.sum(axis=0)  # (G, 3, 3)
-    cov0 = _covariance(total[0])
-    worst = np.array([max(_covariance(t)[j, j] for t in total) for j in range(3)])
+    cov0 = _safe_inverse(total[0])
+    worst = np.array([max(_safe_inverse(t)[j, j] for t in total) for j in range(3)])
     # per-run information share at the nominal plant
     with np.errstate(all="ignore"):
         share = np.einsum("ij,nji->n", cov0, info[:, 0]) / 3.0 if np.all(
@@ -1110,17 +1110,6 @@ def _grouped(found: dict[str, list[tuple[int, float]]], st: DesignSettings, n: i
         elif kind == "share":
             out.append(f"{runs}: add little information (share below {0.1 / n:.2g} each)")
     return out
-
-
-def _covariance(info: np.ndarray) -> np.ndarray:
-    d = np.sqrt(np.clip(np.diag(info), 0.0, None))
-    if np.all(d > 0):
-        Z = info / np.outer(d, d)
-        if np.linalg.cond(Z) < 1e12:
-            return np.linalg.inv(Z) / np.outer(d, d)
-    cov = np.full((3, 3), np.nan)
-    cov[np.diag_indices(3)] = np.inf
-    return cov
 
 
 def _nominal_root(m, c, k, P, D, delay) -> complex:
