@@ -1,25 +1,59 @@
 """`make bench`: run the benchmark suite, write BENCHMARKS.md and bench/results.json.
 
 Every figure is a median over repeats with min–max, next to a named alternative measured in the
-same run. Exits non-zero only when an accuracy target is missed (never on wall-clock times).
+same run. Exits with status 1 only when an accuracy target is missed (never on wall-clock times).
+
+    python bench/run.py              # the full suite (a few minutes on 2 cores)
+    python bench/run.py --quick      # a smoke run (~1 minute): few replicas, smaller sizes
+
+Only a full run (no --quick, --only, --replicas or --repeats) writes BENCHMARKS.md and
+bench/results.json; other runs print the report and write nothing unless --write is given.
+
+BLAS runs single-threaded (OPENBLAS_NUM_THREADS=1 etc., unless already set), so that the two
+Monte Carlo workers do not oversubscribe a 2-core machine; every pipeline is timed under the
+same setting.
 """
 
 from __future__ import annotations
 
-import argparse
-import datetime as _dt
-import json
-import platform
-import sys
-from pathlib import Path
+import os
+
+for _v in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_v, "1")
+
+import argparse  # noqa: E402
+import datetime as _dt  # noqa: E402
+import json  # noqa: E402
+import platform  # noqa: E402
+import sys  # noqa: E402
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
 sys.path.insert(0, str(HERE))
-sys.path.insert(0, str(ROOT / "tests"))
 
 import bench_identify  # noqa: E402
+import bench_scaling  # noqa: E402
 import bench_simulate  # noqa: E402
+import numpy as np  # noqa: E402
+import scipy  # noqa: E402
+from crb import crb_sd  # noqa: E402
+from sets import SETS, check_rings  # noqa: E402
+
+RMSE_TARGET = 1.1  # phoid RMSE ≤ 1.1 × CRB (issue 7)
+COVERAGE_TARGET = 0.99  # |err| < 3 stderr in ≥ 99 % of replicas (the project's promise)
+FEW_TIMES = 4.0  # "a few times its own size": peak ≤ 4 × the record (t, x)
+CRB_CHECK_TOL = 0.05  # bench/crb.py reproduces truth.json's crb_sd within 5 %
+FULL_REPLICAS = 200  # fewer (--quick): a smoke run, whose Monte Carlo cannot resolve the targets
+# phoid's own replicas: its reported stderr is ~1.01–1.04 × the dominant-mode CRB (it fits the
+# loop's fast-mode amplitudes too), so its true RMSE / CRB is ~1.04, 6 % under the target. The
+# Monte Carlo estimate of RMSE / CRB has a relative sd of 1/√(2n): 2.9 % at n = 600 (one set in
+# ~20 would read > 1.1 by chance), 2.2 % at n = 1000 (< 1 % chance per quantity).
+PHOID_REPLICAS = 1000
+SMOKE_COVERAGE = 0.95  # a smoke run fails only on gross under-coverage
+LABEL = {"table1": "Table 1", "overdamped": "overdamped", "mass_damper": "mass–damper"}
+UNIT = {"m": "kg", "c": "N s/m", "k": "N/m"}
 
 
 def _cpu() -> str:
@@ -33,141 +67,506 @@ def _cpu() -> str:
 
 
 def _ncpu() -> int:
-    import os
-
     return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
 
 
-def _f(x: float, digits: int = 3) -> str:
+def _g(x: float, digits: int = 3) -> str:
     return f"{x:.{digits}g}"
 
 
+def _ms(s: dict) -> str:
+    return f"{s['median_s'] * 1e3:.1f} ms ({s['min_s'] * 1e3:.1f}–{s['max_s'] * 1e3:.1f})"
+
+
+def _rate(r: dict) -> str:
+    return (f"{r['samples_per_s_median']:.3g} ({r['samples_per_s_min']:.3g}–"
+            f"{r['samples_per_s_max']:.3g})")
+
+
+def _truth() -> dict | None:
+    p = bench_identify.SHARED / "data" / "truth.json"
+    if not p.is_file():
+        return None
+    return json.loads(p.read_text())["paper-sample"]["crb_sd"]
+
+
+# --------------------------------------------------------------------------------------------
+# sections of BENCHMARKS.md
+
+
+def _vs(chk: dict, key: str) -> str:
+    """Table cells: bench/crb.py's value and its difference from truth.json's."""
+    return " | ".join(f"{_g(chk[key][q], 4)} ({chk[key][q] / chk['truth'][q] - 1:+.1%})"
+                      for q in "mck")
+
+
+def _sets_section(res: dict) -> list[str]:
+    lines = [
+        "## The three sets",
+        "",
+        "Defined in `bench/sets.py`; every run checked stable and ringing by phoid's certified "
+        "root finder (`phoid.characteristic_roots`), its next root at least 5× faster than the "
+        "dominant pair. Noise and quantisation scale with the release amplitude x₀ as in the "
+        "Table 1 set (noise 1 % of x₀, quantum 1e−4 x₀, offset −3 % of x₀, 0.2 s hold).",
+        "",
+        "| set | plant, loop, gains, record | σ (1/s) | ω_d (rad/s) | next root rate (1/s) "
+        "| Cramér–Rao sd of m, c, k |",
+        "|---|---|---|---|---|---|",
+    ]
+    for name, s in res["sets"].items():
+        crb = s["crb_sd"]
+        lines.append(
+            f"| {LABEL[name]} | {s['description']} | {min(s['sigma']):.2f}–{max(s['sigma']):.2f}"
+            f" | {min(s['omega_d']):.1f}–{max(s['omega_d']):.1f} | ≥ {min(s['next_rate']):.0f}"
+            f" | {_g(crb['m'])} kg, {_g(crb['c'])} N s/m, {_g(crb['k'])} N/m |"
+        )
+    chk = res.get("crb_check")
+    lines += [
+        "",
+        "Cramér–Rao sd: `bench/crb.py`, the model of ../shared/data/truth.json's `crb_sd` note "
+        "(single dominant mode per run; amplitude, phase and offset unknown per run; delay "
+        "known): per-run Fisher information of (σ, ω_d) summed over the sample grid with the "
+        "nuisance parameters profiled out, chained to (m, c, k) through the exact loop roots "
+        "(∂s/∂θ = −(s², s, 1)/f′(s)). The dominant mode's amplitude and phase are its residue in "
+        "the exact response to a release from rest.",
+    ]
+    if chk:
+        lines += [
+            "",
+            "Check against truth.json (Table 1 set, noise 0.1 mm):",
+            "",
+            "| | m (kg) | c (N s/m) | k (N/m) |",
+            "|---|---|---|---|",
+            "| truth.json `crb_sd` | " + " | ".join(_g(chk["truth"][q], 4) for q in "mck") + " |",
+            "| bench/crb.py, residue amplitude (used here) | " + _vs(chk, "residue") + " |",
+            "| bench/crb.py, release initial conditions x(0) = x₀, ẋ(0) = 0 | "
+            + _vs(chk, "release") + " |",
+            "",
+            "The second variant gives the dominant mode the release's own initial conditions "
+            "(ignoring the share of the release the loop's fast modes take) and matches "
+            "truth.json to < 0.5 %, which tells how those numbers were made; the residue "
+            "amplitude is the one actually in the records, 1–2 % smaller, so its bound is 1–2 % "
+            "wider. Both are within the 5 % this benchmark requires of itself.",
+        ]
+    return lines
+
+
+def _mc_section(res: dict) -> list[str]:
+    mc = res["monte_carlo"]
+    if not mc:
+        return []
+    first = next(iter(mc.values()))
+    n, nph = first["replicas"], first["phoid_replicas"]
+    lines = [
+        f"## Accuracy at the physical limit: Monte Carlo, {n} noisy replicas per set "
+        f"({nph} for phoid)",
+        "",
+        "Replicas made by phoid's simulator (checked against jitcdde below), each with fresh "
+        f"noise; every pipeline sees the same {n} records, and phoid {nph - n} more (it is "
+        "cheap, and 200 replicas resolve RMSE / CRB only to about ±10 % at 95 %, more than "
+        "the target's margin; the n column says how many each figure rests on). RMSE / CRB "
+        "with its 95 % Monte Carlo interval; \"stderr / sd\": the mean reported standard "
+        "error over the observed spread of the estimates; coverage: share of replicas with "
+        "|error| < 3 reported stderr. The two alternatives are given the true release time "
+        "(phoid finds it itself). \"fails\": replicas where the pipeline raised or did not "
+        "converge (left out of its figures); \"warned\": replicas where phoid attached a "
+        "warning.",
+    ]
+    for name, m in mc.items():
+        crb = m["crb_sd"]
+        lines += [
+            "",
+            f"### {LABEL[name]} set (CRB: m {_g(crb['m'])} kg, c {_g(crb['c'])} N s/m, "
+            f"k {_g(crb['k'])} N/m)",
+            "",
+            "| pipeline | n | | bias / CRB | RMSE / CRB (95 % interval) | stderr / sd "
+            "| ±3 stderr coverage | fails / warned |",
+            "|---|---|---|---|---|---|---|---|",
+        ]
+        for p in bench_identify.PIPELINES:
+            row = m[p]
+            for j, q in enumerate("mck"):
+                nn = str(row["n"]) if j == 0 else ""
+                if "rmse_over_crb" not in row:
+                    lines.append(f"| {p} | {nn} | {q} | – | – | – | – | {row['failed']} |")
+                    continue
+                lo, hi = row["rmse_over_crb_95ci"][q]
+                tail = f"{row['failed']} / {row['warned']}" if j == 0 else ""
+                lines.append(
+                    f"| {p} | {nn} | {q} | {row['bias_over_crb'][q]:+.2f} | "
+                    f"**{row['rmse_over_crb'][q]:.2f}** ({lo:.2f}–{hi:.2f}) | "
+                    f"{row['stderr_over_sd'][q]:.2f} | {row['coverage_3se'][q]:.1%} | {tail} |"
+                )
+    return lines
+
+
+def _speed_section(res: dict) -> list[str]:
+    sp = res["identification_speed"]
+    if not sp:
+        return []
+    lines = [
+        "## Identification speed",
+        "",
+        "Compute time to identify a whole set (data already in memory), median (min–max) over "
+        f"{res['args']['repeats']} repeats after one untimed call. The alternatives skip the "
+        "release detection (they are given the release time), phoid does not.",
+        "",
+        "| set (records) | samples | phoid | curve_fit+OLS | curve_fit+OLS, numerical "
+        "Jacobian | logdec+OLS |",
+        "|---|---|---|---|---|---|",
+    ]
+    for name, s in sp.items():
+        base = s["phoid"]["median_s"]
+        cells = [_ms(s["phoid"])]
+        for p in ("curve_fit+OLS", bench_identify.NUMJAC, "logdec+OLS"):
+            cells.append(f"{_ms(s[p])}: phoid {s[p]['median_s'] / base:.1f}× faster")
+        lines.append(f"| {LABEL[name]} ({s['data']}) | {s['samples']:,} | " + " | ".join(cells)
+                     + " |")
+    return lines
+
+
+def _sim_section(res: dict) -> list[str]:
+    sim = res["simulation"]
+    if not sim:
+        return []
+    lines = [
+        "## Simulation speed and accuracy",
+        "",
+        f"{sim['workload']}. Max deviation: the largest |x − x_ref| / x₀ over every sample of the "
+        f"runs compared, x_ref = jitcdde at rtol {sim['tight_rtol']:g} (itself good to "
+        "~1e−11 x₀, which bounds what phoid's figure can show). jitcdde and solve_ivp take one "
+        "run at a time; on the large batch they are timed on an evenly spread subset of its "
+        "runs (\"timed on\"), and phoid's deviation there is taken on the same subset. "
+        f"jitcdde's compile time (once, excluded): {sim['jitcdde_compile_s']:.2f} s.",
+        "",
+        "| workload | simulator | timed on | samples/s, median (min–max) | max deviation / x₀ "
+        "| phoid's speed-up |",
+        "|---|---|---|---|---|---|",
+    ]
+    for r in sim["rows"]:
+        up = "" if r["phoid"] else f"{sim['speedup'][r['workload']][r['simulator']]:.0f}×"
+        name = f"**{r['simulator']}**" if r["phoid"] else r["simulator"]
+        lines.append(f"| {r['workload']} | {name} | {r['runs_timed']} runs | {_rate(r)} | "
+                     f"{r['max_deviation_rel_x0']:.1e} | {up} |")
+    lines += [
+        "",
+        "jitcdde lands a step on every output time and on every multiple of Δt, so its accuracy "
+        "hardly changes below rtol 1e−5 while its speed does; rtol 1e−6 is the fastest setting "
+        "tried that stays within 1e−6 x₀, and the one the target compares with.",
+    ]
+    return lines
+
+
+def _scaling_section(res: dict) -> list[str]:
+    sc = res["scaling"]
+    if not sc:
+        return []
+    lines = [
+        "## Scaling: time and peak memory",
+        "",
+        "Each point in a fresh subprocess (`bench/bench_scaling.py`). Record length: 10 s "
+        "records at f_s = samples/10 s (100 Hz … 1 MHz); `simulate` one run, `identify` three "
+        "runs (Table 1 runs 1, 10, 19). Number of runs: 10 s at 1 kHz per run. Time: median "
+        "(min–max) of up to 3 calls; peak: tracemalloc's peak during one call above what was "
+        "allocated before it (the outputs count, the input records do not); × record: peak over "
+        "the records' own size (t and x in float64, 16 bytes per sample). `simulate` returns "
+        "t, x, x_true, v and u (40 bytes per sample of the peak are its result).",
+        "",
+        "| function | axis | runs × samples | time, median (min–max) | peak memory "
+        "| bytes / sample | × record |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for p in sc["points"]:
+        head = f"| {p['func']} | {p['axis']} | "
+        if "error" in p:
+            lines.append(head + f"{p['size']:,} | failed: {p['error']} | | | |")
+            continue
+        bps = bench_scaling.bytes_per_sample(p)
+        t = (f"{p['median_s']:.3g} s ({p['min_s']:.3g}–{p['max_s']:.3g})" if p["calls"] > 1
+             else f"{p['median_s']:.3g} s (1 call)")
+        lines.append(head + f"{p['runs']:,} × {p['samples_per_run']:,} | {t} | "
+                     f"{p['peak_bytes'] / 2**20:.1f} MiB | {bps:.1f} | "
+                     f"{bench_scaling.times_record(p):.1f} |")
+    lines += [
+        "",
+        "Growth exponents (least-squares slope of log time and log peak memory against log "
+        "samples; 1 = linear), over the upper three sizes (where the fixed per-call cost is "
+        "small) and over the whole range:",
+        "",
+        "| function / axis | upper sizes | time (upper) | time (all) | memory (upper) "
+        "| memory (all) |",
+        "|---|---|---|---|---|---|",
+    ]
+    for k, s in sc["slopes"].items():
+        if "error" in s:
+            lines.append(f"| {k} | {s['error']} | | | | |")
+            continue
+        lines.append(f"| {k} | {', '.join(f'{u:g}' for u in s['upper_sizes'])} | "
+                     f"{s['time_upper']:.2f} | {s['time_all']:.2f} | {s['memory_upper']:.2f} | "
+                     f"{s['memory_all']:.2f} |")
+    return lines
+
+
+# --------------------------------------------------------------------------------------------
+# targets
+
+
+def _targets(res: dict) -> tuple[list[str], list[str]]:
+    """(lines of the Targets section, accuracy failures)."""
+    acc: list[tuple[str, bool, str]] = []
+    rep: list[tuple[str, bool, str]] = []
+    chk = res.get("crb_check")
+    if chk:
+        worst = max(abs(chk["residue"][q] / chk["truth"][q] - 1) for q in "mck")
+        acc.append(("bench/crb.py reproduces truth.json's crb_sd within 5 %",
+                    worst <= CRB_CHECK_TOL, f"worst {worst:.1%}"))
+    for name, m in res["monte_carlo"].items():
+        ph = m["phoid"]
+        if "rmse_over_crb" not in ph:
+            acc.append((f"{LABEL[name]}: phoid identifies the replicas", False,
+                        f"{ph['failed']} failed"))
+            continue
+        r = ph["rmse_over_crb"]
+        cov = ph["coverage_3se"]
+        if m["replicas"] >= FULL_REPLICAS:
+            acc.append((f"{LABEL[name]}: phoid RMSE ≤ {RMSE_TARGET} × CRB",
+                        max(r.values()) <= RMSE_TARGET,
+                        ", ".join(f"{q} {r[q]:.2f}" for q in "mck")))
+            acc.append((f"{LABEL[name]}: phoid ±3 stderr coverage ≥ 99 %",
+                        min(cov.values()) >= COVERAGE_TARGET,
+                        ", ".join(f"{q} {cov[q]:.1%}" for q in "mck")))
+        else:  # smoke run: too few replicas to judge the targets, only gross misses fail
+            lo = {q: ph["rmse_over_crb_95ci"][q][0] for q in "mck"}
+            acc.append((f"{LABEL[name]} (smoke run, {ph['n']} replicas): phoid RMSE not "
+                        f"significantly above {RMSE_TARGET} × CRB (95 % lower bound)",
+                        max(lo.values()) <= RMSE_TARGET,
+                        ", ".join(f"{q} {r[q]:.2f} (≥ {lo[q]:.2f})" for q in "mck")))
+            acc.append((f"{LABEL[name]} (smoke run): phoid ±3 stderr coverage ≥ 95 %",
+                        min(cov.values()) >= SMOKE_COVERAGE,
+                        ", ".join(f"{q} {cov[q]:.1%}" for q in "mck")))
+        if ph["failed"]:
+            acc.append((f"{LABEL[name]}: phoid never fails", False, f"{ph['failed']} failed"))
+    sim = res["simulation"]
+    if sim:
+        dev = sim["target"]["phoid_max_deviation_all_workloads"]
+        acc.append(("simulator within 1e−6 x₀ of jitcdde (tight)", dev <= 1e-6, f"{dev:.1e}"))
+        jit = sim["target"]["jitcdde_setting"]
+        for w, ups in sim["speedup"].items():
+            r = ups[jit]
+            rep.append((f"simulation ≥ 20× {jit} ({w})", r >= 20, f"{r:.0f}×"))
+    for name, s in res["identification_speed"].items():
+        for p in ("curve_fit+OLS", bench_identify.NUMJAC):
+            r = s[p]["median_s"] / s["phoid"]["median_s"]
+            rep.append((f"{LABEL[name]}: identification ≥ 10× faster than {p}", r >= 10,
+                        f"{r:.1f}×"))
+        if name == "table1":
+            t = s["phoid"]["median_s"]
+            rep.append(("Table 1 sample set identified in ≤ 100 ms", t <= 0.1,
+                        f"{t * 1e3:.0f} ms"))
+    sc = res["scaling"]
+    if sc:
+        for k, s in sc["slopes"].items():
+            name = f"{k}: time and memory grow linearly (exponents ≤ 1.1, upper sizes)"
+            if "error" in s:
+                rep.append((name, False, s["error"]))
+                continue
+            rep.append((name, max(s["time_upper"], s["memory_upper"]) <= 1.1,
+                        f"time {s['time_upper']:.2f}, memory {s['memory_upper']:.2f}"))
+        for p in sc["points"]:
+            if p["axis"] == "length" and p["size"] == bench_scaling.LENGTHS[-1]:
+                name = (f"{p['func']}: 1e7-sample runs need ≤ {FEW_TIMES:g} × their record "
+                        "(t, x) in memory")
+                if "peak_bytes" not in p:
+                    rep.append((name, False, p.get("error", "not measured")))
+                    continue
+                x = bench_scaling.times_record(p)
+                rep.append((name, x <= FEW_TIMES, f"{x:.1f}×"))
+    failures = [f"{n}: {got}" for n, ok, got in acc if not ok]
+    lines = ["## Targets", "",
+             "Accuracy targets (`make bench` exits non-zero when one is missed):", ""]
+    lines += [f"- {'met' if ok else '**MISSED**'}: {n} ({got})" for n, ok, got in acc]
+    lines += ["", "Speed and scaling targets (reported, never enforced: wall-clock times depend "
+              "on the machine):", ""]
+    lines += [f"- {'met' if ok else '**NOT MET**'}: {n} ({got})" for n, ok, got in rep]
+    return lines, failures
+
+
+PROFILING = [
+    "## What changed after profiling",
+    "",
+    "- **Identification (Table 1 sample set).** cProfile: per run a first look (release, "
+    "noise, ESPRIT start and Gauss–Newton after 3Δt, for a rough plant), one full decay fit "
+    "(the dominant mode plus the loop's next two modes, from the release), the loop roots "
+    "(certified by the argument principle), the model-fitted release time; then the weighted "
+    "fit. Changes made after profiling, 137 → 84 → ~70 ms on a quiet machine: root "
+    "continuation across runs; the full fit started from the first look; the first pass cut "
+    "to the start and Gauss–Newton (no exact residual, covariance or warnings: the estimates "
+    "are unchanged to 8 digits on 60 noisy sets); half-contour argument-principle counts "
+    "(f(s̄) = conj f(s)); scalar Newton for the few roots of a continuation step; the "
+    "data-only release detection stopped at its first stage where the loop's own response "
+    "refines it anyway; and one BLAS thread in the hot paths (`phoid._threads`, "
+    "threadpoolctl): with OpenBLAS's default pool an identification took 10× longer (950 ms "
+    "of CPU) whenever the other core was busy.",
+    "- **Why 10× the curve_fit pipeline is still missed.** What is left is a fixed cost per "
+    "run (~1 ms for the first look, ~1 ms for the full fit, ~0.6 ms for the roots, ~0.4 ms "
+    "for the release refit), spread over a hundred-odd small numpy calls rather than "
+    "per-sample work; the curve_fit pipeline given the model's analytic Jacobian is itself "
+    "2× faster than the default one. Reaching 10× of it needs the decay fits of all runs "
+    "batched into one vectorised Gauss–Newton (or compiled code), which is future work; "
+    "phoid is not made faster by doing less (its RMSE stays at the Cramér–Rao bound, the "
+    "pipelines compared here are 1.7–21× it).",
+    "- **Overdamped and mass–damper sets.** Their records are 3× shorter than Table 1's "
+    "(5 200 vs 15 200 samples per run), and phoid's time per run is mostly a fixed cost, not a "
+    "per-sample one (cProfile on the mass–damper set: the two decay passes, ~2.5 ms per run, "
+    "mostly Gauss–Newton iterations and the release refit; the loop roots, where the "
+    "continuation from run to run falls back to the full certified computation for some "
+    "runs), so its ratio to curve_fit+OLS, whose cost is per sample, is smaller than on "
+    "Table 1 (and logdec+OLS, a single cheap pass, is as fast).",
+    "- **Simulation of a single run.** Not ≥ 20× jitcdde (7×): cProfile of one 15 s run "
+    "shows all of its ~6 ms in the Python loop over the 150 delay intervals "
+    "(`simulation._linear_blocks`: one `scipy.signal.lfilter`, `_ch_input` and `_emit` per "
+    "interval, ~40 µs each), none in per-sample work; a batch shares that loop among its runs, "
+    "hence 38–46× there. Closing the gap for one run needs fewer Python iterations per delay "
+    "interval (or a compiled loop), not faster arithmetic.",
+    "- **Monte Carlo size.** The first full run (600 phoid replicas per set) read phoid's "
+    "RMSE / CRB for c on Table 1 as 1.10 (95 % interval 1.04–1.16). Inspection: the errors "
+    "are Gaussian (excess kurtosis 0.07, largest |z| 3.5, no outliers, no link to the "
+    "release-time error or the fit's χ²), an independent 1000-replica run (another seed) gave "
+    "0.995, the two pooled 1.04 ± 0.02 — the same as phoid's reported stderr / CRB for c "
+    "(1.04: phoid also fits the loop's fast-mode amplitudes, which the dominant-mode bound "
+    "does not carry). So the miss was Monte Carlo noise around a true ratio 6 % under the "
+    "target; phoid now gets 1000 replicas per set (±2.2 % sd), the alternatives 200.",
+    "- **Record length 1e7 samples per run (identify).** Profiling the 1e7-sample point "
+    "showed the time growing ~50× from 1e6 to 1e7 samples (not 10×): "
+    "`phoid.decay._uniform_step` accepted a record as uniformly sampled only when every time "
+    "stamp was within 1e−9 of a step of the ideal grid, but float64 time stamps near t = 10 s "
+    "carry rounding of ~2e−15 s, 2e−9 of a 1 µs step; such records fell to interpolation and "
+    "the per-sample `_Direct` evaluator. Fixed: the test now also allows 64 ulp of the "
+    "largest time stamp (a regression test covers 1 MHz stamps near 10 s).",
+]
+
+
 def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__)
-    ap.add_argument("--replicas", type=int, default=200, help="Monte Carlo replicas")
-    ap.add_argument("--repeats", type=int, default=5, help="timing repeats")
+    ap = argparse.ArgumentParser(description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--quick", action="store_true",
+                    help="smoke run: 20 (phoid 100) replicas, 2 repeats, 100-run batch, "
+                         "sizes to 1e6")
+    ap.add_argument("--replicas", type=int, default=None,
+                    help="Monte Carlo replicas for every pipeline (200)")
+    ap.add_argument("--phoid-replicas", type=int, default=None,
+                    help="Monte Carlo replicas for phoid (1000; --quick: 100)")
+    ap.add_argument("--repeats", type=int, default=None, help="timing repeats (5)")
+    ap.add_argument("--workers", type=int, default=2, help="Monte Carlo worker processes (2)")
+    ap.add_argument("--only", default="sets,mc,speed,sim,scaling",
+                    help="comma-separated sections to run (for development; the default runs "
+                         "all and is what BENCHMARKS.md must come from)")
+    ap.add_argument("--write", action="store_true",
+                    help="write BENCHMARKS.md and bench/results.json even for a partial run")
     args = ap.parse_args()
+    replicas = args.replicas or (20 if args.quick else 200)
+    phoid_replicas = args.phoid_replicas or (100 if args.quick else max(PHOID_REPLICAS,
+                                                                       replicas))
+    repeats = args.repeats or (2 if args.quick else 5)
+    only = set(args.only.split(","))
+    t_start = time.perf_counter()
 
-    sim = bench_simulate.run(repeats=args.repeats)
-    ident_speed = bench_identify.speed(repeats=max(args.repeats, 5))
-    mc = bench_identify.monte_carlo(replicas=args.replicas)
+    command = "make bench" if not args.quick else "python bench/run.py --quick"
+    opts = []
+    if args.replicas:
+        opts.append(f"--replicas {args.replicas}")
+    if args.phoid_replicas:
+        opts.append(f"--phoid-replicas {args.phoid_replicas}")
+    if args.repeats:
+        opts.append(f"--repeats {args.repeats}")
+    if args.workers != 2:
+        opts.append(f"--workers {args.workers}")
+    if args.only != ap.get_default("only"):
+        opts.append(f"--only {args.only}")
+    if opts:
+        command = f"python bench/run.py {' '.join(opts)}" + (" --quick" if args.quick else "")
 
-    results = {
+    res: dict = {
         "date": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
-        "command": f"make bench (python bench/run.py --replicas {args.replicas} "
-                   f"--repeats {args.repeats})",
-        "machine": {"cpu": _cpu(), "cores": _ncpu(), "python": platform.python_version()},
-        "simulation": sim,
-        "identification_speed": ident_speed,
-        "monte_carlo_table1": mc,
+        "command": command,
+        "args": {"replicas": replicas, "phoid_replicas": phoid_replicas, "repeats": repeats,
+                 "workers": args.workers,
+                 "quick": args.quick},
+        "machine": {"cpu": _cpu(), "cores": _ncpu(), "python": platform.python_version(),
+                    "numpy": np.__version__, "scipy": scipy.__version__,
+                    "blas_threads": os.environ.get("OPENBLAS_NUM_THREADS")},
+        "sets": {}, "monte_carlo": {}, "identification_speed": {}, "simulation": {},
+        "scaling": {},
     }
-    (HERE / "results.json").write_text(json.dumps(results, indent=1, default=float))
 
-    failures: list[str] = []
+    def log(msg: str) -> None:
+        print(f"[{time.perf_counter() - t_start:6.1f} s] {msg}", file=sys.stderr, flush=True)
+
+    crbs = {}
+    for name, spec in SETS.items():
+        rings = check_rings(spec)
+        crbs[name] = crb_sd(spec)
+        res["sets"][name] = {"description": spec.describe(), **rings,
+                             "P": list(spec.P), "D": list(spec.D),
+                             "crb_sd": dict(zip("mck", crbs[name].tolist(), strict=True))}
+    truth = _truth()
+    if truth is not None:
+        rel = crb_sd(SETS["table1"], "release")
+        res["crb_check"] = {"truth": {q: truth[q] for q in "mck"},
+                            "residue": res["sets"]["table1"]["crb_sd"],
+                            "release": dict(zip("mck", rel.tolist(), strict=True))}
+    log("sets checked")
+    if "speed" in only:
+        for name, spec in SETS.items():
+            res["identification_speed"][name] = bench_identify.speed(spec, repeats)
+            log(f"identification speed: {name}")
+    if "sim" in only:
+        res["simulation"] = bench_simulate.run(repeats, batch=100 if args.quick else 1000)
+        log("simulation")
+    if "mc" in only:
+        for name, spec in SETS.items():
+            res["monte_carlo"][name] = bench_identify.monte_carlo(
+                spec, crbs[name], replicas, phoid_replicas=phoid_replicas,
+                workers=args.workers)
+            log(f"Monte Carlo: {name}")
+    if "scaling" in only:
+        res["scaling"] = bench_scaling.run(
+            max_length=1_000_000 if args.quick else 10_000_000,
+            max_runs=100 if args.quick else 1000)
+        log("scaling")
+    res["wall_s"] = time.perf_counter() - t_start
+    write = args.write or (not opts and not args.quick)
+    if write:
+        (HERE / "results.json").write_text(json.dumps(res, indent=1, default=float))
+
+    target_lines, failures = _targets(res)
+    mach = res["machine"]
     lines = [
         "# phoid benchmarks",
         "",
-        f"Made by `{results['command']}` on {results['date']}; CPU: {results['machine']['cpu']}"
-        f" ({results['machine']['cores']} cores), Python {results['machine']['python']}.",
-        "Times are medians over repeats with (min–max); every phoid figure stands next to an",
-        "alternative measured in the same run. Machine-readable: `bench/results.json`.",
+        f"Made by `{command}` on {res['date']} in {res['wall_s'] / 60:.1f} min; CPU: "
+        f"{mach['cpu']} ({mach['cores']} cores), Python {mach['python']}, numpy "
+        f"{mach['numpy']}, scipy {mach['scipy']}, BLAS threads {mach['blas_threads']}.",
+        "Times are medians over repeats with (min–max); every phoid figure stands next to an "
+        "alternative measured in the same run. Machine-readable: `bench/results.json`. "
+        "`python bench/run.py --quick` is a smoke run of the same code.",
         "",
-        "## Simulation: the 19-run Table 1 set (15 s at 1 kHz)",
-        "",
-        "| simulator | samples/s (median, min–max) | max deviation from jitcdde (tight), × x0 |",
-        "|---|---|---|",
     ]
-    for row in sim.get("table", []):
-        lines.append(f"| {row['name']} | {row['rate']} | {row['deviation']} |")
-    for note in sim.get("notes", []):
-        lines.append(f"\n{note}")
-    ratio = sim.get("speedup_vs_jitcdde")
-    if ratio is not None:
-        lines.append(f"\nphoid vs jitcdde: **{ratio:.0f}×** the sample rate (target ≥ 20×).")
-    dev = sim.get("phoid_max_deviation")
-    if dev is not None and dev > 1e-6:
-        failures.append(f"simulator deviation {dev:.2g} x0 > 1e-6")
-
-    lines += [
-        "",
-        "## Identification speed: ../shared/data/paper-sample (19 runs, 15 s, 1 kHz)",
-        "",
-        "Compute time only (the data are read once beforehand; reading the 19 gzip files takes "
-        f"{ident_speed['read_experiment_s'] * 1e3:.0f} ms).",
-        "",
-        "| pipeline | time per set (median, min–max) | vs phoid |",
-        "|---|---|---|",
-    ]
-    base = ident_speed["phoid"]["median_s"]
-    for name in ("phoid", "curve_fit+OLS", "logdec+OLS"):
-        s = ident_speed[name]
-        lines.append(
-            f"| {name} | {s['median_s'] * 1e3:.1f} ms ({s['min_s'] * 1e3:.1f}–"
-            f"{s['max_s'] * 1e3:.1f}) | {s['median_s'] / base:.1f}× |"
-        )
-
-    crb = mc["crb_sd"]
-    lines += [
-        "",
-        f"## Accuracy at the physical limit: Monte Carlo, {mc['replicas']} noisy replicas of "
-        "the Table 1 set",
-        "",
-        "0.1 mm white noise, 1 µm quantisation, −0.3 mm offset, 0.2 s hold, made by phoid's "
-        "simulator; Cramér–Rao sd from ../shared/data/truth.json "
-        f"(m {_f(crb['m'])} kg, c {_f(crb['c'])} N s/m, k {_f(crb['k'])} N/m).",
-        "",
-        "| pipeline | quantity | bias / CRB | RMSE / CRB | mean stderr / sd | ±3 stderr coverage |",
-        "|---|---|---|---|---|---|",
-    ]
-    for name in ("phoid", "curve_fit+OLS", "logdec+OLS"):
-        row = mc[name]
-        for q in "mck":
-            se = row.get("stderr_over_sd", {}).get(q)
-            cov = row.get("coverage_3se", {}).get(q)
-            lines.append(
-                f"| {name} | {q} | {row['bias_over_crb'][q]:+.2f} | {row['rmse_over_crb'][q]:.2f}"
-                f" | {'' if se is None else f'{se:.2f}'} | "
-                f"{'' if cov is None else f'{cov:.1%}'} |"
-            )
-    ph = mc["phoid"]
-    for q in "mck":
-        if ph["rmse_over_crb"][q] > 1.1:
-            failures.append(f"phoid RMSE/CRB for {q} = {ph['rmse_over_crb'][q]:.2f} > 1.1")
-        if ph["coverage_3se"][q] < 0.99:
-            failures.append(f"phoid 3-stderr coverage for {q} = {ph['coverage_3se'][q]:.1%}")
-    lines += ["", "## Targets", ""]
+    lines += [*target_lines, ""]
+    for sec in (_sets_section, _mc_section, _speed_section, _sim_section, _scaling_section):
+        part = sec(res)
+        if part:
+            lines += [*part, ""]
+    lines += PROFILING
+    text = "\n".join(lines) + "\n"
+    if write:
+        (ROOT / "BENCHMARKS.md").write_text(text)
+    print(text)
     if failures:
-        lines += [f"- MISSED (accuracy): {f}" for f in failures]
-    else:
-        lines.append("- accuracy: all targets met (phoid RMSE ≤ 1.1 × CRB, ±3 stderr coverage "
-                     "≥ 99 %, simulator within 1e-6 x0 of jitcdde)")
-    # speed targets are reported, never enforced (wall-clock times depend on the machine)
-    t_ph = ident_speed["phoid"]["median_s"]
-    ratio_cf = ident_speed["curve_fit+OLS"]["median_s"] / t_ph
-    speed = [
-        ("identification ≤ 100 ms", t_ph <= 0.1, f"{t_ph * 1e3:.0f} ms"),
-        ("identification ≥ 10× the curve_fit pipeline", ratio_cf >= 10, f"{ratio_cf:.1f}×"),
-    ]
-    if ratio is not None:
-        speed.append(("simulation ≥ 20× jitcdde", ratio >= 20, f"{ratio:.0f}×"))
-    for name, ok, got in speed:
-        lines.append(f"- speed: {name}: {'met' if ok else 'NOT MET'} ({got})")
-    lines += [
-        "",
-        "Where the identification time goes (cProfile, sample set): two decay fits per run "
-        "(~1.4 ms for the first pass, ~1.0 ms for the second, mostly fixed per-call cost: "
-        "release detection, starting guess, Gauss-Newton on 15 000 samples), the loop roots of "
-        "every run (certified by the argument principle, continued from run to run), the "
-        "model-fitted release times and the weighted fit. Changes made after profiling: root "
-        "continuation across runs, the second pass started from the first pass's mode, and "
-        "leaner per-call work in the decay fit (137 → ~80 ms). Reaching 10× the curve_fit "
-        "pipeline (~50 ms) needs a cheaper decay fit still (closed-form sums, a leaner release "
-        "detector) or a single pass.",
-    ]
-    (ROOT / "BENCHMARKS.md").write_text("\n".join(lines) + "\n")
-    print("\n".join(lines))
+        print("accuracy target(s) missed:\n  " + "\n  ".join(failures), file=sys.stderr)
     return 1 if failures else 0
 
 
 if __name__ == "__main__":
     sys.exit(main())
+

@@ -738,3 +738,16 @@ def test_model_with_fast_modes_reproduces_the_fit_residual(sample_set_path):
     se = fit.noise_sd / np.sqrt(np.count_nonzero(early))
     assert abs(np.mean(run.x[early] - fit.model(run.t[early]))) > 10 * se
     assert abs(np.mean(run.x[early] - fit.model(run.t[early], fast=True))) < 4 * se
+
+
+def test_fast_long_records_count_as_uniform():
+    # 1 MHz time stamps near 10 s carry float rounding of ~2e-9 of a step (ulp(10) = 1.8e-15 s):
+    # still uniform sampling (the tabulated evaluator), not a non-uniform record to interpolate
+    from phoid.decay import _uniform_step
+
+    t = 9.0 + np.arange(2_000_000) / 1e6
+    assert _uniform_step(t - t[0], float(t[0])) == pytest.approx(1e-6, rel=1e-12)
+    # a real irregularity (one sample 1e-4 of a step late) is still caught
+    t2 = t.copy()
+    t2[1000] += 1e-10
+    assert _uniform_step(t2 - t2[0], float(t2[0])) is None

@@ -391,8 +391,13 @@ def detect_release(t, x) -> float:
 # (linear parameters: rows 0, 1, 2, 5 …); ∂/∂σ = −(aτC + bτS), ∂/∂ω_d = bτC − aτS.
 
 
-def _uniform_step(tau: np.ndarray) -> float | None:
-    """The sampling interval if ``tau`` is uniform to 10⁻⁹ of a step, else None."""
+def _uniform_step(tau: np.ndarray, origin: float = 0.0) -> float | None:
+    """The sampling interval if ``tau`` is uniform, else None.
+
+    Uniform: every τ within 10⁻⁹ of a step of the grid τ₀ + n·dt, or within the rounding of the
+    absolute times τ + ``origin`` (64 ulp of the largest): at 1 MHz, time stamps near 10 s
+    carry rounding of ~2·10⁻⁹ of a step, which a test against the step alone would take for
+    non-uniform sampling."""
     n = tau.size
     dt = (tau[-1] - tau[0]) / (n - 1)
     g = np.arange(n, dtype=float)  # the grid τ₀ + n dt, then its deviation, in place
@@ -400,7 +405,8 @@ def _uniform_step(tau: np.ndarray) -> float | None:
     g += tau[0]
     g -= tau
     dev = max(float(g.max()), -float(g.min()))
-    return float(dt) if dev <= 1e-9 * dt else None
+    ulp = np.spacing(abs(origin) + max(abs(float(tau[0])), abs(float(tau[-1]))))
+    return float(dt) if dev <= max(1e-9 * dt, 64.0 * ulp) else None
 
 
 def _gram(G: np.ndarray) -> np.ndarray:
@@ -936,12 +942,14 @@ def _dominant_period(xg: np.ndarray) -> float:
     return min(nfft / k, float(xg.size))
 
 
-def _uniform(tau: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, float, float | None]:
+def _uniform(
+    tau: np.ndarray, x: np.ndarray, origin: float = 0.0
+) -> tuple[np.ndarray, float, float | None]:
     """x on a uniform grid from tau[0] (linear interpolation if the sampling is not uniform),
     its step, and the step if the sampling was uniform already (else None)."""
     n = tau.size
     dt = (tau[-1] - tau[0]) / (n - 1)
-    udt = _uniform_step(tau) if n >= 64 else None
+    udt = _uniform_step(tau, origin) if n >= 64 else None
     if udt is not None:
         return x, dt, udt
     tg = tau[0] + dt * np.arange(n)
@@ -1095,7 +1103,7 @@ def start_decay(
     tau = tw - tw[0]
     noise = hold_sd if hold_sd else _diff_noise(xw[-4096:])
     noise = max(noise, 1e-15 * float(np.ptp(xw)))
-    xg, dt, _udt = _uniform(tau, xw)
+    xg, dt, _udt = _uniform(tau, xw, float(tw[0]))
     per = _dominant_period(xg)
     sig, om, oscill, n_act = _initial_guess(xg, dt, per, noise)
     if oscill and n_act > 40 * per:
@@ -1362,7 +1370,7 @@ def fit_decay(
     noise = max(noise, 1e-15 * ptp)
 
     # start: FFT period, ESPRIT on the block-averaged active part (or the caller's guess)
-    xg, dt, udt = _uniform(tau, xw)
+    xg, dt, udt = _uniform(tau, xw, t_ref)
     if guess is not None:
         sig = v.finite("guess[0]", guess[0], "1/s")
         om = v.positive("guess[1]", guess[1], "rad/s")
