@@ -93,3 +93,44 @@ def test_added_mass_with_estimated_delay(tmp_path):
     for q, v in (("m", 2.0), ("c", 1.0), ("k", 64.0)):
         est = getattr(r, q)
         assert abs(est.value - v) < 3 * est.stderr, (q, est)
+
+
+def test_added_mass_with_a_digital_loop(tmp_path):
+    # the sampled loop of tests/test_digital_identify.py (T_s = 2 ms, backward difference,
+    # 3-sample delay; plant m 1, c 2, k 100), each gain pair recorded bare and with 0.5 kg
+    # added; the bare and loaded runs are simulated as the plants m and m + 0.5 (phoid's
+    # sampled-loop simulator, checked in test_digital.py). Expected: the simulation's bare plant
+    # within 3 stderr, through the manifest and the CLI; ignoring the added mass, m is far off
+    from phoid.digital import DigitalPD
+
+    Pd = np.repeat(np.linspace(20.0, 200.0, 5), 2)
+    Dd = np.repeat(np.linspace(0.5, 5.0, 5), 2)
+    dm = np.tile([0.0, 0.5], 5)
+    rng = np.random.default_rng(12)
+    runs = []
+    for added in (0.0, 0.5):
+        sel = np.flatnonzero(dm == added)
+        sim = simulate(Plant(1.0 + added, 2.0, 100.0), Pd[sel], Dd[sel], duration=10.0,
+                       fs=500.0, x0=0.01, hold=0.2, noise=1e-5, quantum=1e-6, rng=rng,
+                       sample_time=0.002, delay_samples=3)
+        for row, i in enumerate(sel):
+            runs.append((i, run_from_arrays(sim.t, sim.x[row], P=float(Pd[i]), D=float(Dd[i]),
+                                            added_mass=float(added), index=int(i) + 1)))
+    runs = [r for _, r in sorted(runs, key=lambda item: item[0])]
+    path = write_experiment(tmp_path / "dam", runs, method="pho",
+                            loop={"sample_time": 0.002, "delay_samples": 3})
+    r = identify(read_experiment(path))
+    assert r.digital is not None and r.warnings == ()
+    for q, v in (("m", 1.0), ("c", 2.0), ("k", 100.0)):
+        est = getattr(r, q)
+        assert abs(est.value - v) < 3 * est.stderr, (q, est)
+    out = runner.invoke(app, ["identify", str(tmp_path / "dam"), "--json"])
+    assert out.exit_code == 0, out.output
+    s = json.loads(out.stdout)
+    assert s["loop"]["model"] == "digital"
+    assert [run.get("added_mass", 0.0) for run in s["runs"]] == dm.tolist()
+    assert abs(s["m"]["value"] - 1.0) < 3 * s["m"]["stderr"]
+    data = [(run.t, run.x) for run in read_experiment(path).runs]
+    loop = DigitalPD(0.0, 0.0, sample_time=0.002, delay_samples=3)
+    ignored = identify_data(data, Pd, Dd, None, digital=loop)
+    assert abs(ignored.m.value - 1.0) > 10 * r.m.stderr

@@ -52,6 +52,12 @@ def test_digital_model_identifies_and_continuous_model_does_not():
         est = getattr(r, q)
         assert abs(est.value - v) < 3 * est.stderr, (q, est)
     assert r.delay == pytest.approx(0.006) and r.summary()["loop"]["model"] == "digital"
+    # the release is fitted with the sampled loop's own response from rest: within a quarter
+    # of a controller sample of the simulation's (0.2 s; measured over 30 replicas: errors
+    # 0.0–0.13 ms, sd ≤ 0.04 ms, where the data-only detection was early by 1–6 ms, sd 5–10 ms,
+    # and let held samples into the fits)
+    releases = np.array([run.fit.release for run in r.runs])
+    assert np.all(np.abs(releases - 0.2) < 0.25 * LOOP.sample_time), releases
     # the continuous-delay model, with the samples' delay d·T_s or with half a sample more for
     # the hold: m and k come out ~0.7 % low — tens of the digital fit's stderr — and c 4 % low
     # at 6 ms (measured: m 0.9923, c 1.916, k 99.25 at 6 ms; 0.9934, 1.982, 99.24 at 7 ms)

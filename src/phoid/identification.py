@@ -292,7 +292,8 @@ def _unusable(fit: DecayFit) -> str | None:
 _REL_HALF = 32  # model-fitted release: samples searched either side of the detected one
 
 
-def _model_releases(data, fits, rough, P, D, delay, dm=None) -> list[float | None]:
+def _model_releases(data, fits, rough, P, D, delay, dm=None, digital=None
+                    ) -> list[float | None]:
     """Release times fitted with each loop's own response from rest (None where not done).
 
     The data-only detection (:func:`phoid.decay.detect_release`: a quadratic, then an even
@@ -319,6 +320,13 @@ def _model_releases(data, fits, rough, P, D, delay, dm=None) -> list[float | Non
     0.05–0.6 ms. On the paper's Table 1 set (100 replicas) m, c, k do not change (RMSE and
     stderr within 0.3 %); on the overdamped design the false "runs disagree" warnings (10 sets
     in 100, every stderr inflated 2–3× there) are gone. Cost: ~8 ms on the 19-run sample set.
+
+    A digital loop (``digital``, a :class:`phoid.digital.DigitalPD`) gets the response of its
+    sampled controller instead, on a grid of a whole number of steps per controller sample (at
+    least 4 per data sample), its clock started at the release. There the data-only detection
+    is worse still — early by 1–6 ms (sd 5–10 ms) on tests/test_digital_identify.py's design at
+    T_s = 2 ms — and the held samples it lets in bias σ by up to one stderr and make a third of
+    the sets' runs disagree.
     """
     from phoid.plant import Plant
     from phoid.simulation import simulate
@@ -349,8 +357,15 @@ def _model_releases(data, fits, rough, P, D, delay, dm=None) -> list[float | Non
         idx = [it[0] for it in items]
         span = max(float(data[i][0][hi - 1] - data[i][0][j0 - half]) for i, _, hi, j0 in items)
         try:
-            sim = simulate(plant, P[idx], D[idx], delay=delay, duration=span + 2 * dt,
-                           fs=4.0 / dt, x0=1.0)
+            if digital is None:
+                sim = simulate(plant, P[idx], D[idx], delay=delay, duration=span + 2 * dt,
+                               fs=4.0 / dt, x0=1.0)
+            else:
+                ts = digital.sample_time
+                q = max(1, math.ceil(4.0 * ts / dt - 1e-9))  # grid steps per controller sample
+                sim = simulate(plant, P[idx], D[idx], duration=span + 2 * dt, fs=q / ts,
+                               x0=1.0, sample_time=ts, delay_samples=digital.delay_samples,
+                               velocity=digital.velocity, cutoff=digital.cutoff)
         except ValueError:
             continue
         for row, (i, lo, hi, j0) in enumerate(items):
@@ -431,13 +446,22 @@ def _start_run(t, x, skip, coarse_release=False):
         return None, str(exc)
 
 
-def _digital_modes_of(rough, P, D, digital):
+def _digital_modes_of(rough, P, D, digital, dm):
     """Per run: the sampled loop's finite roots (decreasing real part) and their amplitudes
-    for a unit release (phoid.digital.digital_residues), from the rough plant."""
+    for a unit release (phoid.digital.digital_residues), from the rough plant with each run's
+    added mass ``dm`` (one call per distinct added mass)."""
     from phoid.digital import digital_residues, digital_roots
 
-    roots = digital_roots(*rough, P, D, digital).s
-    s_res, amp = digital_residues(*rough, P, D, digital)
+    m, c, k = rough
+    roots: list[Any] = [None] * P.size
+    s_res: list[Any] = [None] * P.size
+    amp: list[Any] = [None] * P.size
+    for added in np.unique(dm):
+        idx = np.flatnonzero(dm == added)
+        r = digital_roots(m + added, c, k, P[idx], D[idx], digital).s
+        sr, a = digital_residues(m + added, c, k, P[idx], D[idx], digital)
+        for j, i in enumerate(idx.tolist()):
+            roots[i], s_res[i], amp[i] = r[j], sr[j], a[j]
     return roots, s_res, amp
 
 
@@ -461,10 +485,10 @@ def _measure(data, P, D, delay, *, rough=None, first=None, noise=None, digital=N
     dm = np.zeros(n) if added_mass is None else np.asarray(added_mass, dtype=float)
     skip0 = 3.0 * delay
     if first is None:
-        # the release is refined below with the loop's own response (continuous loops), so
-        # the data-only detection may stop at its first stage; where that refit is not made,
-        # the full data-only detection is run then
-        first = [_start_run(t, x, skip0, coarse_release=digital is None) for t, x in data]
+        # the release is refined below with the loop's own response, so the data-only
+        # detection may stop at its first stage; where that refit is not made, the full
+        # data-only detection is run then
+        first = [_start_run(t, x, skip0, coarse_release=True) for t, x in data]
     starts = [st for st, _err in first]
     fits: list[DecayFit | None] = [None] * n
     reasons: list[str | None] = [err for _st, err in first]
@@ -478,14 +502,14 @@ def _measure(data, P, D, delay, *, rough=None, first=None, noise=None, digital=N
                 rough = (lines.m, lines.c, lines.k)
         except (ValueError, np.linalg.LinAlgError):
             rough = None
-    releases = ([None] * n if digital is not None or not rough
-                else _model_releases(data, starts, rough, P, D, delay, dm))
+    releases = ([None] * n if not rough
+                else _model_releases(data, starts, rough, P, D, delay, dm, digital))
     all_roots: list[np.ndarray | None] = [None] * n
     todo = [i for i in range(n) if starts[i] is not None]
     amps: dict[int, tuple[np.ndarray, np.ndarray]] = {}
     if rough is not None and todo and digital is not None:
         try:
-            roots, s_res, amp = _digital_modes_of(rough, P[todo], D[todo], digital)
+            roots, s_res, amp = _digital_modes_of(rough, P[todo], D[todo], digital, dm[todo])
             for j, i in enumerate(todo):
                 r = roots[j][np.isfinite(roots[j])]
                 all_roots[i] = r
@@ -510,12 +534,7 @@ def _measure(data, P, D, delay, *, rough=None, first=None, noise=None, digital=N
             continue
         t, x = data[i]
         g = None
-        if releases[i] is not None:
-            release = releases[i]
-        elif digital is None:
-            release = detect_release(t, x)
-        else:
-            release = st.release
+        release = releases[i] if releases[i] is not None else detect_release(t, x)
         if st.oscillating and releases[i] is not None and delay == 0.0:
             # no delay: the closed loop is exactly second order; fit from the refined release
             g, _err = _fit_run(t, x, 0.0, release, None, guess=(st.sigma, st.omega_d))
@@ -632,11 +651,6 @@ def identify(
     added_mass = np.array([getattr(r, "added_mass", 0.0) for r in runs], dtype=float)
     digital = _digital_loop(experiment)
     if digital is not None:
-        if np.any(added_mass):
-            raise IdentificationError(
-                f"{experiment.path}: added_mass: not supported with a digital loop "
-                "([loop] sample_time) yet"
-            )
         if delay is not None or experiment.delay is not None:
             raise IdentificationError(
                 f"{experiment.path}: [loop] delay: a digital loop (sample_time) takes its delay "
@@ -648,6 +662,7 @@ def identify(
             np.array([r.D for r in runs], dtype=float),
             None, files=[r.file for r in runs], names=[getattr(r, "name", r.file) for r in runs],
             estimator=estimator, source=str(experiment.path), digital=digital,
+            added_mass=added_mass,
         )
     if delay is None:
         delay = experiment.delay
@@ -706,14 +721,13 @@ def identify_data(
         if not np.all(np.isfinite(added_mass) & (added_mass >= 0)):
             raise ValueError(f"`added_mass` must be finite and ≥ 0 kg; got {added_mass}")
     if digital is not None:
-        if added_mass is not None and np.any(added_mass):
-            raise IdentificationError("added_mass is not supported with a digital loop yet")
         if estimator != "gls":
             raise IdentificationError("a digital loop needs the weighted fit (estimator='gls')")
         # starting lines: the continuous loop with the delay of the samples, plus half a sample
         # (the hold) and, for a backward difference, half a sample more on the velocity
         res = _identify_core(data, P, D, digital.delay + 0.5 * digital.sample_time,
-                             files=files, names=names, source=source, digital=digital)
+                             files=files, names=names, source=source, digital=digital,
+                             added_mass=added_mass)
         return replace(res, delay=digital.delay)
     if delay is None:
         if estimator != "gls":

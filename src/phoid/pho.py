@@ -199,6 +199,22 @@ def _check_inputs(sigma, omega_d, P, D):
     return sigma, omega_d, P, D
 
 
+def _mass_groups(dm: np.ndarray) -> list[np.ndarray]:
+    """Indices of the runs sharing each added mass (one group when no mass is added)."""
+    return [np.flatnonzero(dm == a) for a in np.unique(dm)]
+
+
+def _digital_modes_by_mass(m, dm, c, k, P, D, digital, s_guess):
+    """:func:`phoid.digital.digital_modes` of runs whose masses are m + Δmᵢ, a call per Δm
+    (the sampled plant depends on the mass); ∂s/∂m is the same as ∂s/∂(m + Δmᵢ)."""
+    s = np.empty(P.size, dtype=complex)
+    ds = np.empty((P.size, 3), dtype=complex)
+    for idx in _mass_groups(dm):
+        guess = None if s_guess is None else np.asarray(s_guess)[idx]
+        s[idx], ds[idx] = digital_modes(m + dm[idx[0]], c, k, P[idx], D[idx], digital, guess)
+    return s, ds
+
+
 def _added(added_mass, n: int) -> np.ndarray:
     """Per-run added mass as an array (zeros if None), checked finite and ≥ 0."""
     if added_mass is None:
@@ -271,7 +287,7 @@ def _is_dominant(s, m, c, k, P, D, delay) -> bool:
     a = s.real - max(0.5, 0.5 * abs(s.real))  # 1/s: far enough from s to count cheaply
     n_expected = 1 if s.imag == 0 else 2
     try:
-        if count_roots_right_of(a, m, c, k, P, D, delay) == n_expected:
+        if count_roots_right_of(a, m, c, k, P, D, delay, near=[s]) == n_expected:
             return True
     except (RuntimeError, ValueError):
         pass
@@ -348,8 +364,6 @@ def fit_modes(
     sigma, omega_d, P, D = _check_inputs(sigma, omega_d, P, D)
     cov = np.asarray(cov, dtype=float).reshape(sigma.size, 2, 2)
     dm = _added(added_mass, sigma.size)
-    if digital is not None and np.any(dm):
-        raise ValueError("`added_mass` is not available with a digital loop")
     lines = fit_lines(sigma, omega_d, P, D, delay, added_mass=dm)
     theta = np.array(start if start is not None else (lines.m, lines.c, lines.k), dtype=float)
     npar = 4 if estimate_delay else 3
@@ -374,7 +388,7 @@ def fit_modes(
         m, c, k = th[:3]
         tau = th[3] if estimate_delay else delay
         if digital is not None:
-            s_mod, ds = digital_modes(m, c, k, P, D, digital, s_guess)
+            s_mod, ds = _digital_modes_by_mass(m, dm, c, k, P, D, digital, s_guess)
         else:
             s_mod = dominant_roots(m + dm, c, k, P, D, tau, s_guess)
             _, df = characteristic(s_mod, m + dm, c, k, P, D, tau)
@@ -429,7 +443,10 @@ def fit_modes(
     m, c, k = theta[:3]
     tau = float(theta[3]) if estimate_delay else delay
     if digital is not None:
-        dom = digital_is_dominant(s, m, c, k, P, D, digital, rtol=1e-6)
+        dom = np.empty(sigma.size, dtype=bool)
+        for idx in _mass_groups(dm):
+            dom[idx] = digital_is_dominant(s[idx], m + dm[idx[0]], c, k, P[idx], D[idx],
+                                           digital, rtol=1e-6)
         if not np.all(dom):
             raise IdentificationError(
                 f"run {int(np.argmin(dom)) + 1}: the fitted mode is not the sampled loop's "
