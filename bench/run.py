@@ -426,8 +426,8 @@ PROFILING = [
     "shows all of its ~6 ms in the Python loop over the 150 delay intervals "
     "(`simulation._linear_blocks`: one `scipy.signal.lfilter`, `_ch_input` and `_emit` per "
     "interval, ~40 µs each), none in per-sample work; a batch shares that loop among its runs, "
-    "hence 38–46× there. Closing the gap for one run needs fewer Python iterations per delay "
-    "interval (or a compiled loop), not faster arithmetic.",
+    "hence ≥ 20× there (the table above). Closing the gap for one run needs fewer Python "
+    "iterations per delay interval (or a compiled loop), not faster arithmetic.",
     "- **Monte Carlo size.** The first full run (600 phoid replicas per set) read phoid's "
     "RMSE / CRB for c on Table 1 as 1.10 (95 % interval 1.04–1.16). Inspection: the errors "
     "are Gaussian (excess kurtosis 0.07, largest |z| 3.5, no outliers, no link to the "
