@@ -401,3 +401,55 @@ def test_cli_identify_friction(tmp_path):
     manifest.write_text(manifest.read_text().replace("[loop]\ndelay = 0.02\n", ""))
     r = runner.invoke(app, ["identify", str(out), "--friction"])
     assert r.exit_code == 2 and "needs the loop" in r.stderr and len(r.stderr.splitlines()) == 1
+
+
+# --------------------------------------------------------------------------------------------
+# added masses (the paper's added-mass trick) with friction
+
+
+def test_added_mass_with_friction(tmp_path):
+    # the plant with friction, six gain pairs each recorded bare and with 0.5 kg added
+    # (phoid's simulator, plants m and m + 0.5). Expected: the simulation's bare plant and f_c
+    # within 3 stderr, through the files, the manifest's added_mass and the CLI; the added
+    # masses in the JSON's runs. Ignoring them, m is far off (the loaded runs ring slower)
+    from typer.testing import CliRunner
+
+    from phoid import read_experiment, run_from_arrays, write_experiment
+    from phoid.cli import app
+
+    P6 = np.linspace(20.0, 200.0, 6)
+    D6 = gains_for(P6, np.linspace(0.2, 0.6, 6))
+    x0 = 8e-3
+    runs = []
+    rng = np.random.default_rng(21)
+    for added in (0.0, 0.5):
+        sim = simulate(Plant(M + added, C, K, FC), P6, D6, delay=DELAY, duration=6.0, fs=FS,
+                       x0=x0, hold=HOLD, noise=NOISE, quantum=QUANTUM, offset=OFFSET, rng=rng)
+        for i in range(P6.size):
+            runs.append(run_from_arrays(sim.t, sim.x[i], P=float(P6[i]), D=float(D6[i]),
+                                        added_mass=added, index=len(runs) + 1))
+    path = write_experiment(tmp_path / "fam", runs, method="pho", delay=DELAY)
+    exp = read_experiment(path)
+    data = [(r.t, r.x) for r in exp.runs]
+    P12, D12 = np.tile(P6, 2), np.tile(D6, 2)
+    dm = np.repeat([0.0, 0.5], 6)
+    fit = identify_friction(data, P12, D12, DELAY, added_mass=dm)
+    for name, z in z_scores(fit).items():
+        assert abs(z) < 3.0, f"{name}: {getattr(fit, name)} vs {TRUE[name]} (z = {z:.2f})"
+    assert [r.added_mass for r in fit.runs] == dm.tolist()
+    out = CliRunner().invoke(app, ["identify", str(path), "--friction", "--json"])
+    assert out.exit_code == 0, out.output
+    s = json.loads(out.stdout)
+    assert [r.get("added_mass", 0.0) for r in s["runs"]] == dm.tolist()
+    for q in ("m", "c", "k", "fc"):
+        assert abs(s[q]["value"] - TRUE[q]) < 3 * s[q]["stderr"], (q, s[q])
+    # the known part taken off c′ and k′: every run on the bare plant's eq. (35) lines
+    # (noise-level scatter: within 1 % of k's and 10 % of c's scale)
+    for r in s["runs"]:
+        assert abs(r["k_prime"] - (M * (r["sigma"] ** 2 + r["omega_d"] ** 2) - K)) < 1.0
+        assert abs(r["c_prime"] - (2 * M * r["sigma"] - C)) < 0.2
+    ignored = identify_friction(data, P12, D12, DELAY)
+    assert abs(ignored.m.value - M) > 10 * fit.m.stderr
+    with pytest.raises(ExperimentError, match=r"run3: `added_mass` must be ≥ 0 kg"):
+        identify_friction(data, P12, D12, DELAY, added_mass=np.where(np.arange(12) == 2,
+                                                                     -1.0, 0.0))

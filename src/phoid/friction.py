@@ -38,6 +38,10 @@ update). The Jacobian columns are:
   (every term of the equation is linear in x except f_c sign(ẋ), which scales with f_c), so
   x₀ ∂X/∂x₀ + f_c ∂X/∂f_c = X.
 
+Runs recorded with a known added mass Δmᵢ (the paper's added-mass trick, ``added_mass``) are
+simulated with the plant m + Δmᵢ (one batched simulation per distinct Δm); θ keeps the mass
+without additions.
+
 The covariance of θ is the (θ, θ) block of (JᵀWJ)⁻¹ scaled by χ²/dof (the residual variance
 in units of the noise sd): the Gauss–Newton (Fisher) covariance with every nuisance parameter
 profiled out.
@@ -166,6 +170,8 @@ class FrictionRun:
     residual_rms : float
         RMS residual of the fit over the window, m (nan when set aside).
     warnings : tuple of str
+    added_mass : float
+        Known mass added for this run, kg (its plant is m + added_mass; default 0).
     """
 
     name: str
@@ -184,6 +190,7 @@ class FrictionRun:
     noise_sd: float
     residual_rms: float
     warnings: tuple[str, ...] = ()
+    added_mass: float = 0.0
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready dict (nan as None)."""
@@ -191,7 +198,7 @@ class FrictionRun:
         def num(x):
             return None if x is None or not math.isfinite(x) else float(x)
 
-        return {
+        out = {
             "name": self.name, "P": float(self.P), "D": float(self.D), "used": self.used,
             "release": num(self.release), "x0": num(self.x0), "offset": num(self.offset),
             "sigma": num(self.sigma), "omega_d": num(self.omega_d),
@@ -200,6 +207,9 @@ class FrictionRun:
             "noise_sd": num(self.noise_sd), "residual_rms": num(self.residual_rms),
             "warnings": list(self.warnings),
         }
+        if self.added_mass:
+            out["added_mass"] = float(self.added_mass)
+        return out
 
 
 @dataclass(frozen=True)
@@ -271,7 +281,10 @@ class FrictionFit:
             d = r.to_dict()
             if math.isfinite(r.sigma) and math.isfinite(r.omega_d):
                 cp, kp = inverse_map(r.sigma, r.omega_d, r.P, r.D, self.delay)
-                cp, kp = float(cp), float(kp)
+                # an added mass's known part taken off, as phoid identify does (all runs then
+                # lie on the same eq. 35 lines)
+                cp = float(cp) - 2.0 * r.added_mass * r.sigma
+                kp = float(kp) - r.added_mass * (r.sigma**2 + r.omega_d**2)
             else:
                 cp = kp = None
             runs.append({"file": d.pop("name"), "P": d.pop("P"), "D": d.pop("D"),
@@ -471,7 +484,7 @@ def _extrema(t: np.ndarray, y: np.ndarray, omega: float, sd: float):
     return times[:n], vals[:n]
 
 
-def _envelope_guess(surveys, P, D, delay, m, c, k, omegas, releases):
+def _envelope_guess(surveys, P, D, delay, m, c, k, omegas, releases, dm=None):
     """Candidate starts (m, c, k, f_c) and per-run offsets from the envelopes.
 
     Per run, the peak-to-peak heights obey Hₙ₊₁ = ρᵢHₙ − δᵢ (least squares, module
@@ -480,7 +493,8 @@ def _envelope_guess(surveys, P, D, delay, m, c, k, omegas, releases):
     of the decay is σᵢ = −ln(ρᵢ)ω_dᵢ/π. Candidates, each with f_c the median of
     δᵢ(k + Pᵢ)/(2(1 + ρᵢ)):
 
-    1. the given m, k with c the median of 2mσᵢ − c′ᵢ (eq. 35, c′ᵢ from eq. 32);
+    1. the given m, k with c the median of 2(m + Δmᵢ)σᵢ − c′ᵢ (eq. 35, c′ᵢ from eq. 32; Δmᵢ
+       the known added masses);
     2. m, c, k from the paper's lines through (σᵢ, ω_dᵢ) (eqs. 32–35,
        :func:`phoid.pho.fit_lines`), when three runs with two gain pairs have enough peaks.
 
@@ -490,6 +504,7 @@ def _envelope_guess(surveys, P, D, delay, m, c, k, omegas, releases):
     """
     rows = []
     offsets = np.full(len(surveys), math.nan)
+    dm = np.zeros(len(surveys)) if dm is None else np.asarray(dm, dtype=float)
     for i, (s, Pi, Di, om, tau) in enumerate(zip(surveys, P, D, omegas, releases,
                                                   strict=True)):
         if not (om > 0 and math.isfinite(om)):
@@ -506,20 +521,20 @@ def _envelope_guess(surveys, P, D, delay, m, c, k, omegas, releases):
         half = float(np.polyfit(np.arange(te.size), te, 1)[0])
         if 0 < rho < 1.5 and half > 0:
             om = math.pi / half
-            rows.append((-math.log(rho) * om / math.pi, om, Pi, Di, rho, delta))
+            rows.append((-math.log(rho) * om / math.pi, om, Pi, Di, rho, delta, dm[i]))
     if not rows:
         return [np.array([m, c, k, 0.0])], offsets
-    sig, om, Pr, Dr, rho, delta = (np.array(a) for a in zip(*rows, strict=True))
+    sig, om, Pr, Dr, rho, delta, dmr = (np.array(a) for a in zip(*rows, strict=True))
 
     def fc_for(kk):
         return max(float(np.median(delta * (kk + Pr) / (2.0 * (1.0 + rho)))), 0.0)
 
     cp, _ = inverse_map(sig, om, Pr, Dr, delay)
-    c1 = float(np.median(2.0 * m * sig - cp))
+    c1 = float(np.median(2.0 * (m + dmr) * sig - cp))
     out = [np.array([m, c1, k, fc_for(k)])]
     if sig.size >= 3 and np.unique(np.c_[Pr, Dr], axis=0).shape[0] >= 2:
         try:
-            lines = fit_lines(sig, om, Pr, Dr, delay)
+            lines = fit_lines(sig, om, Pr, Dr, delay, added_mass=dmr)
             if lines.m > 0 and math.isfinite(lines.c) and math.isfinite(lines.k):
                 out.append(np.array([lines.m, lines.c, lines.k, fc_for(lines.k)]))
         except (ValueError, np.linalg.LinAlgError):
@@ -562,7 +577,7 @@ class _Problem:
     Parameter vector: the free globals among (m, c, k, f_c), then (x₀ᵢ, bᵢ, τᵢ) per run.
     """
 
-    def __init__(self, surveys, t_end, P, D, delay, fs_sim, free):
+    def __init__(self, surveys, t_end, P, D, delay, fs_sim, free, dm=None):
         self.t = []
         self.y = []
         for s, te in zip(surveys, t_end, strict=True):
@@ -579,6 +594,9 @@ class _Problem:
         self.free = tuple(free)  # which of (m, c, k, fc) are fitted
         self.ng = sum(self.free)
         self.B = len(surveys)
+        # known added mass per run (the added-mass trick): run i's plant is m + Δmᵢ
+        self.dm = np.zeros(self.B) if dm is None else np.asarray(dm, dtype=float)
+        self.groups = [np.flatnonzero(self.dm == a) for a in np.unique(self.dm)]
         self.n = np.array([tt.size for tt in self.t])
         self.rows = np.concatenate([[0], np.cumsum(self.n)])
 
@@ -589,21 +607,30 @@ class _Problem:
         return theta, p[self.ng :].reshape(self.B, 3)
 
     def simulate(self, theta: np.ndarray, x0: np.ndarray, tau: np.ndarray):
-        """X, V of every run released at x₀ᵢ (hold 0, grid step h); None if not simulable."""
+        """X, V of every run released at x₀ᵢ (hold 0, grid step h); None if not simulable.
+
+        One batched simulation per distinct added mass (run i's plant is m + Δmᵢ)."""
         from phoid.simulation import simulate
 
         m, c, k, fc = (float(a) for a in theta)
         if not (m > 0 and fc >= 0):
             return None
-        dur = float(np.max(self.t_end - tau)) + 3.0 * self.h
-        try:
-            sim = simulate(_PlantParams(m, c, k, fc), self.P, self.D, delay=self.delay,
-                           duration=max(dur, 4 * self.h), fs=self.fs, x0=x0)
-        except ValueError:
-            return None
-        if not (np.all(np.isfinite(sim.x_true)) and np.all(np.isfinite(sim.v))):
-            return None
-        return sim.x_true, sim.v
+        dur = max(float(np.max(self.t_end - tau)) + 3.0 * self.h, 4 * self.h)
+        X = V = None
+        for g in self.groups:
+            try:
+                sim = simulate(_PlantParams(m + float(self.dm[g[0]]), c, k, fc), self.P[g],
+                               self.D[g], delay=self.delay, duration=dur, fs=self.fs,
+                               x0=np.asarray(x0)[g])
+            except ValueError:
+                return None
+            if not (np.all(np.isfinite(sim.x_true)) and np.all(np.isfinite(sim.v))):
+                return None
+            if X is None:
+                X = np.empty((self.B, sim.x_true.shape[1]))
+                V = np.empty_like(X)
+            X[g], V[g] = sim.x_true, sim.v
+        return X, V
 
     def model(self, local: np.ndarray, XV) -> tuple[list, list, list]:
         """Per run: model values, post-release mask, Hermite value and derivative."""
@@ -843,6 +870,7 @@ class _Setup:
     omega: np.ndarray  # dominant angular frequency per run (start plant), rad/s
     fs: float
     warnings: list[str]
+    dm: np.ndarray  # known added mass per run, kg
 
 
 def _as_gains(name: str, a: Any, n: int) -> np.ndarray:
@@ -874,7 +902,7 @@ def _check_start(start) -> list[float] | None:
     return st
 
 
-def _prepare(data, P, D, delay, start, names, need_fc: bool) -> _Setup:
+def _prepare(data, P, D, delay, start, names, need_fc: bool, added_mass=None) -> _Setup:
     from phoid.identification import identify_data
 
     n = len(data)
@@ -885,6 +913,10 @@ def _prepare(data, P, D, delay, start, names, need_fc: bool) -> _Setup:
         raise ExperimentError(f"`names` must have one entry per run ({n}); got {len(names)}")
     P = _as_gains("P", P, n)
     D = _as_gains("D", D, n)
+    dm = np.zeros(n) if added_mass is None else _as_gains("added_mass", added_mass, n)
+    if np.any(dm < 0):
+        j = int(np.flatnonzero(dm < 0)[0])
+        raise ExperimentError(f"{names[j]}: `added_mass` must be ≥ 0 kg; got {dm[j]}")
     try:
         delay = float(delay)
     except (TypeError, ValueError):
@@ -913,7 +945,7 @@ def _prepare(data, P, D, delay, start, names, need_fc: bool) -> _Setup:
     if start is None:
         try:
             visc = identify_data([data[i] for i in cand], P[cand], D[cand], delay,
-                                 names=[names[i] for i in cand])
+                                 names=[names[i] for i in cand], added_mass=dm[cand])
         except (IdentificationError, ValueError) as exc:
             raise IdentificationError(
                 f"no viscous starting point for the friction fit ({exc}); pass "
@@ -937,16 +969,17 @@ def _prepare(data, P, D, delay, start, names, need_fc: bool) -> _Setup:
         )
     todo = [i for i in cand if not omega[i] > 0]
     if todo:
-        try:
-            roots = dominant_roots(m0, c0, k0, P[todo], D[todo], delay)
-            omega[todo] = np.abs(roots.imag)
-        except (ValueError, RuntimeError):
-            pass
+        for added in np.unique(dm[todo]):  # one plant per added mass
+            g = [i for i in todo if dm[i] == added]
+            try:
+                omega[g] = np.abs(dominant_roots(m0 + added, c0, k0, P[g], D[g], delay).imag)
+            except (ValueError, RuntimeError):
+                pass
     for i in cand:
         if not omega[i] > 0:
-            omega[i] = math.sqrt(max(abs(k0 + P[i]) / m0, 1e-12))
+            omega[i] = math.sqrt(max(abs(k0 + P[i]) / (m0 + dm[i]), 1e-12))
     cands, offs = _envelope_guess([surveys[i] for i in cand], P[cand], D[cand], delay, m0, c0,
-                                  k0, omega[cand], release[cand])
+                                  k0, omega[cand], release[cand], dm[cand])
     for i, b in zip(cand, offs, strict=True):
         if math.isfinite(b):
             offset[i] = b
@@ -960,7 +993,7 @@ def _prepare(data, P, D, delay, start, names, need_fc: bool) -> _Setup:
     if delay > 0:
         fs = math.ceil(fs * delay - 1e-9) / delay  # a whole number of steps per delay
     return _Setup(names, P, D, delay, surveys, reasons, candidates[0], candidates, release,
-                  offset, omega, fs, warnings)
+                  offset, omega, fs, warnings, dm)
 
 
 def _windows(setup: _Setup, idx: list[int]) -> np.ndarray:
@@ -990,7 +1023,8 @@ def _fit(setup: _Setup, idx: list[int], theta0: np.ndarray, local0: np.ndarray,
          tol: float = 0.1, confirm: bool = True):
     surveys = [setup.surveys[i] for i in idx]
     t_end = _windows(setup, idx) if t_end is None else t_end
-    prob = _Problem(surveys, t_end, setup.P[idx], setup.D[idx], setup.delay, setup.fs, free)
+    prob = _Problem(surveys, t_end, setup.P[idx], setup.D[idx], setup.delay, setup.fs, free,
+                    setup.dm[idx])
     fixed = theta0.copy()
     p0 = np.concatenate([theta0[np.array(free)], local0.ravel()])
     res = _levenberg_marquardt(prob, p0, fixed, max_iter=max_iter, tol=tol, confirm=confirm)
@@ -1040,6 +1074,7 @@ def identify_friction(
     start: Sequence[float] | None = None,
     names: Sequence[str] | None = None,
     max_iter: int = 40,
+    added_mass: Sequence[float] | None = None,
 ) -> FrictionFit:
     """Estimate m, c, k and the kinetic friction force f_c from a PHO experiment set.
 
@@ -1064,6 +1099,9 @@ def identify_friction(
         Run names for messages (default ``run1`` …).
     max_iter : int, default 40
         Levenberg–Marquardt iterations per fit.
+    added_mass : array_like, shape (n,), optional
+        Known mass added in each run, kg (≥ 0; the paper's added-mass trick): run i's plant is
+        m + Δmᵢ, and m is the mass without additions.
 
     Returns
     -------
@@ -1091,7 +1129,7 @@ def identify_friction(
     >>> round(fit.fc.value, 2), round(fit.c.value, 1)
     (0.05, 2.0)
     """
-    setup = _prepare(data, P, D, delay, start, names, need_fc=True)
+    setup = _prepare(data, P, D, delay, start, names, need_fc=True, added_mass=added_mass)
     n = len(setup.surveys)
     reasons = list(setup.reasons)
     idx = [i for i in range(n) if reasons[i] is None]
@@ -1105,7 +1143,7 @@ def identify_friction(
     early = _early_windows(setup, idx, local[idx, 2])
     if len(setup.candidates) > 1:  # the candidate start that fits these windows best
         probe = _Problem([setup.surveys[i] for i in idx], early, setup.P[idx], setup.D[idx],
-                         setup.delay, setup.fs, free)
+                         setup.delay, setup.fs, free, setup.dm[idx])
         costs = []
         for th in setup.candidates:
             XV = probe.simulate(th, local[idx, 0], local[idx, 2])
@@ -1158,10 +1196,13 @@ def _result(setup, idx, reasons, prob, fixed, res, facts, iterations) -> Frictio
     vals, _, _ = prob.model(local, res.XV)
     resid = [prob.y[j] - vals[j] for j in range(prob.B)]
     rms_all = float(np.sqrt(np.mean(np.concatenate(resid) ** 2)))
-    try:
-        roots = dominant_roots(m, c, k, setup.P, setup.D, setup.delay)
-    except (ValueError, RuntimeError):
-        roots = np.full(len(setup.surveys), complex(math.nan, math.nan))
+    roots = np.full(len(setup.surveys), complex(math.nan, math.nan))
+    for added in np.unique(setup.dm):  # one plant per added mass
+        g = np.flatnonzero(setup.dm == added)
+        try:
+            roots[g] = dominant_roots(m + added, c, k, setup.P[g], setup.D[g], setup.delay)
+        except (ValueError, RuntimeError):
+            pass
     runs = []
     n = len(setup.surveys)
     for i in range(n):
@@ -1184,13 +1225,14 @@ def _result(setup, idx, reasons, prob, fixed, res, facts, iterations) -> Frictio
                          f"noise sd {s.sd:.3g} m")
             runs.append(FrictionRun(s.name, float(setup.P[i]), float(setup.D[i]), True, tau,
                                     x0, b, sig, wd, ts, rev, float(prob.t_end[j]),
-                                    int(prob.n[j]), s.sd, rms, tuple(w)))
+                                    int(prob.n[j]), s.sd, rms, tuple(w),
+                                    float(setup.dm[i])))
         else:
             w.append(f"set aside: {reasons[i]}")
             runs.append(FrictionRun(s.name, float(setup.P[i]), float(setup.D[i]), False,
                                     float(setup.release[i]), float(s.level - setup.offset[i]),
                                     float(setup.offset[i]), sig, wd, None, -1, float(s.t[-1]),
-                                    0, s.sd, math.nan, tuple(w)))
+                                    0, s.sd, math.nan, tuple(w), float(setup.dm[i])))
         warnings.extend(f"{s.name}: {x}" for x in w)
     if not res.converged:
         warnings.append(f"the fit did not converge in {iterations} iterations: the estimates "
@@ -1224,6 +1266,7 @@ def friction_evidence(
     start: Sequence[float] | None = None,
     names: Sequence[str] | None = None,
     alpha: float = 1e-3,
+    added_mass: Sequence[float] | None = None,
 ) -> FrictionEvidence:
     """Score test of f_c = 0: is there Coulomb friction in a PHO set fitted as viscous?
 
@@ -1233,7 +1276,7 @@ def friction_evidence(
 
     Parameters
     ----------
-    data, P, D, delay, names
+    data, P, D, delay, names, added_mass
         As for :func:`identify_friction`.
     start : sequence of float, optional
         Starting (m, c, k) for the viscous fit, e.g. a viscous identification's estimates
@@ -1249,7 +1292,7 @@ def friction_evidence(
         raise ValueError(f"`alpha` must be in (0, 1); got {alpha!r}")
     if start is not None:
         start = tuple(start)[:3]
-    setup = _prepare(data, P, D, delay, start, names, need_fc=False)
+    setup = _prepare(data, P, D, delay, start, names, need_fc=False, added_mass=added_mass)
     n = len(setup.surveys)
     idx = [i for i in range(n) if setup.reasons[i] is None]
     theta = setup.start.copy()
@@ -1317,8 +1360,8 @@ def identify_friction_set(experiment: Any, *, delay: float | None = None) -> Fri
     Raises
     ------
     IdentificationError
-        A set the friction fit does not model (not ``pho``, a digital loop, added masses, no
-        delay), or no usable run; the message names the set.
+        A set the friction fit does not model (not ``pho``, a digital loop, no delay), or no
+        usable run; the message names the set.
     """
     where = str(getattr(experiment, "path", "experiment"))
     if getattr(experiment, "method", "pho") != "pho":
@@ -1329,8 +1372,6 @@ def identify_friction_set(experiment: Any, *, delay: float | None = None) -> Fri
         raise IdentificationError(f"{where}: [loop] {other[0]}: the friction fit models a "
                                   "continuous loop with a delay only")
     runs = list(experiment.runs)
-    if any(getattr(r, "added_mass", 0.0) for r in runs):
-        raise IdentificationError(f"{where}: added_mass: not supported by the friction fit")
     delay = experiment.delay if delay is None else delay
     if delay is None:
         raise IdentificationError(f"{where}: [loop] delay: the friction fit needs the loop "
@@ -1339,6 +1380,7 @@ def identify_friction_set(experiment: Any, *, delay: float | None = None) -> Fri
         return identify_friction([(r.t, r.x) for r in runs],
                                  np.array([r.P for r in runs], dtype=float),
                                  np.array([r.D for r in runs], dtype=float), float(delay),
-                                 names=[r.file for r in runs])
+                                 names=[r.file for r in runs],
+                                 added_mass=[getattr(r, "added_mass", 0.0) for r in runs])
     except IdentificationError as exc:
         raise IdentificationError(f"{where}: {exc}") from None
