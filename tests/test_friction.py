@@ -453,3 +453,62 @@ def test_added_mass_with_friction(tmp_path):
     with pytest.raises(ExperimentError, match=r"run3: `added_mass` must be ≥ 0 kg"):
         identify_friction(data, P12, D12, DELAY, added_mass=np.where(np.arange(12) == 2,
                                                                      -1.0, 0.0))
+
+
+# --------------------------------------------------------------------------------------------
+# a sampled (digital) controller with friction
+
+
+def test_digital_loop_with_friction(tmp_path):
+    # the plant with friction under a sampled PD loop (T_s = 2 ms, backward-difference
+    # velocity, 3-sample command delay: tests/test_digital_identify.py's controller), eight
+    # runs with D chosen so that the sampled loop's dominant root decays at σ = 0.2 … 0.6 1/s
+    # (exact roots of phoid.digital, brentq). Expected: the simulation's plant and f_c within
+    # 3 stderr (phoid's sampled-loop simulator with exact stick–slip, checked in
+    # test_digital.py), through the manifest's [loop] keys and the CLI; the viscous fit of the
+    # same records takes the friction for damping (measured: c 3.40 for 2)
+    from typer.testing import CliRunner
+
+    from phoid import read_experiment, run_from_arrays, write_experiment
+    from phoid.cli import app
+    from phoid.digital import DigitalPD, digital_roots
+    from phoid.identification import identify_data
+
+    loop = DigitalPD(0.0, 0.0, sample_time=0.002, delay_samples=3)
+
+    def sigma(p, d):
+        return -digital_roots(M, C, K, np.array([p]), np.array([d]), loop).dominant[0].real
+
+    P8 = np.linspace(20.0, 200.0, 8)
+    D8 = np.array([brentq(lambda d, p=p, s=s: sigma(p, d) - s, -1.9, 6.0)
+                   for p, s in zip(P8, np.linspace(0.2, 0.6, 8), strict=True)])
+    x0 = np.random.default_rng(1).uniform(5e-3, 10e-3, P8.size)
+    sim = simulate(Plant(M, C, K, FC), P8, D8, duration=8.0, fs=FS, x0=x0, hold=HOLD,
+                   noise=NOISE, quantum=QUANTUM, offset=OFFSET, rng=np.random.default_rng(101),
+                   sample_time=0.002, delay_samples=3)
+    runs = [run_from_arrays(sim.t, sim.x[i], P=float(P8[i]), D=float(D8[i]), index=i + 1)
+            for i in range(P8.size)]
+    folder = tmp_path / "dfr"
+    path = write_experiment(folder, runs, method="pho",
+                            loop={"sample_time": 0.002, "delay_samples": 3})
+    out = CliRunner().invoke(app, ["identify", str(folder), "--friction", "--json"])
+    assert out.exit_code == 0, out.output
+    s = json.loads(out.stdout)
+    assert s["loop"]["model"] == "digital" and s["delay"]["value"] == pytest.approx(0.006)
+    for q in ("m", "c", "k", "fc"):
+        assert abs(s[q]["value"] - TRUE[q]) < 3 * s[q]["stderr"], (q, s[q])
+    assert abs(s["c"]["value"] - C) < 0.02 * C
+    text = CliRunner().invoke(app, ["identify", str(folder), "--friction"])
+    assert text.exit_code == 0 and "digital loop (exact sampled model)" in text.stdout
+    data = [(r.t, r.x) for r in read_experiment(path).runs]
+    viscous = identify_data(data, P8, D8, None, digital=loop)
+    assert viscous.c.value - C > 0.3 * C
+    # a digital loop takes its delay in samples: a delay as well is refused
+    with pytest.raises(ExperimentError, match="`delay` must be None with a digital loop"):
+        identify_friction(data, P8, D8, 0.006, digital=loop)
+    manifest = folder / "experiment.toml"
+    assert "[loop]\n" in manifest.read_text()
+    manifest.write_text(manifest.read_text().replace("[loop]\n", "[loop]\ndelay = 0.006\n"))
+    out = CliRunner().invoke(app, ["identify", str(folder), "--friction"])
+    assert out.exit_code == 2 and "give one or the other" in out.stderr
+    assert len(out.stderr.strip().splitlines()) == 1

@@ -38,6 +38,12 @@ update). The Jacobian columns are:
   (every term of the equation is linear in x except f_c sign(ẋ), which scales with f_c), so
   x₀ ∂X/∂x₀ + f_c ∂X/∂f_c = X.
 
+A sampled (digital) controller (``digital``, a :class:`phoid.digital.DigitalPD`, or the
+manifest's ``[loop] sample_time`` …) replaces the delayed loop by the hybrid one — zero-order
+hold, d-sample command delay, the loop's velocity estimator — simulated exactly with stick–slip
+by the same :func:`phoid.simulation.simulate` (a whole number of steps per controller sample),
+its clock started at each run's release.
+
 Runs recorded with a known added mass Δmᵢ (the paper's added-mass trick, ``added_mass``) are
 simulated with the plant m + Δmᵢ (one batched simulation per distinct Δm); θ keeps the mass
 without additions.
@@ -239,6 +245,9 @@ class FrictionFit:
     start : tuple of float
         Starting (m, c, k, f_c).
     warnings : tuple of str
+    digital : phoid.digital.DigitalPD or None
+        The sampled controller the records were simulated with (None: a continuous loop with
+        delay Δt); ``delay`` is then its command delay d·T_s.
     """
 
     m: Estimate
@@ -255,6 +264,7 @@ class FrictionFit:
     iterations: int
     start: tuple[float, float, float, float]
     warnings: tuple[str, ...] = ()
+    digital: Any = None
 
     @property
     def chi2_red(self) -> float:
@@ -280,7 +290,10 @@ class FrictionFit:
         for r in self.runs:
             d = r.to_dict()
             if math.isfinite(r.sigma) and math.isfinite(r.omega_d):
-                cp, kp = inverse_map(r.sigma, r.omega_d, r.P, r.D, self.delay)
+                # a sampled loop: eq. (32) at its equivalent continuous delay, as identify does
+                dly = self.delay if self.digital is None else (
+                    self.digital.delay + 0.5 * self.digital.sample_time)
+                cp, kp = inverse_map(r.sigma, r.omega_d, r.P, r.D, dly)
                 # an added mass's known part taken off, as phoid identify does (all runs then
                 # lie on the same eq. 35 lines)
                 cp = float(cp) - 2.0 * r.added_mass * r.sigma
@@ -301,6 +314,10 @@ class FrictionFit:
                       "source": "given"},
             "runs": runs,
             "warnings": list(self.warnings),
+            **({"loop": {"model": "digital", "sample_time": self.digital.sample_time,
+                         "delay_samples": self.digital.delay_samples,
+                         "velocity": self.digital.velocity, "cutoff": self.digital.cutoff}}
+               if self.digital is not None else {}),
         }
 
     def report(self) -> str:
@@ -577,7 +594,7 @@ class _Problem:
     Parameter vector: the free globals among (m, c, k, f_c), then (x₀ᵢ, bᵢ, τᵢ) per run.
     """
 
-    def __init__(self, surveys, t_end, P, D, delay, fs_sim, free, dm=None):
+    def __init__(self, surveys, t_end, P, D, delay, fs_sim, free, dm=None, digital=None):
         self.t = []
         self.y = []
         for s, te in zip(surveys, t_end, strict=True):
@@ -589,6 +606,10 @@ class _Problem:
         self.P = np.asarray(P, dtype=float)
         self.D = np.asarray(D, dtype=float)
         self.delay = delay
+        self.digital = digital
+        # after this long at rest the loop's command is constant: the delay, or for a sampled
+        # controller its d samples plus the sample in progress
+        self.settle = delay if digital is None else digital.delay + digital.sample_time
         self.fs = fs_sim
         self.h = 1.0 / fs_sim
         self.free = tuple(free)  # which of (m, c, k, fc) are fitted
@@ -618,10 +639,14 @@ class _Problem:
         dur = max(float(np.max(self.t_end - tau)) + 3.0 * self.h, 4 * self.h)
         X = V = None
         for g in self.groups:
+            plant = _PlantParams(m + float(self.dm[g[0]]), c, k, fc)
+            g_ = self.digital
+            loop = {"delay": self.delay} if g_ is None else {
+                "sample_time": g_.sample_time, "delay_samples": g_.delay_samples,
+                "velocity": g_.velocity, "cutoff": g_.cutoff}
             try:
-                sim = simulate(_PlantParams(m + float(self.dm[g[0]]), c, k, fc), self.P[g],
-                               self.D[g], delay=self.delay, duration=dur, fs=self.fs,
-                               x0=np.asarray(x0)[g])
+                sim = simulate(plant, self.P[g], self.D[g], duration=dur, fs=self.fs,
+                               x0=np.asarray(x0)[g], **loop)
             except ValueError:
                 return None
             if not (np.all(np.isfinite(sim.x_true)) and np.all(np.isfinite(sim.v))):
@@ -871,6 +896,7 @@ class _Setup:
     fs: float
     warnings: list[str]
     dm: np.ndarray  # known added mass per run, kg
+    digital: Any = None  # phoid.digital.DigitalPD of a sampled loop, else None
 
 
 def _as_gains(name: str, a: Any, n: int) -> np.ndarray:
@@ -902,7 +928,17 @@ def _check_start(start) -> list[float] | None:
     return st
 
 
-def _prepare(data, P, D, delay, start, names, need_fc: bool, added_mass=None) -> _Setup:
+def _dominant(m, c, k, P, D, delay, digital):
+    """Dominant root of each run's loop: the continuous delayed loop, or the sampled one."""
+    if digital is None:
+        return dominant_roots(m, c, k, P, D, delay)
+    from phoid.digital import digital_roots
+
+    return digital_roots(m, c, k, P, D, digital).dominant
+
+
+def _prepare(data, P, D, delay, start, names, need_fc: bool, added_mass=None,
+             digital=None) -> _Setup:
     from phoid.identification import identify_data
 
     n = len(data)
@@ -917,12 +953,25 @@ def _prepare(data, P, D, delay, start, names, need_fc: bool, added_mass=None) ->
     if np.any(dm < 0):
         j = int(np.flatnonzero(dm < 0)[0])
         raise ExperimentError(f"{names[j]}: `added_mass` must be ≥ 0 kg; got {dm[j]}")
-    try:
-        delay = float(delay)
-    except (TypeError, ValueError):
-        raise ExperimentError(f"`delay` must be a real number (s); got {delay!r}") from None
-    if not (math.isfinite(delay) and delay >= 0):
-        raise ExperimentError(f"`delay` must be finite and ≥ 0 s; got {delay}")
+    if digital is not None:
+        from phoid.digital import DigitalPD
+
+        if not isinstance(digital, DigitalPD):
+            raise ExperimentError(f"`digital` must be a phoid.digital.DigitalPD; got {digital!r}")
+        if delay is not None:
+            raise ExperimentError(
+                "`delay` must be None with a digital loop: its command delay is "
+                f"`delay_samples` whole samples; got delay={delay!r}")
+        # the equivalent continuous delay (d samples and half a sample of hold): only for the
+        # starting point, the windows' margins and the reported c′, k′
+        delay = digital.delay + 0.5 * digital.sample_time
+    else:
+        try:
+            delay = float(delay)
+        except (TypeError, ValueError):
+            raise ExperimentError(f"`delay` must be a real number (s); got {delay!r}") from None
+        if not (math.isfinite(delay) and delay >= 0):
+            raise ExperimentError(f"`delay` must be finite and ≥ 0 s; got {delay}")
     st = _check_start(start)
     surveys = []
     for i, run in enumerate(data):
@@ -944,8 +993,10 @@ def _prepare(data, P, D, delay, start, names, need_fc: bool, added_mass=None) ->
     omega = np.full(n, math.nan)
     if start is None:
         try:
-            visc = identify_data([data[i] for i in cand], P[cand], D[cand], delay,
-                                 names=[names[i] for i in cand], added_mass=dm[cand])
+            visc = identify_data([data[i] for i in cand], P[cand], D[cand],
+                                 delay if digital is None else None,
+                                 names=[names[i] for i in cand], added_mass=dm[cand],
+                                 digital=digital)
         except (IdentificationError, ValueError) as exc:
             raise IdentificationError(
                 f"no viscous starting point for the friction fit ({exc}); pass "
@@ -972,7 +1023,8 @@ def _prepare(data, P, D, delay, start, names, need_fc: bool, added_mass=None) ->
         for added in np.unique(dm[todo]):  # one plant per added mass
             g = [i for i in todo if dm[i] == added]
             try:
-                omega[g] = np.abs(dominant_roots(m0 + added, c0, k0, P[g], D[g], delay).imag)
+                omega[g] = np.abs(_dominant(m0 + added, c0, k0, P[g], D[g], delay,
+                                            digital).imag)
             except (ValueError, RuntimeError):
                 pass
     for i in cand:
@@ -990,10 +1042,12 @@ def _prepare(data, P, D, delay, start, names, need_fc: bool, added_mass=None) ->
         candidates = [np.array([m0, c0, k0, fc])]
     dts = [float(np.median(np.diff(surveys[i].t))) for i in cand]
     fs = 1.0 / min(dts)
-    if delay > 0:
+    if digital is not None:  # a whole number of steps per controller sample
+        fs = max(1, math.ceil(fs * digital.sample_time - 1e-9)) / digital.sample_time
+    elif delay > 0:
         fs = math.ceil(fs * delay - 1e-9) / delay  # a whole number of steps per delay
     return _Setup(names, P, D, delay, surveys, reasons, candidates[0], candidates, release,
-                  offset, omega, fs, warnings, dm)
+                  offset, omega, fs, warnings, dm, digital)
 
 
 def _windows(setup: _Setup, idx: list[int]) -> np.ndarray:
@@ -1024,7 +1078,7 @@ def _fit(setup: _Setup, idx: list[int], theta0: np.ndarray, local0: np.ndarray,
     surveys = [setup.surveys[i] for i in idx]
     t_end = _windows(setup, idx) if t_end is None else t_end
     prob = _Problem(surveys, t_end, setup.P[idx], setup.D[idx], setup.delay, setup.fs, free,
-                    setup.dm[idx])
+                    setup.dm[idx], setup.digital)
     fixed = theta0.copy()
     p0 = np.concatenate([theta0[np.array(free)], local0.ravel()])
     res = _levenberg_marquardt(prob, p0, fixed, max_iter=max_iter, tol=tol, confirm=confirm)
@@ -1050,7 +1104,7 @@ def _motion_facts(prob: _Problem, local: np.ndarray, XV) -> list[tuple[float | N
         # stuck for good: at rest for longer than the delay before the window ends (after Δt
         # the feedback is constant and cannot unstick it)
         rest = (nwin - 1 - last) * prob.h
-        if last < nwin - 1 and rest > prob.delay + 2 * prob.h:
+        if last < nwin - 1 and rest > prob.settle + 2 * prob.h:
             # the velocity falls linearly into the stop: extrapolate its last two samples
             a = (v[last] - v[last - 1]) / prob.h if last > 0 else 0.0
             ts = last * prob.h + (min(-v[last] / a, prob.h) if a * v[last] < 0 else 0.0)
@@ -1069,12 +1123,13 @@ def identify_friction(
     data: Sequence[tuple[np.ndarray, np.ndarray]],
     P: np.ndarray,
     D: np.ndarray,
-    delay: float,
+    delay: float | None,
     *,
     start: Sequence[float] | None = None,
     names: Sequence[str] | None = None,
     max_iter: int = 40,
     added_mass: Sequence[float] | None = None,
+    digital: Any = None,
 ) -> FrictionFit:
     """Estimate m, c, k and the kinetic friction force f_c from a PHO experiment set.
 
@@ -1089,8 +1144,8 @@ def identify_friction(
         segment before the release included — the arrays :func:`phoid.identify_data` takes.
     P, D : array_like, shape (n,)
         Gains of each run, N/m and N·s/m.
-    delay : float
-        Loop delay Δt, s (known).
+    delay : float or None
+        Loop delay Δt, s (known); None with ``digital``.
     start : sequence of float, optional
         Starting (m, c, k) or (m, c, k, f_c). By default m, c, k come from the viscous
         dominant-mode identification (:func:`phoid.identify_data`) and f_c from the envelope's
@@ -1102,6 +1157,10 @@ def identify_friction(
     added_mass : array_like, shape (n,), optional
         Known mass added in each run, kg (≥ 0; the paper's added-mass trick): run i's plant is
         m + Δmᵢ, and m is the mass without additions.
+    digital : phoid.digital.DigitalPD, optional
+        A sampled controller (its gains are ignored): the records are then modelled by the
+        sampled-loop simulator (zero-order hold, d-sample command delay, the loop's velocity
+        estimator), its clock started at each run's release; ``delay`` must be None.
 
     Returns
     -------
@@ -1129,7 +1188,8 @@ def identify_friction(
     >>> round(fit.fc.value, 2), round(fit.c.value, 1)
     (0.05, 2.0)
     """
-    setup = _prepare(data, P, D, delay, start, names, need_fc=True, added_mass=added_mass)
+    setup = _prepare(data, P, D, delay, start, names, need_fc=True, added_mass=added_mass,
+                     digital=digital)
     n = len(setup.surveys)
     reasons = list(setup.reasons)
     idx = [i for i in range(n) if reasons[i] is None]
@@ -1143,7 +1203,7 @@ def identify_friction(
     early = _early_windows(setup, idx, local[idx, 2])
     if len(setup.candidates) > 1:  # the candidate start that fits these windows best
         probe = _Problem([setup.surveys[i] for i in idx], early, setup.P[idx], setup.D[idx],
-                         setup.delay, setup.fs, free, setup.dm[idx])
+                         setup.delay, setup.fs, free, setup.dm[idx], setup.digital)
         costs = []
         for th in setup.candidates:
             XV = probe.simulate(th, local[idx, 0], local[idx, 2])
@@ -1200,7 +1260,8 @@ def _result(setup, idx, reasons, prob, fixed, res, facts, iterations) -> Frictio
     for added in np.unique(setup.dm):  # one plant per added mass
         g = np.flatnonzero(setup.dm == added)
         try:
-            roots[g] = dominant_roots(m + added, c, k, setup.P[g], setup.D[g], setup.delay)
+            roots[g] = _dominant(m + added, c, k, setup.P[g], setup.D[g], setup.delay,
+                                 setup.digital)
         except (ValueError, RuntimeError):
             pass
     runs = []
@@ -1250,9 +1311,11 @@ def _result(setup, idx, reasons, prob, fixed, res, facts, iterations) -> Frictio
     return FrictionFit(
         m=Estimate(m, float(se[0]), _UNITS[0]), c=Estimate(c, float(se[1]), _UNITS[1]),
         k=Estimate(k, float(se[2]), _UNITS[2]), fc=Estimate(fc, float(se[3]), _UNITS[3]),
-        cov=cov, delay=setup.delay, runs=tuple(runs), chi2=chi2, dof=dof,
+        cov=cov, delay=setup.delay if setup.digital is None else setup.digital.delay,
+        runs=tuple(runs), chi2=chi2, dof=dof,
         residual_rms=rms_all, converged=res.converged, iterations=iterations,
         start=tuple(float(a) for a in setup.start), warnings=tuple(warnings),
+        digital=setup.digital,
     )
 
 
@@ -1261,12 +1324,13 @@ def friction_evidence(
     data: Sequence[tuple[np.ndarray, np.ndarray]],
     P: np.ndarray,
     D: np.ndarray,
-    delay: float,
+    delay: float | None,
     *,
     start: Sequence[float] | None = None,
     names: Sequence[str] | None = None,
     alpha: float = 1e-3,
     added_mass: Sequence[float] | None = None,
+    digital: Any = None,
 ) -> FrictionEvidence:
     """Score test of f_c = 0: is there Coulomb friction in a PHO set fitted as viscous?
 
@@ -1276,7 +1340,7 @@ def friction_evidence(
 
     Parameters
     ----------
-    data, P, D, delay, names, added_mass
+    data, P, D, delay, names, added_mass, digital
         As for :func:`identify_friction`.
     start : sequence of float, optional
         Starting (m, c, k) for the viscous fit, e.g. a viscous identification's estimates
@@ -1292,7 +1356,8 @@ def friction_evidence(
         raise ValueError(f"`alpha` must be in (0, 1); got {alpha!r}")
     if start is not None:
         start = tuple(start)[:3]
-    setup = _prepare(data, P, D, delay, start, names, need_fc=False, added_mass=added_mass)
+    setup = _prepare(data, P, D, delay, start, names, need_fc=False, added_mass=added_mass,
+                     digital=digital)
     n = len(setup.surveys)
     idx = [i for i in range(n) if setup.reasons[i] is None]
     theta = setup.start.copy()
@@ -1353,34 +1418,41 @@ def identify_friction_set(experiment: Any, *, delay: float | None = None) -> Fri
     Parameters
     ----------
     experiment : phoid.io.ExperimentSet
-        A ``pho`` set with a known loop delay (``[loop] delay``) and a continuous loop.
+        A ``pho`` set with a known loop delay (``[loop] delay``), or a sampled controller
+        (``[loop] sample_time``, ``delay_samples``, ``velocity``, ``cutoff``).
     delay : float, optional
-        Loop delay Δt (s), overriding the manifest's.
+        Loop delay Δt (s), overriding the manifest's (continuous loops only).
 
     Raises
     ------
     IdentificationError
-        A set the friction fit does not model (not ``pho``, a digital loop, no delay), or no
-        usable run; the message names the set.
+        A set the friction fit does not model (not ``pho``, no delay), conflicting loop keys,
+        or no usable run; the message names the set.
     """
+    from phoid.identification import _digital_loop
+
     where = str(getattr(experiment, "path", "experiment"))
     if getattr(experiment, "method", "pho") != "pho":
         raise IdentificationError(f"{where}: --friction applies to PHO sets (method = \"pho\")")
-    loop = dict(getattr(experiment, "loop", {}) or {})
-    other = sorted(set(loop) - {"delay"})
-    if other:
-        raise IdentificationError(f"{where}: [loop] {other[0]}: the friction fit models a "
-                                  "continuous loop with a delay only")
+    digital = _digital_loop(experiment)
     runs = list(experiment.runs)
-    delay = experiment.delay if delay is None else delay
-    if delay is None:
-        raise IdentificationError(f"{where}: [loop] delay: the friction fit needs the loop "
-                                  "delay (give it in the manifest or with --delay)")
+    if digital is not None:
+        if delay is not None or experiment.delay is not None:
+            raise IdentificationError(
+                f"{where}: [loop] delay: a digital loop (sample_time) takes its delay as "
+                "delay_samples, in whole samples; give one or the other")
+    else:
+        delay = experiment.delay if delay is None else delay
+        if delay is None:
+            raise IdentificationError(f"{where}: [loop] delay: the friction fit needs the loop "
+                                      "delay (give it in the manifest or with --delay)")
+        delay = float(delay)
     try:
         return identify_friction([(r.t, r.x) for r in runs],
                                  np.array([r.P for r in runs], dtype=float),
-                                 np.array([r.D for r in runs], dtype=float), float(delay),
+                                 np.array([r.D for r in runs], dtype=float), delay,
                                  names=[r.file for r in runs],
-                                 added_mass=[getattr(r, "added_mass", 0.0) for r in runs])
+                                 added_mass=[getattr(r, "added_mass", 0.0) for r in runs],
+                                 digital=digital)
     except IdentificationError as exc:
         raise IdentificationError(f"{where}: {exc}") from None

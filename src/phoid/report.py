@@ -32,11 +32,7 @@ def identification_text(ident: Identification) -> str:
     delay = (f"{ident.delay:g} s" if ident.delay_stderr is None
              else f"{_fmt(ident.delay, ident.delay_stderr)} s")
     lines.append(f"  estimator {ident.fit.estimator}, delay {delay} ({ident.delay_source})")
-    g = getattr(ident, "digital", None)
-    if g is not None:
-        filt = f", cut-off {g.cutoff:g} rad/s" if g.cutoff is not None else ""
-        lines.append(f"  digital loop (exact sampled model): T_s = {g.sample_time:g} s, "
-                     f"{g.delay_samples}-sample delay, {g.velocity} velocity{filt}")
+    lines.extend(_digital_line(ident))
     lines.append("")
     for name, est in (("m", ident.m), ("c", ident.c), ("k", ident.k)):
         lines.append(f"  {name} = {_fmt(est.value, est.stderr)} {est.unit}")
@@ -198,11 +194,22 @@ def figure1(result: PaperResult, out_dir: str | Path) -> tuple[Path, Path]:
     return paths[0], paths[1]
 
 
+def _digital_line(result: Any) -> list[str]:
+    """The sampled loop's description, when the result was computed with one."""
+    g = getattr(result, "digital", None)
+    if g is None:
+        return []
+    filt = f", cut-off {g.cutoff:g} rad/s" if g.cutoff is not None else ""
+    return [f"  digital loop (exact sampled model): T_s = {g.sample_time:g} s, "
+            f"{g.delay_samples}-sample delay, {g.velocity} velocity{filt}"]
+
+
 def friction_text(fit: Any) -> str:
     """Plain-text report of a friction fit (:class:`phoid.friction.FrictionFit`)."""
     lines = ["phoid identify --friction (full-record fit through the stick–slip simulator)"]
     lines.append(f"  delay {fit.delay:g} s (given), χ²/dof {fit.chi2_red:.3g}, "
                  f"{'converged' if fit.converged else 'NOT converged'}")
+    lines.extend(_digital_line(fit))
     lines.append("")
     for name, est in (("m", fit.m), ("c", fit.c), ("k", fit.k), ("fc", fit.fc)):
         lines.append(f"  {name} = {_fmt(est.value, est.stderr)} {est.unit}")
