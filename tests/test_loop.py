@@ -6,7 +6,13 @@ import numpy as np
 import pytest
 
 from phoid import DelayedPD, Plant, alphas, characteristic_roots, forward_map, inverse_map
-from phoid.loop import characteristic, count_roots_right_of, dominant_roots, is_stable
+from phoid.loop import (
+    characteristic,
+    count_roots_right_of,
+    count_roots_right_of_many,
+    dominant_roots,
+    is_stable,
+)
 
 # Table 1 of the seed paper, sweep per ERRATA 6
 TABLE1 = Plant(2.0, 1.0, 64.0)
@@ -145,3 +151,35 @@ def test_dominant_roots_newton_matches_certified():
 def test_bad_loop_raises(kwargs, name):
     with pytest.raises(ValueError, match=name):
         DelayedPD(**kwargs)
+
+
+def test_batched_root_count_matches_the_scalar_count():
+    # count_roots_right_of_many is the scalar argument-principle count vectorised over loops
+    # (same contour, common sampling): wherever it decides (not −1) it must give the scalar
+    # count, and the count must equal the number of exact roots right of the abscissa
+    # (characteristic_roots, certified). Abscissae sit midway between consecutive root real
+    # parts, where both counts are well conditioned; the Table 1 sweep has a common delay.
+    plant = TABLE1
+    a_list, want, near = [], [], []
+    for P, D in zip(P1, D1, strict=True):
+        roots = characteristic_roots(plant, DelayedPD(P, D, DELAY1), count=8)
+        re = np.unique(np.round(roots.real, 9))[::-1]
+        j = int(P) % (re.size - 1)  # a different gap for different runs
+        a = 0.5 * (re[j] + re[j + 1])
+        a_list.append(a)
+        want.append(int(np.count_nonzero(roots.real > a)))
+        near.append(roots)
+    got = count_roots_right_of_many(np.array(a_list), plant.m, plant.c, plant.k, P1, D1,
+                                    DELAY1, near=near)
+    scalar = [count_roots_right_of(a, plant.m, plant.c, plant.k, P, D, DELAY1, near=r)
+              for a, P, D, r in zip(a_list, P1, D1, near, strict=True)]
+    assert np.all(got >= 0)  # these loops need no refinement beyond the common sampling
+    assert got.tolist() == scalar == want
+    # added masses differ per loop: an array m broadcasts like P and D
+    m_arr = plant.m + np.linspace(0.0, 1.0, P1.size)
+    got_m = count_roots_right_of_many(np.full(P1.size, -0.05), m_arr, plant.c, plant.k, P1, D1,
+                                      DELAY1)
+    ref_m = [count_roots_right_of(-0.05, mm, plant.c, plant.k, P, D, DELAY1)
+             for mm, P, D in zip(m_arr, P1, D1, strict=True)]
+    assert [g for g in got_m.tolist() if g >= 0] == [r for g, r in zip(got_m, ref_m,
+                                                                        strict=True) if g >= 0]

@@ -1084,6 +1084,13 @@ class DecayStart:
     t_end: float
 
 
+#: Gauss–Newton stops in :func:`start_decay` when its next step is below this many standard
+#: errors: a start only has to be within about one of the optimum (the full fit that follows
+#: converges to 0.05 from there), and at this tolerance an ESPRIT start close enough already is
+#: accepted without a second evaluation.
+_START_RTOL_SE = 0.5
+
+
 def start_decay(
     t, x, *, release=None, skip=0.0, refine=True, coarse_release=False
 ) -> DecayStart:
@@ -1110,7 +1117,7 @@ def start_decay(
         sig, om = _staged(xg, dt, per, sig, om)
     if refine and oscill:
         # a start the fit cannot confirm (no convergence) is no oscillating start
-        res = _gauss_newton(_evaluator(tau, xw, _udt), sig, om)
+        res = _gauss_newton(_evaluator(tau, xw, _udt), sig, om, rtol_se=_START_RTOL_SE)
         oscill = res is not None and res[1]
         if oscill:
             sig, om = res[0].sig, res[0].om
@@ -1356,6 +1363,15 @@ def fit_decay(
     True
     """
     t, x = _check_record(t, x)
+    return _fit_checked(t, x, release=release, skip=skip, t_end=t_end, noise_sd=noise_sd,
+                        fast_roots=fast_roots, guess=guess)
+
+
+def _fit_checked(t, x, *, release=None, skip=0.0, t_end=None, noise_sd=None, fast_roots=None,
+                 guess=None) -> DecayFit:
+    """:func:`fit_decay` on a record that has passed ``_check_record`` already (float64
+    arrays, finite, t strictly increasing): the identification validates each run once, in its
+    first pass (:func:`start_decay`), and fits it in full afterwards."""
     if noise_sd is not None:
         noise_sd = v.positive("noise_sd", noise_sd, "m")
     fast = _check_fast_roots(fast_roots)

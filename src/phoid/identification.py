@@ -27,7 +27,7 @@ import numpy as np
 from scipy import stats
 
 from phoid._threads import single_blas_thread
-from phoid.decay import DecayFit, detect_release, fit_decay, start_decay
+from phoid.decay import DecayFit, _fit_checked, detect_release, start_decay
 from phoid.errors import IdentificationError
 from phoid.loop import _rightmost_roots_many, characteristic
 from phoid.pho import (
@@ -256,9 +256,10 @@ def _modes(roots: np.ndarray) -> list[complex]:
 
 def _fit_run(t, x, skip, release, fast_roots=None, guess=None):
     try:
-        # the undecorated function: identify_data already runs with one BLAS thread
-        fit = fit_decay.__wrapped__(t, x, release=release, skip=skip, fast_roots=fast_roots,
-                                    guess=guess)
+        # the record passed start_decay's checks in the first pass (identify_data made it a
+        # float array), and identify_data already runs with one BLAS thread
+        fit = _fit_checked(t, x, release=release, skip=skip, fast_roots=fast_roots,
+                           guess=guess)
         return fit, None
     except (ValueError, RuntimeError, np.linalg.LinAlgError) as exc:
         return None, str(exc)
@@ -685,6 +686,16 @@ def identify(
     )
 
 
+def _as_record(run) -> tuple[Any, Any]:
+    """(t, x) as float64 arrays where they convert (the first pass reports those that do
+    not, or that are not 1-d, finite and increasing)."""
+    try:
+        t, x = run
+        return np.asarray(t, dtype=float), np.asarray(x, dtype=float)
+    except (TypeError, ValueError):
+        return run
+
+
 @single_blas_thread
 def identify_data(
     data: Sequence[tuple[np.ndarray, np.ndarray]],
@@ -712,6 +723,8 @@ def identify_data(
     n = len(data)
     if n == 0:
         raise IdentificationError("no runs")
+    # float arrays once: every run is checked by its first pass and fitted unchecked after it
+    data = [_as_record(run) for run in data]
     files = list(files) if files is not None else [f"run{i + 1}" for i in range(n)]
     names = list(names) if names is not None else files
     P = np.asarray(P, dtype=float)

@@ -35,6 +35,7 @@ __all__ = [
     "characteristic",
     "characteristic_roots",
     "count_roots_right_of",
+    "count_roots_right_of_many",
     "dominant_roots",
     "forward_map",
     "inverse_map",
@@ -225,17 +226,9 @@ def count_roots_right_of(
     # its turn doubled. The sampling is refined until f turns by < 0.5 rad between samples.
     n = max(128, int(8 * (1 + R * delay)))
     corners = (complex(R, 0.0), complex(R, R), complex(a, R), complex(a, 0.0))
-    local = np.zeros(0)
-    if near is not None:
-        r = np.asarray(near, dtype=complex).ravel()
-        r = r[np.isfinite(r)]
-        d = np.abs(r.real - a)
-        # only roots the uniform spacing R/n would not resolve (f turns by ~spacing/d there)
-        keep = (d > 0) & (d < 3.0 * R / n) & (np.abs(r.imag) - 6 * d < R)
-        if np.any(keep):
-            off = np.linspace(-6.0, 6.0, 73)  # ±6d in steps of d/6
-            local = (np.abs(r.imag[keep])[:, None] + d[keep][:, None] * off).ravel()
-            local = local[(local > 0) & (local < R)]
+    # only roots the uniform spacing R/n would not resolve (f turns by ~spacing/d there)
+    local = (np.zeros(0) if near is None
+             else _local_samples(np.asarray(near, dtype=complex).ravel(), a, R, n))
     while n <= 1 << 22:  # beyond that the abscissa lies far left of any useful root
         u = np.linspace(0.0, 1.0, n, endpoint=False)
         # the left edge, from (a, R) down to (a, 0), with the local samples merged in
@@ -252,6 +245,97 @@ def count_roots_right_of(
             return round(float(dang.sum()) / np.pi)
         n *= 2
     raise RuntimeError("argument-principle count did not resolve; the loop is pathological")
+
+
+def _local_samples(r: np.ndarray, a: float, R: float, n: int) -> np.ndarray:
+    """Extra left-edge ordinates near known roots ``r`` (see :func:`count_roots_right_of`)."""
+    r = r[np.isfinite(r)]
+    d = np.abs(r.real - a)
+    keep = (d > 0) & (d < 3.0 * R / n) & (np.abs(r.imag) - 6 * d < R)
+    if not np.any(keep):
+        return np.zeros(0)
+    off = np.linspace(-6.0, 6.0, 73)  # ±6d in steps of d/6
+    local = (np.abs(r.imag[keep])[:, None] + d[keep][:, None] * off).ravel()
+    return local[(local > 0) & (local < R)]
+
+
+def count_roots_right_of_many(
+    a: np.ndarray, m: np.ndarray | float, c: float, k: float, P: np.ndarray, D: np.ndarray,
+    delay: float, near: list[np.ndarray] | None = None,
+) -> np.ndarray:
+    """:func:`count_roots_right_of` for many loops at once (one abscissa each), vectorised.
+
+    Every loop's half contour is sampled with the same number of points (the most any of them
+    needs at the first refinement level of the scalar count), so that f is evaluated for all
+    of them in one array operation; the left edges, which carry a different number of local
+    samples per loop, are padded by repeating their last point (a repeated point adds no turn
+    of f). A loop whose count does not resolve at that sampling (f turns by 0.5 rad or more
+    between two samples) or whose contour meets a root gets −1: the caller then asks
+    :func:`count_roots_right_of` for it, which refines its own sampling or raises.
+
+    Parameters
+    ----------
+    a : array_like, shape (n,)
+        Abscissa of each loop, 1/s.
+    m : float or array_like, shape (n,)
+        Mass of each loop's plant, kg (an added mass differs per run).
+    c, k : float
+        Damping (N·s/m) and stiffness (N/m), shared.
+    P, D : array_like, shape (n,)
+        Each loop's gains, N/m and N·s/m.
+    delay : float
+        Loop delay Δt, s (> 0).
+    near : list of array_like, optional
+        Each loop's known roots (as ``near`` of :func:`count_roots_right_of`).
+
+    Returns
+    -------
+    ndarray of int
+        The count of roots right of each abscissa, or −1 where undecided here.
+    """
+    a = np.asarray(a, dtype=float).ravel()
+    nl = a.size
+    mm = np.broadcast_to(np.asarray(m, dtype=float), (nl,))
+    P = np.broadcast_to(np.asarray(P, dtype=float), (nl,))
+    D = np.broadcast_to(np.asarray(D, dtype=float), (nl,))
+    out = np.full(nl, -1, dtype=int)
+    if nl == 0:
+        return out
+    # the disc holding every root with Re s ≥ a (the triangle inequality, _root_radius)
+    g = np.exp(-a * delay)
+    b = c + np.abs(D) * g
+    d = k + np.abs(P) * g
+    R = (b + np.sqrt(b * b + 4 * mm * d)) / (2 * mm) + 1e-9
+    out[R <= a] = 0
+    idx = np.flatnonzero(R > a)
+    if idx.size == 0:
+        return out
+    R = R[idx] * 1.05 + 1.0
+    n = int(max(128, int(np.max(8 * (1 + R * delay)))))
+    u = np.linspace(0.0, 1.0, n, endpoint=False)
+    left = []
+    for j, i in enumerate(idx.tolist()):
+        local = (np.zeros(0) if near is None
+                 else _local_samples(np.asarray(near[i], dtype=complex).ravel(), a[i], R[j], n))
+        left.append(np.unique(np.concatenate([R[j] * (1.0 - u), local]))[::-1])
+    width = max(y.size for y in left)
+    Y = np.empty((idx.size, width))
+    for j, y in enumerate(left):
+        Y[j, : y.size] = y
+        Y[j, y.size :] = y[-1]
+    ai, Rc = a[idx][:, None], R[:, None]
+    z = np.concatenate([
+        Rc + 1j * Rc * u,                 # (R, 0) → (R, R)
+        Rc * (1.0 + 1j) + (ai - Rc) * u,  # (R, R) → (a, R)
+        ai + 1j * Y,                      # (a, R) → (a, 0), local samples merged in
+        ai + 0j,                          # (a, 0)
+    ], axis=1)
+    f, _ = characteristic(z, mm[idx][:, None], c, k, P[idx][:, None], D[idx][:, None], delay)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        dang = np.angle(f[:, 1:] / f[:, :-1])
+    good = np.all(f != 0, axis=1) & np.all(np.abs(dang) < 0.5, axis=1)
+    out[idx[good]] = np.rint(dang[good].sum(axis=1) / np.pi).astype(int)
+    return out
 
 
 def characteristic_roots(
@@ -345,6 +429,8 @@ def _rightmost_roots_many(m, c, k, P, D, tau, *, count=6):
     sp = max(float(np.ptp(P)), 1e-300)
     sd = max(float(np.ptp(D)), 1e-300)
     done: list[int] = []
+    # continued runs wait for one batched certificate: (run, abscissa, roots to count)
+    pending: list[tuple[int, float, int]] = []
     for i in range(n):
         if done:
             j = min(done, key=lambda j: ((P[j] - P[i]) / sp) ** 2 + ((D[j] - D[i]) / sd) ** 2)
@@ -360,16 +446,31 @@ def _rightmost_roots_many(m, c, k, P, D, tau, *, count=6):
                 gaps = np.flatnonzero(re[:-1] - re[1:] > 1e-9 * np.maximum(np.abs(re[:-1]), 1.0))
                 cut = next((g + 1 for g in gaps if g + 1 >= count), None)
                 if cut is not None and cut < r.size:
-                    a = 0.5 * (r[cut - 1].real + r[cut].real)
-                    try:
-                        if count_roots_right_of(a, m, c, k, P[i], D[i], tau, near=r) == cut:
-                            out[i] = _sort_pairs(r)  # certified up to `cut`; rest kept as seeds
-                    except (RuntimeError, ValueError):
-                        pass
+                    # certified below, up to `cut`; the rest are kept as seeds
+                    out[i] = _sort_pairs(r)
+                    pending.append((i, 0.5 * (r[cut - 1].real + r[cut].real), cut))
         if out[i] is None:
             # two pairs more than asked: seeds for the continuation and an abscissa beyond
             out[i] = _rightmost_roots(m, c, k, float(P[i]), float(D[i]), tau, count=count + 4)
         done.append(i)
+    if pending:
+        # A run continued from an uncertified neighbour is certified on its own all the same:
+        # the count either confirms its roots (then they are the unique rightmost ones) or
+        # sends it to the full computation.
+        ids = [p[0] for p in pending]
+        counts = count_roots_right_of_many(
+            np.array([p[1] for p in pending]), m, c, k, P[ids], D[ids], tau,
+            near=[out[i] for i in ids],
+        )
+        for (i, a, cut), got in zip(pending, counts.tolist(), strict=True):
+            if got < 0:
+                try:
+                    got = count_roots_right_of(a, m, c, k, P[i], D[i], tau, near=out[i])
+                except (RuntimeError, ValueError):
+                    got = -1
+            if got != cut:
+                out[i] = _rightmost_roots(m, c, k, float(P[i]), float(D[i]), tau,
+                                          count=count + 4)
     # trim every run to whole pairs covering `count`, as _rightmost_roots does
     trimmed = []
     for r in out:

@@ -34,6 +34,7 @@ from phoid.loop import (
     _rightmost_roots,
     characteristic,
     count_roots_right_of,
+    count_roots_right_of_many,
     dominant_roots,
     inverse_map,
 )
@@ -295,6 +296,16 @@ def _is_dominant(s, m, c, k, P, D, delay) -> bool:
     return abs(r0.real - s.real) <= 1e-6 * max(1.0, abs(r0))
 
 
+def _dominant_many(s, m, c, k, P, D, delay) -> np.ndarray:
+    """:func:`_is_dominant`'s cheap count for every run at once (True where it settles that
+    the run's root is dominant; the others are for :func:`_is_dominant` to decide)."""
+    s = np.asarray(s, dtype=complex)
+    a = s.real - np.maximum(0.5, 0.5 * np.abs(s.real))
+    expected = np.where(s.imag == 0, 1, 2)
+    got = count_roots_right_of_many(a, m, c, k, P, D, delay, near=[[z] for z in s.tolist()])
+    return got == expected
+
+
 def _whiteners(cov: np.ndarray) -> np.ndarray:
     """Per-run matrices Wᵢ^{1/2} with Wᵢ = Covᵢ⁻¹ (so that ‖Wᵢ^{1/2} rᵢ‖² = rᵢᵀWᵢrᵢ)."""
     out = np.empty_like(cov)
@@ -452,7 +463,8 @@ def fit_modes(
                 f"run {int(np.argmin(dom)) + 1}: the fitted mode is not the sampled loop's "
                 "dominant root at the solution"
             )
-    for i in range(sigma.size if digital is None else 0):
+    for i in (np.flatnonzero(~_dominant_many(s, m + dm, c, k, P, D, tau)).tolist()
+              if digital is None else []):
         if not _is_dominant(s[i], m + dm[i], c, k, float(P[i]), float(D[i]), tau):
             raise IdentificationError(
                 f"run {i + 1}: the fitted mode is not the loop's dominant root at the solution"
