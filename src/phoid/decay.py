@@ -1089,10 +1089,13 @@ class DecayStart:
 #: converges to 0.05 from there), and at this tolerance an ESPRIT start close enough already is
 #: accepted without a second evaluation.
 _START_RTOL_SE = 0.5
+#: ``start_decay(refine="auto")``: an ESPRIT start with |σ| above this fraction of ω_d is
+#: refined (and confirmed) by Gauss–Newton
+_START_MAX_DAMPING = 0.25
 
 
 def start_decay(
-    t, x, *, release=None, skip=0.0, refine=True, coarse_release=False
+    t, x, *, release=None, skip=0.0, refine: bool | str = True, coarse_release=False
 ) -> DecayStart:
     """The first stages of :func:`fit_decay`: release, noise, window, start and Gauss–Newton.
 
@@ -1100,7 +1103,15 @@ def start_decay(
     warnings. :func:`fit_decay` with ``guess=(start.sigma, start.omega_d)`` and
     ``release=start.release`` continues from it. With ``refine=False`` only the ESPRIT start
     is made (within about one standard error of the optimum on the seed paper's sweep, but
-    lost on records where a slow non-dominant real mode is strong). ``coarse_release=True``
+    lost on records where a slow non-dominant real mode is strong). ``refine="auto"`` runs
+    Gauss–Newton only where the ESPRIT start is in doubt: where its frequency disagrees with
+    the record's spectral peak (by more than a quarter, and more than 1.5 bins of the FFT), or
+    where it is a heavily damped pair (|σ| > 0.25 ω_d, ζ ≳ 0.24, where a ringing PHO run has
+    ζ ≲ 0.2) — which is how a start goes wrong on such records: on tests/test_identify.py's
+    slow-root run ESPRIT gives σ = 1.0 1/s, ω_d = 1.3 rad/s for the true 1.0 ± 15.0i, and the
+    Gauss–Newton that then runs finds no convergence, so the run is marked not oscillating
+    and started from the rough loop's root. A clean start costs no evaluation of the model.
+    ``coarse_release=True``
     detects the release by its first stage only (the quadratic change point; the refinement
     with an even quartic is left out), for callers that refine it with a model of their own.
     Raises ValueError as :func:`fit_decay` does for unusable input.
@@ -1115,6 +1126,10 @@ def start_decay(
     sig, om, oscill, n_act = _initial_guess(xg, dt, per, noise)
     if oscill and n_act > 40 * per:
         sig, om = _staged(xg, dt, per, sig, om)
+    if refine == "auto" and oscill:
+        om_fft = 2.0 * math.pi / (per * dt)
+        tol = max(0.25 * om_fft, 1.5 * 2.0 * math.pi / (min(xg.size, 4096) * dt))
+        refine = abs(om - om_fft) > tol or abs(sig) > _START_MAX_DAMPING * om
     if refine and oscill:
         # a start the fit cannot confirm (no convergence) is no oscillating start
         res = _gauss_newton(_evaluator(tau, xw, _udt), sig, om, rtol_se=_START_RTOL_SE)

@@ -442,7 +442,8 @@ def measure_modes(
 
 def _start_run(t, x, skip, coarse_release=False):
     try:
-        return start_decay(t, x, skip=skip, coarse_release=coarse_release), None
+        return start_decay(t, x, skip=skip, coarse_release=coarse_release,
+                           refine="auto" if coarse_release else True), None
     except (ValueError, RuntimeError, np.linalg.LinAlgError) as exc:
         return None, str(exc)
 
