@@ -24,7 +24,7 @@ from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from scipy import stats
+from scipy.special import chdtri  # chi2 quantile: chdtri(dof, 1 - p) = chi2.ppf(p, dof)
 
 from phoid._threads import single_blas_thread
 from phoid.decay import DecayFit, _fit_checked, detect_release, start_decay
@@ -228,7 +228,7 @@ class Identification:
 
 def _misfit(mck: MCKFit) -> bool:
     """True when the weighted fit's χ² exceeds its 99.9 % quantile (runs disagree)."""
-    return mck.dof > 0 and mck.chi2 > stats.chi2.ppf(0.999, mck.dof)
+    return mck.dof > 0 and mck.chi2 > chdtri(mck.dof, 0.001)
 
 
 def _residue(s, m, c, k, P, D, delay) -> complex:

@@ -313,14 +313,18 @@ def count_roots_right_of_many(
     R = R[idx] * 1.05 + 1.0
     n = int(max(128, int(np.max(8 * (1 + R * delay)))))
     u = np.linspace(0.0, 1.0, n, endpoint=False)
-    left = []
-    for j, i in enumerate(idx.tolist()):
-        local = (np.zeros(0) if near is None
-                 else _local_samples(np.asarray(near[i], dtype=complex).ravel(), a[i], R[j], n))
-        left.append(np.unique(np.concatenate([R[j] * (1.0 - u), local]))[::-1])
-    width = max(y.size for y in left)
+    # left edges: R(1 − u), descending; loops with local samples get them merged in
+    locals_: dict[int, np.ndarray] = {}
+    if near is not None:
+        for j, i in enumerate(idx.tolist()):
+            loc = _local_samples(np.asarray(near[i], dtype=complex).ravel(), a[i], R[j], n)
+            if loc.size:
+                locals_[j] = np.unique(np.concatenate([R[j] * (1.0 - u), loc]))[::-1]
+    width = max([n, *(y.size for y in locals_.values())])
     Y = np.empty((idx.size, width))
-    for j, y in enumerate(left):
+    Y[:, :n] = np.multiply.outer(R, 1.0 - u)
+    Y[:, n:] = Y[:, n - 1 : n]
+    for j, y in locals_.items():
         Y[j, : y.size] = y
         Y[j, y.size :] = y[-1]
     ai, Rc = a[idx][:, None], R[:, None]

@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from scipy import stats
+from scipy.special import chdtri  # chi2 quantile: chdtri(dof, 1 - p) = chi2.ppf(p, dof)
 
 from phoid._threads import single_blas_thread
 from phoid.digital import digital_is_dominant, digital_modes
@@ -473,7 +473,7 @@ def fit_modes(
     covp = np.linalg.inv(JtJ)
     dof = 2 * sigma.size - npar
     warnings: list[str] = []
-    if dof > 0 and chi2 > stats.chi2.ppf(0.999, dof):
+    if dof > 0 and chi2 > chdtri(dof, 0.001):
         red = chi2 / dof
         covp = covp * red
         warnings.append(
