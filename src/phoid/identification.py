@@ -49,6 +49,10 @@ __all__ = ["Identification", "RunMode", "identify", "measure_modes"]
 _N_FAST = 2  # non-dominant loop modes fitted alongside the dominant one
 _OMIT_NOISE_FRACTION = 0.3  # the fit starts once the first omitted mode is below 0.3 noise sd
 _OMIT_FLOOR = 1e-12  # … or below 1e-12 of the release amplitude (noise-free records)
+# a loop mode that decays by more than e² from one sample to the next is no column a fit can
+# hold (it lives in the first sample or two: a tiny delay's fast modes, |Re s| ~ 1/Δt); it is
+# left out and skipped instead, like the modes beyond the fitted ones
+_FAST_MAX_DECAY_PER_SAMPLE = 2.0
 
 
 @dataclass(frozen=True)
@@ -552,7 +556,9 @@ def _measure(data, P, D, delay, *, rough=None, first=None, noise=None, digital=N
                 nyq = 0.99 * math.pi / digital.sample_time
                 fitted = [q for q in rest if abs(q.imag) < nyq][:_N_FAST]
             else:
-                fitted = rest[:_N_FAST]
+                step = float(np.median(np.diff(t[: min(t.size, 64)])))
+                fitted = [q for q in rest if -q.real * step <= _FAST_MAX_DECAY_PER_SAMPLE]
+                fitted = fitted[:_N_FAST]
             fast = np.array(fitted, dtype=complex)
             left = [q for q in rest if q not in fitted]
             omitted = left[0] if left else None
@@ -579,6 +585,8 @@ def _measure(data, P, D, delay, *, rough=None, first=None, noise=None, digital=N
             guess = (st.sigma, st.omega_d) if st.oscillating else (-modes[0].real, modes[0].imag)
             if guess[1] > 0:
                 g, _err = _fit_run(t, x, skip, release, fast, guess=guess)
+                if g is not None and not math.isfinite(g.sigma):
+                    g = None  # the model with these modes could not be evaluated anywhere
         if g is None:
             # no loop modes (no rough plant, a non-oscillating start, or that fit failed): one
             # mode after 3Δt from the data-only start, as a plain fit_decay would do
