@@ -398,6 +398,11 @@ def fit_run(
     nx = model.tx.size
     u_only = _Joint(t[:0], x[:0], tu, uu, fit.t_ref, roots[1:], cplx, float(P), float(D))
     _r, J0 = u_only.evaluate(th)
+    pred = J0[:, -2]  # the force the gains imply, −(P x + D ẋ)(t − Δt), from the x fit (g = 1)
+    if _clipped(uu, pred + float(np.median(uu - pred)), noise_u0):
+        return URun(used=False, reason="clipped u: flat tops at its extreme value that the "
+                                       "force −(P x + D ẋ)(t − Δt) exceeds (saturated "
+                                       "amplifier?)")
     lin = np.linalg.lstsq(np.c_[np.ones(tu.size), J0[:, -2]], uu, rcond=None)[0]
     th[-3], th[-2] = lin
     th, _J = _gauss_newton(u_only, th, 0.0, 1.0, free=fixed_x)
@@ -420,10 +425,6 @@ def fit_run(
         rx, ru = r[:nx], r[nx:]
         sx = max(math.sqrt(float(rx @ rx) / max(rx.size - p_x, 1)), 1e-300)
         su = max(math.sqrt(float(ru @ ru) / max(ru.size - 3, 1)), 1e-15 * scale_u, 1e-300)
-    um = uu - ru
-    if _clipped(uu, um, max(noise_u0, su)):
-        return URun(used=False, reason="clipped u: flat tops at its extreme value that the "
-                                       "fitted force exceeds (saturated amplifier?)")
     if su > _MISFIT_RATIO * noise_u0:
         return URun(used=False, reason=f"u does not follow −(P x + D ẋ)(t − Δt) of the x fit: "
                                        f"residual rms {su:.3g} N, {su / max(noise_u0, 1e-300):.3g}"
