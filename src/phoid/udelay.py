@@ -41,7 +41,8 @@ common. With g free the delay rests on timing (phase and time shift), which cali
 touch. A u whose fitted gain is negative (a sign convention: u recorded as +Px + Dẋ) or outside
 [0.8, 1.25] (a scale factor: volts, an amplifier gain) is not the force the manifest's gains
 imply; the run's u is then set aside with a warning, as is a constant or clipped u or one whose
-residuals are well above its own noise.
+residuals are well above its own noise. A u used with a scale off 1 by more than 2 % (and 5
+stderr) gets a note asking to check its calibration.
 """
 
 from __future__ import annotations
@@ -61,6 +62,8 @@ __all__ = ["UDelayFit", "URun", "combine", "fit_run", "u_skip"]
 
 #: accepted range of u's fitted scale g (u = g × the force the gains imply)
 GAIN_RANGE = (0.8, 1.25)
+#: a used u whose scale differs from 1 by more than this (and 5 stderr) gets a note
+_GAIN_NOTE = 0.02
 #: u's first omitted loop mode must be below this fraction of u's noise sd
 _OMIT_NOISE_FRACTION = 0.3
 #: u residual rms above this multiple of u's own noise estimate: u does not fit
@@ -634,8 +637,13 @@ def _fit_runs(ident, u, P, D, dm, names, n_fast):
                                  delay_sd=sd, omitted=q, omitted_amplitude=a)
             except (ValueError, np.linalg.LinAlgError) as exc:
                 out[i] = URun(used=False, reason=f"the joint x–u fit failed: {exc}")
-        if not out[i].used:
-            notes.append(f"{names[i]}: u not used for the delay: {out[i].reason}")
+        r = out[i]
+        if not r.used:
+            notes.append(f"{names[i]}: u not used for the delay: {r.reason}")
+        elif abs(r.gain - 1.0) > max(_GAIN_NOTE, 5.0 * r.gain_stderr):
+            notes.append(f"{names[i]}: u is {r.gain:.4g} ± {r.gain_stderr:.2g} times the force "
+                         "the gains imply: used for the delay's timing only (its scale is "
+                         "free); check u's calibration")
     return out, notes
 
 
