@@ -174,6 +174,15 @@ def test_u_with_a_calibration_error_is_used_for_timing(acceptance):
         assert abs(g - 1.1) < 3 * se + 5e-4, w  # 3 stderr, plus the 4 digits printed
 
 
+def test_quantised_u_is_used():
+    # a noise-free u read by an ADC in 10 mN steps (its held segment one constant value): the
+    # noise floor is then the step's q/√12, u is used, and the delay is within 3 stderr
+    data, u = _sim(11, u_noise=0.0)
+    r = identify_data(data, P12, D12, None, u=[1e-2 * np.round(ui / 1e-2) for ui in u])
+    assert r.delay_from == "x+u" and not r.warnings, r.warnings
+    assert abs(r.delay - DELAY) < 3 * r.delay_stderr
+
+
 def test_all_u_unusable_falls_back_to_x(acceptance):
     # every run's u of the wrong sign: the x-only estimate, said so in JSON and warnings
     _res, x_only, data, u = acceptance

@@ -193,11 +193,14 @@ def u_skip(omitted: complex | None, amplitude: float, P: float, D: float, level:
 
 def _u_noise(t: np.ndarray, u: np.ndarray, release: float) -> float:
     """u's own white-noise sd, N: the held segment's sd (≥ 16 samples before the release), else
-    the second-difference estimate on the record's last 4096 samples."""
+    the second-difference estimate on the record's last 4096 samples; at least q/√12 for a u
+    quantised in steps q (the smallest nonzero change between samples: an ADC's step, whose
+    held segment may read one constant value)."""
     held = u[t < release]
-    if held.size >= 16:
-        return float(np.std(held, ddof=1))
-    return _diff_noise(u[-4096:])
+    sd = float(np.std(held, ddof=1)) if held.size >= 16 else _diff_noise(u[-4096:])
+    du = np.abs(np.diff(u))
+    du = du[du > 0]
+    return max(sd, float(du.min()) / math.sqrt(12.0) if du.size else 0.0)
 
 
 def _modes_of(fit: DecayFit) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
