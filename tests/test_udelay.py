@@ -218,6 +218,19 @@ def test_monte_carlo_delay_z_not_over_confident():
 # pieces
 
 
+def test_u_is_checked(acceptance):
+    # one u per run, as many samples as t, finite: otherwise a ValueError naming the run
+    _res, _x, data, u = acceptance
+    with pytest.raises(ValueError, match="one entry per run"):
+        identify_data(data, P12, D12, None, u=u[:3])
+    with pytest.raises(ValueError, match="run 2"):
+        identify_data(data, P12, D12, None, u=[u[0], u[1][:-1], *u[2:]])
+    bad = [ui.copy() for ui in u]
+    bad[4][7] = np.nan
+    with pytest.raises(ValueError, match="run 5 has non-finite"):
+        identify_data(data, P12, D12, None, u=bad)
+
+
 def test_combine_exact_modes_and_delays():
     # exact modes (phoid.forward_map: the loop's exact roots) and exact per-run delays in: the
     # weighted fit returns m, c, k, Δt to rounding (1e-9 relative), χ² ≈ 0

@@ -742,14 +742,16 @@ def identify_data(
     if delay is None:
         if estimator != "gls":
             raise IdentificationError("estimating the loop delay needs estimator='gls'")
+        from phoid.udelay import check_u, with_u
+
+        u = None if u is None else check_u(u, data)
         res = _estimate_delay(data, P, D, files=files, names=names, source=source,
                               added_mass=added_mass)
         if u is None or all(ui is None for ui in u):
             return replace(res, delay_from="x")
-        from phoid.udelay import with_u
 
         dm = np.zeros(n) if added_mass is None else added_mass
-        return with_u(res, list(u), P, D, names=names, added_mass=dm, n_fast=_N_FAST,
+        return with_u(res, u, P, D, names=names, added_mass=dm, n_fast=_N_FAST,
                       rerun=lambda tau: _identify_core(data, P, D, tau, files=files,
                                                        names=names, source=source,
                                                        estimate_delay=True, added_mass=dm))

@@ -58,7 +58,7 @@ from phoid.decay import DecayFit, _clipped, _diff_noise
 from phoid.errors import IdentificationError
 from phoid.loop import characteristic, dominant_roots
 
-__all__ = ["UDelayFit", "URun", "combine", "fit_run", "u_skip"]
+__all__ = ["UDelayFit", "URun", "check_u", "combine", "fit_run", "u_skip", "with_u"]
 
 #: accepted range of u's fitted scale g (u = g × the force the gains imply)
 GAIN_RANGE = (0.8, 1.25)
@@ -586,6 +586,33 @@ def combine(
         )
     return UDelayFit(m=m, c=c, k=k, delay=tau, cov_full=covp, chi2=chi2, dof=dof,
                      n_u=int(np.count_nonzero(has)), warnings=tuple(warnings))
+
+
+def check_u(u: Sequence[np.ndarray | None], data: Sequence[tuple[np.ndarray, np.ndarray]]
+            ) -> list[np.ndarray | None]:
+    """Each run's u as a float array (None kept), checked: one entry per run, as many samples
+    as the run's t, finite values (N).
+
+    Raises
+    ------
+    ValueError
+        When it is not so.
+    """
+    u = list(u)
+    if len(u) != len(data):
+        raise ValueError(f"`u` must have one entry per run ({len(data)}); got {len(u)}")
+    out: list[np.ndarray | None] = []
+    for i, (ui, (t, _x)) in enumerate(zip(u, data, strict=True)):
+        if ui is None:
+            out.append(None)
+            continue
+        a = np.asarray(ui, dtype=float)
+        if a.shape != np.shape(t):
+            raise ValueError(f"`u` of run {i + 1} has shape {a.shape}; its t has {np.shape(t)}")
+        if not np.all(np.isfinite(a)):
+            raise ValueError(f"`u` of run {i + 1} has non-finite values")
+        out.append(a)
+    return out
 
 
 def _omitted_modes(ident, P, D, dm, n_fast):
