@@ -80,6 +80,8 @@ class RunMode:
         The full decay fit (None when the run could not be fitted at all).
     added_mass : float
         Known mass added for this run, kg (0: none).
+    u_fit : phoid.udelay.URun or None
+        The joint fit of x and the recorded u (an estimated delay with u; None otherwise).
     """
 
     file: str
@@ -97,6 +99,7 @@ class RunMode:
     warnings: tuple[str, ...] = ()
     fit: DecayFit | None = None
     added_mass: float = 0.0
+    u_fit: Any = None
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready dict with the spec's keys (file, P, D, sigma, omega_d, c_prime, k_prime,
@@ -119,7 +122,8 @@ class RunMode:
             "residual_rms": num(self.residual_rms),
             "used": self.used,
             "warnings": list(self.warnings),
-        } | ({"added_mass": float(self.added_mass)} if self.added_mass else {})
+        } | ({"added_mass": float(self.added_mass)} if self.added_mass else {}) | (
+            {"u": self.u_fit.to_dict()} if self.u_fit is not None else {})
 
 
 @dataclass(frozen=True)

@@ -125,6 +125,15 @@ class URun:
         """Standard error of the run's Δt, s."""
         return math.sqrt(max(float(self.cov[2, 2]), 0.0))
 
+    def to_dict(self) -> dict:
+        """JSON-ready dict: ``used``, and either ``reason`` or the run's ``delay`` and
+        ``delay_stderr`` (s), ``gain`` and ``gain_stderr``, ``offset`` (N), ``noise_sd`` (N)."""
+        if not self.used:
+            return {"used": False, "reason": self.reason}
+        return {"used": True, "delay": self.delay, "delay_stderr": self.delay_stderr,
+                "gain": self.gain, "gain_stderr": self.gain_stderr, "offset": self.u_offset,
+                "noise_sd": self.noise_u}
+
 
 @dataclass(frozen=True)
 class UDelayFit:
@@ -757,7 +766,7 @@ def with_u(ident, u, P, D, *, names, rerun, added_mass=None, n_fast=2):
     for j, i in enumerate(used):
         extra = () if uruns[i] is None or uruns[i].used else (f"u not used: {uruns[i].reason}",)
         runs[i] = replace(runs[i], c_prime=float(cp[j]), k_prime=float(kp[j]),
-                          warnings=runs[i].warnings + extra)
+                          warnings=runs[i].warnings + extra, u_fit=uruns[i])
     warnings = [w for w in ident.warnings if w not in ident.fit.warnings
                 and not w.startswith("the loop delay is poorly determined")] + list(uf.warnings)
     if uf.delay_stderr > 0.2 * uf.delay:
