@@ -204,6 +204,22 @@ def test_all_u_unusable_falls_back_to_x(acceptance):
     assert r.summary()["delay"]["from"] == "x"
 
 
+def test_combination_failure_falls_back_to_x(acceptance, monkeypatch):
+    # should the weighted fit with u fail (it raises IdentificationError), the x-only result
+    # stands, with a warning saying why u did not serve
+    import phoid.udelay as ud
+    from phoid.errors import IdentificationError
+
+    def fail(*args, **kwargs):
+        raise IdentificationError("did not converge (test)")
+
+    monkeypatch.setattr(ud, "combine", fail)
+    _res, x_only, data, u = acceptance
+    r = identify_data(data, P12, D12, None, u=u)
+    assert r.delay_from == "x" and r.delay == x_only.delay
+    assert any("u was not used for the delay: did not converge (test)" in w for w in r.warnings)
+
+
 # --------------------------------------------------------------------------------------------
 # (d) honesty over replicas
 

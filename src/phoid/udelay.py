@@ -755,9 +755,14 @@ def with_u(ident, u, P, D, *, names, rerun, added_mass=None, n_fast=2):
             else:
                 f = ident.runs[i].fit
                 sig[j], wd[j], cov[j, :2, :2] = f.sigma, f.omega_d, f.cov
-        uf = combine(sig, wd, dl, cov, P[used], D[used],
-                     (ident.m.value, ident.c.value, ident.k.value, ident.delay),
-                     added_mass=dm[used])
+        try:
+            uf = combine(sig, wd, dl, cov, P[used], D[used],
+                         (ident.m.value, ident.c.value, ident.k.value, ident.delay),
+                         added_mass=dm[used])
+        except (IdentificationError, np.linalg.LinAlgError) as exc:
+            # the x-only result stands; say why u did not serve
+            return replace(ident, delay_from="x", warnings=(
+                *notes, f"the recorded u was not used for the delay: {exc}", *ident.warnings))
         # the x fits' fast modes and skip depend on the delay only weakly: rerun them when the
         # delay moved by more than 0.1 of the x-only stderr (the rule of the x-only estimate)
         if abs(uf.delay - tau_run) <= 0.1 * sd_x + 1e-12 * max(tau_run, 1.0):
