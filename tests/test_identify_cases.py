@@ -197,7 +197,10 @@ def assert_spec_json(res, n_runs: int, set_aside: tuple[int, ...] = ()) -> dict:
     for q, unit in UNITS.items():
         assert set(s[q]) == {"value", "stderr", "unit"} and s[q]["unit"] == unit
         assert isinstance(s[q]["value"], float) and isinstance(s[q]["stderr"], float)
-    assert set(s["delay"]) == {"value", "stderr", "unit", "source"}
+    # the spec's four keys, plus the optional "from" ("x" or "x+u") of an estimated delay
+    assert set(s["delay"]) - {"from"} == {"value", "stderr", "unit", "source"}
+    assert s["delay"].get("from", "x") in ("x", "x+u")
+    assert ("from" in s["delay"]) == (s["delay"]["source"] == "estimated")
     assert s["delay"]["unit"] == "s" and s["delay"]["source"] in ("given", "estimated")
     assert isinstance(s["warnings"], list) and all(isinstance(w, str) for w in s["warnings"])
     assert set(s) - {"method", "m", "c", "k", "delay", "runs", "warnings"} <= EXTRA_KEYS

@@ -7,6 +7,7 @@ is printed as one line on standard error with exit status 2; never a traceback.
 from __future__ import annotations
 
 import json
+import math
 import sys
 from pathlib import Path
 from typing import Annotated
@@ -232,6 +233,9 @@ def simulate(
     quantum: Annotated[float, typer.Option(
         help="Encoder quantisation step, m (0: none).")] = 0.0,
     offset: Annotated[float, typer.Option(help="Constant sensor offset, m.")] = 0.0,
+    u_noise: Annotated[float, typer.Option(
+        "--u-noise", help="pho: white-noise standard deviation on the recorded force u, N.")
+    ] = 0.0,
     seed: Annotated[int | None, typer.Option(help="Random seed for the noise.")] = None,
     omit_delay: Annotated[bool, typer.Option(
         "--omit-delay", help="Do not write [loop] delay into the manifest (to rehearse "
@@ -276,7 +280,8 @@ def simulate(
     The plant m x'' + c x' + k x + fc sign(x') = u runs under u = -[D x'(t - delay) +
     P x(t - delay)], held at x0 for --hold seconds with the controller on, then released; the
     recorded position gets the offset, white noise and quantisation asked for. Columns t, x and
-    the applied feedback force u. Use it to rehearse an experiment or to build test fixtures;
+    the applied feedback force u (with --u-noise: plus white noise of that sd, N, as a force
+    sensor would record it). Use it to rehearse an experiment or to build test fixtures;
     --schedule rehearses a schedule written by `phoid design --out` (same runs and file names).
     """
     import numpy as np
@@ -285,7 +290,11 @@ def simulate(
     from phoid.plant import Plant
     from phoid.simulation import simulate as _simulate
 
+    if not (math.isfinite(u_noise) and u_noise >= 0.0):
+        _fail(f"--u-noise must be finite and ≥ 0 N; got {u_noise}")
     if method != "pho":
+        if u_noise:
+            _fail("--u-noise applies to --method pho only (the other methods record no u)")
         _simulate_other(ctx, out, method=method, m=m, c=c, k=k, fc=fc, B=B, omega=omega,
                         duration=duration, fs=fs, x0=x0, v0=v0, hold=hold, noise=noise,
                         quantum=quantum, offset=offset, seed=seed, write_mass=write_mass,
@@ -345,13 +354,16 @@ def simulate(
                         **({} if digital else {"delay": delay}), duration=duration,
                         fs=fs, x0=x0, hold=hold, noise=noise, quantum=quantum, offset=offset,
                         rng=rng, **digital)
+        # the recorded force: the applied u plus the force sensor's white noise (same rng,
+        # drawn after the position noise)
+        u_rec = (sim.u + u_noise * rng.standard_normal(sim.u.shape)) if u_noise else sim.u
         runs = [
-            run_from_arrays(sim.t, sim.x[i], u=sim.u[i], P=Ps[i], D=Ds[i], index=i + 1)
+            run_from_arrays(sim.t, sim.x[i], u=u_rec[i], P=Ps[i], D=Ds[i], index=i + 1)
             for i in range(len(Ps))
         ]
         truth = {"m": m, "c": c, "k": k, "fc": fc, "delay": delay, "noise": noise,
                  "quantum": quantum, "offset": offset, "x0": x0, "hold": hold,
-                 **(loop_table or {})}
+                 **({"u_noise": u_noise} if u_noise else {}), **(loop_table or {})}
         if seed is not None:
             truth["seed"] = seed
         path = write_experiment(

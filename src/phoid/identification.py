@@ -84,6 +84,8 @@ class RunMode:
         The full decay fit (None when the run could not be fitted at all).
     added_mass : float
         Known mass added for this run, kg (0: none).
+    u_fit : phoid.udelay.URun or None
+        The joint fit of x and the recorded u (an estimated delay with u; None otherwise).
     """
 
     file: str
@@ -101,6 +103,7 @@ class RunMode:
     warnings: tuple[str, ...] = ()
     fit: DecayFit | None = None
     added_mass: float = 0.0
+    u_fit: Any = None
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready dict with the spec's keys (file, P, D, sigma, omega_d, c_prime, k_prime,
@@ -123,7 +126,8 @@ class RunMode:
             "residual_rms": num(self.residual_rms),
             "used": self.used,
             "warnings": list(self.warnings),
-        } | ({"added_mass": float(self.added_mass)} if self.added_mass else {})
+        } | ({"added_mass": float(self.added_mass)} if self.added_mass else {}) | (
+            {"u": self.u_fit.to_dict()} if self.u_fit is not None else {})
 
 
 @dataclass(frozen=True)
@@ -142,6 +146,9 @@ class Identification:
         Standard error of an estimated delay, s.
     digital : phoid.digital.DigitalPD or None
         The sampled loop the modes were modelled with (None: a continuous loop with a delay).
+    delay_from : str or None
+        What an estimated delay came from: ``"x"`` (the runs' modes only) or ``"x+u"`` (also
+        the recorded feedback force, :mod:`phoid.udelay`); None for a given delay.
     runs : tuple of RunMode
     fit : MCKFit
         The underlying fit (covariance, eq. 35 lines, χ²).
@@ -162,6 +169,7 @@ class Identification:
     delay_stderr: float | None = None
     digital: Any = None
     data: tuple[tuple[np.ndarray, np.ndarray], ...] = field(default=(), repr=False)
+    delay_from: str | None = None
 
     @property
     def cov(self) -> np.ndarray:
@@ -193,7 +201,8 @@ class Identification:
             "k": self.k.to_dict(),
             "delay": {"value": float(self.delay),
                       "stderr": None if self.delay_stderr is None else float(self.delay_stderr),
-                      "unit": "s", "source": self.delay_source},
+                      "unit": "s", "source": self.delay_source}
+            | ({"from": self.delay_from} if self.delay_from else {}),
             "runs": [r.to_dict() for r in self.runs],
             "warnings": list(self.warnings),
         }
@@ -692,6 +701,7 @@ def identify(
         estimator=estimator,
         compensate=compensate,
         source=str(experiment.path),
+        u=[getattr(r, "u", None) for r in runs],
     )
 
 
@@ -719,6 +729,7 @@ def identify_data(
     source: str = "",
     digital: Any = None,
     added_mass: np.ndarray | None = None,
+    u: Sequence[np.ndarray | None] | None = None,
 ) -> Identification:
     """:func:`identify` on plain arrays: ``data`` is a sequence of (t, x) per run.
 
@@ -728,6 +739,9 @@ def identify_data(
     ``delay`` is then ignored (the loop's own d·T_s is used for the starting lines).
     ``added_mass`` (kg, per run) is a known mass added in each run (the paper's added-mass
     trick): run i's loop has mass m + Δmᵢ and the estimate is the mass without additions.
+    ``u`` (N, per run, None where not recorded; same samples as x) is the feedback force
+    applied: with ``delay=None`` the delay is then estimated from x and u together
+    (:func:`phoid.udelay.with_u`).
     """
     n = len(data)
     if n == 0:
@@ -754,8 +768,19 @@ def identify_data(
     if delay is None:
         if estimator != "gls":
             raise IdentificationError("estimating the loop delay needs estimator='gls'")
-        return _estimate_delay(data, P, D, files=files, names=names, source=source,
-                               added_mass=added_mass)
+        from phoid.udelay import check_u, with_u
+
+        u = None if u is None else check_u(u, data)
+        res = _estimate_delay(data, P, D, files=files, names=names, source=source,
+                              added_mass=added_mass)
+        if u is None or all(ui is None for ui in u):
+            return replace(res, delay_from="x")
+
+        dm = np.zeros(n) if added_mass is None else added_mass
+        return with_u(res, u, P, D, names=names, added_mass=dm, n_fast=_N_FAST,
+                      rerun=lambda tau: _identify_core(data, P, D, tau, files=files,
+                                                       names=names, source=source,
+                                                       estimate_delay=True, added_mass=dm))
     return _identify_core(data, P, D, float(delay), files=files, names=names,
                           estimator=estimator, compensate=compensate, source=source,
                           added_mass=added_mass)

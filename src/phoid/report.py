@@ -31,7 +31,9 @@ def identification_text(ident: Identification) -> str:
     lines = [f"phoid identify: {ident.source}" if ident.source else "phoid identify"]
     delay = (f"{ident.delay:g} s" if ident.delay_stderr is None
              else f"{_fmt(ident.delay, ident.delay_stderr)} s")
-    lines.append(f"  estimator {ident.fit.estimator}, delay {delay} ({ident.delay_source})")
+    origin = {"x": " from x", "x+u": " from x and u"}.get(getattr(ident, "delay_from", None), "")
+    lines.append(f"  estimator {ident.fit.estimator}, delay {delay} ({ident.delay_source}"
+                 f"{origin})")
     lines.extend(_digital_line(ident))
     lines.append("")
     for name, est in (("m", ident.m), ("c", ident.c), ("k", ident.k)):
