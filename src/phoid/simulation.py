@@ -81,6 +81,27 @@ that contains an event is handed on to the delayed input of the step Δt later t
 one-sided end values, and the kink inside it is interpolated across: a local error O(h²) per
 event, ≈ 7e−8·x₀ over 10 s at 1 kHz for f_c = 0.02 N on the Table 1 plant (3e−10·x₀ at 16 kHz).
 
+DC-offset bias
+--------------
+The seed's remedy for runs that stick after a few cycles (Discussion, last paragraph: "the PD
+feedback augmented with a DC offset in the (alternating) direction of oscillation") adds a known
+b ≥ 0 to the command in the direction of the controller's velocity:
+u(t) = −P x(t − Δt) − D ẋ(t − Δt) + b·sign(ẋ(t − Δt)), sign(0) = 0 (none while held or stuck).
+The loop is then nonlinear even without friction, so it always takes the stick–slip path (with
+f_c = 0 that path simply locates the velocity reversals):
+
+* **Δt > 0.** One block is one delay, so on step n of a block the bias is b times the sign of ẋ
+  on step n of the previous block: constant on a step without an event (the sign of its end
+  velocities' sum), and switching, inside a step that held a reversal or a stop, at the
+  instants the bookkeeping located there (its pieces). Such a step is cut at those instants and
+  each part propagated with its constant, so the bias enters exactly; the delayed P and D terms
+  across such a step keep the O(h²) kink interpolation described above (tests/test_bias.py:
+  2e−10…8e−10 m against an independent method-of-steps integration at 1 kHz, x₀ = 5 mm).
+* **Δt = 0.** b·sign(ẋ(t)) opposes the friction while the mass slides: the sliding force is
+  −(f_c − b)·sign(ẋ) (b > f_c drives it), while the stick test keeps the threshold f_c. Exact.
+* **Sampled controller.** One more term in the command, uₙ = −P xₙ − D v̂ₙ + b·sign(v̂ₙ),
+  held by the zero-order hold; exact like the friction path (commands after each block).
+
 Sampled (digital) controller
 ----------------------------
 With ``sample_time`` = T_s the loop is the hybrid one of :mod:`phoid.digital`: the controller
