@@ -56,6 +56,10 @@ simulator). The bias partly cancels the friction, so such a run rings for many m
 before it sticks. Homogeneity then scales the bias too, X(t; λx₀, λf_c, λb) = λX(t; x₀, f_c, b),
 so x₀ ∂X/∂x₀ = X − f_c ∂X/∂f_c − b ∂X/∂b, the last term by one more batched simulation with
 every bᵢ scaled by 1 + 10⁻⁵. The envelope start's f_c adds bᵢ to each run's net friction.
+A sampled loop's biased record jumps (by the effect of 2bᵢ held for one period) where a
+velocity reversal crosses a controller instant, so its finite differences are taken with the
+bias pattern sign(v̂ₙ) of the current θ held fixed (``bias_signs`` of the simulator): the
+derivative where the model is differentiable, which is almost everywhere.
 
 The covariance of θ is the (θ, θ) block of (JᵀWJ)⁻¹ scaled by χ²/dof (the residual variance
 in units of the noise sd): the Gauss–Newton (Fisher) covariance with every nuisance parameter
@@ -649,18 +653,21 @@ class _Problem:
         return theta, p[self.ng :].reshape(self.B, 3)
 
     def simulate(self, theta: np.ndarray, x0: np.ndarray, tau: np.ndarray,
-                 bias_scale: float = 1.0):
+                 bias_scale: float = 1.0, signs: np.ndarray | None = None,
+                 want_signs: bool = False):
         """X, V of every run released at x₀ᵢ (hold 0, grid step h); None if not simulable.
 
         One batched simulation per distinct added mass (run i's plant is m + Δmᵢ); each run's
-        command carries its bias bᵢ (times ``bias_scale``)."""
+        command carries its bias bᵢ (times ``bias_scale``). A sampled loop's bias switching
+        pattern sign(v̂ₙ) can be prescribed (``signs``) or returned as a third item
+        (``want_signs``)."""
         from phoid.simulation import simulate
 
         m, c, k, fc = (float(a) for a in theta)
         if not (m > 0 and fc >= 0):
             return None
         dur = max(float(np.max(self.t_end - tau)) + 3.0 * self.h, 4 * self.h)
-        X = V = None
+        X = V = S = None
         for g in self.groups:
             plant = _PlantParams(m + float(self.dm[g[0]]), c, k, fc)
             g_ = self.digital
@@ -668,6 +675,8 @@ class _Problem:
                 "sample_time": g_.sample_time, "delay_samples": g_.delay_samples,
                 "velocity": g_.velocity, "cutoff": g_.cutoff}
             try:
+                if signs is not None:
+                    loop["bias_signs"] = signs[g]
                 sim = simulate(plant, self.P[g], self.D[g], duration=dur, fs=self.fs,
                                x0=np.asarray(x0)[g], bias=bias_scale * self.bias[g], **loop)
             except ValueError:
@@ -678,7 +687,11 @@ class _Problem:
                 X = np.empty((self.B, sim.x_true.shape[1]))
                 V = np.empty_like(X)
             X[g], V[g] = sim.x_true, sim.v
-        return X, V
+            if want_signs and sim.bias_signs is not None:
+                if S is None:
+                    S = np.zeros((self.B, sim.bias_signs.shape[1]))
+                S[g] = sim.bias_signs
+        return (X, V, S) if want_signs else (X, V)
 
     def model(self, local: np.ndarray, XV) -> tuple[list, list, list]:
         """Per run: model values, post-release mask, Hermite value and derivative."""
@@ -713,9 +726,22 @@ class _Problem:
         """Unweighted ∂ŷ/∂(free globals) by forward differences, shape (N, ng); one batched
         simulation per column (a backward difference where the forward point cannot be
         simulated). With a bias, one more column: Σ bᵢ ∂ŷ/∂bᵢ (every bias scaled by 1 + 10⁻⁵),
-        for the homogeneity relation of :meth:`jacobian`."""
+        for the homogeneity relation of :meth:`jacobian`.
+
+        A sampled loop with a bias jumps where a velocity reversal crosses a controller
+        instant (sign(v̂ₙ) flips one period earlier or later: a jump of 2bᵢ in one held
+        command), so a difference across such a point measures the jump, not the slope, and
+        would make the covariance far too small. The differences are therefore taken with the
+        switching pattern of θ held fixed (one more simulation to record it): the derivative
+        of the model where it is differentiable, i.e. almost everywhere."""
         _, posts, herm = self.model(local, XV)
         steps = self.steps(theta, local)
+        pattern = None
+        if self.biased and self.digital is not None:
+            base = self.simulate(theta, local[:, 0], local[:, 2], want_signs=True)
+            if base is None:
+                return None
+            pattern = base[2]
         G = np.zeros((int(self.rows[-1]), self.ng + int(self.biased)))
         col = 0
         for j in range(4):
@@ -724,11 +750,11 @@ class _Problem:
             th = theta.copy()
             th[j] += steps[j]
             hj = steps[j]
-            XVp = self.simulate(th, local[:, 0], local[:, 2])
+            XVp = self.simulate(th, local[:, 0], local[:, 2], signs=pattern)
             if XVp is None:
                 th[j] -= 2 * steps[j]
                 hj = -steps[j]
-                XVp = self.simulate(th, local[:, 0], local[:, 2])
+                XVp = self.simulate(th, local[:, 0], local[:, 2], signs=pattern)
                 if XVp is None:
                     return None
             for i in range(self.B):
@@ -738,7 +764,8 @@ class _Problem:
                     posts[i], (hv - herm[i][0]) / hj, 0.0)
             col += 1
         if self.biased:
-            XVp = self.simulate(theta, local[:, 0], local[:, 2], bias_scale=1.0 + _FD_REL)
+            XVp = self.simulate(theta, local[:, 0], local[:, 2], bias_scale=1.0 + _FD_REL,
+                                signs=pattern)
             if XVp is None:
                 return None
             for i in range(self.B):

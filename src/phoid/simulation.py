@@ -221,6 +221,9 @@ class Simulation:
     bias : ndarray, shape (B,) or None
         DC offset b of each run's command in the direction of the controller's velocity, N
         (``u`` includes it).
+    bias_signs : ndarray, shape (B, n) or None
+        Sampled controller with a bias: sign(v̂_n) used in each command u_n (n = 0 … the last
+        controller instant of the record); None otherwise.
     """
 
     t: np.ndarray
@@ -238,6 +241,7 @@ class Simulation:
     velocity: str | None = None
     cutoff: float | None = None
     bias: np.ndarray | None = None
+    bias_signs: np.ndarray | None = None
 
     def digital_loop(self, i: int) -> DigitalPD:
         """Run i's sampled controller as a :class:`phoid.digital.DigitalPD`.
@@ -951,6 +955,7 @@ def simulate(
     cutoff: float | None = None,
     delay_samples: int = 0,
     bias: np.ndarray | float = 0.0,
+    bias_signs: np.ndarray | None = None,
 ) -> Simulation:
     """Simulate B runs of the delayed PD loop of eq. (23), with Coulomb friction (eq. 1).
 
@@ -1010,6 +1015,13 @@ def simulate(
         oscillation", Discussion, last paragraph): u gains + b·sign(ẋ(t − Δt)) (continuous
         loop; sign(0) = 0, so none while held or stuck) or + b·sign(v̂_{n}) in the sampled
         command u_n. Simulated exactly: see "DC-offset bias" in the module docstring.
+    bias_signs : array_like, shape (B, n), optional
+        Sampled controller with a bias only: prescribe sign(v̂_n) (−1, 0, 1) for the commands
+        n = 0 … n − 1 instead of taking it from v̂_n (later ones 0), e.g. a previous
+        simulation's :attr:`Simulation.bias_signs`. The sampled loop's output jumps where a
+        velocity reversal crosses a controller instant (the bias flips a period earlier or
+        later), so its derivatives with respect to the plant are taken with this pattern held
+        fixed (:mod:`phoid.friction`).
 
     Returns
     -------
@@ -1059,6 +1071,9 @@ def simulate(
     if N < 1:
         raise ValueError(f"`duration` × `fs` must give at least one sample; got {duration:g} s")
 
+    signs = None
+    if bias_signs is not None and sample_time is None:
+        raise ValueError("`bias_signs` applies only to a sampled controller (`sample_time`)")
     if sample_time is not None:
         if delay != 0.0:
             raise ValueError(
@@ -1066,8 +1081,14 @@ def simulate(
                 f"delay in whole samples as `delay_samples`; got delay={delay:g} s"
             )
         loop = DigitalPD(0.0, 0.0, sample_time, delay_samples, velocity, cutoff)
-        x_true, vel, u = _run_sampled(m, c, k, fc, P, D, x0a, v0a, hold, fs, N, force, loop,
-                                      biased)
+        if bias_signs is not None:
+            bias_signs = np.asarray(bias_signs, dtype=float)
+            if bias_signs.ndim != 2 or bias_signs.shape[0] != B \
+                    or not np.all(np.isin(bias_signs, (-1.0, 0.0, 1.0))):
+                raise ValueError("`bias_signs` must be an array (B, n) of −1, 0, 1; got shape "
+                                 f"{bias_signs.shape}")
+        x_true, vel, u, signs = _run_sampled(m, c, k, fc, P, D, x0a, v0a, hold, fs, N, force,
+                                             loop, biased, bias_signs)
     else:
         if delay_samples != 0 or velocity != "backward-difference" or cutoff is not None:
             name = "delay_samples" if delay_samples != 0 else (
@@ -1101,6 +1122,7 @@ def simulate(
         velocity=None if loop is None else loop.velocity,
         cutoff=None if loop is None else loop.cutoff,
         bias=arr["bias"].copy(),
+        bias_signs=signs,
     )
 
 
@@ -1449,7 +1471,8 @@ def _run_ode(m, c, k, fc, P, D, x0, v0, cF, grid, out, bias=None):
 # sampled (digital) controller
 
 
-def _run_sampled(m, c, k, fc, P, D, x0, v0, hold, fs, N, force, loop: DigitalPD, bias=None):
+def _run_sampled(m, c, k, fc, P, D, x0, v0, hold, fs, N, force, loop: DigitalPD, bias=None,
+                 signs=None):
     """The hybrid loop of :mod:`phoid.digital`: exact positions, velocities, applied commands."""
     B = P.size
     T = loop.sample_time
@@ -1476,6 +1499,10 @@ def _run_sampled(m, c, k, fc, P, D, x0, v0, hold, fs, N, force, loop: DigitalPD,
     r0 = n1 * Mr - j_rel  # recorder intervals from the release to it
     n_last = (N - 1) // Mr  # last controller instant in the record
     U = np.repeat((-P * x0)[:, None], n_last + 1, axis=1)  # commands u_n (held: −P x₀)
+    if bias is not None:  # sign(v̂_n) of each command: prescribed, or recorded here
+        S_out = np.zeros((B, n_last + 1))
+        if signs is not None:
+            S_out[:, : min(n_last + 1, signs.shape[1])] = signs[:, : n_last + 1]
     if j_rel <= N - 1:
         S = 1
         if force is not None or fc > 0 or bias is not None:
@@ -1490,13 +1517,14 @@ def _run_sampled(m, c, k, fc, P, D, x0, v0, hold, fs, N, force, loop: DigitalPD,
         geo = _SampledGeometry(Mr, S, h, j_rel, n1, r0, n_last, k_total)
         out = (x_true, vel, U)
         if fc > 0 or bias is not None:  # the bias makes the loop nonlinear: block by block
-            _sampled_friction(m, c, k, fc, P, D, x0, v0, loop, geo, cF, out, bias)
+            _sampled_friction(m, c, k, fc, P, D, x0, v0, loop, geo, cF, out, bias,
+                              None if bias is None else (S_out, signs is not None))
         else:
             _sampled_linear(m, c, k, P, D, x0, v0, loop, geo, cF, out)
     # the force applied at each sample: the command u_{n−d} of the period holding it
     n_of = np.arange(N) // Mr - d
     u = np.where(n_of[None, :] >= 0, U[:, np.maximum(n_of, 0)], (-P * x0)[:, None])
-    return x_true, vel, u
+    return x_true, vel, u, (S_out if bias is not None else None)
 
 
 @dataclass(frozen=True)
@@ -1641,9 +1669,10 @@ def _sampled_linear(m, c, k, P, D, x0, v0, loop, geo: _SampledGeometry, cF, out)
 
 
 def _sampled_friction(m, c, k, fc, P, D, x0, v0, loop, geo: _SampledGeometry, cF, out,
-                      bias=None) -> None:
+                      bias=None, signs=None) -> None:
     """f_c > 0 or a bias: stick–slip propagation in blocks of d + 1 periods, commands after
-    each block (u_n = −(P x_n + D v̂_n) + b sign(v̂_n))."""
+    each block (u_n = −(P x_n + D v̂_n) + b sign(v̂_n)). ``signs`` = (S, prescribed): S (B, n)
+    receives sign(v̂_n), or, when prescribed, gives it (the switching pattern held fixed)."""
     x_true, vel, U = out
     B = P.size
     d = loop.delay_samples
@@ -1674,7 +1703,10 @@ def _sampled_friction(m, c, k, fc, P, D, x0, v0, loop, geo: _SampledGeometry, cF
         ve, _ = lfilter([cf], [1.0, -a], dx, axis=1, zi=(a * state["ve"])[:, None])
         U[:, lo : upto + 1] = -(P[:, None] * xseq + D[:, None] * ve)
         if bias is not None:
-            U[:, lo : upto + 1] += bias[:, None] * np.sign(ve)
+            S, given = signs
+            if not given:
+                S[:, lo : upto + 1] = np.sign(ve)
+            U[:, lo : upto + 1] += bias[:, None] * S[:, lo : upto + 1]
         state.update(done=upto, x=xseq[:, -1].copy(), ve=ve[:, -1].copy())
 
     kb = 0
