@@ -140,6 +140,10 @@ def identify(
                          or plots is not None):
             raise ValueError("--friction applies to pho sets, without --estimator ols, "
                              "--no-compensation or --plots")
+        if not friction:
+            from phoid.identification import _refuse_bias
+
+            _refuse_bias(exp, exp.method)  # a biased command: only the friction fit models it
         if exp.method == "pho":
             if mass is not None:
                 raise ValueError("--mass applies to free-decay sets (method = \"free\") only")
@@ -219,6 +223,11 @@ def simulate(
     D: Annotated[str, typer.Option(
         "--D", help="Derivative gains, N s/m, paired with --P (same count, or one value for "
                     "all runs).")] = "0.6:6:19",
+    bias: Annotated[str, typer.Option(
+        "--bias", help="pho: DC offset b >= 0 of the command in the direction of the "
+                       "controller's velocity, N (u += b sign(x'(t - delay))): one value for "
+                       "all runs, or one per run ('0.1,0.12' or start:stop:count); written as "
+                       "each run's `bias`.")] = "0",
     schedule: Annotated[Path | None, typer.Option(
         "--schedule", help="Take the runs (P, D, file names) and, unless given here, the delay, "
                            "--fs, --duration, --noise and --x0 from a schedule written by "
@@ -278,11 +287,12 @@ def simulate(
     run, columns t, x.
 
     The plant m x'' + c x' + k x + fc sign(x') = u runs under u = -[D x'(t - delay) +
-    P x(t - delay)], held at x0 for --hold seconds with the controller on, then released; the
-    recorded position gets the offset, white noise and quantisation asked for. Columns t, x and
-    the applied feedback force u (with --u-noise: plus white noise of that sd, N, as a force
-    sensor would record it). Use it to rehearse an experiment or to build test fixtures;
-    --schedule rehearses a schedule written by `phoid design --out` (same runs and file names).
+    P x(t - delay)] (+ bias sign(x'(t - delay)) with --bias), held at x0 for --hold seconds
+    with the controller on, then released; the recorded position gets the offset, white noise
+    and quantisation asked for. Columns t, x and the applied feedback force u (with --u-noise:
+    plus white noise of that sd, N, as a force sensor would record it). Use it to rehearse an
+    experiment or to build test fixtures; --schedule rehearses a schedule written by
+    `phoid design --out` (same runs and file names).
     """
     import numpy as np
 
@@ -333,6 +343,14 @@ def simulate(
         if len(Ps) != len(Ds) or not Ps:
             raise ValueError(f"`P` and `D` must have the same number of runs; "
                              f"got {len(Ps)} and {len(Ds)}")
+        bs = _numbers("bias", bias)
+        if len(bs) == 1:
+            bs = bs * len(Ps)
+        if len(bs) != len(Ps):
+            raise ValueError(f"`bias` must have one value, or one per run ({len(Ps)}); "
+                             f"got {len(bs)}")
+        if not all(np.isfinite(bs)) or min(bs) < 0:
+            raise ValueError(f"`bias` must be finite and ≥ 0 N; got {bias!r}")
         plant = Plant(m, c, k, fc)
         rng = np.random.default_rng(seed)
         digital: dict = {}
@@ -353,12 +371,13 @@ def simulate(
         sim = _simulate(plant, np.array(Ps), np.array(Ds),
                         **({} if digital else {"delay": delay}), duration=duration,
                         fs=fs, x0=x0, hold=hold, noise=noise, quantum=quantum, offset=offset,
-                        rng=rng, **digital)
+                        rng=rng, bias=np.array(bs), **digital)
         # the recorded force: the applied u plus the force sensor's white noise (same rng,
         # drawn after the position noise)
         u_rec = (sim.u + u_noise * rng.standard_normal(sim.u.shape)) if u_noise else sim.u
         runs = [
-            run_from_arrays(sim.t, sim.x[i], u=u_rec[i], P=Ps[i], D=Ds[i], index=i + 1)
+            run_from_arrays(sim.t, sim.x[i], u=u_rec[i], P=Ps[i], D=Ds[i], bias=bs[i],
+                            index=i + 1)
             for i in range(len(Ps))
         ]
         truth = {"m": m, "c": c, "k": k, "fc": fc, "delay": delay, "noise": noise,
@@ -393,7 +412,7 @@ def _simulate_other(ctx, out, *, method, m, c, k, fc, B, omega, duration, fs, x0
             raise ValueError(f"`method` must be 'pho', 'forced' or 'free'; got {method!r}")
         own = {"forced": ("B", "omega"), "free": ("v0", "write_mass")}
         for name in ("P", "D", "schedule", "delay", "omit_delay", "sample_time",
-                     "delay_samples", "velocity", "cutoff", *own["free" if method ==
+                     "delay_samples", "velocity", "cutoff", "bias", *own["free" if method ==
                                                                       "forced" else "forced"]):
             if given(name):
                 raise ValueError(f"--{name.replace('_', '-')} does not apply to "

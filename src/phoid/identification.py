@@ -648,6 +648,7 @@ def identify(
     if estimator == "gls" and not compensate:
         raise ValueError("`compensate=False` is only available with estimator='ols'")
     method = getattr(experiment, "method", "pho")
+    _refuse_bias(experiment, method)
     if method in ("forced", "free"):
         # the other methods of the format, with their own estimators; PHO-only options refused
         if delay is not None or estimator != "gls" or not compensate:
@@ -703,6 +704,20 @@ def identify(
         source=str(experiment.path),
         u=[getattr(r, "u", None) for r in runs],
     )
+
+
+def _refuse_bias(experiment: Any, method: str) -> None:
+    """Refuse runs whose command carries a DC-offset bias (``[[run]] bias``): their decay is not
+    a sum of the loop's modes, so the mode fit would return a wrong m, c, k without noticing;
+    the friction fit models it (``phoid identify --friction``, :mod:`phoid.friction`)."""
+    for r in getattr(experiment, "runs", ()):
+        if getattr(r, "bias", 0.0):
+            hint = ("; fit it with the stick-slip model: phoid identify --friction "
+                    "(phoid.friction.identify_friction_set)" if method == "pho" else
+                    f"; a {method} set has no PD loop to carry it")
+            raise IdentificationError(
+                f"{experiment.path}: {r.name}: bias = {r.bias:g} N: a biased PD command is not "
+                f"a linear loop, so the mode fit does not apply{hint}")
 
 
 def _as_record(run) -> tuple[Any, Any]:

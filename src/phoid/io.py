@@ -23,6 +23,10 @@ Extensions of ``phoid/1`` supported here (all optional and backward compatible)
 -------------------------------------------------------------------------------
 - ``added_mass`` (kg, finite, ≥ 0; default 0) in a ``[[run]]`` table: a known mass added for
   that run (:attr:`Run.added_mass`).
+- ``bias`` (N, finite, ≥ 0; default 0) in a ``[[run]]`` table: the magnitude b of a DC offset
+  added to the run's PD command in the direction of the controller's velocity (the seed's
+  "DC offset in the (alternating) direction of oscillation", Discussion, last paragraph):
+  u = −P x(t − Δt) − D ẋ(t − Δt) + b·sign(ẋ(t − Δt)), sign(0) = 0 (:attr:`Run.bias`).
 - ``mass`` (kg, finite, > 0) at the top level: the known mass, for free-decay sets
   (:attr:`ExperimentSet.mass`).
 - ``[loop]``: the whole table is kept as read in :attr:`ExperimentSet.loop`, so that future keys
@@ -105,11 +109,11 @@ METHODS = ("pho", "forced", "free")
 """The values of the manifest's ``method`` key."""
 
 _TOP_KEYS = ("title", "format", "method", "loop", "run", "mass")
-_RUN_KEYS = ("file", "P", "D", "B", "omega", "added_mass")
+_RUN_KEYS = ("file", "P", "D", "B", "omega", "added_mass", "bias")
 _LOOP_KEYS = ("delay",)
 _COLUMNS = ("t", "x", "u", "F")
 _UNITS = {"P": "N/m", "D": "N·s/m", "B": "N", "omega": "rad/s", "added_mass": "kg",
-          "delay": "s", "mass": "kg"}
+          "bias": "N", "delay": "s", "mass": "kg"}
 _GZIP_MAGIC = b"\x1f\x8b"
 _NUMBER_RE = re.compile(
     r"[+-]?(?:(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?|inf(?:inity)?|nan)", re.IGNORECASE
@@ -299,6 +303,9 @@ class Run:
         Forcing angular frequency (rad/s, > 0), forced runs, optional.
     added_mass : float
         Known mass added for this run (kg, ≥ 0); format extension, default 0.
+    bias : float
+        Known DC offset b (N, ≥ 0) added to the run's command in the direction of the
+        controller's velocity, +b·sign(ẋ(t − Δt)); format extension, default 0.
     index : int
         1-based position of the run in the manifest (0: not from a manifest).
     extra : Mapping[str, Any]
@@ -315,6 +322,7 @@ class Run:
     B: float | None = None
     omega: float | None = None
     added_mass: float = 0.0
+    bias: float = 0.0
     index: int = 0
     extra: Mapping[str, Any] = field(default_factory=_FrozenMap)
 
@@ -347,6 +355,7 @@ class Run:
         set_(self, "omega", _optional_number(where, "omega", self.omega, minimum=0.0,
                                              strict=True))
         set_(self, "added_mass", _number(where, "added_mass", self.added_mass, minimum=0.0))
+        set_(self, "bias", _number(where, "bias", self.bias, minimum=0.0))
         set_(self, "extra", _checked_extra(where, self.extra, _RUN_KEYS, "the run's table"))
 
     @property
@@ -477,6 +486,7 @@ def run_from_arrays(
     B: float | None = None,
     omega: float | None = None,
     added_mass: float = 0.0,
+    bias: float = 0.0,
     file: str = "",
     index: int = 0,
     extra: Mapping[str, Any] | None = None,
@@ -497,6 +507,8 @@ def run_from_arrays(
         Forcing amplitude (N) and angular frequency (rad/s, > 0).
     added_mass : float, default 0
         Known added mass (kg, ≥ 0).
+    bias : float, default 0
+        Known DC offset of the command in the direction of the velocity (N, ≥ 0).
     file : str, default ""
         Data-file name, used in messages (and kept by :func:`write_experiment` only when
         passed as ``names``).
@@ -522,7 +534,7 @@ def run_from_arrays(
     (dtype('float64'), False)
     """
     return Run(file=file, t=t, x=x, u=u, F=F, P=P, D=D, B=B, omega=omega,
-               added_mass=added_mass, index=index,
+               added_mass=added_mass, bias=bias, index=index,
                extra=_FrozenMap() if extra is None else extra)
 
 
@@ -623,7 +635,7 @@ def read_experiment(path: str | os.PathLike[str]) -> ExperimentSet:
         try:
             runs.append(Run(file=spec["file"], index=spec["index"], extra=spec["extra"],
                             P=spec["P"], D=spec["D"], B=spec["B"], omega=spec["omega"],
-                            added_mass=spec["added_mass"], **cols))
+                            added_mass=spec["added_mass"], bias=spec["bias"], **cols))
         except ExperimentError as exc:  # pragma: no cover - the reader checks first
             _fail(where, str(exc))
     try:
@@ -658,6 +670,7 @@ def _run_spec(where: str, index: int, table: dict[str, Any], method: str) -> dic
                                      strict=True)
     spec["added_mass"] = _number(rwhere, "added_mass", table.get("added_mass", 0.0),
                                  minimum=0.0)
+    spec["bias"] = _number(rwhere, "bias", table.get("bias", 0.0), minimum=0.0)
     spec["extra"] = {k: v for k, v in table.items() if k not in _RUN_KEYS}
     return spec
 
@@ -1007,6 +1020,8 @@ def write_experiment(
                 table[key] = getattr(run, key)
         if run.added_mass != 0.0:
             table["added_mass"] = run.added_mass
+        if run.bias != 0.0:
+            table["bias"] = run.bias
         table.update(_thaw(run.extra))
         tables.append(table)
     try:

@@ -212,6 +212,9 @@ def friction_text(fit: Any) -> str:
     lines.append(f"  delay {fit.delay:g} s (given), χ²/dof {fit.chi2_red:.3g}, "
                  f"{'converged' if fit.converged else 'NOT converged'}")
     lines.extend(_digital_line(fit))
+    if any(getattr(r, "bias", 0.0) for r in fit.runs):
+        lines.append("  command bias b·sign(velocity) per run (the seed's DC offset), N: "
+                     + ", ".join(f"{r.bias:g}" for r in fit.runs))
     lines.append("")
     for name, est in (("m", fit.m), ("c", fit.c), ("k", fit.k), ("fc", fit.fc)):
         lines.append(f"  {name} = {_fmt(est.value, est.stderr)} {est.unit}")

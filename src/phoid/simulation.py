@@ -81,6 +81,27 @@ that contains an event is handed on to the delayed input of the step Δt later t
 one-sided end values, and the kink inside it is interpolated across: a local error O(h²) per
 event, ≈ 7e−8·x₀ over 10 s at 1 kHz for f_c = 0.02 N on the Table 1 plant (3e−10·x₀ at 16 kHz).
 
+DC-offset bias
+--------------
+The seed's remedy for runs that stick after a few cycles (Discussion, last paragraph: "the PD
+feedback augmented with a DC offset in the (alternating) direction of oscillation") adds a known
+b ≥ 0 to the command in the direction of the controller's velocity:
+u(t) = −P x(t − Δt) − D ẋ(t − Δt) + b·sign(ẋ(t − Δt)), sign(0) = 0 (none while held or stuck).
+The loop is then nonlinear even without friction, so it always takes the stick–slip path (with
+f_c = 0 that path simply locates the velocity reversals):
+
+* **Δt > 0.** One block is one delay, so on step n of a block the bias is b times the sign of ẋ
+  on step n of the previous block: constant on a step without an event (the sign of its end
+  velocities' sum), and switching, inside a step that held a reversal or a stop, at the
+  instants the bookkeeping located there (its pieces). Such a step is cut at those instants and
+  each part propagated with its constant, so the bias enters exactly; the delayed P and D terms
+  across such a step keep the O(h²) kink interpolation described above (tests/test_bias.py:
+  2e−10…8e−10 m against an independent method-of-steps integration at 1 kHz, x₀ = 5 mm).
+* **Δt = 0.** b·sign(ẋ(t)) opposes the friction while the mass slides: the sliding force is
+  −(f_c − b)·sign(ẋ) (b > f_c drives it), while the stick test keeps the threshold f_c. Exact.
+* **Sampled controller.** One more term in the command, uₙ = −P xₙ − D v̂ₙ + b·sign(v̂ₙ),
+  held by the zero-order hold; exact like the friction path (commands after each block).
+
 Sampled (digital) controller
 ----------------------------
 With ``sample_time`` = T_s the loop is the hybrid one of :mod:`phoid.digital`: the controller
@@ -174,7 +195,8 @@ class Simulation:
     v : ndarray, shape (B, N)
         Exact velocity, m/s.
     u : ndarray, shape (B, N)
-        Feedback force applied at the plant, u = −[D ẋ(t − Δt) + P x(t − Δt)], N (eq. 23);
+        Feedback force applied at the plant, u = −[D ẋ(t − Δt) + P x(t − Δt)] (+ the bias
+        b·sign(ẋ(t − Δt))), N (eq. 23);
         −P x₀ while held. At an instant where u jumps (a v₀ ≠ 0 release seen through D), the
         value after the jump.
     release : float
@@ -196,6 +218,12 @@ class Simulation:
         Velocity estimator of the sampled controller (None for a continuous loop).
     cutoff : float or None
         Cut-off ω_c of the filtered velocity estimator, rad/s.
+    bias : ndarray, shape (B,) or None
+        DC offset b of each run's command in the direction of the controller's velocity, N
+        (``u`` includes it).
+    bias_signs : ndarray, shape (B, n) or None
+        Sampled controller with a bias: sign(v̂_n) used in each command u_n (n = 0 … the last
+        controller instant of the record); None otherwise.
     """
 
     t: np.ndarray
@@ -212,6 +240,8 @@ class Simulation:
     delay_samples: int = 0
     velocity: str | None = None
     cutoff: float | None = None
+    bias: np.ndarray | None = None
+    bias_signs: np.ndarray | None = None
 
     def digital_loop(self, i: int) -> DigitalPD:
         """Run i's sampled controller as a :class:`phoid.digital.DigitalPD`.
@@ -581,10 +611,14 @@ def _force_coeffs(force, hold, h, n_steps) -> np.ndarray | None:
 class _Friction:
     """Stick–slip bookkeeping for one block of L steps (see the module docstring)."""
 
-    def __init__(self, eng: _Engine, grp: np.ndarray, fc: float):
+    def __init__(self, eng: _Engine, grp: np.ndarray, fc: float,
+                 fk: np.ndarray | None = None):
         self.eng = eng
         self.grp = grp
-        self.fc = fc
+        self.fc = fc  # static threshold: the mass sticks while |g| ≤ f_c
+        # force opposing a sliding mass, per run: f_c, less an undelayed bias b (Δt = 0, where
+        # b sign(ẋ(t)) acts with the friction); the delayed bias enters through the steps' force
+        self.fk = np.full(grp.size, fc) if fk is None else np.asarray(fk, dtype=float)
         self.A10 = eng.A[:, 1, 0]  # per group: g = f + m A10 x at v = 0
         self.probe = np.arange(1, _N_PROBE + 1) / _N_PROBE
 
@@ -630,11 +664,14 @@ class _Friction:
         return x
 
     # ---- sub-step resolution -------------------------------------------------------------------
-    def resolve(self, b, cb, sig, y, mode, xs, pieces):
+    def resolve(self, b, cb, sig, y, mode, xs, pieces, seg=None):
         """Finish the steps of runs ``b`` from σ = ``sig`` (state ``y``, ``mode``) to σ = 1.
 
         cb (n, 6): base force polynomials of those steps. ``pieces``: one list per run that
-        receives (σ_start, σ_end, mode, y_start, xs) tuples. Returns y(1), mode, xs.
+        receives (σ_start, σ_end, mode, y_start, xs, bias) tuples. ``seg``: optional
+        (ends (n, K + 1), values (n, K + 1)): the step is cut at σ = ends[:, j] (the last 1),
+        and the constant ``values[:, j]`` (N, the delayed bias) is added to the force of
+        segment j; a piece never crosses a cut. Returns y(1), mode, xs.
         """
         eng = self.eng
         y = y.copy()
@@ -642,37 +679,51 @@ class _Friction:
         mode = mode.copy()
         xs = xs.copy()
         yend = np.empty_like(y)
-        todo = np.arange(b.size)
-        for _ in range(64):
+        n = b.size
+        if seg is None:
+            ends, vals = np.ones((n, 1)), np.zeros((n, 1))
+        else:
+            ends, vals = seg
+        si = np.zeros(n, dtype=np.int64)  # current segment of each run
+        todo = np.arange(n)
+        for _ in range(64 + 2 * ends.shape[1]):
             if todo.size == 0:
                 break
             nxt = []
             # -- stuck
             st = todo[mode[todo] == 0]
             if st.size:
-                span = 1.0 - sig[st]
+                send, bz = ends[st, si[st]], vals[st, si[st]]
+                cbs = cb[st].copy()
+                cbs[:, 0] += bz
+                span = send - sig[st]
                 probe0 = np.concatenate([[0.0], self.probe])
                 s_probe = sig[st, None] + span[:, None] * probe0[None, :]
-                g = self.g_at(b[st, None], cb[st, None, :], xs[st, None], s_probe)
+                g = self.g_at(b[st, None], cbs[:, None, :], xs[st, None], s_probe)
                 over = np.abs(g) > self.fc
                 anyo = over.any(axis=1)
                 for i in np.flatnonzero(~anyo):
                     r = st[i]
-                    pieces[r].append((sig[r], 1.0, 0, y[r].copy(), xs[r]))
-                    yend[r] = (xs[r], 0.0)
+                    pieces[r].append((sig[r], send[i], 0, y[r].copy(), xs[r], bz[i]))
+                    if send[i] >= 1.0:
+                        yend[r] = (xs[r], 0.0)
+                    else:  # on into the next segment, still stuck
+                        sig[r] = send[i]
+                        si[r] += 1
+                        nxt.append(np.array([r]))
                 hit = st[anyo]
                 if hit.size:
                     q = np.argmax(over[anyo], axis=1)
                     s_hi = s_probe[anyo, q]
                     s_lo = np.where(q > 0, s_probe[anyo, np.maximum(q - 1, 0)], sig[hit])
                     direction = np.sign(g[anyo, q])
-                    coef = cb[hit].copy()
+                    coef = cbs[anyo]
                     coef[:, 0] += eng.m * self.A10[self.grp[b[hit]]] * xs[hit]
                     s_un = np.where(
                         q > 0, self._root(coef, s_lo, s_hi, target=direction * self.fc), s_hi
                     )
                     for i, r in enumerate(hit):
-                        pieces[r].append((sig[r], s_un[i], 0, y[r].copy(), xs[r]))
+                        pieces[r].append((sig[r], s_un[i], 0, y[r].copy(), xs[r], bz[anyo][i]))
                     sig[hit] = s_un
                     y[hit] = np.stack([xs[hit], np.zeros(hit.size)], axis=1)
                     mode[hit] = direction.astype(np.int64)
@@ -680,20 +731,30 @@ class _Friction:
             # -- sliding
             sl = todo[mode[todo] != 0]
             if sl.size:
+                send, bz = ends[sl, si[sl]], vals[sl, si[sl]]
                 s = mode[sl].astype(float)
-                cw = cb[sl].copy()
-                cw[:, 0] -= self.fc * s
+                cbs = cb[sl].copy()
+                cbs[:, 0] += bz
+                cw = cbs.copy()
+                cw[:, 0] -= self.fk[b[sl]] * s
                 q = _shift(cw, sig[sl])
                 a = eng.taylor(eng.A[self.grp[b[sl]]], y[sl], q)  # (n, nt, 2)
-                span = 1.0 - sig[sl]
+                span = send - sig[sl]
                 dl = span[:, None] * self.probe[None, :]
                 vv = _horner(a[:, None, :, 1], dl)  # (n, probes)
                 cross = s[:, None] * vv <= 0.0
                 anyc = cross.any(axis=1)
                 for i in np.flatnonzero(~anyc):
                     r = sl[i]
-                    pieces[r].append((sig[r], 1.0, int(mode[r]), y[r].copy(), xs[r]))
-                    yend[r] = [_horner(a[i, :, 0], span[i]), _horner(a[i, :, 1], span[i])]
+                    pieces[r].append((sig[r], send[i], int(mode[r]), y[r].copy(), xs[r], bz[i]))
+                    ye = [_horner(a[i, :, 0], span[i]), _horner(a[i, :, 1], span[i])]
+                    if send[i] >= 1.0:
+                        yend[r] = ye
+                    else:  # on into the next segment, still sliding
+                        y[r] = ye
+                        sig[r] = send[i]
+                        si[r] += 1
+                        nxt.append(np.array([r]))
                 hit_i = np.flatnonzero(anyc)
                 if hit_i.size:
                     qi = np.argmax(cross[hit_i], axis=1)
@@ -704,18 +765,24 @@ class _Friction:
                     xstar = _horner(a[hit_i, :, 0], dstar)
                     s_new = sig[hit] + dstar
                     for i, r in enumerate(hit):
-                        pieces[r].append((sig[r], s_new[i], int(mode[r]), y[r].copy(), xs[r]))
-                    newmode = self.decide(b[hit], cb[hit], xstar, s_new)
+                        pieces[r].append((sig[r], s_new[i], int(mode[r]), y[r].copy(), xs[r],
+                                          bz[hit_i[i]]))
+                    newmode = self.decide(b[hit], cbs[hit_i], xstar, s_new)
                     stalled = (dstar <= 1e-13) & (newmode == mode[hit])
                     newmode = np.where(stalled, 0, newmode)  # no progress: the mass sticks
                     sig[hit] = s_new
                     y[hit] = np.stack([xstar, np.zeros(hit.size)], axis=1)
                     xs[hit] = xstar
                     mode[hit] = newmode
-                    done = s_new >= 1.0 - 1e-14
+                    at_end = s_new >= send[hit_i] - 1e-14  # the reversal ends the segment
+                    for i in np.flatnonzero(at_end):
+                        r = hit[i]
+                        pieces[r][-1] = (*pieces[r][-1][:1], send[hit_i[i]], *pieces[r][-1][2:])
+                        sig[r] = send[hit_i[i]]
+                    done = at_end & (send[hit_i] >= 1.0)
                     for r in hit[done]:
                         yend[r] = y[r]
-                        pieces[r][-1] = (*pieces[r][-1][:1], 1.0, *pieces[r][-1][2:])
+                    si[hit[at_end & ~done]] += 1
                     nxt.append(hit[~done])
             todo = np.concatenate(nxt) if nxt else np.zeros(0, dtype=np.int64)
         else:  # pragma: no cover - chattering beyond 64 events in one step
@@ -723,10 +790,18 @@ class _Friction:
         return yend, mode, xs
 
     # ---- one block ---------------------------------------------------------------------------
-    def block(self, cb, y0, mode, xs):
-        """Advance all runs over the block's L steps (cb: (B, L, 6) base force polynomials)."""
+    def block(self, cb, y0, mode, xs, cuts=None):
+        """Advance all runs over the block's L steps (cb: (B, L, 6) base force polynomials).
+
+        ``cuts``: optional {(run, step): (σ cuts (K,), bias values (K + 1,))}: steps inside
+        which the delayed bias switches (their cb holds no bias; :meth:`resolve` cuts them).
+        """
         eng = self.eng
         B, L, _ = cb.shape
+        cuts = cuts or {}
+        forced = np.zeros((B, L), dtype=bool)
+        for r, st in cuts:
+            forced[r, st] = True
         Y = np.empty((B, L + 1, 2))
         Y[:, 0] = y0
         ce = np.empty((B, L, _NQ))
@@ -750,7 +825,7 @@ class _Friction:
                 s_probe = np.concatenate([[0.0], self.probe])
                 g = _horner(cw[:, :, None, :], s_probe[None, None, :])
                 g = g + (eng.m * self.A10[self.grp[st]] * xs[st])[:, None, None]
-                over = (np.abs(g) > self.fc).any(axis=2) & valid
+                over = ((np.abs(g) > self.fc).any(axis=2) | forced[st[:, None], idc]) & valid
                 anyo = over.any(axis=1)
                 first = np.where(anyo, np.argmax(over, axis=1), Lw)
                 for i, r in enumerate(st):
@@ -760,7 +835,7 @@ class _Friction:
                     pos[r] = p0 + n_st
                 ev = st[anyo]
                 if ev.size:
-                    self._event_steps(ev, cb, Y, ce, pos, mode, xs, splits, start_stuck=True)
+                    self._event_steps(ev, cb, Y, ce, pos, mode, xs, splits, cuts)
             # ---------------- sliding runs: trial propagation to the block end
             sl = np.flatnonzero((pos < L) & (mode != 0))
             for gi in np.unique(self.grp[sl]) if sl.size else ():
@@ -770,11 +845,12 @@ class _Friction:
                 valid = idx < L
                 idc = np.minimum(idx, L - 1)
                 cw = cb[rows[:, None], idc].copy()
-                cw[:, :, 0] -= self.fc * mode[rows, None]
+                cw[:, :, 0] -= (self.fk[rows] * mode[rows])[:, None]
                 w = np.matmul(eng.K[gi], np.moveaxis(cw, 1, 2))
                 cur = Y[rows, pos[rows]]
                 Yw = np.moveaxis(eng.recur(gi, cur, w), 1, 2)
-                bad = (mode[rows, None] * Yw[:, 1:, 1] <= 0.0) & valid
+                bad = ((mode[rows, None] * Yw[:, 1:, 1] <= 0.0) | forced[rows[:, None], idc]) \
+                    & valid
                 anyb = bad.any(axis=1)
                 first = np.where(anyb, np.argmax(bad, axis=1), Lw)
                 for i, r in enumerate(rows):
@@ -784,16 +860,31 @@ class _Friction:
                     pos[r] = p0 + n_ok
                 ev = rows[anyb]
                 if ev.size:
-                    self._event_steps(ev, cb, Y, ce, pos, mode, xs, splits, start_stuck=False)
+                    self._event_steps(ev, cb, Y, ce, pos, mode, xs, splits, cuts)
         return Y, ce, splits, mode, xs
 
-    def _event_steps(self, ev, cb, Y, ce, pos, mode, xs, splits, *, start_stuck):
-        """Resolve step pos[r] of each run r in ``ev`` (it contains an event) and advance pos."""
+    def _event_steps(self, ev, cb, Y, ce, pos, mode, xs, splits, cuts):
+        """Resolve step pos[r] of each run r in ``ev`` (it contains an event, or a switch of
+        the delayed bias listed in ``cuts``) and advance pos."""
         e = pos[ev]
         cbe = cb[ev, e]
         pieces: list[list] = [[] for _ in ev]
         y0 = Y[ev, e]
-        yend, mnew, xsnew = self.resolve(ev, cbe, np.zeros(ev.size), y0, mode[ev], xs[ev], pieces)
+        seg = None
+        if cuts:
+            K = 1 + max((cuts[(int(r), int(st))][0].size for r, st in zip(ev, e, strict=True)
+                         if (int(r), int(st)) in cuts), default=0)
+            ends, vals = np.ones((ev.size, K)), np.zeros((ev.size, K))
+            for i, (r, st) in enumerate(zip(ev, e, strict=True)):
+                cut = cuts.get((int(r), int(st)))
+                if cut is not None:
+                    nk = cut[0].size
+                    ends[i, :nk] = cut[0]
+                    vals[i, : nk + 1] = cut[1]
+                    vals[i, nk + 1 :] = cut[1][-1]
+            seg = (ends, vals)
+        yend, mnew, xsnew = self.resolve(ev, cbe, np.zeros(ev.size), y0, mode[ev], xs[ev], pieces,
+                                         seg)
         Y[ev, e + 1] = yend
         mode[ev] = mnew
         xs[ev] = xsnew
@@ -801,7 +892,7 @@ class _Friction:
             pc = pieces[i]
             if len(pc) == 1 and pc[0][2] != 0:
                 # no event after all (rounding): an ordinary sliding step
-                ce[r, e[i]] = cbe[i] - np.array([self.fc * pc[0][2], 0, 0, 0, 0, 0])
+                ce[r, e[i]] = cbe[i] - np.array([self.fk[r] * pc[0][2], 0, 0, 0, 0, 0])
             elif len(pc) == 1:
                 ce[r, e[i]] = self.stuck_coeffs(np.array([r]), np.array([pc[0][4]]))[0]
             else:
@@ -812,11 +903,11 @@ class _Friction:
     # ---- derivative data and dense output of a split step ----------------------------------
     def piece_state(self, r, cb_step, piece, sig):
         """State at σ (inside ``piece``) of run r; cb_step the step's base polynomial."""
-        s0, _s1, md, y0, x_s = piece
+        s0, _s1, md, y0, x_s, bz = piece
         if md == 0:
             return np.array([x_s, 0.0])
         cw = cb_step.copy()
-        cw[0] -= self.fc * md
+        cw[0] += bz - self.fk[r] * md
         q = _shift(cw[None, :], np.array([s0]))
         a = self.eng.taylor(self.eng.A[self.grp[[r]]], y0[None, :], q)[0]
         dl = sig - s0
@@ -824,13 +915,13 @@ class _Friction:
 
     def end_derivs(self, r, cb_step, piece, sig):
         """(y, y', y'') at σ inside ``piece`` (one-sided), flattened to 6 numbers."""
-        _, _, md, _, x_s = piece
+        _, _, md, _, x_s, bz = piece
         if md == 0:
             return np.array([x_s, 0.0, 0.0, 0.0, 0.0, 0.0])
         A = self.eng.A[self.grp[r]]
         bvec = np.array([0.0, 1.0 / self.eng.m])
         cw = cb_step.copy()
-        cw[0] -= self.fc * md
+        cw[0] += bz - self.fk[r] * md
         y = self.piece_state(r, cb_step, piece, sig)
         f = _horner(cw, sig)
         fp = _horner(_poly_deriv(cw), sig) / self.eng.h
@@ -863,6 +954,8 @@ def simulate(
     velocity: str = "backward-difference",
     cutoff: float | None = None,
     delay_samples: int = 0,
+    bias: np.ndarray | float = 0.0,
+    bias_signs: np.ndarray | None = None,
 ) -> Simulation:
     """Simulate B runs of the delayed PD loop of eq. (23), with Coulomb friction (eq. 1).
 
@@ -916,6 +1009,19 @@ def simulate(
         Cut-off ω_c of the filtered estimator, rad/s (required with ``velocity="filtered"``).
     delay_samples : int, default 0
         Command delay d of the sampled controller, whole samples (≥ 0).
+    bias : float or array_like, shape (B,), default 0
+        DC offset b ≥ 0 of the command in the direction of the controller's velocity, N (the
+        seed's "PD feedback augmented with a DC offset in the (alternating) direction of
+        oscillation", Discussion, last paragraph): u gains + b·sign(ẋ(t − Δt)) (continuous
+        loop; sign(0) = 0, so none while held or stuck) or + b·sign(v̂_{n}) in the sampled
+        command u_n. Simulated exactly: see "DC-offset bias" in the module docstring.
+    bias_signs : array_like, shape (B, n), optional
+        Sampled controller with a bias only: prescribe sign(v̂_n) (−1, 0, 1) for the commands
+        n = 0 … n − 1 instead of taking it from v̂_n (later ones 0), e.g. a previous
+        simulation's :attr:`Simulation.bias_signs`. The sampled loop's output jumps where a
+        velocity reversal crosses a controller instant (the bias flips a period earlier or
+        later), so its derivatives with respect to the plant are taken with this pattern held
+        fixed (:mod:`phoid.friction`).
 
     Returns
     -------
@@ -955,12 +1061,19 @@ def simulate(
         D=_batch_array("D", D, "N·s/m"),
         x0=_batch_array("x0", x0, "m"),
         v0=_batch_array("v0", v0, "m/s"),
+        bias=_batch_array("bias", bias, "N"),
     )
     P, D, x0a, v0a = arr["P"], arr["D"], arr["x0"], arr["v0"]
+    if np.any(arr["bias"] < 0):
+        raise ValueError(f"`bias` must be ≥ 0 N; got {float(np.min(arr['bias']))!r}")
+    biased = arr["bias"].copy() if np.any(arr["bias"] > 0) else None
     N = round((hold + duration) * fs)
     if N < 1:
         raise ValueError(f"`duration` × `fs` must give at least one sample; got {duration:g} s")
 
+    signs = None
+    if bias_signs is not None and sample_time is None:
+        raise ValueError("`bias_signs` applies only to a sampled controller (`sample_time`)")
     if sample_time is not None:
         if delay != 0.0:
             raise ValueError(
@@ -968,7 +1081,14 @@ def simulate(
                 f"delay in whole samples as `delay_samples`; got delay={delay:g} s"
             )
         loop = DigitalPD(0.0, 0.0, sample_time, delay_samples, velocity, cutoff)
-        x_true, vel, u = _run_sampled(m, c, k, fc, P, D, x0a, v0a, hold, fs, N, force, loop)
+        if bias_signs is not None:
+            bias_signs = np.asarray(bias_signs, dtype=float)
+            if bias_signs.ndim != 2 or bias_signs.shape[0] != B \
+                    or not np.all(np.isin(bias_signs, (-1.0, 0.0, 1.0))):
+                raise ValueError("`bias_signs` must be an array (B, n) of −1, 0, 1; got shape "
+                                 f"{bias_signs.shape}")
+        x_true, vel, u, signs = _run_sampled(m, c, k, fc, P, D, x0a, v0a, hold, fs, N, force,
+                                             loop, biased, bias_signs)
     else:
         if delay_samples != 0 or velocity != "backward-difference" or cutoff is not None:
             name = "delay_samples" if delay_samples != 0 else (
@@ -977,7 +1097,7 @@ def simulate(
                 f"`{name}` applies only to a sampled controller: give `sample_time` as well"
             )
         x_true, vel, u = _run_continuous(
-            m, c, k, fc, P, D, delay, x0a, v0a, hold, fs, N, force
+            m, c, k, fc, P, D, delay, x0a, v0a, hold, fs, N, force, biased
         )
         loop = None
 
@@ -1001,10 +1121,12 @@ def simulate(
         delay_samples=0 if loop is None else loop.delay_samples,
         velocity=None if loop is None else loop.velocity,
         cutoff=None if loop is None else loop.cutoff,
+        bias=arr["bias"].copy(),
+        bias_signs=signs,
     )
 
 
-def _run_continuous(m, c, k, fc, P, D, delay, x0a, v0a, hold, fs, N, force):
+def _run_continuous(m, c, k, fc, P, D, delay, x0a, v0a, hold, fs, N, force, bias=None):
     """The continuous delayed loop (module docstring): exact positions, velocities, forces."""
     B = P.size
     roots = _closed_loop_roots(m, c, k, P, D, delay)
@@ -1033,9 +1155,9 @@ def _run_continuous(m, c, k, fc, P, D, delay, x0a, v0a, hold, fs, N, force):
         cF = _force_coeffs(force, hold, grid.h, grid.n_steps)
         out = (x_true, vel, u)
         if delay > 0:
-            _run_delayed(m, fc, A0, P, D, x0a, v0a, cF, grid, out)
+            _run_delayed(m, fc, A0, P, D, x0a, v0a, cF, grid, out, bias)
         else:
-            _run_ode(m, c, k, fc, P, D, x0a, v0a, cF, grid, out)
+            _run_ode(m, c, k, fc, P, D, x0a, v0a, cF, grid, out, bias)
     return x_true, vel, u
 
 
@@ -1063,6 +1185,7 @@ class _Ctx:
     D: np.ndarray
     out: tuple[np.ndarray, np.ndarray, np.ndarray]
     fr: _Friction | None
+    bias: np.ndarray | None = None  # (B,) bias magnitudes b, N (None: no bias)
 
 
 def _emit(ctx: _Ctx, a, b, n0, Y, ce, cu, *, cb=None, splits=None) -> None:
@@ -1095,6 +1218,8 @@ def _emit(ctx: _Ctx, a, b, n0, Y, ce, cu, *, cb=None, splits=None) -> None:
     vel[:, j] = vs
     if cu is None:
         u[:, j] = -(ctx.P[:, None] * xs + ctx.D[:, None] * vs)
+        if ctx.bias is not None:  # Δt = 0: + b sign(ẋ(t))
+            u[:, j] += ctx.bias[:, None] * np.sign(vs)
 
 
 def _dense(ctx: _Ctx, Y, ce, loc, th, cb, splits):
@@ -1138,19 +1263,26 @@ def _initial_mode(fr: _Friction, y: np.ndarray, f0: np.ndarray) -> np.ndarray:
     return mode
 
 
-def _friction_block(fr: _Friction, cb, y, mode, xs):
+def _friction_block(fr: _Friction, cb, y, mode, xs, cuts=None):
     """Friction block in the component-major layout of the drivers."""
-    Y, ce, splits, mode, xs = fr.block(np.moveaxis(cb, 1, 2), y, mode, xs)
+    Y, ce, splits, mode, xs = fr.block(np.moveaxis(cb, 1, 2), y, mode, xs, cuts)
     return np.moveaxis(Y, 2, 1), np.moveaxis(ce, 2, 1), splits, mode, xs
 
 
-def _run_delayed(m, fc, A0, P, D, x0, v0, cF, grid, out):
-    """Δt > 0: blocks of d steps; each block's delayed input comes from the previous block."""
+def _run_delayed(m, fc, A0, P, D, x0, v0, cF, grid, out, bias=None):
+    """Δt > 0: blocks of d steps; each block's delayed input comes from the previous block.
+
+    With a bias b (N, per run), the input gains b·sign(ẋ(t − Δt)): on each step of a block, the
+    sign of the velocity on the same step of the previous block (one block is one delay). It is
+    constant on a step without a velocity reversal, and switches at the reversals that the
+    stick–slip bookkeeping located in the previous block (its pieces): such a step is cut at
+    those instants (:meth:`_Friction.resolve`), so the bias enters exactly.
+    """
     B = P.size
     d, h, Ns = grid.d, grid.h, grid.n_steps
     eng = _Engine(A0[None], m, h, Ns)
     grp = np.zeros(B, dtype=np.int64)
-    fr = _Friction(eng, grp, fc) if fc > 0 else None
+    fr = _Friction(eng, grp, fc) if fc > 0 or bias is not None else None
     ctx = _Ctx(grid, eng, grp, P, D, out, fr)
     L10, L12 = _feedback_maps(A0, m, h, P, D)
     L10T = np.ascontiguousarray(np.swapaxes(L10, 1, 2))  # (B, 6, 10)
@@ -1165,6 +1297,8 @@ def _run_delayed(m, fc, A0, P, D, x0, v0, cF, grid, out):
     S_prev = _history(B, d, x0, m * -A0[1, 0])
     split_prev: dict = {}
     cb_prev = None
+    bias_prev = np.zeros((B, d))  # the held history: ẋ = 0, no bias
+    cuts: dict = {}
     for n0 in range(0, Ns, d):
         L = min(d, Ns - n0)
         cu = np.matmul(L10T, S_prev[:, :, :L])
@@ -1174,15 +1308,65 @@ def _run_delayed(m, fc, A0, P, D, x0, v0, cF, grid, out):
                 dl = fr.end_derivs(r, cbs, pc[0], 0.0)
                 dr = fr.end_derivs(r, cbs, pc[-1], 1.0)
                 cu[r, :, st] = np.concatenate([dl, dr]) @ L12[r]
+        if bias is not None:
+            cu[:, 0, :] += bias_prev[:, :L]  # the delayed bias where it is constant on a step
+            cuts = {key: cut for key, cut in cuts.items() if key[1] < L}
         cb = cu + cFT[:, n0 : n0 + L] if cFT is not None else cu
-        Y, ce, splits, mode, xs = _friction_block(fr, cb, y, mode, xs)
+        Y, ce, splits, mode, xs = _friction_block(fr, cb, y, mode, xs, cuts)
         a, b = _block_samples(grid, n0, L)
         _emit(ctx, a, b, n0, Y, ce, cu, cb=cb, splits=splits)
+        if cuts:
+            _cut_bias_samples(grid, a, b, n0, cuts, out[2])
         if splits:
             ce = np.where(np.isfinite(ce), ce, 0.0)  # split steps are overridden above
         S_prev = np.concatenate([Y[:, :, :-1], Y[:, :, 1:], ce], axis=1)
         split_prev, cb_prev = splits, cb
+        if bias is not None:
+            bias_prev, cuts = _delayed_bias(bias, Y, splits, d)
         y = Y[:, :, -1]
+
+
+def _delayed_bias(bias, Y, splits, d):
+    """The next block's bias b·sign(ẋ(t − Δt)) from this block's motion.
+
+    Returns (constant (B, d): the value on each step without a switch, 0 on the others;
+    cuts {(run, step): (σ of the switches, values between them)}). On a step without a friction
+    event (no velocity reversal, no sticking) the velocity keeps one sign: that of the sum of
+    its end values (one of them may be 0 when the step starts or ends a stop). A split step's
+    pieces carry their mode (the sign of ẋ on the piece); adjacent pieces of equal mode are
+    merged.
+    """
+    B, _, L1 = Y.shape
+    const = np.zeros((B, d))
+    const[:, : L1 - 1] = bias[:, None] * np.sign(Y[:, 1, :-1] + Y[:, 1, 1:])
+    cuts = {}
+    for (r, st), pc in splits.items():
+        modes = np.array([p[2] for p in pc], dtype=float)
+        ends = np.array([p[1] for p in pc], dtype=float)
+        keep = np.flatnonzero(np.diff(modes) != 0)  # switches: between pieces keep, keep + 1
+        # a switch on a step's boundary (to rounding) belongs to the neighbouring step
+        if keep.size and ends[keep[0]] <= 1e-13:
+            modes[: keep[0] + 1] = modes[keep[0] + 1]
+        if keep.size and ends[keep[-1]] >= 1.0 - 1e-13:
+            modes[keep[-1] + 1 :] = modes[keep[-1]]
+        keep = np.flatnonzero(np.diff(modes) != 0)
+        if keep.size == 0:
+            const[r, st] = bias[r] * modes[0]
+            continue
+        const[r, st] = 0.0
+        vals = bias[r] * np.concatenate([modes[keep], modes[-1:]])
+        cuts[(r, st)] = (ends[keep], vals)
+    return const, cuts
+
+
+def _cut_bias_samples(grid, a, b, n0, cuts, u) -> None:
+    """Add the delayed bias to the recorded force u at samples inside cut steps."""
+    steps = grid.step[a:b]
+    for (r, st), (sig, vals) in cuts.items():
+        hit = np.flatnonzero(steps == n0 + st)
+        if hit.size:
+            th = grid.theta[a:b][hit]
+            u[r, grid.j0 + a + hit] += vals[np.searchsorted(sig, th, side="right")]
 
 
 def _history(B: int, d: int, x0: np.ndarray, k: float) -> np.ndarray:
@@ -1236,8 +1420,12 @@ def _linear_blocks(ctx: _Ctx, L10T, cFT, y, x0) -> None:
         y = Y[:, :, -1]
 
 
-def _run_ode(m, c, k, fc, P, D, x0, v0, cF, grid, out):
-    """Δt = 0: the gains are part of A; one exact propagator per distinct (P, D)."""
+def _run_ode(m, c, k, fc, P, D, x0, v0, cF, grid, out, bias=None):
+    """Δt = 0: the gains are part of A; one exact propagator per distinct (P, D).
+
+    A bias b·sign(ẋ(t)) acts, undelayed, against the friction: a sliding mass feels
+    −(f_c − b)·sign(ẋ), while the stick test keeps the threshold f_c (at rest sign(0) = 0).
+    """
     B = P.size
     h, Ns = grid.h, grid.n_steps
     keys, grp = np.unique(np.stack([P, D], axis=1), axis=0, return_inverse=True)
@@ -1247,8 +1435,10 @@ def _run_ode(m, c, k, fc, P, D, x0, v0, cF, grid, out):
     A[:, 1, 0] = -(k + keys[:, 0]) / m
     A[:, 1, 1] = -(c + keys[:, 1]) / m
     eng = _Engine(A, m, h, Ns)
-    fr = _Friction(eng, grp, fc) if fc > 0 else None
-    ctx = _Ctx(grid, eng, grp, P, D, out, fr)
+    fr = None
+    if fc > 0 or bias is not None:
+        fr = _Friction(eng, grp, fc, None if bias is None else fc - bias)
+    ctx = _Ctx(grid, eng, grp, P, D, out, fr, bias)
     y = np.stack([x0, v0], axis=1)
     cFT = np.ascontiguousarray(cF.T) if cF is not None else None  # (6, Ns)
     if fr is None:  # one lfilter call per distinct (P, D) over all steps
@@ -1281,7 +1471,8 @@ def _run_ode(m, c, k, fc, P, D, x0, v0, cF, grid, out):
 # sampled (digital) controller
 
 
-def _run_sampled(m, c, k, fc, P, D, x0, v0, hold, fs, N, force, loop: DigitalPD):
+def _run_sampled(m, c, k, fc, P, D, x0, v0, hold, fs, N, force, loop: DigitalPD, bias=None,
+                 signs=None):
     """The hybrid loop of :mod:`phoid.digital`: exact positions, velocities, applied commands."""
     B = P.size
     T = loop.sample_time
@@ -1308,9 +1499,13 @@ def _run_sampled(m, c, k, fc, P, D, x0, v0, hold, fs, N, force, loop: DigitalPD)
     r0 = n1 * Mr - j_rel  # recorder intervals from the release to it
     n_last = (N - 1) // Mr  # last controller instant in the record
     U = np.repeat((-P * x0)[:, None], n_last + 1, axis=1)  # commands u_n (held: −P x₀)
+    if bias is not None:  # sign(v̂_n) of each command: prescribed, or recorded here
+        S_out = np.zeros((B, n_last + 1))
+        if signs is not None:
+            S_out[:, : min(n_last + 1, signs.shape[1])] = signs[:, : n_last + 1]
     if j_rel <= N - 1:
         S = 1
-        if force is not None or fc > 0:
+        if force is not None or fc > 0 or bias is not None:
             # sub-steps of the recorder interval: ρh ≤ 0.1 for the plant's and the loop's
             # dominant rates (force interpolation; Taylor series of the friction events)
             rho = float(np.max(np.abs(_quadratic_roots(m, c, k))))
@@ -1321,14 +1516,15 @@ def _run_sampled(m, c, k, fc, P, D, x0, v0, hold, fs, N, force, loop: DigitalPD)
         cF = _force_coeffs(force, hold, h / S, k_total)
         geo = _SampledGeometry(Mr, S, h, j_rel, n1, r0, n_last, k_total)
         out = (x_true, vel, U)
-        if fc > 0:
-            _sampled_friction(m, c, k, fc, P, D, x0, v0, loop, geo, cF, out)
+        if fc > 0 or bias is not None:  # the bias makes the loop nonlinear: block by block
+            _sampled_friction(m, c, k, fc, P, D, x0, v0, loop, geo, cF, out, bias,
+                              None if bias is None else (S_out, signs is not None))
         else:
             _sampled_linear(m, c, k, P, D, x0, v0, loop, geo, cF, out)
     # the force applied at each sample: the command u_{n−d} of the period holding it
     n_of = np.arange(N) // Mr - d
     u = np.where(n_of[None, :] >= 0, U[:, np.maximum(n_of, 0)], (-P * x0)[:, None])
-    return x_true, vel, u
+    return x_true, vel, u, (S_out if bias is not None else None)
 
 
 @dataclass(frozen=True)
@@ -1472,8 +1668,11 @@ def _sampled_linear(m, c, k, P, D, x0, v0, loop, geo: _SampledGeometry, cF, out)
     vel[:, j0:] = ys[:, :cnt, 1]
 
 
-def _sampled_friction(m, c, k, fc, P, D, x0, v0, loop, geo: _SampledGeometry, cF, out) -> None:
-    """f_c > 0: stick–slip propagation in blocks of d + 1 periods, commands after each block."""
+def _sampled_friction(m, c, k, fc, P, D, x0, v0, loop, geo: _SampledGeometry, cF, out,
+                      bias=None, signs=None) -> None:
+    """f_c > 0 or a bias: stick–slip propagation in blocks of d + 1 periods, commands after
+    each block (u_n = −(P x_n + D v̂_n) + b sign(v̂_n)). ``signs`` = (S, prescribed): S (B, n)
+    receives sign(v̂_n), or, when prescribed, gives it (the switching pattern held fixed)."""
     x_true, vel, U = out
     B = P.size
     d = loop.delay_samples
@@ -1503,6 +1702,11 @@ def _sampled_friction(m, c, k, fc, P, D, x0, v0, loop, geo: _SampledGeometry, cF
         dx = np.diff(np.concatenate([state["x"][:, None], xseq], axis=1), axis=1)
         ve, _ = lfilter([cf], [1.0, -a], dx, axis=1, zi=(a * state["ve"])[:, None])
         U[:, lo : upto + 1] = -(P[:, None] * xseq + D[:, None] * ve)
+        if bias is not None:
+            S, given = signs
+            if not given:
+                S[:, lo : upto + 1] = np.sign(ve)
+            U[:, lo : upto + 1] += bias[:, None] * S[:, lo : upto + 1]
         state.update(done=upto, x=xseq[:, -1].copy(), ve=ve[:, -1].copy())
 
     kb = 0
