@@ -56,17 +56,15 @@ simulator). The bias partly cancels the friction, so such a run rings for many m
 before it sticks. Homogeneity then scales the bias too, X(t; λx₀, λf_c, λb) = λX(t; x₀, f_c, b),
 so x₀ ∂X/∂x₀ = X − f_c ∂X/∂f_c − b ∂X/∂b, the last term by one more batched simulation with
 every bᵢ scaled by 1 + 10⁻⁵. The envelope start's f_c adds bᵢ to each run's net friction.
-A sampled loop's biased record jumps (by the effect of 2bᵢ held for one period) where a
-velocity reversal crosses a controller instant, so its finite differences are taken with the
-bias pattern sign(v̂ₙ) of the current θ held fixed (``bias_signs`` of the simulator): the
-derivative where the model is differentiable, which is almost everywhere.
-That does not make the likelihood itself smooth: its jumps (a few noise sd over the rest of
-the record) make the fit of a sampled, biased set sensitive to its start. Measured: the 8-run
-acceptance set of tests/test_bias.py (1 kHz) converges within 3 stderr, but a 4-run variant
-at 500 Hz stalled (4 of 4 replicas, χ²/dof 3.8–5.5, not converged) from the viscous start and
-did not formally converge even from the truth (χ²/dof 1.10, estimates within 0.6 stderr);
-such fits say so in their warnings. Continuous loops have no such jumps (the switch times
-move continuously with θ).
+A sampled (digital) loop with a bias is refused here. Its record jumps (by the effect of 2bᵢ
+held for one period) wherever a velocity reversal crosses a controller instant, so the
+likelihood is not smooth in θ, and the fit proved unreliable: with the finite differences
+taken at a fixed bias pattern, a 4-run 500 Hz design stalled in 4 of 4 noisy replicas
+(χ²/dof 3.8–5.5, c off by up to 58 stderr) and did not formally converge even from the truth,
+and the 8-run acceptance design of tests/test_bias.py ended 7 stderr off in m from a start
+that differed in the seventh digit. The simulator does model such loops exactly
+(``phoid simulate --sample-time … --bias …``). Continuous loops have no such jumps (the switch
+times move continuously with θ).
 
 The covariance of θ is the (θ, θ) block of (JᵀWJ)⁻¹ scaled by χ²/dof (the residual variance
 in units of the noise sd): the Gauss–Newton (Fisher) covariance with every nuisance parameter
@@ -660,21 +658,18 @@ class _Problem:
         return theta, p[self.ng :].reshape(self.B, 3)
 
     def simulate(self, theta: np.ndarray, x0: np.ndarray, tau: np.ndarray,
-                 bias_scale: float = 1.0, signs: np.ndarray | None = None,
-                 want_signs: bool = False):
+                 bias_scale: float = 1.0):
         """X, V of every run released at x₀ᵢ (hold 0, grid step h); None if not simulable.
 
         One batched simulation per distinct added mass (run i's plant is m + Δmᵢ); each run's
-        command carries its bias bᵢ (times ``bias_scale``). A sampled loop's bias switching
-        pattern sign(v̂ₙ) can be prescribed (``signs``) or returned as a third item
-        (``want_signs``)."""
+        command carries its bias bᵢ (times ``bias_scale``)."""
         from phoid.simulation import simulate
 
         m, c, k, fc = (float(a) for a in theta)
         if not (m > 0 and fc >= 0):
             return None
         dur = max(float(np.max(self.t_end - tau)) + 3.0 * self.h, 4 * self.h)
-        X = V = S = None
+        X = V = None
         for g in self.groups:
             plant = _PlantParams(m + float(self.dm[g[0]]), c, k, fc)
             g_ = self.digital
@@ -682,8 +677,6 @@ class _Problem:
                 "sample_time": g_.sample_time, "delay_samples": g_.delay_samples,
                 "velocity": g_.velocity, "cutoff": g_.cutoff}
             try:
-                if signs is not None:
-                    loop["bias_signs"] = signs[g]
                 sim = simulate(plant, self.P[g], self.D[g], duration=dur, fs=self.fs,
                                x0=np.asarray(x0)[g], bias=bias_scale * self.bias[g], **loop)
             except ValueError:
@@ -694,11 +687,7 @@ class _Problem:
                 X = np.empty((self.B, sim.x_true.shape[1]))
                 V = np.empty_like(X)
             X[g], V[g] = sim.x_true, sim.v
-            if want_signs and sim.bias_signs is not None:
-                if S is None:
-                    S = np.zeros((self.B, sim.bias_signs.shape[1]))
-                S[g] = sim.bias_signs
-        return (X, V, S) if want_signs else (X, V)
+        return X, V
 
     def model(self, local: np.ndarray, XV) -> tuple[list, list, list]:
         """Per run: model values, post-release mask, Hermite value and derivative."""
@@ -733,22 +722,9 @@ class _Problem:
         """Unweighted ∂ŷ/∂(free globals) by forward differences, shape (N, ng); one batched
         simulation per column (a backward difference where the forward point cannot be
         simulated). With a bias, one more column: Σ bᵢ ∂ŷ/∂bᵢ (every bias scaled by 1 + 10⁻⁵),
-        for the homogeneity relation of :meth:`jacobian`.
-
-        A sampled loop with a bias jumps where a velocity reversal crosses a controller
-        instant (sign(v̂ₙ) flips one period earlier or later: a jump of 2bᵢ in one held
-        command), so a difference across such a point measures the jump, not the slope, and
-        would make the covariance far too small. The differences are therefore taken with the
-        switching pattern of θ held fixed (one more simulation to record it): the derivative
-        of the model where it is differentiable, i.e. almost everywhere."""
+        for the homogeneity relation of :meth:`jacobian`."""
         _, posts, herm = self.model(local, XV)
         steps = self.steps(theta, local)
-        pattern = None
-        if self.biased and self.digital is not None:
-            base = self.simulate(theta, local[:, 0], local[:, 2], want_signs=True)
-            if base is None:
-                return None
-            pattern = base[2]
         G = np.zeros((int(self.rows[-1]), self.ng + int(self.biased)))
         col = 0
         for j in range(4):
@@ -757,11 +733,11 @@ class _Problem:
             th = theta.copy()
             th[j] += steps[j]
             hj = steps[j]
-            XVp = self.simulate(th, local[:, 0], local[:, 2], signs=pattern)
+            XVp = self.simulate(th, local[:, 0], local[:, 2])
             if XVp is None:
                 th[j] -= 2 * steps[j]
                 hj = -steps[j]
-                XVp = self.simulate(th, local[:, 0], local[:, 2], signs=pattern)
+                XVp = self.simulate(th, local[:, 0], local[:, 2])
                 if XVp is None:
                     return None
             for i in range(self.B):
@@ -771,8 +747,7 @@ class _Problem:
                     posts[i], (hv - herm[i][0]) / hj, 0.0)
             col += 1
         if self.biased:
-            XVp = self.simulate(theta, local[:, 0], local[:, 2], bias_scale=1.0 + _FD_REL,
-                                signs=pattern)
+            XVp = self.simulate(theta, local[:, 0], local[:, 2], bias_scale=1.0 + _FD_REL)
             if XVp is None:
                 return None
             for i in range(self.B):
@@ -1035,6 +1010,13 @@ def _prepare(data, P, D, delay, start, names, need_fc: bool, added_mass=None,
             raise ExperimentError(
                 "`delay` must be None with a digital loop: its command delay is "
                 f"`delay_samples` whole samples; got delay={delay!r}")
+        if np.any(bs > 0):
+            j = int(np.flatnonzero(bs > 0)[0])
+            raise ExperimentError(
+                f"{names[j]}: bias = {bs[j]:g} N with a sampled (digital) loop: not supported "
+                "by the friction fit (the biased sampled loop's record jumps where a velocity "
+                "reversal crosses a controller instant, and the fit is unreliable there); "
+                "record the runs without bias, or with a continuous-delay model of the loop")
         # the equivalent continuous delay (d samples and half a sample of hold): only for the
         # starting point, the windows' margins and the reported c′, k′
         delay = digital.delay + 0.5 * digital.sample_time
@@ -1378,14 +1360,6 @@ def _result(setup, idx, reasons, prob, fixed, res, facts, iterations) -> Frictio
     if not res.converged:
         warnings.append(f"the fit did not converge in {iterations} iterations: the estimates "
                         "are not at the likelihood's optimum")
-    chi2_bad = chi2 / dof > 1.0 + 5.0 * math.sqrt(2.0 / dof) and chi2 / dof > 1.05
-    if setup.digital is not None and np.any(setup.bias[idx] > 0) and (
-            not res.converged or chi2_bad):
-        warnings.append("a sampled loop with a command bias: the likelihood jumps wherever a "
-                        "velocity reversal crosses a controller instant (sign(v̂) flips a "
-                        "period earlier or later), so the fit can stall or end in a false "
-                        "optimum; treat these estimates with care (a start near the answer, "
-                        "`start=(m, c, k, fc)`, or more runs help)")
     if fc <= 0.0:
         warnings.append("fc is at its bound 0: no friction detected (its stderr is that of "
                         "the unconstrained estimate)")
@@ -1544,5 +1518,7 @@ def identify_friction_set(experiment: Any, *, delay: float | None = None) -> Fri
                                  added_mass=[getattr(r, "added_mass", 0.0) for r in runs],
                                  digital=digital,
                                  bias=[getattr(r, "bias", 0.0) for r in runs])
+    except ExperimentError as exc:
+        raise ExperimentError(f"{where}: {exc}") from None
     except IdentificationError as exc:
         raise IdentificationError(f"{where}: {exc}") from None

@@ -296,6 +296,68 @@ def _is_dominant(s, m, c, k, P, D, delay) -> bool:
     return abs(r0.real - s.real) <= 1e-6 * max(1.0, abs(r0))
 
 
+def damped_gauss_newton(fun, theta, s, scale, feasible, max_iter: int):
+    """Gauss–Newton with step halving, as the weighted fits of the runs' modes use it.
+
+    Parameters
+    ----------
+    fun : callable
+        ``fun(θ, s_guess) -> (r, J, s)``: the whitened residual, its Jacobian and the tracked
+        roots (the next call's Newton start).
+    theta : ndarray
+        Start.
+    s : ndarray of complex
+        Start of the tracked roots.
+    scale : ndarray
+        Each parameter's scale in the experiment: the step is solved in scaled coordinates and
+        judged against it (a value may be ~0, e.g. k of a mass–damper).
+    feasible : callable
+        ``feasible(θ) -> bool``; an infeasible trial point (m ≤ 0, Δt < 0) is halved like one
+        that raises χ².
+    max_iter : int
+        Iterations at most.
+
+    Returns
+    -------
+    (θ, r, J, s, χ², converged)
+        Converged when a step taken is below 10⁻¹² of the scales, or the last step proposed
+        (taken or not: no descent is left) is below 10⁻⁸ of them. A step is halved (down to
+        10⁻⁶) until χ² does not rise by more than 10⁻¹² relative.
+    """
+    r, J, s = fun(theta, s)
+    chi2 = float(r @ r)
+    step = np.zeros_like(theta)
+    for _ in range(max_iter):
+        step = -np.linalg.lstsq(J * scale, r, rcond=None)[0] * scale
+        lam = 1.0
+        while lam > 1e-6:
+            trial = theta + lam * step
+            if feasible(trial):
+                r_t, J_t, s_t = fun(trial, s)
+                chi2_t = float(r_t @ r_t)
+                if np.isfinite(chi2_t) and chi2_t <= chi2 * (1 + 1e-12):
+                    break
+            lam *= 0.5
+        else:
+            break
+        done = bool(np.all(np.abs(lam * step) <= 1e-12 * scale))
+        theta, r, J, s, chi2 = trial, r_t, J_t, s_t, chi2_t
+        if done:
+            return theta, r, J, s, chi2, True
+    return theta, r, J, s, chi2, bool(np.all(np.abs(step) <= 1e-8 * scale))
+
+
+def dominant_many(s, m, c, k, P, D, delay) -> np.ndarray:
+    """Whether each run's tracked root s (Im s ≥ 0) and its conjugate are the loop's rightmost
+    roots, certified: one batched argument-principle count for all runs, and
+    :func:`_is_dominant` for the runs it leaves undecided."""
+    ok = _dominant_many(s, m, c, k, P, D, delay)
+    mm = np.broadcast_to(np.asarray(m, dtype=float), ok.shape)
+    for i in np.flatnonzero(~ok).tolist():
+        ok[i] = _is_dominant(complex(s[i]), float(mm[i]), c, k, float(P[i]), float(D[i]), delay)
+    return ok
+
+
 def _dominant_many(s, m, c, k, P, D, delay) -> np.ndarray:
     """:func:`_is_dominant`'s cheap count for every run at once (True where it settles that
     the run's root is dominant; the others are for :func:`_is_dominant` to decide)."""
@@ -414,9 +476,6 @@ def fit_modes(
         J = np.einsum("nij,njk->nik", Wh, jac).reshape(-1, npar)
         return r, J, s_mod
 
-    r, J, s = residual_and_jacobian(theta, s)
-    chi2 = float(r @ r)
-    converged = False
     # convergence is judged against each parameter's scale in this experiment, not against
     # its value, which may be ~0 (k of a mass-damper, c of an undamped plant)
     m_scale = max(abs(theta[0]), 1e-300)
@@ -427,28 +486,10 @@ def fit_modes(
             float(np.max(m_scale * (sigma**2 + omega_d**2)))),
     ][:3] + ([max(abs(theta[3]), 1e-3 / float(np.max(np.hypot(sigma, omega_d))))]
              if estimate_delay else []))
-    for _ in range(max_iter):
-        Js = J * scale
-        step = -np.linalg.lstsq(Js, r, rcond=None)[0] * scale
-        lam = 1.0
-        while lam > 1e-6:
-            trial = theta + lam * step
-            if trial[0] > 0 and (not estimate_delay or trial[3] >= 0):
-                r_t, J_t, s_t = residual_and_jacobian(trial, s)
-                chi2_t = float(r_t @ r_t)
-                if np.isfinite(chi2_t) and chi2_t <= chi2 * (1 + 1e-12):
-                    break
-            lam *= 0.5
-        else:
-            break
-        done = np.all(np.abs(lam * step) <= 1e-12 * scale)
-        theta, r, J, s, chi2 = trial, r_t, J_t, s_t, chi2_t
-        if done:
-            converged = True
-            break
-    else:
-        converged = np.all(np.abs(step) <= 1e-8 * scale)
-    if not converged and not np.all(np.abs(step) <= 1e-8 * scale):
+    theta, _r, J, s, chi2, converged = damped_gauss_newton(
+        residual_and_jacobian, theta, s, scale,
+        lambda th: th[0] > 0 and (not estimate_delay or th[3] >= 0), max_iter)
+    if not converged:
         raise IdentificationError("the weighted fit of m, c, k did not converge")
     # the tracked roots must be the dominant ones at the solution (certified check)
     m, c, k = theta[:3]
@@ -463,12 +504,11 @@ def fit_modes(
                 f"run {int(np.argmin(dom)) + 1}: the fitted mode is not the sampled loop's "
                 "dominant root at the solution"
             )
-    for i in (np.flatnonzero(~_dominant_many(s, m + dm, c, k, P, D, tau)).tolist()
-              if digital is None else []):
-        if not _is_dominant(s[i], m + dm[i], c, k, float(P[i]), float(D[i]), tau):
-            raise IdentificationError(
-                f"run {i + 1}: the fitted mode is not the loop's dominant root at the solution"
-            )
+    if digital is None and not np.all(dom := dominant_many(s, m + dm, c, k, P, D, tau)):
+        raise IdentificationError(
+            f"run {int(np.argmin(dom)) + 1}: the fitted mode is not the loop's dominant root at "
+            "the solution"
+        )
     JtJ = J.T @ J
     covp = np.linalg.inv(JtJ)
     dof = 2 * sigma.size - npar

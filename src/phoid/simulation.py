@@ -1018,10 +1018,9 @@ def simulate(
     bias_signs : array_like, shape (B, n), optional
         Sampled controller with a bias only: prescribe sign(v̂_n) (−1, 0, 1) for the commands
         n = 0 … n − 1 instead of taking it from v̂_n (later ones 0), e.g. a previous
-        simulation's :attr:`Simulation.bias_signs`. The sampled loop's output jumps where a
-        velocity reversal crosses a controller instant (the bias flips a period earlier or
-        later), so its derivatives with respect to the plant are taken with this pattern held
-        fixed (:mod:`phoid.friction`).
+        simulation's :attr:`Simulation.bias_signs` (to see what one switch of the bias
+        does: the sampled loop's output jumps where a velocity reversal crosses a controller
+        instant, the bias flipping a period earlier or later).
 
     Returns
     -------

@@ -66,7 +66,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import stats
+from scipy.special import chdtri  # chi2 quantile: chdtri(dof, 1 - p) = chi2.ppf(p, dof)
 
 from phoid.decay import DecayFit, _clipped, _diff_noise
 from phoid.errors import IdentificationError
@@ -529,7 +529,7 @@ def combine(
     IdentificationError
         When the fit does not converge, or a tracked root is not the dominant one.
     """
-    from phoid.pho import _is_dominant
+    from phoid.pho import damped_gauss_newton, dominant_many
 
     sigma = np.asarray(sigma, dtype=float)
     omega_d = np.asarray(omega_d, dtype=float)
@@ -561,45 +561,22 @@ def combine(
         J = np.einsum("nij,njk->nik", Wh, jac).reshape(-1, 4)
         return r, J, s
 
-    s = -sigma + 1j * omega_d
-    r, J, s = residual_and_jacobian(theta, s)
-    chi2 = float(r @ r)
-    converged = False
     scale = np.maximum(np.abs(theta), [1e-300, float(np.max(D)) + 1e-300,
                                        float(np.max(P)) + 1e-300, 1e-3 / float(np.max(sabs))])
-    for _ in range(max_iter):
-        step = -np.linalg.lstsq(J * scale, r, rcond=None)[0] * scale
-        lam = 1.0
-        while lam > 1e-6:
-            trial = theta + lam * step
-            if trial[0] > 0 and trial[3] >= 0:
-                r_t, J_t, s_t = residual_and_jacobian(trial, s)
-                chi2_t = float(r_t @ r_t)
-                if np.isfinite(chi2_t) and chi2_t <= chi2 * (1 + 1e-12):
-                    break
-            lam *= 0.5
-        else:
-            converged = bool(np.all(np.abs(step) <= 1e-8 * scale))
-            break
-        done = np.all(np.abs(lam * step) <= 1e-12 * scale)
-        theta, r, J, s, chi2 = trial, r_t, J_t, s_t, chi2_t
-        if done:
-            converged = True
-            break
-    else:
-        converged = bool(np.all(np.abs(step) <= 1e-8 * scale))
+    theta, _r, J, s, chi2, converged = damped_gauss_newton(
+        residual_and_jacobian, theta, -sigma + 1j * omega_d, scale,
+        lambda th: th[0] > 0 and th[3] >= 0, max_iter)
     if not converged:
         raise IdentificationError("the weighted fit of m, c, k and the delay (x and u) did not "
                                   "converge")
     m, c, k, tau = (float(v) for v in theta)
-    for i in range(n):
-        if not _is_dominant(s[i], m + dm[i], c, k, float(P[i]), float(D[i]), tau):
-            raise IdentificationError(f"run {i + 1}: the fitted mode is not the loop's dominant "
-                                      "root at the solution (x and u)")
+    if not np.all(dom := dominant_many(s, m + dm, c, k, P, D, tau)):
+        raise IdentificationError(f"run {int(np.argmin(dom)) + 1}: the fitted mode is not the "
+                                  "loop's dominant root at the solution (x and u)")
     covp = np.linalg.inv(J.T @ J)
     dof = int(2 * n + np.count_nonzero(has) - 4)
     warnings: list[str] = []
-    if dof > 0 and chi2 > stats.chi2.ppf(0.999, dof):
+    if dof > 0 and chi2 > chdtri(dof, 0.001):
         red = chi2 / dof
         covp = covp * red
         warnings.append(
