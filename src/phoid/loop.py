@@ -423,6 +423,13 @@ def _rightmost_roots_many(m, c, k, P, D, tau, *, count=6):
     argument principle certifies it (no other root right of an abscissa between the kept roots
     and the next one); otherwise that run's roots are computed in full. Same results as calling
     :func:`_rightmost_roots` per run, at a fraction of the cost when the gains vary smoothly.
+
+    The certificates are counted in rounds, all pending runs at once
+    (:func:`count_roots_right_of_many`): a round continues every run still to do from its
+    nearest neighbour (settled, or continued in this round), a run whose continuation loses
+    roots (the gains crossed a change of the loop's root structure, e.g. a new real root at
+    D ≈ 0) is computed in full at once, and after the count the first run that fails its
+    certificate is computed in full, the next round continuing the other failures from it.
     """
     P = np.asarray(P, dtype=float)
     D = np.asarray(D, dtype=float)
@@ -432,49 +439,66 @@ def _rightmost_roots_many(m, c, k, P, D, tau, *, count=6):
         return [_quadratic_roots(m, c + D[i], k + P[i]) for i in range(n)]
     sp = max(float(np.ptp(P)), 1e-300)
     sd = max(float(np.ptp(D)), 1e-300)
-    done: list[int] = []
-    # continued runs wait for one batched certificate: (run, abscissa, roots to count)
-    pending: list[tuple[int, float, int]] = []
-    for i in range(n):
-        if done:
-            j = min(done, key=lambda j: ((P[j] - P[i]) / sp) ** 2 + ((D[j] - D[i]) / sd) ** 2)
+
+    def full(i):
+        # two pairs more than asked: seeds for the continuation and an abscissa beyond
+        out[i] = _rightmost_roots(m, c, k, float(P[i]), float(D[i]), tau, count=count + 4)
+
+    full(0)
+    settled = [0]
+    todo = list(range(1, n))
+    while todo:
+        # one round: continue each run from the nearest settled run or, failing that, from
+        # the nearest run continued in this round (certified on its own all the same)
+        pending: list[tuple[int, float, int]] = []  # (run, abscissa, roots to count)
+        failed: list[int] = []
+        seeds = list(settled)
+        for i in todo:
+            j = min(seeds, key=lambda j: ((P[j] - P[i]) / sp) ** 2 + ((D[j] - D[i]) / sd) ** 2)
             prev = out[j]
-            start = prev[prev.imag >= 0]
-            r, res = _newton_few(start, m, c, k, float(P[i]), float(D[i]), tau)
+            r, res = _newton_few(prev[prev.imag >= 0], m, c, k, float(P[i]), float(D[i]), tau)
             scale = np.abs(m * r**2) + np.abs(c * r) + abs(k) + np.abs(D[i] * r) + abs(P[i])
             r = r[res <= 1e-9 * scale]
             r = _unique(np.concatenate([r, np.conj(r[np.abs(r.imag) > 0])]))
             r = r[np.argsort(-r.real, kind="stable")]
+            cut = None
             if r.size > count:
                 re = r.real
                 gaps = np.flatnonzero(re[:-1] - re[1:] > 1e-9 * np.maximum(np.abs(re[:-1]), 1.0))
                 cut = next((g + 1 for g in gaps if g + 1 >= count), None)
-                if cut is not None and cut < r.size:
-                    # certified below, up to `cut`; the rest are kept as seeds
-                    out[i] = _sort_pairs(r)
-                    pending.append((i, 0.5 * (r[cut - 1].real + r[cut].real), cut))
-        if out[i] is None:
-            # two pairs more than asked: seeds for the continuation and an abscissa beyond
-            out[i] = _rightmost_roots(m, c, k, float(P[i]), float(D[i]), tau, count=count + 4)
-        done.append(i)
-    if pending:
-        # A run continued from an uncertified neighbour is certified on its own all the same:
-        # the count either confirms its roots (then they are the unique rightmost ones) or
-        # sends it to the full computation.
-        ids = [p[0] for p in pending]
-        counts = count_roots_right_of_many(
-            np.array([p[1] for p in pending]), m, c, k, P[ids], D[ids], tau,
-            near=[out[i] for i in ids],
-        )
-        for (i, a, cut), got in zip(pending, counts.tolist(), strict=True):
-            if got < 0:
-                try:
-                    got = count_roots_right_of(a, m, c, k, P[i], D[i], tau, near=out[i])
-                except (RuntimeError, ValueError):
-                    got = -1
-            if got != cut:
-                out[i] = _rightmost_roots(m, c, k, float(P[i]), float(D[i]), tau,
-                                          count=count + 4)
+            if cut is not None and cut < r.size:
+                # certified below, up to `cut`; the rest are kept as seeds
+                out[i] = _sort_pairs(r)
+                pending.append((i, 0.5 * (r[cut - 1].real + r[cut].real), cut))
+            else:
+                # the continuation lost roots (the gains crossed a change of the loop's root
+                # structure): computed in full at once, a seed for the runs beyond
+                full(i)
+                settled.append(i)
+            seeds.append(i)
+        if pending:
+            ids = [p[0] for p in pending]
+            counts = count_roots_right_of_many(
+                np.array([p[1] for p in pending]), m, c, k, P[ids], D[ids], tau,
+                near=[out[i] for i in ids],
+            )
+            for (i, a, cut), got in zip(pending, counts.tolist(), strict=True):
+                if got < 0:
+                    try:
+                        got = count_roots_right_of(a, m, c, k, P[i], D[i], tau, near=out[i])
+                    except (RuntimeError, ValueError):
+                        got = -1
+                if got == cut:
+                    settled.append(i)
+                else:
+                    failed.append(i)
+        if not failed:
+            break
+        # the first failure in run order is computed in full; the others try again from it
+        failed.sort()
+        full(failed[0])
+        settled.append(failed[0])
+        todo = failed[1:]
     # trim every run to whole pairs covering `count`, as _rightmost_roots does
     trimmed = []
     for r in out:
