@@ -131,3 +131,27 @@ def test_tiny_delay_whose_fast_modes_die_within_a_sample():
     assert not any("set aside" in w for w in r.warnings)
     for q, v in (("m", 1.0), ("c", 2.0), ("k", 50.0)):
         assert abs(getattr(r, q).value - v) < 3 * getattr(r, q).stderr
+
+
+def test_delay_beyond_the_searched_range_is_a_clear_error(tmp_path):
+    # Δt = 0.7 s on the paper plant with small gains: the loop rings (σ 0.23–0.24 1/s, ω_d ≈
+    # 5.5 rad/s, phoid.forward_map) but its delay exceeds half the fastest run's period
+    # (0.56 s), the range the estimate searches (issue 6, bad input: "a delay estimate that
+    # hits its bounds"). No number comes back: one line naming the set and the range, exit 2.
+    from typer.testing import CliRunner
+
+    from phoid.cli import app
+    from phoid.io import run_from_arrays, write_experiment
+
+    plant = Plant(2.0, 1.0, 64.0)
+    P, D = np.linspace(0.25, 3.0, 6), np.linspace(0.1, 0.5, 6)
+    data = _sim(plant, P, D, 0.7, 1e-5, seed=1, duration=15.0)
+    with pytest.raises(IdentificationError, match=r"searched in 0–0\.55"):
+        identify_data(data, P, D, None)
+    runs = [run_from_arrays(t, x, P=float(P[i]), D=float(D[i]), index=i + 1)
+            for i, (t, x) in enumerate(data)]
+    write_experiment(tmp_path / "long", runs, method="pho")
+    out = CliRunner().invoke(app, ["identify", str(tmp_path / "long"), "--json"])
+    assert out.exit_code == 2 and out.stdout == ""
+    lines = out.stderr.strip().splitlines()
+    assert len(lines) == 1 and "long" in lines[0] and "a longer delay must be given" in lines[0]

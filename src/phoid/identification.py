@@ -847,7 +847,10 @@ def _estimate_delay(data, P, D, *, files, names, source, added_mass=None) -> Ide
             result = _identify_core(data, P, D, tau, files=files, names=names, source=source,
                                     estimate_delay=True, added_mass=dm)
         except IdentificationError as exc:
-            raise IdentificationError(f"{where}estimating the loop delay: {exc}") from None
+            raise IdentificationError(
+                f"{where}estimating the loop delay: {exc} (the delay is searched in 0–{hi:.4g} "
+                "s, half the period of the fastest run: a longer delay must be given, [loop] "
+                "delay or phoid identify --delay)") from None
         moved = abs(result.delay - tau)
         tau = result.delay
         if moved <= 0.1 * (result.delay_stderr or 0.0) + 1e-12 * max(tau, 1.0):
