@@ -726,6 +726,14 @@ class _Problem:
         _, posts, herm = self.model(local, XV)
         steps = self.steps(theta, local)
         G = np.zeros((int(self.rows[-1]), self.ng + int(self.biased)))
+
+        def fill(col, XVp, step):
+            # column `col`: the difference quotient of each run's model after its release
+            for i in range(self.B):
+                u = np.maximum(self.t[i] - local[i, 2], 0.0)
+                hv, _ = _hermite(XVp[0][i], XVp[1][i], self.h, u)
+                G[self.rows[i] : self.rows[i + 1], col] = np.where(
+                    posts[i], (hv - herm[i][0]) / step, 0.0)
         col = 0
         for j in range(4):
             if not self.free[j]:
@@ -740,21 +748,13 @@ class _Problem:
                 XVp = self.simulate(th, local[:, 0], local[:, 2])
                 if XVp is None:
                     return None
-            for i in range(self.B):
-                u = np.maximum(self.t[i] - local[i, 2], 0.0)
-                hv, _ = _hermite(XVp[0][i], XVp[1][i], self.h, u)
-                G[self.rows[i] : self.rows[i + 1], col] = np.where(
-                    posts[i], (hv - herm[i][0]) / hj, 0.0)
+            fill(col, XVp, hj)
             col += 1
         if self.biased:
             XVp = self.simulate(theta, local[:, 0], local[:, 2], bias_scale=1.0 + _FD_REL)
             if XVp is None:
                 return None
-            for i in range(self.B):
-                u = np.maximum(self.t[i] - local[i, 2], 0.0)
-                hv, _ = _hermite(XVp[0][i], XVp[1][i], self.h, u)
-                G[self.rows[i] : self.rows[i + 1], col] = np.where(
-                    posts[i], (hv - herm[i][0]) / _FD_REL, 0.0)
+            fill(col, XVp, _FD_REL)
         return G
 
     def jacobian(self, theta, local, XV, G: np.ndarray) -> np.ndarray:
