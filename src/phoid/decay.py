@@ -632,7 +632,8 @@ class _Evaluator:
             # K = [[K5, X], [Xᵀ, FF]], X = G F ᵀ over the span: rows 1, C, S, τC, τS
             k = self.F.shape[0]
             zh = self._head(sig, om)
-            P = self.FT @ zh.view(float).reshape(-1, 2)
+            with np.errstate(over="ignore", invalid="ignore"):  # an overflowing start: None below
+                P = self.FT @ zh.view(float).reshape(-1, 2)
             K = np.empty((5 + k, 5 + k))
             K[:5, :5] = K5
             X = K[:5, 5:]
@@ -1387,12 +1388,55 @@ def _fit_checked(t, x, *, release=None, skip=0.0, t_end=None, noise_sd=None, fas
     """:func:`fit_decay` on a record that has passed ``_check_record`` already (float64
     arrays, finite, t strictly increasing): the identification validates each run once, in its
     first pass (:func:`start_decay`), and fits it in full afterwards."""
+    prep = _fit_prepare(t, x, release=release, skip=skip, t_end=t_end, noise_sd=noise_sd,
+                        fast_roots=fast_roots, guess=guess)
+    ev = _evaluator(prep.tau, prep.xw, prep.udt, prep.fast)
+    res = _gauss_newton(ev, prep.sigma, prep.omega_d)
+    if res is None:  # the start overflowed: fall back to a bland one
+        res = _gauss_newton(ev, 0.0, 2 * math.pi / (prep.period * prep.dt))
+    if res is None:  # no (σ, ω_d) where the linear part is solvable: nothing to report
+        return _fit_unevaluable(prep)
+    p, converged, iterations = res
+    p, r, Minv = _polish(ev, p)
+    return _fit_finish(prep, p.sig, p.om, p.beta, p.K, r, Minv, converged, iterations)
+
+
+@dataclass(frozen=True)
+class _Prepared:
+    """A record made ready for the Gauss–Newton of :func:`fit_decay` (by :func:`_fit_prepare`):
+    the window (``tw``, ``xw``; ``tau`` = tw − tw[0], s), the release (s) and held-segment sd
+    (m, None without one), the noise level (m) and the caller's ``noise_sd``, the record's range
+    ``ptp`` (m), its sampling (``dt`` s; ``udt`` the step if uniform, else None), the start
+    (``sigma`` 1/s, ``omega_d`` rad/s, ``oscillating``, ``period`` in samples) and the fast
+    roots (1/s)."""
+
+    tw: np.ndarray
+    xw: np.ndarray
+    tau: np.ndarray
+    release: float
+    hold_sd: float | None
+    noise: float
+    noise_sd: float | None
+    ptp: float
+    dt: float
+    udt: float | None
+    sigma: float
+    omega_d: float
+    oscillating: bool
+    period: float
+    fast: np.ndarray
+
+
+def _fit_prepare(t, x, *, release=None, skip=0.0, t_end=None, noise_sd=None, fast_roots=None,
+                 guess=None) -> _Prepared:
+    """Window, noise and start of :func:`fit_decay` (everything before its Gauss–Newton).
+
+    Raises ValueError as :func:`fit_decay` does for unusable options or windows."""
     if noise_sd is not None:
         noise_sd = v.positive("noise_sd", noise_sd, "m")
     fast = _check_fast_roots(fast_roots)
     release, hold_sd, tw, xw = _window(t, x, release, skip, t_end)
-    t_ref = float(tw[0])
-    tau = tw - t_ref
+    tau = tw - float(tw[0])
     ptp = float(np.ptp(xw))
     if noise_sd is not None:
         noise = noise_sd
@@ -1401,7 +1445,7 @@ def _fit_checked(t, x, *, release=None, skip=0.0, t_end=None, noise_sd=None, fas
     noise = max(noise, 1e-15 * ptp)
 
     # start: FFT period, ESPRIT on the block-averaged active part (or the caller's guess)
-    xg, dt, udt = _uniform(tau, xw, t_ref)
+    xg, dt, udt = _uniform(tau, xw, float(tw[0]))
     if guess is not None:
         sig = v.finite("guess[0]", guess[0], "1/s")
         om = v.positive("guess[1]", guess[1], "rad/s")
@@ -1412,30 +1456,39 @@ def _fit_checked(t, x, *, release=None, skip=0.0, t_end=None, noise_sd=None, fas
         sig, om, oscill, n_act = _initial_guess(xg, dt, per, noise)
     if oscill and n_act > 40 * per:
         sig, om = _staged(xg, dt, per, sig, om)
-    ev = _evaluator(tau, xw, udt, fast)
-    res = _gauss_newton(ev, sig, om)
-    if res is None:  # the start overflowed: fall back to a bland one
-        res = _gauss_newton(ev, 0.0, 2 * math.pi / (per * dt))
-    if res is None:  # no (σ, ω_d) where the linear part is solvable: nothing to report
-        msg = "not converged: no start at which the damped-mode model could be evaluated"
-        return _unfitted("mode-fit", tw, release, noise, float(np.median(xw)), [msg])
-    p, converged, iterations = res
-    p, r, Minv = _polish(ev, p)
+    return _Prepared(tw=tw, xw=xw, tau=tau, release=float(release), hold_sd=hold_sd,
+                     noise=float(noise), noise_sd=noise_sd, ptp=ptp, dt=float(dt), udt=udt,
+                     sigma=float(sig), omega_d=float(om), oscillating=bool(oscill),
+                     period=float(per), fast=fast)
 
-    sig, om = p.sig, p.om
-    off, a, b = (float(c) for c in p.beta[:3])
+
+def _fit_unevaluable(prep: _Prepared) -> DecayFit:
+    """The result of a fit whose model could not be evaluated at any start."""
+    msg = "not converged: no start at which the damped-mode model could be evaluated"
+    return _unfitted("mode-fit", prep.tw, prep.release, prep.noise, float(np.median(prep.xw)),
+                     [msg])
+
+
+def _fit_finish(prep: _Prepared, sig: float, om: float, beta: np.ndarray, K: np.ndarray,
+                r: np.ndarray, Minv: np.ndarray, converged: bool, iterations: int) -> DecayFit:
+    """The DecayFit of a converged (or stopped) Gauss–Newton: at (σ, ω_d) = (``sig``, ``om``)
+    with linear parameters ``beta`` (x_off, a, b, fast amplitudes …), their Gram matrix ``K``,
+    the exact residual ``r`` (m, per sample of the window) and (JᵀJ)⁻¹ ``Minv`` (σ, ω_d last);
+    covariance, amplitude, noise floor, cycles and warnings."""
+    tw, xw, fast, noise_sd = prep.tw, prep.xw, prep.fast, prep.noise_sd
+    off, a, b = (float(c) for c in beta[:3])
     n = xw.size
     rss = float(r @ r)
-    s2 = rss / max(n - p.K.shape[0], 1)
+    s2 = rss / max(n - K.shape[0], 1)
     amp, phase = _phase_amp(a, b)
     # the fast columns are e^{rτ} (real r) or Re, Im of e^{rτ}: amplitude A with Re(A e^{rτ})
     fast_modes, j = [], 3
     for root in fast.tolist():
         if root.imag != 0:
-            fast_modes.append((complex(root), complex(p.beta[j], -p.beta[j + 1])))
+            fast_modes.append((complex(root), complex(beta[j], -beta[j + 1])))
             j += 2
         else:
-            fast_modes.append((complex(root), complex(p.beta[j])))
+            fast_modes.append((complex(root), complex(beta[j])))
             j += 1
     fit = DecayFit(
         sigma=float(sig),
@@ -1444,10 +1497,10 @@ def _fit_checked(t, x, *, release=None, skip=0.0, t_end=None, noise_sd=None, fas
         amplitude=amp,
         phase=phase,
         offset=off,
-        t_ref=t_ref,
+        t_ref=float(tw[0]),
         t_start=float(tw[0]),
         t_end=float(tw[-1]),
-        release=float(release),
+        release=prep.release,
         n_samples=int(n),
         cycles=0.0,
         noise_sd=math.sqrt(s2),
@@ -1455,17 +1508,17 @@ def _fit_checked(t, x, *, release=None, skip=0.0, t_end=None, noise_sd=None, fas
         method="mode-fit",
         fast_modes=tuple(fast_modes),
     )
-    floor = noise_sd if noise_sd is not None else max(fit.noise_sd, 1e-15 * ptp)
+    floor = noise_sd if noise_sd is not None else max(fit.noise_sd, 1e-15 * prep.ptp)
     cycles = _cycles(amp, sig, om, float(tw[-1] - tw[0]), floor)
     warnings = _common_warnings(fit, cycles, xw, xw - r, floor)
     # detection statistic of the mode: its norm over the window in noise sds (pure noise gives
     # ~5 for the best of all (σ, ω_d); a real decay of the sample set ~10³)
-    ab = p.beta[1:3]
-    snr = math.sqrt(max(float(ab @ p.K[1:3, 1:3] @ ab), 0.0)) / max(fit.noise_sd, 1e-300)
+    ab = beta[1:3]
+    snr = math.sqrt(max(float(ab @ K[1:3, 1:3] @ ab), 0.0)) / max(fit.noise_sd, 1e-300)
     if (
         # the order-3 starting guess sees no complex pair when a slow non-dominant real mode is
         # in the record; with that mode given in ``fast_roots`` the final fit decides alone
-        (not oscill and fast.size == 0)
+        (not prep.oscillating and fast.size == 0)
         or not om > 3.0 * fit.omega_d_stderr
         or om * (tw[-1] - tw[0]) < math.pi
         or snr < _MIN_MODE_SNR
@@ -1485,7 +1538,7 @@ def _fit_checked(t, x, *, release=None, skip=0.0, t_end=None, noise_sd=None, fas
             f"not converged: the fit stopped after {iterations} Gauss–Newton iterations; "
             "the estimate may not be the least-squares optimum"
         )
-    ref = noise_sd if noise_sd is not None else hold_sd
+    ref = noise_sd if noise_sd is not None else prep.hold_sd
     if ref and fit.noise_sd > 1.5 * ref:
         warnings.append(
             f"misfit: residual sd {fit.noise_sd:.3g} m is {fit.noise_sd / ref:.2f} times the "

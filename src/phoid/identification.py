@@ -28,6 +28,7 @@ from scipy.special import chdtri  # chi2 quantile: chdtri(dof, 1 - p) = chi2.ppf
 
 from phoid._threads import single_blas_thread
 from phoid.decay import DecayFit, _fit_checked, detect_release, start_decay
+from phoid.decay_batch import FitJob, fit_decays
 from phoid.errors import IdentificationError
 from phoid.loop import _rightmost_roots_many, characteristic
 from phoid.pho import (
@@ -543,17 +544,21 @@ def _measure(data, P, D, delay, *, rough=None, first=None, noise=None, digital=N
                     all_roots[i] = r
         except (RuntimeError, ValueError):
             pass
+    # every run's fit is planned first and made in one batch (phoid.decay_batch); a run whose
+    # planned fit fails, or that has none, then gets the plain single-mode fit after 3Δt
+    plans: dict[int, tuple[FitJob, bool]] = {}  # run: (fit, made with fast modes)
+    rel_of: dict[int, float] = {}
     for i in range(n):
         st = starts[i]
         if st is None:
             continue
         t, x = data[i]
-        g = None
         release = releases[i] if releases[i] is not None else detect_release(t, x)
+        rel_of[i] = release
         if st.oscillating and releases[i] is not None and delay == 0.0:
             # no delay: the closed loop is exactly second order; fit from the refined release
-            g, _err = _fit_run(t, x, 0.0, release, None, guess=(st.sigma, st.omega_d))
-            skip = 0.0
+            plans[i] = (FitJob(t, x, release, 0.0, None, (st.sigma, st.omega_d)), False)
+            skips[i] = 0.0
         elif all_roots[i] is not None and (
             len(modes := _modes(all_roots[i])) >= _N_FAST + 2
             or (digital is not None and len(modes) >= 1)
@@ -593,18 +598,23 @@ def _measure(data, P, D, delay, *, rough=None, first=None, noise=None, digital=N
             # start from the run's own mode, or where the data gave none, the rough loop's
             guess = (st.sigma, st.omega_d) if st.oscillating else (-modes[0].real, modes[0].imag)
             if guess[1] > 0:
-                g, _err = _fit_run(t, x, skip, release, fast, guess=guess)
-                if g is not None and not math.isfinite(g.sigma):
-                    g = None  # the model with these modes could not be evaluated anywhere
+                plans[i] = (FitJob(t, x, release, skip, fast, guess), True)
+                skips[i] = skip
+    done = dict(zip(plans, fit_decays([job for job, _fast in plans.values()]), strict=True))
+    for i in rel_of:
+        g = done.get(i)
+        if isinstance(g, str) or (g is not None and plans[i][1] and not math.isfinite(g.sigma)):
+            g = None  # the model with these modes could not be evaluated anywhere
         if g is None:
             # no loop modes (no rough plant, a non-oscillating start, or that fit failed): one
             # mode after 3Δt from the data-only start, as a plain fit_decay would do
-            skip = skip0
-            g, err = _fit_run(t, x, skip0, release)
+            skips[i] = skip0
+            t, x = data[i]
+            g, err = _fit_run(t, x, skip0, rel_of[i])
             if g is None:
                 reasons[i] = err
                 continue
-        fits[i], reasons[i], skips[i] = g, _unusable(g), skip
+        fits[i], reasons[i] = g, _unusable(g)
     return first, fits, reasons, skips, rough
 
 

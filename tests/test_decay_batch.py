@@ -1,0 +1,121 @@
+"""Batched decay fits (phoid.decay_batch.fit_decays) against one-by-one fits (phoid.decay).
+
+Where every expected value comes from: ``phoid.decay.fit_decay`` of the same record with the
+same options (the one-record path, itself checked against exact modes, the Cramér–Rao bound and
+the independent sample set in tests/test_decay.py). The batch does the same arithmetic in a
+different order (stacked sums, a stacked linear solve), so the two agree to rounding: the
+tolerance, 1e−6 of a standard error (1e−12 relative for noise-free records, whose standard
+error is rounding itself), is far above that rounding (~1e−11 stderr here) and far
+below what a different iteration or stopping decision would give (~0.05 stderr, the
+Gauss–Newton stopping rule).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from phoid.decay import _check_record, fit_decay
+from phoid.decay_batch import FitJob, fit_decays
+from phoid.io import read_experiment
+from phoid.loop import _rightmost_roots
+
+TOL_SE = 1e-6  # of a standard error: rounding passes, a different iteration does not
+
+
+def _single(job: FitJob):
+    try:
+        return fit_decay(job.t, job.x, release=job.release, skip=job.skip,
+                         fast_roots=job.fast_roots, guess=job.guess)
+    except ValueError as exc:
+        return str(exc)
+
+
+def _assert_same(batch, single):
+    if isinstance(single, str):
+        assert batch == single
+        return
+    assert not isinstance(batch, str), batch
+    for q in ("sigma", "omega_d"):
+        se = getattr(single, f"{q}_stderr")
+        a, b = getattr(batch, q), getattr(single, q)
+        assert math.isfinite(se) == math.isfinite(getattr(batch, f"{q}_stderr"))
+        if math.isfinite(se):
+            # noise-free records: the stderr is rounding itself, 1e−12 relative is the floor
+            assert abs(a - b) <= max(TOL_SE * se, 1e-12 * abs(b)), (q, a, b, se)
+            assert getattr(batch, f"{q}_stderr") == pytest.approx(se, rel=1e-6, abs=1e-15)
+        else:
+            assert a == pytest.approx(b, rel=1e-9)
+    assert batch.offset == pytest.approx(single.offset, rel=1e-9, abs=1e-15)
+    assert batch.amplitude == pytest.approx(single.amplitude, rel=1e-9)
+    assert batch.residual_rms == pytest.approx(single.residual_rms, rel=1e-9)
+    assert batch.n_samples == single.n_samples and batch.release == single.release
+    assert len(batch.fast_modes) == len(single.fast_modes)
+    assert batch.warnings == single.warnings
+
+
+def _checked(t, x):
+    return _check_record(t, x)
+
+
+def test_sample_set_runs_batched_as_one_by_one(sample_set_path, truth):
+    # the seed's 19-run sweep (jitcdde-made): every run from its release with the loop's two
+    # slowest non-dominant modes (the identification's full fit), batched in one group
+    exp = read_experiment(sample_set_path)
+    m, c, k, delay = truth["m"], truth["c"], truth["k"], truth["delay"]
+    jobs = []
+    for r in exp.runs:
+        t, x = _checked(r.t, r.x)
+        roots = _rightmost_roots(m, c, k, r.P, r.D, delay, count=6)
+        modes = [z for z in roots if z.imag >= 0]
+        jobs.append(FitJob(t, x, None, 0.0, np.array(modes[1:3]), None))
+    out = fit_decays(jobs)
+    for job, got in zip(jobs, out, strict=True):
+        _assert_same(got, _single(job))
+
+
+def _decay(t, sigma, omega, x0=0.01, offset=2e-4, fast=None):
+    x = offset + x0 * np.exp(-sigma * t) * np.cos(omega * t)
+    if fast is not None:
+        x = x + 1e-3 * np.exp(fast * t)
+    return x
+
+
+def test_mixed_batch_matches_one_by_one():
+    # records of different lengths, rates, fast-mode counts and kinds in one call: two sample
+    # rates (two groups), lengths that differ within a group (zero-padded blocks), one record
+    # without fast modes, a noise-free one (the polish takes its extra exact-gradient steps), a
+    # growing one, non-uniform sampling and a too-short window (both fitted one by one), and a
+    # start that overflows (the one-record fit's fallback start)
+    rng = np.random.default_rng(11)
+    jobs = []
+    for n, fs, sig, om in ((15000, 1000.0, 0.4, 9.0), (12345, 1000.0, 1.1, 14.0),
+                           (9000, 1000.0, 0.2, 6.0), (4000, 500.0, 0.8, 11.0),
+                           (3001, 500.0, 1.5, 20.0)):
+        t = np.arange(n) / fs
+        x = _decay(t, sig, om, fast=-30.0) + 1e-4 * rng.standard_normal(n)
+        jobs.append(FitJob(*_checked(t, x), 0.0, 0.0, np.array([-30.0 + 0j]), (sig, om)))
+    t = np.arange(8000) / 1000.0
+    jobs.append(FitJob(*_checked(t, _decay(t, 0.7, 8.0) + 1e-4 * rng.standard_normal(t.size)),
+                       0.0, 0.0, None, (0.69, 8.01)))
+    jobs.append(FitJob(*_checked(t, _decay(t, 0.7, 8.0, fast=-40.0)), 0.0, 0.0,
+                       np.array([-40.0 + 0j]), (0.7001, 7.999)))
+    jobs.append(FitJob(*_checked(t, _decay(t, -0.05, 8.0) + 1e-4 * rng.standard_normal(t.size)),
+                       0.0, 0.0, np.array([-40.0 + 0j]), (-0.05, 8.0)))
+    tj = np.sort(rng.uniform(0.0, 8.0, 8000))
+    jobs.append(FitJob(*_checked(tj, _decay(tj, 0.7, 8.0) + 1e-4 * rng.standard_normal(8000)),
+                       0.0, 0.0, None, (0.7, 8.0)))
+    jobs.append(FitJob(*_checked(t, _decay(t, 0.7, 8.0)), 0.0, 7.995, None, (0.7, 8.0)))
+    jobs.append(FitJob(*_checked(t, _decay(t, 0.7, 8.0) + 1e-4 * rng.standard_normal(t.size)),
+                       0.0, 0.0, np.array([-40.0 + 0j]), (-1e4, 8.0)))
+    out = fit_decays(jobs)
+    assert isinstance(out[-2], str) and "at least" in out[-2]
+    assert not isinstance(out[-1], str) and abs(out[-1].sigma - 0.7) < 0.05
+    for job, got in zip(jobs, out, strict=True):
+        _assert_same(got, _single(job))
+
+
+def test_empty_batch():
+    assert fit_decays([]) == []
