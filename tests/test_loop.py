@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from phoid import DelayedPD, Plant, alphas, characteristic_roots, forward_map, inverse_map
+from phoid import DelayedPD, Plant, alphas, characteristic_roots, forward_map, inverse_map, loop
 from phoid.loop import (
     characteristic,
     count_roots_right_of,
@@ -183,3 +183,47 @@ def test_batched_root_count_matches_the_scalar_count():
              for mm, P, D in zip(m_arr, P1, D1, strict=True)]
     assert [g for g in got_m.tolist() if g >= 0] == [r for g, r in zip(got_m, ref_m,
                                                                         strict=True) if g >= 0]
+
+
+# the mass-damper loop at P = 400 N/m, Δt = 10 ms: between D = 0.5 and 1 N·s/m a real root
+# comes in from the left (printed by characteristic_roots: 8 roots of the first 8, none real, at
+# D ≤ 0.5; 9 with one real at D ≥ 1), a change of the root structure the continuation must
+# cross (also with P rising from 200 to 680 N/m, runs shuffled); the Table 1 sweep is smooth
+# (every run continues from the first)
+_MD_D = np.linspace(-6.0, 6.0, 25)
+_MD_ORDER = np.random.default_rng(1).permutation(25)  # the same runs in a shuffled order
+ROOT_SWEEPS = {
+    "table1": (TABLE1, P1, D1, DELAY1),
+    "d-up": (Plant(1.0, 10.0, 0.0), np.full(25, 400.0), _MD_D, 0.01),
+    "d-down": (Plant(1.0, 10.0, 0.0), np.full(25, 400.0), _MD_D[::-1].copy(), 0.01),
+    "shuffled": (Plant(1.0, 10.0, 0.0), (200.0 + 20.0 * np.arange(25.0))[_MD_ORDER],
+                 _MD_D[_MD_ORDER], 0.01),
+}
+
+
+@pytest.mark.parametrize("count", [8, 2])
+@pytest.mark.parametrize("name", list(ROOT_SWEEPS))
+def test_rightmost_roots_many_matches_per_run_roots(name, count, monkeypatch):
+    # _rightmost_roots_many (continuation across runs, batched and one at a time, certified)
+    # must return, run by run, the roots that the certified per-run computation
+    # _rightmost_roots gives (the same number of roots, in the same order). Each root is
+    # Newton-converged (|f| at rounding level) from a different start in the two, so they
+    # agree to a few ulps; 1e-12 of max(|s|, 1) is far below any spacing between the roots
+    # (> 1 1/s here) and 1000 times the differences seen (6e-16).
+    plant, P, D, delay = ROOT_SWEEPS[name]
+    ref = [loop._rightmost_roots(plant.m, plant.c, plant.k, float(p), float(d), delay,
+                                 count=count) for p, d in zip(P, D, strict=True)]
+    full = loop._rightmost_roots
+    calls = []
+    monkeypatch.setattr(loop, "_rightmost_roots",
+                        lambda *a, **kw: calls.append(a) or full(*a, **kw))
+    got = loop._rightmost_roots_many(plant.m, plant.c, plant.k, P, D, delay, count=count)
+    assert len(got) == P.size
+    for r, g in zip(ref, got, strict=True):
+        assert g.shape == r.shape
+        np.testing.assert_array_less(np.abs(g - r), 1e-12 * np.maximum(np.abs(r), 1.0))
+    if name == "table1":
+        assert len(calls) == 1  # smooth: only the first run is computed in full
+    elif count == 8:
+        # the sweep does cross the change: runs without a real root and runs with one
+        assert {r.size % 2 for r in ref} == {0, 1}

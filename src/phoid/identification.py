@@ -367,6 +367,8 @@ def _model_releases(data, fits, rough, P, D, delay, dm=None, digital=None
             continue
         key = (float(f"{dt:.12g}"), 0.0 if dm is None else float(dm[i]))
         jobs.setdefault(key, []).append((i, max(j0 - 2 * half, 0), hi, j0))
+    # each simulated run: (run, span start, span end, detected release), response grid, response
+    runs: list[tuple[tuple[int, int, int, int], np.ndarray, np.ndarray]] = []
     for (dt, added), items in jobs.items():
         plant = Plant(m + added, max(c, 0.0), max(k, 0.0))
         idx = [it[0] for it in items]
@@ -383,42 +385,96 @@ def _model_releases(data, fits, rough, P, D, delay, dm=None, digital=None
                                velocity=digital.velocity, cutoff=digital.cutoff)
         except ValueError:
             continue
-        for row, (i, lo, hi, j0) in enumerate(items):
-            t, x = data[i]
-            out[i] = _release_fit(np.asarray(t[lo:hi], dtype=float),
-                                  np.asarray(x[lo:hi], dtype=float),
-                                  np.asarray(t[j0 - half : j0 + half + 1], dtype=float),
-                                  sim.t, sim.x_true[row])
+        for row, it in enumerate(items):
+            runs.append((it, sim.t, sim.x_true[row]))
+    if not runs:
+        return out
+    # every simulated run's span, padded to the longest (times by repeating the last, the
+    # centred record by zeros); each run's centring and Σx² computed on its own span
+    width = max(hi - lo for (_, lo, hi, _), _, _ in runs)
+    tt = np.empty((len(runs), width))
+    xc = np.zeros((len(runs), width))
+    xx2 = np.empty(len(runs))
+    size = np.empty(len(runs), dtype=int)
+    cand = np.empty((len(runs), 2 * half + 1))
+    for row, ((i, lo, hi, j0), _, _) in enumerate(runs):
+        t, x = data[i]
+        tr = np.asarray(t[lo:hi], dtype=float)
+        xr = np.asarray(x[lo:hi], dtype=float)
+        xr = xr - xr.mean()
+        size[row] = tr.size
+        tt[row, : tr.size], tt[row, tr.size :] = tr, tr[-1]
+        xc[row, : tr.size] = xr
+        xx2[row] = float(xr @ xr)
+        cand[row] = np.asarray(t[j0 - half : j0 + half + 1], dtype=float)
+    taus = _release_fit(tt, xc, xx2, size, cand, [(tg, g) for _, tg, g in runs])
+    for ((i, _lo, _hi, _j0), _, _), tau in zip(runs, taus, strict=True):
+        out[i] = tau
     return out
 
 
-def _release_fit(tt, xx, cand, tg, g) -> float | None:
-    """τ minimising Σ(xx − a − b·g(tt − τ))² over the candidate times (every 4th, then the
-    neighbours of the best), parabola-refined."""
-    xc = xx - xx.mean()
-    sse = np.full(cand.size, np.inf)
+def _release_fit(tt, xc, xx2, size, cand, resp) -> list[float | None]:
+    """Release time of each run: the τ minimising Σ(x − a − b·g(t − τ))² over its candidate
+    times (every 4th, then the neighbours of the best), parabola-refined.
+
+    The candidates of all the runs are evaluated at once, on arrays padded to the longest span
+    (the padding kept out of every sum); only the interpolation of each run's own response is
+    a call per run.
+
+    Parameters
+    ----------
+    tt : ndarray, shape (n, w)
+        Sample times of each run's span, s, padded by repeating the last.
+    xc : ndarray, shape (n, w)
+        The record over the span minus its mean over the span, m, zero in the padding.
+    xx2 : ndarray, shape (n,)
+        Σ xc² of each run, m².
+    size : ndarray of int, shape (n,)
+        The number of samples in each span.
+    cand : ndarray, shape (n, c)
+        Each run's candidate release times, s (sample times around the detected release).
+    resp : list of (ndarray, ndarray)
+        Each run's loop response from rest at 1: its time grid (s) and values (g = 1 before
+        the release).
+
+    Returns
+    -------
+    list of float or None
+        Each run's release time, s; None where a coarse candidate's fit is undefined or the
+        best candidate is on the edge of the search.
+    """
+    n, c = cand.shape
+    rows = np.arange(n)[:, None]
+    valid = (np.arange(tt.shape[1]) < size[:, None])[:, None, :]
+    sse = np.full((n, c), np.inf)
 
     def evaluate(idx):
-        S = tt[None, :] - cand[idx, None]
-        G = np.where(S > 0, np.interp(S, tg, g), 1.0)
-        Gc = G - G.mean(axis=1, keepdims=True)
-        gx = Gc @ xc
+        # sse of the candidates idx (n, k) of every run
+        S = tt[:, None, :] - cand[rows, idx][:, :, None]
+        G = np.zeros(S.shape)
+        for r, (tg, g) in enumerate(resp):
+            G[r, :, : size[r]] = np.interp(S[r, :, : size[r]], tg, g)
+        # the padding, after every candidate (S > 0), keeps G = 0
+        G = np.where(S > 0, G, 1.0)
+        Gc = np.where(valid, G - (G.sum(axis=2) / size[:, None])[:, :, None], 0.0)
+        gx = np.einsum("rkl,rl->rk", Gc, xc)
         with np.errstate(divide="ignore", invalid="ignore"):
-            sse[idx] = float(xc @ xc) - gx * gx / np.einsum("ij,ij->i", Gc, Gc)
+            sse[rows, idx] = xx2[:, None] - gx * gx / np.einsum("rkl,rkl->rk", Gc, Gc)
 
-    evaluate(np.arange(0, cand.size, 4))
-    if not np.all(np.isfinite(sse[::4])):
-        return None
-    i = 4 * int(np.argmin(sse[::4]))
-    evaluate(np.arange(max(i - 3, 0), min(i + 4, cand.size)))
-    i = int(np.argmin(sse))
-    if i == 0 or i == cand.size - 1 or not np.all(np.isfinite(sse[i - 1 : i + 2])):
-        return None
-    y0, y1, y2 = sse[i - 1], sse[i], sse[i + 1]
+    evaluate(np.broadcast_to(np.arange(0, c, 4), (n, len(range(0, c, 4)))))
+    coarse_ok = np.all(np.isfinite(sse[:, ::4]), axis=1)
+    best = 4 * np.argmin(np.where(coarse_ok[:, None], sse[:, ::4], 0.0), axis=1)
+    evaluate(np.clip(best[:, None] + np.arange(-3, 4), 0, c - 1))  # (repeats at the edges)
+    i = np.argmin(sse, axis=1)
+    j = np.clip(i, 1, c - 2)[:, None] + np.arange(-1, 2)
+    y0, y1, y2 = np.take_along_axis(sse, j, axis=1).T
+    ok = coarse_ok & (i > 0) & (i < c - 1) & np.isfinite(y0) & np.isfinite(y1) & np.isfinite(y2)
     den = y0 - 2 * y1 + y2
-    shift = float(np.clip(0.5 * (y0 - y2) / den, -0.5, 0.5)) if den > 0 else 0.0
-    h = cand[i + 1] - cand[i] if shift > 0 else cand[i] - cand[i - 1]
-    return float(cand[i] + shift * h)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        shift = np.where(den > 0, np.clip(0.5 * (y0 - y2) / den, -0.5, 0.5), 0.0)
+    t0, t1, t2 = np.take_along_axis(cand, j, axis=1).T
+    tau = t1 + shift * np.where(shift > 0, t2 - t1, t1 - t0)
+    return [float(x) if good else None for x, good in zip(tau.tolist(), ok.tolist(), strict=True)]
 
 
 def measure_modes(

@@ -105,30 +105,43 @@ def characteristic(
     return f, df
 
 
+# Newton steps a continued root may take: from a neighbouring run's root it converges in a
+# handful (at most 11 on the sample set's longest step); one that has not in 12 is rejected, and
+# its run continues from a nearer one or is computed in full, instead of wandering for 30 steps
+_CONT_ITERS = 12
+
+
 def _newton(s, m, c, k, P, D, delay, iters=30):
     """Vectorised Newton iteration on f; returns refined roots and the final |f| residual.
 
     Iterates until every start has converged or ``iters`` is reached; starts that have not
     converged by then (spurious eigenvalues of the discretisation) keep a large residual and are
-    discarded by the callers.
+    discarded by the callers. f and f′ are those of :func:`characteristic`, evaluated inline
+    (D s + P once per step) with the same arithmetic.
     """
     s = np.array(s, dtype=complex)
-    for _ in range(iters):
-        f, df = characteristic(s, m, c, k, P, D, delay)
-        with np.errstate(all="ignore"):
+    with np.errstate(all="ignore"):
+        for _ in range(iters):
+            e = np.exp(-s * delay)
+            q = D * s + P
+            f = m * s * s + c * s + k + q * e
+            df = 2.0 * m * s + c + (D - delay * q) * e
             step = np.where(df != 0, f / df, 0.0)
-        s = s - step
-        if np.all(np.abs(step) <= 1e-15 * np.maximum(np.abs(s), 1.0)):
-            break
+            s = s - step
+            if np.all(np.abs(step) <= 1e-15 * np.maximum(np.abs(s), 1.0)):
+                break
     f, _ = characteristic(s, m, c, k, P, D, delay)
     return s, np.abs(f)
 
 
-def _newton_few(s, m, c, k, P, D, delay, iters=30):
+def _newton_few(s, m, c, k, P, D, delay, iters=_CONT_ITERS):
     """:func:`_newton` for a handful of roots of one loop, in scalar complex arithmetic.
 
-    For the ~6 roots a continuation step refines, a numpy call's overhead dominates its work;
-    plain ``cmath`` is several times faster. Same iteration, same stopping rule, same output.
+    Each start is iterated on its own until its step is below 1e-15 of its modulus (or of 1)
+    or f′ vanishes or f is not finite there, for at most ``iters`` steps: the rule of
+    :func:`_newton_rows`. For a few starts a numpy call's overhead would dominate the work;
+    plain ``cmath`` is several times faster. Returns the refined points and |f| there, ∞ for a
+    start that ran off or has not converged in ``iters`` steps (rejected by the callers).
     """
     out, res = [], []
     for z in np.asarray(s, dtype=complex).tolist():
@@ -143,12 +156,77 @@ def _newton_few(s, m, c, k, P, D, delay, iters=30):
                 z = z - step
                 if abs(step) <= 1e-15 * max(abs(z), 1.0):
                     break
+            else:
+                raise OverflowError  # not converged in `iters` steps: rejected as run off
             r = abs(m * z * z + c * z + k + (D * z + P) * cmath.exp(-z * delay))
         except (OverflowError, ZeroDivisionError):
             r = math.inf  # a start that ran off: discarded by the caller's residual test
         out.append(z)
         res.append(r if math.isfinite(r) else math.inf)
     return np.array(out, dtype=complex), np.array(res)
+
+
+def _newton_rows(s, m, c, k, P, D, delay, iters=_CONT_ITERS, tail=12):
+    """Newton on f for many loops at once, every start with its own stopping rule.
+
+    Each element of ``s`` (one row per loop; NaN marks an empty slot) is iterated until its
+    own step is below 1e-15 of its modulus (or of 1), f′ vanishes or f is not finite there
+    (the element is then left as it is), or ``iters`` steps are taken: the per-start rule of a
+    scalar Newton iteration (:func:`_newton_few`), applied to the whole array at once
+    (converged elements are no longer updated). Once at most ``tail`` elements are still
+    iterating (a start far from its root), numpy's per-call overhead would dominate: those are
+    finished by :func:`_newton_few`, with the steps left.
+
+    Parameters
+    ----------
+    s : ndarray of complex, shape (n, r)
+        Starting points, 1/s; NaN where a row has fewer than ``r``.
+    m, c, k : float
+        Plant mass (kg), damping (N·s/m) and stiffness (N/m), shared.
+    P, D : ndarray, shape (n, 1)
+        Each row's gains, N/m and N·s/m.
+    delay : float
+        Loop delay Δt, s.
+    iters : int, default 30
+        Most steps per start.
+    tail : int, default 12
+        The number of elements still iterating below which they are finished one by one.
+
+    Returns
+    -------
+    z : ndarray of complex, shape (n, r)
+        The refined points.
+    res : ndarray, shape (n, r)
+        |f(z)| (N/m), ∞ where it is not finite (a start that ran off, or an empty slot).
+    """
+    z = np.array(s, dtype=complex)
+    P, D = np.broadcast_to(P, z.shape), np.broadcast_to(D, z.shape)
+    live = np.isfinite(z)
+    res = np.full(z.shape, np.inf)
+    done = 0
+    if np.count_nonzero(live) > tail:
+        with np.errstate(all="ignore"):
+            while done < iters and np.count_nonzero(live) > tail:
+                done += 1
+                e = np.exp(z * -delay)  # the same number as exp(−z·Δt): negation is exact
+                q = D * z + P
+                f = m * z * z + c * z + k + q * e
+                df = 2.0 * m * z + c + (D - delay * q) * e
+                live &= (df != 0) & np.isfinite(f)
+                step = f / df
+                new = z - step
+                z = np.where(live, new, z)
+                # (a live step is finite or ±∞, never NaN: "not converged" is a comparison)
+                live &= np.abs(step) > 1e-15 * np.maximum(np.abs(new), 1.0)
+            r = np.abs(m * z * z + c * z + k + (D * z + P) * np.exp(-z * delay))
+        res = np.where(np.isfinite(r) & ~live, r, np.inf)  # live at the end: not converged
+    if done < iters:
+        for i in np.flatnonzero(live.any(axis=1)).tolist():
+            # the last few still iterating: scalar steps, as many as are left, one call a row
+            j = live[i]
+            z[i, j], res[i, j] = _newton_few(z[i, j], m, c, k, float(P[i, 0]), float(D[i, 0]),
+                                             delay, iters=iters - done)
+    return z, res
 
 
 def _cheb(n: int) -> tuple[np.ndarray, np.ndarray]:
@@ -419,17 +497,26 @@ def _rightmost_roots_many(m, c, k, P, D, tau, *, count=6):
     """:func:`_rightmost_roots` for many runs of one plant, by continuation.
 
     The first run's roots are computed in full; each further run starts Newton from the roots
-    of the run nearest to it in (P, D) already done, and the result is accepted only if the
-    argument principle certifies it (no other root right of an abscissa between the kept roots
-    and the next one); otherwise that run's roots are computed in full. Same results as calling
+    of a run near it in (P, D) already done, and the result is accepted only if the argument
+    principle certifies it (no other root right of an abscissa between the kept roots and the
+    next one); otherwise that run's roots are computed in full. Same results as calling
     :func:`_rightmost_roots` per run, at a fraction of the cost when the gains vary smoothly.
 
-    The certificates are counted in rounds, all pending runs at once
-    (:func:`count_roots_right_of_many`): a round continues every run still to do from its
-    nearest neighbour (settled, or continued in this round), a run whose continuation loses
-    roots (the gains crossed a change of the loop's root structure, e.g. a new real root at
-    D ≈ 0) is computed in full at once, and after the count the first run that fails its
-    certificate is computed in full, the next round continuing the other failures from it.
+    The work is done in rounds, and each round in two passes, each pass certified by one
+    batched count of all its runs (:func:`count_roots_right_of_many`):
+
+    1. every run still to do is continued from the settled run (one whose roots are certified)
+       nearest to it, all at once: Newton on a (runs × roots) array (:func:`_newton_rows`), the
+       de-duplication, sorting and cut of every run's roots on that array
+       (:func:`_continued_roots`). Where the gains vary smoothly this settles every run.
+    2. the runs pass 1 did not settle are continued one at a time, each from its nearest
+       neighbour (settled, or continued in this pass, certified on its own all the same), so
+       that the steps are short; a run whose continuation loses roots (the gains crossed a
+       change of the loop's root structure, e.g. a new real root at D ≈ 0) is computed in full
+       at once, a seed for the runs beyond.
+
+    After the count, the first run that failed its certificate is computed in full, and the
+    next round continues the other failures, from it where it is nearest.
     """
     P = np.asarray(P, dtype=float)
     D = np.asarray(D, dtype=float)
@@ -444,69 +531,168 @@ def _rightmost_roots_many(m, c, k, P, D, tau, *, count=6):
         # two pairs more than asked: seeds for the continuation and an abscissa beyond
         out[i] = _rightmost_roots(m, c, k, float(P[i]), float(D[i]), tau, count=count + 4)
 
+    def nearest(runs, seeds):
+        # for each run, the nearest of the seed runs in the scaled (P, D) plane (first of ties)
+        dist = (((P[seeds][None, :] - P[runs][:, None]) / sp) ** 2
+                + ((D[seeds][None, :] - D[runs][:, None]) / sd) ** 2)
+        return seeds[np.argmin(dist, axis=1)]
+
+    def cont(ids, seed):
+        # continue runs `ids` from runs `seed`; returns the (run, cut, abscissa) of those with
+        # a cut to certify (their roots stored) and the runs that lost roots
+        ups = {j: out[j][out[j].imag >= 0] for j in np.unique(seed).tolist()}
+        table = np.full((len(ups), max(u.size for u in ups.values())), np.nan, dtype=complex)
+        row = {}
+        for r, (j, u) in enumerate(ups.items()):
+            table[r, : u.size] = u
+            row[j] = r
+        starts = table[[row[j] for j in seed.tolist()]]
+        roots, size, pairs, cut = _continued_roots(starts, m, c, k, P[ids], D[ids], tau, count)
+        ok = np.flatnonzero(cut > 0)
+        for r in ok.tolist():
+            out[int(ids[r])] = pairs[r, : size[r]]
+        # the abscissa of each certificate: midway between the kept roots and the next
+        a = 0.5 * (roots[ok, cut[ok] - 1].real + roots[ok, cut[ok]].real)
+        return (ids[ok], cut[ok], a), ids[cut == 0]
+
+    def certify(ids, cuts, a):
+        # the runs whose count right of `a` is their cut (settled) and the others (failed)
+        got = count_roots_right_of_many(a, m, c, k, P[ids], D[ids], tau,
+                                        near=[out[i] for i in ids.tolist()])
+        for j in np.flatnonzero(got < 0).tolist():
+            i = int(ids[j])
+            try:
+                got[j] = count_roots_right_of(a[j], m, c, k, P[i], D[i], tau, near=out[i])
+            except (RuntimeError, ValueError):
+                got[j] = -1
+        return ids[got == cuts], ids[got != cuts]
+
     full(0)
-    settled = [0]
-    todo = list(range(1, n))
-    while todo:
-        # one round: continue each run from the nearest settled run or, failing that, from
-        # the nearest run continued in this round (certified on its own all the same)
-        pending: list[tuple[int, float, int]] = []  # (run, abscissa, roots to count)
-        failed: list[int] = []
-        seeds = list(settled)
-        for i in todo:
-            j = min(seeds, key=lambda j: ((P[j] - P[i]) / sp) ** 2 + ((D[j] - D[i]) / sd) ** 2)
-            prev = out[j]
-            r, res = _newton_few(prev[prev.imag >= 0], m, c, k, float(P[i]), float(D[i]), tau)
-            scale = np.abs(m * r**2) + np.abs(c * r) + abs(k) + np.abs(D[i] * r) + abs(P[i])
-            r = r[res <= 1e-9 * scale]
-            r = _unique(np.concatenate([r, np.conj(r[np.abs(r.imag) > 0])]))
-            r = r[np.argsort(-r.real, kind="stable")]
-            cut = None
-            if r.size > count:
-                re = r.real
-                gaps = np.flatnonzero(re[:-1] - re[1:] > 1e-9 * np.maximum(np.abs(re[:-1]), 1.0))
-                cut = next((g + 1 for g in gaps if g + 1 >= count), None)
-            if cut is not None and cut < r.size:
-                # certified below, up to `cut`; the rest are kept as seeds
+    settled = np.array([0])
+    todo = np.arange(1, n)
+    while todo.size:
+        # pass 1: all at once from the nearest settled runs
+        (ids, cuts, a), lost = cont(todo, nearest(todo, settled))
+        good, failed = certify(ids, cuts, a) if ids.size else (ids, ids)
+        settled = np.concatenate([settled, good])
+        todo = np.sort(np.concatenate([lost, failed]))
+        if not todo.size:
+            break
+        # pass 2: one at a time, each from its nearest neighbour
+        seeds = settled
+        pending: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+        for i in todo.tolist():
+            j = int(nearest(np.array([i]), seeds)[0])
+            r, cut = _continued_one(out[j][out[j].imag >= 0], m, c, k, float(P[i]),
+                                    float(D[i]), tau, count)
+            if cut:
                 out[i] = _sort_pairs(r)
-                pending.append((i, 0.5 * (r[cut - 1].real + r[cut].real), cut))
+                pending.append((np.array([i]), np.array([cut]),
+                                np.array([0.5 * (r[cut - 1].real + r[cut].real)])))
             else:
-                # the continuation lost roots (the gains crossed a change of the loop's root
-                # structure): computed in full at once, a seed for the runs beyond
                 full(i)
-                settled.append(i)
-            seeds.append(i)
+                settled = np.append(settled, i)
+            seeds = np.append(seeds, i)
+        failed = np.zeros(0, dtype=int)
         if pending:
-            ids = [p[0] for p in pending]
-            counts = count_roots_right_of_many(
-                np.array([p[1] for p in pending]), m, c, k, P[ids], D[ids], tau,
-                near=[out[i] for i in ids],
-            )
-            for (i, a, cut), got in zip(pending, counts.tolist(), strict=True):
-                if got < 0:
-                    try:
-                        got = count_roots_right_of(a, m, c, k, P[i], D[i], tau, near=out[i])
-                    except (RuntimeError, ValueError):
-                        got = -1
-                if got == cut:
-                    settled.append(i)
-                else:
-                    failed.append(i)
-        if not failed:
+            ids, cuts, a = (np.concatenate(x) for x in zip(*pending, strict=True))
+            good, failed = certify(ids, cuts, a)
+            settled = np.concatenate([settled, good])
+        if not failed.size:
             break
         # the first failure in run order is computed in full; the others try again from it
-        failed.sort()
-        full(failed[0])
-        settled.append(failed[0])
+        failed = np.sort(failed)
+        full(int(failed[0]))
+        settled = np.append(settled, failed[0])
         todo = failed[1:]
-    # trim every run to whole pairs covering `count`, as _rightmost_roots does
-    trimmed = []
-    for r in out:
-        re = r.real
-        gaps = np.flatnonzero(re[:-1] - re[1:] > 1e-9 * np.maximum(np.abs(re[:-1]), 1.0))
-        cut = next((g + 1 for g in gaps if g + 1 >= count), r.size)
-        trimmed.append(r[:cut])
-    return trimmed
+    return _trim_pairs(out, count)
+
+
+def _continued_roots(starts, m, c, k, P, D, tau, count):
+    """One continuation step for many runs: Newton, de-duplication, sorting and cut, batched.
+
+    Parameters
+    ----------
+    starts : ndarray of complex, shape (n, r)
+        Each run's starting points (a settled run's upper-half-plane roots), NaN-padded.
+    m, c, k : float
+        Plant (kg, N·s/m, N/m).
+    P, D : ndarray, shape (n,)
+        Each run's gains, N/m and N·s/m.
+    tau : float
+        Loop delay, s.
+    count : int
+        Roots (conjugates counted) the run must keep, in whole pairs.
+
+    Returns
+    -------
+    roots : ndarray of complex, shape (n, w)
+        Each run's distinct converged roots and the conjugates of the complex ones, sorted by
+        decreasing real part (stable: first found first), NaN-padded.
+    size : ndarray of int, shape (n,)
+        How many of each row are roots.
+    pairs : ndarray of complex, shape (n, w)
+        The same roots in :func:`_sort_pairs` order.
+    cut : ndarray of int, shape (n,)
+        The number of roots to certify: the first real-part gap at or after ``count`` with a
+        root beyond it; 0 where there is none (the continuation lost roots).
+    """
+    Pc, Dc = P[:, None], D[:, None]
+    z, res = _newton_rows(starts, m, c, k, Pc, Dc, tau)
+    scale = np.abs(m * z**2) + np.abs(c * z) + abs(k) + np.abs(Dc * z) + np.abs(Pc)
+    with np.errstate(invalid="ignore"):
+        z = np.where(res <= 1e-9 * scale, z, np.nan)
+    # the converged roots, then the conjugates of the complex ones (as _unique sees them)
+    z = np.concatenate([z, np.where(np.abs(z.imag) > 0, np.conj(z), np.nan)], axis=1)
+    with np.errstate(invalid="ignore"):
+        close = (np.abs(z[:, :, None] - z[:, None, :])
+                 <= 1e-8 * np.maximum(np.abs(z)[:, None, :], 1.0))
+    dup = np.any(np.tril(close, -1), axis=2)
+    valid = np.isfinite(z) & ~dup
+    size = valid.sum(axis=1)
+    key = np.where(valid, -z.real, np.inf)
+    order = np.argsort(key, axis=1, kind="stable")
+    roots = np.take_along_axis(np.where(valid, z, np.nan), order, axis=1)
+    re = roots.real
+    with np.errstate(invalid="ignore"):
+        gap = re[:, :-1] - re[:, 1:] > 1e-9 * np.maximum(np.abs(re[:, :-1]), 1.0)
+    gap[:, : max(count - 1, 0)] = False
+    cut = np.where(gap.any(axis=1), np.argmax(gap, axis=1) + 1, 0)
+    # _sort_pairs on each row (lexsort is stable: ties keep the real-part order)
+    skey = np.where(np.isfinite(roots), -np.round(roots.real, 10), np.inf)
+    pairs = np.take_along_axis(roots, np.lexsort((-roots.imag, skey), axis=1), axis=1)
+    return roots, size, pairs, cut
+
+
+def _continued_one(start, m, c, k, P, D, tau, count):
+    """:func:`_continued_roots` for one run, in scalar arithmetic (:func:`_newton_few`): for a
+    single run the array machinery costs more than it saves.
+
+    Returns the run's distinct converged roots and the conjugates of the complex ones, sorted
+    by decreasing real part, and the cut (0 where the continuation lost roots).
+    """
+    r, res = _newton_few(start, m, c, k, P, D, tau)
+    scale = np.abs(m * r**2) + np.abs(c * r) + abs(k) + np.abs(D * r) + abs(P)
+    r = r[res <= 1e-9 * scale]
+    r = _unique(np.concatenate([r, np.conj(r[np.abs(r.imag) > 0])]))
+    r = r[np.argsort(-r.real, kind="stable")]
+    re = r.real
+    gaps = np.flatnonzero(re[:-1] - re[1:] > 1e-9 * np.maximum(np.abs(re[:-1]), 1.0))
+    return r, next((int(g) + 1 for g in gaps if g + 1 >= count), 0)
+
+
+def _trim_pairs(roots: list[np.ndarray], count: int) -> list[np.ndarray]:
+    """Each root list (decreasing real part) cut at its first real-part gap at or after
+    ``count`` roots, so whole conjugate pairs are kept (as :func:`_rightmost_roots` does)."""
+    size = np.array([r.size for r in roots])
+    re = np.full((len(roots), int(size.max())), np.nan)
+    for j, r in enumerate(roots):
+        re[j, : r.size] = r.real
+    with np.errstate(invalid="ignore"):
+        gap = re[:, :-1] - re[:, 1:] > 1e-9 * np.maximum(np.abs(re[:, :-1]), 1.0)
+    gap[:, : max(count - 1, 0)] = False
+    cut = np.where(gap.any(axis=1), np.argmax(gap, axis=1) + 1, size)
+    return [r[:n] for r, n in zip(roots, cut.tolist(), strict=True)]
 
 
 def _unique(z: np.ndarray, rtol: float = 1e-8) -> np.ndarray:
