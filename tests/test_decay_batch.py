@@ -1,4 +1,4 @@
-"""Batched decay fits (phoid.decay_batch.fit_decays) against one-by-one fits (phoid.decay).
+"""Batched decay fits and starts (phoid.decay_batch) against one-by-one ones (phoid.decay).
 
 Where every expected value comes from: ``phoid.decay.fit_decay`` of the same record with the
 same options (the one-record path, itself checked against exact modes, the Cramér–Rao bound and
@@ -17,8 +17,8 @@ import math
 import numpy as np
 import pytest
 
-from phoid.decay import _check_record, fit_decay
-from phoid.decay_batch import FitJob, fit_decays
+from phoid.decay import _check_record, fit_decay, start_decay
+from phoid.decay_batch import FitJob, fit_decays, start_decays
 from phoid.io import read_experiment
 from phoid.loop import _rightmost_roots
 
@@ -119,3 +119,38 @@ def test_mixed_batch_matches_one_by_one():
 
 def test_empty_batch():
     assert fit_decays([]) == []
+
+
+def _single_start(t, x, **kw):
+    try:
+        return start_decay(t, x, **kw)
+    except ValueError as exc:
+        return str(exc)
+
+
+def test_start_decays_equal_one_by_one_starts(sample_set_path):
+    # the first look (stacked ESPRIT eigenproblems, solves and eigenvalues: the same LAPACK
+    # routine per matrix) gives bit-for-bit the one-record starts: exact equality expected.
+    # Records: the sample set's 19 runs (held segment, release) and others of every kind the
+    # first look meets: no held segment, non-uniform sampling, a non-oscillating decay, a short
+    # record (a smaller ESPRIT order L), a constant record and one with NaN (error messages)
+    exp = read_experiment(sample_set_path)
+    recs = [(np.asarray(r.t, float), np.asarray(r.x, float)) for r in exp.runs]
+    rng = np.random.default_rng(5)
+    t = np.arange(6000) / 1000.0
+    recs.append((t, _decay(t, 0.5, 7.0) + 1e-4 * rng.standard_normal(t.size)))
+    tj = np.sort(rng.uniform(0.0, 6.0, 6000))
+    recs.append((tj, _decay(tj, 0.5, 7.0) + 1e-4 * rng.standard_normal(tj.size)))
+    recs.append((t, 0.01 * np.exp(-3.0 * t) + 1e-5 * rng.standard_normal(t.size)))
+    ts = np.arange(80) / 100.0
+    recs.append((ts, _decay(ts, 0.5, 30.0)))
+    recs.append((t, np.zeros(t.size)))
+    bad = _decay(t, 0.5, 7.0)
+    bad[100] = np.nan
+    recs.append((t, bad))
+    for kw in ({"skip": 0.3, "refine": "auto", "coarse_release": True}, {"skip": 0.0}):
+        got = start_decays(recs, **kw)
+        want = [_single_start(t, x, **kw) for t, x in recs]
+        assert got == want
+        assert isinstance(got[-1], str) and isinstance(got[-2], str)
+        assert not any(isinstance(g, str) for g in got[:-2])

@@ -967,21 +967,39 @@ def _blocks(xg: np.ndarray, q: int) -> np.ndarray:
 def _esprit(y: np.ndarray, dt: float, order: int = 3) -> tuple[np.ndarray, np.ndarray | None]:
     """Roots s (1/s) of a sum of ``order`` damped exponentials fitted to y (ESPRIT), and their
     energies Σ|c zⁿ|² (None when there is exactly one complex pair: nothing to choose)."""
+    _L, HH = _esprit_gram(y, order)
+    w, U = np.linalg.eigh(HH)
+    return _esprit_roots(y, dt, U[:, np.argsort(w)[::-1][:order]])
+
+
+def _esprit_gram(y: np.ndarray, order: int) -> tuple[int, np.ndarray]:
+    """ESPRIT's Hankel order L and the L × L Gram matrix H Hᵀ of y's Hankel matrix."""
     n = y.size
     L = max(order + 1, min(n // 3, 20))
     K = n - L + 1
     H = y[np.add.outer(np.arange(L), np.arange(K))]  # Hankel matrix, L × K
-    w, U = np.linalg.eigh(H @ H.T)
-    Us = U[:, np.argsort(w)[::-1][:order]]
-    # least squares Us[:-1] Φ = Us[1:]: with orthonormal columns Us[:-1]ᵀUs[:-1] = I − vvᵀ
-    # (v the last row), well conditioned unless |v| ≈ 1; normal equations then, else lstsq
+    return L, H @ H.T
+
+
+def _esprit_phi(Us: np.ndarray) -> np.ndarray:
+    """The shift-invariance solution Φ of Us[:-1] Φ = Us[1:] (least squares)."""
+    # with orthonormal columns Us[:-1]ᵀUs[:-1] = I − vvᵀ (v the last row), well conditioned
+    # unless |v| ≈ 1; normal equations then, else lstsq
     v = Us[-1]
     if float(v @ v) < 0.5:
         A = Us[:-1]
-        Phi = np.linalg.solve(A.T @ A, A.T @ Us[1:])
-    else:
-        Phi = np.linalg.lstsq(Us[:-1], Us[1:], rcond=None)[0]
-    z = np.linalg.eigvals(Phi).astype(complex)
+        return np.linalg.solve(A.T @ A, A.T @ Us[1:])
+    return np.linalg.lstsq(Us[:-1], Us[1:], rcond=None)[0]
+
+
+def _esprit_roots(y: np.ndarray, dt: float, Us: np.ndarray, z: np.ndarray | None = None
+                  ) -> tuple[np.ndarray, np.ndarray | None]:
+    """:func:`_esprit` from the signal subspace ``Us`` (L × order) on, or from Φ's
+    eigenvalues ``z`` when they are given."""
+    order = Us.shape[1]
+    if z is None:
+        z = np.linalg.eigvals(_esprit_phi(Us)).astype(complex)
+    n = y.size
     with np.errstate(divide="ignore", invalid="ignore", over="ignore", under="ignore"):
         s = np.log(z) / dt
         if np.count_nonzero(s.imag > 0) == 1:
@@ -1002,6 +1020,14 @@ def _initial_guess(xg: np.ndarray, dt: float, per: float, noise: float):
     40 periods of it, block-averaged to ~16 samples a period; ESPRIT of order 3 (offset and one
     complex pair); the complex root of largest energy.
     """
+    y, q, n_act = _guess_input(xg, per, noise)
+    s, energy = _esprit(y, q * dt, order=3)
+    return _guess_pick(s, energy, q, dt, xg.size, n_act)
+
+
+def _guess_input(xg: np.ndarray, per: float, noise: float) -> tuple[np.ndarray, int, int]:
+    """:func:`_initial_guess`'s ESPRIT input: the block means y, their block length q and the
+    active length (samples)."""
     n = xg.size
     lb = int(min(max(round(per), 4), max(n // 8, 4)))
     nb = n // lb
@@ -1017,8 +1043,13 @@ def _initial_guess(xg: np.ndarray, dt: float, per: float, noise: float):
     q = max(1, int(per // 16), n_seg // 1024)
     while n_seg // q < 16 and q > 1:
         q //= 2
-    y = _blocks(xg[:n_seg], q)
-    s, energy = _esprit(y, q * dt, order=3)
+    return _blocks(xg[:n_seg], q), q, n_act
+
+
+def _guess_pick(s: np.ndarray, energy: np.ndarray | None, q: int, dt: float, n: int,
+                n_act: int):
+    """:func:`_initial_guess`'s choice among the ESPRIT roots ``s`` (of block means of q
+    samples, step dt, n samples in the window)."""
     if energy is None:
         energy = np.ones(s.size)
     nyq = math.pi / (q * dt)
@@ -1117,14 +1148,54 @@ def start_decay(
     with an even quartic is left out), for callers that refine it with a model of their own.
     Raises ValueError as :func:`fit_decay` does for unusable input.
     """
+    pre = _start_prepare(t, x, release=release, skip=skip, coarse_release=coarse_release)
+    s, energy = _esprit(pre.y, pre.q * pre.dt, order=3)
+    return _start_finish(pre, s, energy, refine)
+
+
+@dataclass(frozen=True)
+class _StartInput:
+    """What :func:`start_decay` computes before its ESPRIT (by :func:`_start_prepare`): the
+    release (s), the window (``tw``, ``xw``; ``tau`` = tw − tw[0], s), noise (m), the window on a
+    uniform grid ``xg`` with its step ``dt`` (s; ``udt`` the step if the sampling was uniform),
+    the spectral period ``per`` (samples) and ESPRIT's input (block means ``y`` of ``q``
+    samples, active length ``n_act``)."""
+
+    release: float
+    tw: np.ndarray
+    xw: np.ndarray
+    tau: np.ndarray
+    noise: float
+    xg: np.ndarray
+    dt: float
+    udt: float | None
+    per: float
+    y: np.ndarray
+    q: int
+    n_act: int
+
+
+def _start_prepare(t, x, *, release=None, skip=0.0, coarse_release=False) -> _StartInput:
+    """:func:`start_decay` up to its ESPRIT (checks, release, window, noise, period)."""
     t, x = _check_record(t, x)
     release, hold_sd, tw, xw = _window(t, x, release, skip, None, not coarse_release)
     tau = tw - tw[0]
     noise = hold_sd if hold_sd else _diff_noise(xw[-4096:])
     noise = max(noise, 1e-15 * float(np.ptp(xw)))
-    xg, dt, _udt = _uniform(tau, xw, float(tw[0]))
+    xg, dt, udt = _uniform(tau, xw, float(tw[0]))
     per = _dominant_period(xg)
-    sig, om, oscill, n_act = _initial_guess(xg, dt, per, noise)
+    y, q, n_act = _guess_input(xg, per, noise)
+    return _StartInput(release=float(release), tw=tw, xw=xw, tau=tau, noise=float(noise), xg=xg,
+                       dt=float(dt), udt=udt, per=float(per), y=y, q=q, n_act=n_act)
+
+
+def _start_finish(pre: _StartInput, s: np.ndarray, energy: np.ndarray | None,
+                  refine: bool | str = True) -> DecayStart:
+    """:func:`start_decay` from ESPRIT's roots ``s`` and energies on (the choice of the start,
+    the staged refinement, the Gauss–Newton confirmation)."""
+    tw, xw, tau, xg, dt, per = pre.tw, pre.xw, pre.tau, pre.xg, pre.dt, pre.per
+    release, noise, _udt = pre.release, pre.noise, pre.udt
+    sig, om, oscill, n_act = _guess_pick(s, energy, pre.q, dt, xg.size, pre.n_act)
     if oscill and n_act > 40 * per:
         sig, om = _staged(xg, dt, per, sig, om)
     if refine == "auto" and oscill:

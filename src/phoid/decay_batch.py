@@ -13,6 +13,10 @@ tests), so the results agree with fitting the records one by one to rounding (~1
 tests/test_decay_batch.py). Records that do not fit the scheme (non-uniform sampling, fewer
 than 64 samples) and records whose start cannot be evaluated go through
 :func:`phoid.decay._fit_checked` one at a time.
+
+The identification's first look at every run (:func:`phoid.decay.start_decay`) is batched the
+same way where it pays: the ESPRIT eigenproblems, shift-invariance solves and eigenvalues of all
+runs are stacked (the same LAPACK routine per matrix, so the same numbers bit for bit).
 """
 
 from __future__ import annotations
@@ -25,7 +29,7 @@ import numpy as np
 
 from phoid import decay as _d
 
-__all__ = ["FitJob", "fit_decays"]
+__all__ = ["FitJob", "fit_decays", "start_decays"]
 
 
 @dataclass(frozen=True)
@@ -480,3 +484,79 @@ def fit_decays(jobs: Sequence[FitJob]) -> list[_d.DecayFit | str]:
 
 def _minv_or_nan(M: np.ndarray) -> np.ndarray:
     return M if np.isfinite(M).all() else np.full_like(M, np.nan)
+
+
+def start_decays(records: Sequence[tuple[np.ndarray, np.ndarray]], *, skip: float = 0.0,
+                 refine: bool | str = True, coarse_release: bool = False
+                 ) -> list[_d.DecayStart | str]:
+    """:func:`phoid.decay.start_decay` of every record (t s, x m), the ESPRIT stage stacked.
+
+    Returns per record its DecayStart, or the message of the ValueError, RuntimeError or
+    LinAlgError that starting it alone raises. Identical to calling
+    :func:`phoid.decay.start_decay` per record.
+    """
+    out: list[_d.DecayStart | str | None] = [None] * len(records)
+    pres: dict[int, _d._StartInput] = {}
+    for i, (t, x) in enumerate(records):
+        try:
+            pres[i] = _d._start_prepare(t, x, skip=skip, coarse_release=coarse_release)
+        except (ValueError, RuntimeError, np.linalg.LinAlgError) as exc:
+            out[i] = str(exc)
+    order = 3
+    grams: dict[int, list[tuple[int, np.ndarray]]] = {}
+    for i, pre in pres.items():
+        L, HH = _d._esprit_gram(pre.y, order)
+        grams.setdefault(L, []).append((i, HH))
+    roots: dict[int, tuple] = {}
+    for items in grams.values():
+        ids = [i for i, _ in items]
+        try:
+            w, U = np.linalg.eigh(np.stack([HH for _, HH in items]))
+        except np.linalg.LinAlgError:
+            for i in ids:
+                try:
+                    pre = pres[i]
+                    roots[i] = _d._esprit(pre.y, pre.q * pre.dt, order)
+                except (ValueError, RuntimeError, np.linalg.LinAlgError) as exc:
+                    out[i] = str(exc)
+            continue
+        top = np.argsort(w, axis=1)[:, ::-1][:, :order]
+        Us = np.take_along_axis(U, top[:, None, :], axis=2)  # (runs, L, order)
+        v = Us[:, -1, :]
+        normal = np.einsum("ri,ri->r", v, v) < 0.5
+        Phi = np.empty((len(ids), order, order))
+        if normal.any():
+            A = Us[normal, :-1]
+            At = A.transpose(0, 2, 1)
+            try:
+                Phi[normal] = np.linalg.solve(At @ A, At @ Us[normal, 1:])
+            except np.linalg.LinAlgError:
+                normal[:] = False
+        for k in np.flatnonzero(~normal).tolist():
+            try:
+                Phi[k] = _d._esprit_phi(Us[k])
+            except np.linalg.LinAlgError as exc:
+                out[ids[k]] = str(exc)
+                Phi[k] = np.nan
+        good = np.isfinite(Phi).all(axis=(1, 2))
+        z = np.full((len(ids), order), np.nan, complex)
+        if good.any():
+            try:
+                z[good] = np.linalg.eigvals(Phi[good]).astype(complex)
+            except np.linalg.LinAlgError:
+                good[:] = False
+        for k, i in enumerate(ids):
+            if out[i] is not None:
+                continue
+            pre = pres[i]
+            try:
+                roots[i] = _d._esprit_roots(pre.y, pre.q * pre.dt, Us[k],
+                                            z[k] if good[k] else None)
+            except (ValueError, RuntimeError, np.linalg.LinAlgError) as exc:
+                out[i] = str(exc)
+    for i, (s_, energy) in roots.items():
+        try:
+            out[i] = _d._start_finish(pres[i], s_, energy, refine)
+        except (ValueError, RuntimeError, np.linalg.LinAlgError) as exc:
+            out[i] = str(exc)
+    return out  # type: ignore[return-value]

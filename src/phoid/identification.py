@@ -28,7 +28,7 @@ from scipy.special import chdtri  # chi2 quantile: chdtri(dof, 1 - p) = chi2.ppf
 
 from phoid._threads import single_blas_thread
 from phoid.decay import DecayFit, _fit_checked, detect_release, start_decay
-from phoid.decay_batch import FitJob, fit_decays
+from phoid.decay_batch import FitJob, fit_decays, start_decays
 from phoid.errors import IdentificationError
 from phoid.loop import _rightmost_roots_many, characteristic
 from phoid.pho import (
@@ -560,7 +560,8 @@ def _measure(data, P, D, delay, *, rough=None, first=None, noise=None, digital=N
         # the release is refined below with the loop's own response, so the data-only
         # detection may stop at its first stage; where that refit is not made, the full
         # data-only detection is run then
-        first = [_start_run(t, x, skip0, coarse_release=True) for t, x in data]
+        first = [(st, None) if not isinstance(st, str) else (None, st)
+                 for st in start_decays(data, skip=skip0, refine="auto", coarse_release=True)]
     starts = [st for st, _err in first]
     fits: list[DecayFit | None] = [None] * n
     reasons: list[str | None] = [err for _st, err in first]
