@@ -248,23 +248,38 @@ def speed_data(spec: SetSpec, seed: int = 7) -> tuple[list, str]:
 
 
 def speed(spec: SetSpec, repeats: int = 5) -> dict:
-    """Median (min–max) wall time to identify the set, per pipeline (compute only).
+    """Compute time to identify the set, per pipeline: median (min–max) CPU time, and each
+    alternative's time over phoid's as the median of the per-repeat ratios.
 
-    Every pipeline runs once untimed first (imports, caches), then ``repeats`` timed times.
+    Every pipeline runs once untimed first (imports, caches), then ``repeats`` rounds, each
+    timing every pipeline once in turn (interleaved, so a change in the machine's load affects
+    all pipelines alike rather than whichever block it falls on). Times are process CPU time
+    (``time.process_time``: compute, not the waits of a shared host — on the 2-core development
+    VM wall times of the same code drifted by ±25 % between blocks of repeats); wall-clock
+    medians are kept as ``wall_median_s``. The pipelines are single-threaded (BLAS limited to
+    one thread), so CPU time is their compute time.
     """
     data, source = speed_data(spec)
     P, D = spec.gains
     rel = [spec.hold] * spec.runs
     out: dict = {"data": source, "samples": int(sum(x.size for _, x in data))}
-    for name in (*PIPELINES, NUMJAC):
+    names = (*PIPELINES, NUMJAC)
+    for name in names:
         _run_pipeline(name, data, P, D, spec.delay, rel)
-        times = []
-        for _ in range(repeats):
-            t0 = time.perf_counter()
+    cpu: dict[str, list[float]] = {name: [] for name in names}
+    wall: dict[str, list[float]] = {name: [] for name in names}
+    for _ in range(repeats):
+        for name in names:
+            w0, c0 = time.perf_counter(), time.process_time()
             _run_pipeline(name, data, P, D, spec.delay, rel)
-            times.append(time.perf_counter() - t0)
-        out[name] = {"median_s": float(np.median(times)), "min_s": float(min(times)),
-                     "max_s": float(max(times))}
+            cpu[name].append(time.process_time() - c0)
+            wall[name].append(time.perf_counter() - w0)
+    base = np.array(cpu["phoid"])
+    for name in names:
+        c = np.array(cpu[name])
+        out[name] = {"median_s": float(np.median(c)), "min_s": float(c.min()),
+                     "max_s": float(c.max()), "wall_median_s": float(np.median(wall[name])),
+                     "ratio_to_phoid": float(np.median(c / base))}
     return out
 
 

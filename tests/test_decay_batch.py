@@ -17,6 +17,7 @@ import math
 import numpy as np
 import pytest
 
+from phoid import decay_batch
 from phoid.decay import _check_record, fit_decay, start_decay
 from phoid.decay_batch import FitJob, fit_decays, start_decays
 from phoid.io import read_experiment
@@ -83,7 +84,12 @@ def _decay(t, sigma, omega, x0=0.01, offset=2e-4, fast=None):
     return x
 
 
-def test_mixed_batch_matches_one_by_one():
+@pytest.mark.parametrize("limit", [None, 10000])
+def test_mixed_batch_matches_one_by_one(limit, monkeypatch):
+    # limit: the batch size cap (samples); 10 000 cuts every group into batches of one or two
+    # records, as long records are (memory stays that of the one-by-one fits)
+    if limit is not None:
+        monkeypatch.setattr(decay_batch, "_BATCH_SAMPLES", limit)
     # records of different lengths, rates, fast-mode counts and kinds in one call: two sample
     # rates (two groups), lengths that differ within a group (zero-padded blocks), one record
     # without fast modes, a noise-free one (the polish takes its extra exact-gradient steps), a

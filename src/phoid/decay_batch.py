@@ -447,31 +447,9 @@ def fit_decays(jobs: Sequence[FitJob]) -> list[_d.DecayFit | str]:
             alone.append(i)
         else:
             groups.setdefault(key, []).append(i)
-    for (dt, B, _kc), idx in groups.items():
-        ps = [preps[i] for i in idx]
-        bt = _Batch(ps, dt, B)
-        rows = np.arange(len(idx))
-        pt = bt.evaluate(rows, np.array([p.sigma for p in ps]), np.array([p.omega_d for p in ps]))
-        ok = pt["ok"]
-        # a start that cannot be evaluated: the one-record fit, with its fallback start
-        alone.extend(i for i, good in zip(idx, ok.tolist(), strict=True) if not good)
-        if not ok.any():
-            continue
-        sel = np.flatnonzero(ok)
-        if not ok.all():
-            bt = _Batch([ps[j] for j in sel], dt, B)
-            pt = bt.evaluate(np.arange(sel.size), pt["sig"][sel], pt["om"][sel])
-        pt, Minv, converged, iters = _gauss_newton(bt, pt)
-        pt, r, Minv = _polish(bt, pt, Minv)
-        for row, j in enumerate(sel.tolist()):
-            i = idx[j]
-            try:
-                out[i] = _d._fit_finish(preps[i], float(pt["sig"][row]), float(pt["om"][row]),
-                                        pt["beta"][row], pt["K"][row], r[row],
-                                        _minv_or_nan(Minv[row]), bool(converged[row]),
-                                        int(iters[row]))
-            except (ValueError, RuntimeError, np.linalg.LinAlgError) as exc:
-                out[i] = str(exc)
+    for (dt, B, _kc), members in groups.items():
+        for idx in _chunks(members, [preps[i].xw.size for i in members]):
+            _fit_group(idx, [preps[i] for i in idx], dt, B, out, alone)
     for i in alone:
         job = jobs[i]
         try:
@@ -480,6 +458,54 @@ def fit_decays(jobs: Sequence[FitJob]) -> list[_d.DecayFit | str]:
         except (ValueError, RuntimeError, np.linalg.LinAlgError) as exc:
             out[i] = str(exc)
     return out  # type: ignore[return-value]
+
+
+#: a batch holds at most about this many samples (its stacked copy of the data and the
+#: residuals it keeps are then ≤ 8 MB each): long records are fitted in smaller batches, a
+#: record of more samples alone, so the memory stays that of the one-by-one fits
+_BATCH_SAMPLES = 1 << 20
+
+
+def _chunks(members: list[int], sizes: list[int]) -> list[list[int]]:
+    """``members`` cut into consecutive batches of at most ``_BATCH_SAMPLES`` samples."""
+    out: list[list[int]] = [[]]
+    total = 0
+    for i, n in zip(members, sizes, strict=True):
+        if out[-1] and total + n > _BATCH_SAMPLES:
+            out.append([])
+            total = 0
+        out[-1].append(i)
+        total += n
+    return out
+
+
+def _fit_group(idx: list[int], ps: list[_d._Prepared], dt: float, B: int, out: list,
+               alone: list[int]) -> None:
+    """Fit one batch of records (indices ``idx`` into ``out``); records whose start cannot be
+    evaluated are appended to ``alone``."""
+    bt = _Batch(ps, dt, B)
+    rows = np.arange(len(idx))
+    pt = bt.evaluate(rows, np.array([p.sigma for p in ps]), np.array([p.omega_d for p in ps]))
+    ok = pt["ok"]
+    # a start that cannot be evaluated: the one-record fit, with its fallback start
+    alone.extend(i for i, good in zip(idx, ok.tolist(), strict=True) if not good)
+    if not ok.any():
+        return
+    sel = np.flatnonzero(ok)
+    if not ok.all():
+        bt = _Batch([ps[j] for j in sel], dt, B)
+        pt = bt.evaluate(np.arange(sel.size), pt["sig"][sel], pt["om"][sel])
+    pt, Minv, converged, iters = _gauss_newton(bt, pt)
+    pt, r, Minv = _polish(bt, pt, Minv)
+    for row, j in enumerate(sel.tolist()):
+        i = idx[j]
+        try:
+            out[i] = _d._fit_finish(ps[j], float(pt["sig"][row]), float(pt["om"][row]),
+                                    pt["beta"][row], pt["K"][row], r[row],
+                                    _minv_or_nan(Minv[row]), bool(converged[row]),
+                                    int(iters[row]))
+        except (ValueError, RuntimeError, np.linalg.LinAlgError) as exc:
+            out[i] = str(exc)
 
 
 def _minv_or_nan(M: np.ndarray) -> np.ndarray:
