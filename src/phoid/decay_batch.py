@@ -71,7 +71,6 @@ class _Batch:
             flat[i, : p.xw.size] = p.xw
         self.xs = [p.xw for p in preps]
         self.X = flat.reshape(R, nbmax, B)
-        self.all = np.arange(R)
         self.xx = np.array([float(x @ x) for x in self.xs])
         # rounding of the RSS expansion xᵀx − βᵀGx, allowed for when comparing steps
         self.floor = 1e-13 * self.xx + 1e-300
@@ -94,7 +93,7 @@ class _Batch:
         cols = [_d._fast_columns(p.tau, p.fast, dt) if p.fast.size else None for p in preps]
         kc = 0 if cols[0] is None else cols[0].shape[0]
         self.kc = kc
-        self.lin, self.lin_ix, self.perm, _pix = _d._lin_index(kc)
+        self.lin, _lin_ix, self.perm, _pix = _d._lin_index(kc)
         self.m = 5 + kc
         self.dof = np.maximum(n - self.lin.size - 2, 1)
         if kc:
