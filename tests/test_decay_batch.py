@@ -17,7 +17,7 @@ import math
 import numpy as np
 import pytest
 
-from phoid import decay_batch
+from phoid import decay, decay_batch
 from phoid.decay import _check_record, fit_decay, start_decay
 from phoid.decay_batch import FitJob, fit_decays, start_decays
 from phoid.io import read_experiment
@@ -160,3 +160,52 @@ def test_start_decays_equal_one_by_one_starts(sample_set_path):
         assert got == want
         assert isinstance(got[-1], str) and isinstance(got[-2], str)
         assert not any(isinstance(g, str) for g in got[:-2])
+
+
+def test_fast_columns_many_equal_one_by_one():
+    # the stacked fast-mode columns are those of phoid.decay._fast_columns, element for element
+    # (the same exponentials and table products): exact equality expected, zero beyond each
+    # record's nf. Records of different lengths, with complex roots tabulated (nf > 256) and
+    # direct (nf ≤ 256), and real roots, in different orders
+    dt = 1e-3
+    taus = [np.arange(n) * dt for n in (3000, 5000, 4000, 2000)]
+    roots = [np.array([-40 + 300j, -9.0, -120.0]),
+             np.array([-7.5, -55 + 80j, -300.0]),
+             np.array([-200 + 900j, -210.0, -800.0]),  # nf = 185: computed directly
+             np.array([-90 + 1j, -60.0, -61.0])]
+    FT, nf = decay_batch._fast_columns_many(taus, roots, dt)
+    assert FT.shape[1] == 2 * 4
+    for i, (tau, r) in enumerate(zip(taus, roots, strict=True)):
+        want = decay._fast_columns(tau, r, dt)
+        assert nf[i] == want.shape[1]
+        np.testing.assert_array_equal(FT[i, :4, : nf[i]], want)
+        np.testing.assert_array_equal(FT[i, 4:, : nf[i]], want * tau[: nf[i]])
+        assert not FT[i, :, nf[i]:].any()
+
+
+def test_change_points_match_brute_force_least_squares():
+    # the reverse-cumulative-sum change point of phoid.decay._change_points against the
+    # straightforward one: for every candidate j a least-squares fit of x = L + a (t − t_j)₊²
+    # over the samples ≤ i1 (np.linalg.lstsq), the smallest residual. Same index expected (the
+    # sums differ only by rounding, ~1e−16 relative, the residuals of neighbouring candidates
+    # by far more on these records: a clear quadratic departure in 1e−4 noise). Several records
+    # in one batch, and each alone: same indices (a record's sums do not depend on the batch)
+    rng = np.random.default_rng(11)
+    ts, xs, i1s, want = [], [], [], []
+    for n_hold, a in ((150, 40.0), (400, 15.0), (90, 80.0), (260, 25.0)):
+        t = np.arange(n_hold + 200) * 1e-3
+        tr = t[n_hold]
+        x = 0.003 + a * np.maximum(t - tr, 0.0) ** 2 + 1e-4 * rng.standard_normal(t.size)
+        i1 = n_hold + 60
+        sse = []
+        for j in range(i1 + 1):
+            A = np.stack([np.ones(i1 + 1), np.maximum(t[: i1 + 1] - t[j], 0.0) ** 2], axis=1)
+            res = np.linalg.lstsq(A, x[: i1 + 1], rcond=None)[1]
+            sse.append(float(res[0]) if res.size else math.inf)
+        ts.append(t)
+        xs.append(x)
+        i1s.append(i1)
+        want.append(int(np.argmin(sse)))
+    assert decay._change_points(ts, xs, i1s) == want
+    alone = [decay._change_points([t], [x], [i])[0] for t, x, i in zip(ts, xs, i1s, strict=True)]
+    assert alone == want

@@ -29,8 +29,10 @@ it with the roots given (``fast_roots``); see its Notes for the rule and the cos
 
 from __future__ import annotations
 
+import cmath
 import functools
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -214,7 +216,7 @@ def _check_record(t, x) -> tuple[np.ndarray, np.ndarray]:
             f"`t` must be strictly increasing; got t[{i}] = {t[i]:.9g} s, "
             f"t[{i + 1}] = {t[i + 1]:.9g} s"
         )
-    if not np.ptp(x) > 0:
+    if not x.max() > x.min():
         raise ValueError(f"`x` is constant ({x[0]:g} m): no motion to analyse")
     return t, x
 
@@ -231,9 +233,10 @@ def _diff_noise(x: np.ndarray) -> float:
     A smooth signal sampled fast contributes ~A(ω dt)² per difference, negligible at ≥ ~20
     samples per period against noise of a few parts in 10⁴ of the amplitude.
     """
-    d2 = np.diff(x, 2)
-    if d2.size == 0:
+    if x.size < 3:
         return 0.0
+    d1 = x[1:] - x[:-1]  # np.diff(x, 2), without its per-call overhead
+    d2 = d1[1:] - d1[:-1]
     mad = _med(np.abs(d2 - _med(d2)))
     if mad > 0:
         return 1.4826 * mad / math.sqrt(6.0)
@@ -251,22 +254,31 @@ def _hold_sd(x: np.ndarray, j: int) -> float | None:
     if j < 10:
         return None
     seg = x[: j + 1]
-    sd = float(np.std(seg, ddof=1))
+    d = seg - seg.sum() / seg.size  # np.std(seg, ddof=1), the same sums, fewer calls
+    sd = math.sqrt(float(np.add.reduce(d * d)) / (seg.size - 1))
     return sd if sd <= 1.5 * _diff_noise(seg) + 1e-300 else None
 
 
-def _release(t: np.ndarray, x: np.ndarray, refine: bool = True) -> tuple[int, float | None]:
-    """Index of the release sample and the sd of the held segment (None if too short).
+@dataclass(frozen=True)
+class _Departure:
+    """The release detection's first stage on one record: the held level (m), the threshold
+    (m), the first sample ``i1`` from which the signal stays beyond it for 3 samples (None when
+    there is none, or it is among the first 3), and the prefix length searched."""
 
-    ``refine=False`` stops after the quadratic change point (a few samples off, typically),
-    for callers that refine the release with a model of their own."""
+    level: float
+    thr: float
+    i1: int | None
+    m_search: int
+
+
+def _departure(x: np.ndarray) -> _Departure:
+    """The first sample from which x stays more than 8 noise sds from its held level for 3
+    samples (a lone spike is no release), searched in growing prefixes."""
     n = x.size
     sd = _diff_noise(x[:2048])
     n0 = max(3, min(20, n // 50))
     level = _med(x[:n0])
-    thr = max(_RELEASE_NSD * sd, 1e-6 * float(np.ptp(x)))
-    # first index from which the signal stays out for 3 samples (a lone spike is no release),
-    # searched in growing prefixes
+    thr = max(_RELEASE_NSD * sd, 1e-6 * (float(x.max()) - float(x.min())))
     m_search = 2048
     while True:
         out = np.abs(x[:m_search] - level) > thr
@@ -275,42 +287,106 @@ def _release(t: np.ndarray, x: np.ndarray, refine: bool = True) -> tuple[int, fl
             break
         m_search *= 4
     m_search = min(m_search, n)
-    if hits.size == 0:
-        return 0, None
-    i1 = int(hits[0])
-    if i1 <= 2:
-        return 0, None
-    # change point: x = L for t < τ, L + a (t − τ)² after (a held mass starts from rest, so the
-    # motion leaves the held level quadratically); least squares over τ at the samples ≤ i1.
-    m = i1 + 1
-    u = t[:m] - t[i1]
-    y = x[:m]
-    # suffix sums over i ≥ j of u^p and y u^p, p = 0..4 (reverse cumulative sums)
-    P = np.empty((5, m))
-    P[0] = 1.0
-    P[1] = u
-    np.multiply(u, u, out=P[2])
-    np.multiply(P[2], u, out=P[3])
-    np.multiply(P[2], P[2], out=P[4])
-    Sp = np.cumsum(P[:, ::-1], axis=1)[:, ::-1]
-    Syp = np.cumsum((P[:3] * y)[:, ::-1], axis=1)[:, ::-1]
-    # q_i = (u_i − u_j)², Σq and Σq² over i ≥ j, Σ y q over i ≥ j (u_j = P[1, j], u_j^p = P[p, j])
-    s_q = Sp[2] - 2 * u * Sp[1] + P[2] * Sp[0]
-    s_qq = Sp[4] - 4 * u * Sp[3] + 6 * P[2] * Sp[2] - 4 * P[3] * Sp[1] + P[4] * Sp[0]
-    s_yq = Syp[2] - 2 * u * Syp[1] + P[2] * Syp[0]
-    s_y = float(np.sum(y))
-    s_yy = float(np.sum(y * y))
-    det = m * s_qq - s_q**2
-    with np.errstate(divide="ignore", invalid="ignore"):
-        L = (s_qq * s_y - s_q * s_yq) / det
-        a = (m * s_yq - s_q * s_y) / det
-        sse = s_yy - L * s_y - a * s_yq
-    sse = np.where(np.isfinite(sse) & (det > 0), sse, np.inf)
-    j0 = int(np.argmin(sse))
-    if not refine:
-        return j0, _hold_sd(x, j0)
-    # refine on a longer stretch (until 4× the threshold) with x = L + a u² + b u⁴, u = (t − τ)₊
-    # (the free response from rest is even in u), over candidates near the first estimate
+    i1 = int(hits[0]) if hits.size else None
+    return _Departure(level, thr, i1 if i1 is not None and i1 > 2 else None, m_search)
+
+
+#: samples (records × padded length) per batch of :func:`_change_points`
+_CHANGE_BATCH = 1 << 18
+
+
+def _change_points(ts: Sequence[np.ndarray], xs: Sequence[np.ndarray], i1s: Sequence[int]
+                   ) -> list[int]:
+    """The quadratic change point of each record, up to its departure sample i1.
+
+    x = L for t < τ, L + a (t − τ)² after (a held mass starts from rest, so the motion leaves
+    the held level quadratically); least squares over τ at the samples ≤ i1, τ on the samples.
+    For every candidate j the sums over i ≥ j come from reverse cumulative sums of u^p and
+    y u^p (u = t − t[i1], p = 0..4), so all candidates cost O(i1). The records are stacked,
+    right-aligned (every record's sample i1 in the last column, zeros before its first sample,
+    which enter only the sums of masked candidates) and done together; the cumulative sums run
+    sample by sample, so a record gives the same candidate, bit for bit, alone or in a batch.
+    """
+    out = [0] * len(ts)
+    order = sorted(range(len(ts)), key=lambda i: i1s[i])
+    groups: list[list[int]] = [[]]
+    for i in order:
+        if groups[-1] and (len(groups[-1]) + 1) * (i1s[i] + 1) > _CHANGE_BATCH:
+            groups.append([])
+        groups[-1].append(i)
+    for grp in groups if order else []:
+        ms = np.array([i1s[i] + 1 for i in grp])
+        W = int(ms.max())
+        R = len(grp)
+        P = np.zeros((R, 9, W))  # u^0..u^4, y u^0..u^2, y² (suffix sums of each below)
+        for r, i in enumerate(grp):
+            m = int(ms[r])
+            P[r, 1, W - m:] = ts[i][:m] - ts[i][m - 1]
+            P[r, 5, W - m:] = xs[i][:m]
+        P[:, 0] = 1.0
+        u, y = P[:, 1], P[:, 5]
+        np.multiply(u, u, out=P[:, 2])
+        np.multiply(P[:, 2], u, out=P[:, 3])
+        np.multiply(P[:, 2], P[:, 2], out=P[:, 4])
+        np.multiply(P[:, 1:3], y[:, None], out=P[:, 6:8])
+        np.multiply(y, y, out=P[:, 8])
+        Sp = np.cumsum(P[:, :, ::-1], axis=2)[:, :, ::-1]
+        first = (W - ms)[:, None]
+        s_y = np.take_along_axis(Sp[:, 5], first, axis=1)  # Σ y, Σ y² over the whole record
+        s_yy = np.take_along_axis(Sp[:, 8], first, axis=1)
+        u2, u3, u4 = P[:, 2], P[:, 3], P[:, 4]
+        # q_i = (u_i − u_j)², Σq and Σq² over i ≥ j, Σ y q over i ≥ j
+        s_q = Sp[:, 2] - 2 * u * Sp[:, 1] + u2 * Sp[:, 0]
+        s_qq = (Sp[:, 4] - 4 * u * Sp[:, 3] + 6 * u2 * Sp[:, 2] - 4 * u3 * Sp[:, 1]
+                + u4 * Sp[:, 0])
+        s_yq = Sp[:, 7] - 2 * u * Sp[:, 6] + u2 * Sp[:, 5]
+        det = ms[:, None] * s_qq - s_q**2
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+            L = (s_qq * s_y - s_q * s_yq) / det
+            a = (ms[:, None] * s_yq - s_q * s_y) / det
+            sse = s_yy - L * s_y - a * s_yq
+        valid = np.arange(W)[None, :] >= first
+        sse = np.where(valid & np.isfinite(sse) & (det > 0), sse, np.inf)
+        j0 = np.argmin(sse, axis=1) - first[:, 0]
+        for r, i in enumerate(grp):
+            out[i] = int(j0[r])
+    return out
+
+
+def _releases(ts: Sequence[np.ndarray], xs: Sequence[np.ndarray], refine: bool = True
+              ) -> list[tuple[int, float | None]]:
+    """:func:`_release` of many records, the change points of all of them in one batch."""
+    deps = [_departure(x) for x in xs]
+    live = [i for i, d in enumerate(deps) if d.i1 is not None]
+    j0s = dict(zip(live, _change_points([ts[i] for i in live], [xs[i] for i in live],
+                                        [deps[i].i1 for i in live]), strict=True))
+    out: list[tuple[int, float | None]] = []
+    for i, (t, x) in enumerate(zip(ts, xs, strict=True)):
+        if i not in j0s:
+            out.append((0, None))
+            continue
+        j = j0s[i] if not refine else _refine_release(t, x, deps[i], j0s[i])
+        out.append((j, _hold_sd(x, j)))
+    return out
+
+
+def _release(t: np.ndarray, x: np.ndarray, refine: bool = True) -> tuple[int, float | None]:
+    """Index of the release sample and the sd of the held segment (None if too short).
+
+    The departure from the held level (:func:`_departure`), its quadratic change point before
+    it (:func:`_change_points`) and, with ``refine``, a refinement with an even quartic
+    (:func:`_refine_release`). ``refine=False`` stops after the change point (a few samples
+    off, typically), for callers that refine the release with a model of their own."""
+    return _releases([t], [x], refine)[0]
+
+
+def _refine_release(t: np.ndarray, x: np.ndarray, dep: _Departure, j0: int) -> int:
+    """The release refined on a longer stretch (until 4× the threshold) with x = L + a u² +
+    b u⁴, u = (t − τ)₊ (the free response from rest is even in u), over candidates within 16
+    samples of the change point ``j0``."""
+    n = x.size
+    level, thr, i1, m_search = dep.level, dep.thr, dep.i1, dep.m_search
+    assert i1 is not None
     far = np.flatnonzero(np.abs(x[i1:m_search] - level) > 4 * thr)
     i2 = i1 + int(far[0]) if far.size else min(n - 1, 2 * i1)
     w = 16
@@ -340,10 +416,9 @@ def _release(t: np.ndarray, x: np.ndarray, refine: bool = True) -> tuple[int, fl
     try:
         coef = np.linalg.solve(AtA, Aty[..., None])[..., 0]
     except np.linalg.LinAlgError:
-        return j0, _hold_sd(x, j0)
+        return j0
     sse2 = float(y0 @ y0) - (coef * Aty).sum(1)
-    jr = int(cand[np.argmin(sse2)])
-    return jr, _hold_sd(x, jr)
+    return int(cand[np.argmin(sse2)])
 
 
 def detect_release(t, x) -> float:
@@ -943,6 +1018,21 @@ def _dominant_period(xg: np.ndarray) -> float:
     return min(nfft / k, float(xg.size))
 
 
+def _dominant_periods(xgs: Sequence[np.ndarray]) -> list[float]:
+    """:func:`_dominant_period` of many records, the spectra of their first 4096 samples in
+    one FFT (the same transform per row, so the same periods bit for bit)."""
+    out: list[float | None] = [None] * len(xgs)
+    rows = [i for i, xg in enumerate(xgs) if xg.size >= 4096]
+    if len(rows) > 1:
+        S = np.stack([xgs[i][:4096] for i in rows])
+        S -= S.mean(axis=1, keepdims=True)
+        k = np.argmax(np.abs(np.fft.rfft(S, 4096, axis=1))[:, 1:], axis=1) + 1
+        for i, kk in zip(rows, k.tolist(), strict=True):
+            if kk > 2 or xgs[i].size == 4096:
+                out[i] = min(4096 / kk, float(xgs[i].size))
+    return [_dominant_period(xg) if p is None else p for xg, p in zip(xgs, out, strict=True)]
+
+
 def _uniform(
     tau: np.ndarray, x: np.ndarray, origin: float = 0.0
 ) -> tuple[np.ndarray, float, float | None]:
@@ -1178,15 +1268,42 @@ class _StartInput:
 def _start_prepare(t, x, *, release=None, skip=0.0, coarse_release=False) -> _StartInput:
     """:func:`start_decay` up to its ESPRIT (checks, release, window, noise, period)."""
     t, x = _check_record(t, x)
-    release, hold_sd, tw, xw = _window(t, x, release, skip, None, not coarse_release)
+    grid = _start_grid(t, x, release, skip, not coarse_release)
+    return _start_input(grid, _dominant_period(grid.xg))
+
+
+@dataclass(frozen=True)
+class _StartGrid:
+    """:func:`_start_grid`'s window: release (s), t and x, τ = t − t[0] (s), noise (m), x on
+    a uniform grid, its step (s) and the step if the sampling was uniform (else None)."""
+
+    release: float
+    tw: np.ndarray
+    xw: np.ndarray
+    tau: np.ndarray
+    noise: float
+    xg: np.ndarray
+    dt: float
+    udt: float | None
+
+
+def _start_grid(t, x, release, skip, refine_release=True, detected=None) -> _StartGrid:
+    """The window of :func:`start_decay` (release, window, noise, uniform grid) of a checked
+    record; ``detected`` as for :func:`_window`."""
+    release, hold_sd, tw, xw, ptp = _window(t, x, release, skip, None, refine_release, detected)
     tau = tw - tw[0]
     noise = hold_sd if hold_sd else _diff_noise(xw[-4096:])
-    noise = max(noise, 1e-15 * float(np.ptp(xw)))
+    noise = max(noise, 1e-15 * ptp)
     xg, dt, udt = _uniform(tau, xw, float(tw[0]))
-    per = _dominant_period(xg)
-    y, q, n_act = _guess_input(xg, per, noise)
-    return _StartInput(release=float(release), tw=tw, xw=xw, tau=tau, noise=float(noise), xg=xg,
-                       dt=float(dt), udt=udt, per=float(per), y=y, q=q, n_act=n_act)
+    return _StartGrid(float(release), tw, xw, tau, float(noise), xg, float(dt), udt)
+
+
+def _start_input(g: _StartGrid, per: float) -> _StartInput:
+    """:func:`start_decay`'s ESPRIT input from its window and the spectral period ``per``
+    (samples)."""
+    y, q, n_act = _guess_input(g.xg, per, g.noise)
+    return _StartInput(release=g.release, tw=g.tw, xw=g.xw, tau=g.tau, noise=g.noise, xg=g.xg,
+                       dt=g.dt, udt=g.udt, per=float(per), y=y, q=q, n_act=n_act)
 
 
 def _start_finish(pre: _StartInput, s: np.ndarray, energy: np.ndarray | None,
@@ -1253,21 +1370,30 @@ def _cycles(amplitude, sigma, omega, duration, noise) -> float:
     return max(omega * t_above / (2 * math.pi), 0.0)
 
 
-def _clipped(x: np.ndarray, model: np.ndarray, noise: float) -> bool:
-    """Flat tops: ≥ 5 samples at the record's extreme value that the fitted mode overshoots."""
+def _clipped(x: np.ndarray, model, noise: float) -> bool:
+    """Flat tops: ≥ 5 samples at the record's extreme value that the fitted mode overshoots.
+
+    ``model``: the fitted model at the samples of x, or a function giving it at the samples
+    a boolean mask selects (so that a fit without flat tops need not evaluate it at all)."""
     for ext, sign in ((x.max(), 1.0), (x.min(), -1.0)):
         at = x == ext
         if np.count_nonzero(at) >= 5:
-            over = sign * (model[at] - ext)  # how far the mode goes beyond the flat level
+            at_model = model(at) if callable(model) else model[at]
+            over = sign * (at_model - ext)  # how far the mode goes beyond the flat level
             if over.max() > 5.0 * noise:
                 return True
     return False
 
 
-def _window(t, x, release, skip, t_end, refine_release=True):
+def _window(t, x, release, skip, t_end, refine_release=True, detected=None):
+    """The release (s), the held segment's sd (m, or None), the window's t and x, and the
+    range of x over it (m).
+
+    ``detected``: the release's sample and held sd when they were already detected (as
+    :func:`_release` gives them), for ``release=None``."""
     skip = v.nonnegative("skip", skip, "s")
     if release is None:
-        j, hold_sd = _release(t, x, refine_release)
+        j, hold_sd = _release(t, x, refine_release) if detected is None else detected
         release = float(t[j])
     else:
         release = v.finite("release", release, "s")
@@ -1295,9 +1421,10 @@ def _window(t, x, release, skip, t_end, refine_release=True):
             f"at least {MIN_SAMPLES} are needed"
         )
     tw, xw = t[i0:i1], x[i0:i1]
-    if not np.ptp(xw) > 0:
+    ptp = float(xw.max()) - float(xw.min())
+    if not ptp > 0:
         raise ValueError(f"`x` is constant ({xw[0]:g} m) in the window [{t0:g}, {t1:g}] s")
-    return release, hold_sd, tw, xw
+    return release, hold_sd, tw, xw, ptp
 
 
 def _unfitted(
@@ -1337,16 +1464,17 @@ def _check_fast_roots(fast_roots) -> np.ndarray:
         r = np.asarray(fast_roots, dtype=complex).ravel()
     except (TypeError, ValueError):
         raise ValueError(f"`fast_roots` must be complex numbers; got {fast_roots!r}") from None
-    if not np.all(np.isfinite(r)):
-        raise ValueError(f"`fast_roots` must be finite; got {r[~np.isfinite(r)][0]}")
-    if not np.all(r.real < 0):
-        raise ValueError(
-            f"`fast_roots` must be decaying modes (Re s < 0, 1/s); got {r[~(r.real < 0)][0]}"
-        )
+    roots = r.tolist()  # (a handful: plain Python is faster than array calls here)
+    for z in roots:
+        if not cmath.isfinite(z):
+            raise ValueError(f"`fast_roots` must be finite; got {z}")
+    for z in roots:
+        if not z.real < 0:
+            raise ValueError(f"`fast_roots` must be decaying modes (Re s < 0, 1/s); got {z}")
     keep: list[complex] = []
-    for z in r.real + 1j * np.abs(r.imag):  # a root and its conjugate are one mode
+    for z in (complex(q.real, abs(q.imag)) for q in roots):  # a root and its conjugate: one mode
         if not any(abs(z - w) <= 1e-9 * abs(w) for w in keep):
-            keep.append(complex(z))
+            keep.append(z)
     return np.array(keep, dtype=complex)
 
 
@@ -1506,9 +1634,8 @@ def _fit_prepare(t, x, *, release=None, skip=0.0, t_end=None, noise_sd=None, fas
     if noise_sd is not None:
         noise_sd = v.positive("noise_sd", noise_sd, "m")
     fast = _check_fast_roots(fast_roots)
-    release, hold_sd, tw, xw = _window(t, x, release, skip, t_end)
+    release, hold_sd, tw, xw, ptp = _window(t, x, release, skip, t_end)
     tau = tw - float(tw[0])
-    ptp = float(np.ptp(xw))
     if noise_sd is not None:
         noise = noise_sd
     else:  # the tail, where the signal is least, is the best place for a difference estimate
@@ -1547,59 +1674,48 @@ def _fit_finish(prep: _Prepared, sig: float, om: float, beta: np.ndarray, K: np.
     the exact residual ``r`` (m, per sample of the window) and (JᵀJ)⁻¹ ``Minv`` (σ, ω_d last);
     covariance, amplitude, noise floor, cycles and warnings."""
     tw, xw, fast, noise_sd = prep.tw, prep.xw, prep.fast, prep.noise_sd
-    off, a, b = (float(c) for c in beta[:3])
+    bl = beta.tolist()
+    off, a, b = bl[:3]
     n = xw.size
     rss = float(r @ r)
     s2 = rss / max(n - K.shape[0], 1)
     amp, phase = _phase_amp(a, b)
     # the fast columns are e^{rτ} (real r) or Re, Im of e^{rτ}: amplitude A with Re(A e^{rτ})
     fast_modes, j = [], 3
-    for root in fast.tolist():
+    fl = fast.tolist()
+    for root in fl:
         if root.imag != 0:
-            fast_modes.append((complex(root), complex(beta[j], -beta[j + 1])))
+            fast_modes.append((complex(root), complex(bl[j], -bl[j + 1])))
             j += 2
         else:
-            fast_modes.append((complex(root), complex(beta[j])))
+            fast_modes.append((complex(root), complex(bl[j])))
             j += 1
-    fit = DecayFit(
-        sigma=float(sig),
-        omega_d=float(om),
-        cov=s2 * Minv[-2:, -2:],
-        amplitude=amp,
-        phase=phase,
-        offset=off,
-        t_ref=float(tw[0]),
-        t_start=float(tw[0]),
-        t_end=float(tw[-1]),
-        release=prep.release,
-        n_samples=int(n),
-        cycles=0.0,
-        noise_sd=math.sqrt(s2),
-        residual_rms=math.sqrt(rss / n),
-        method="mode-fit",
-        fast_modes=tuple(fast_modes),
-    )
-    floor = noise_sd if noise_sd is not None else max(fit.noise_sd, 1e-15 * prep.ptp)
+    cov = s2 * Minv[-2:, -2:]
+    (c00, _c01), (_c10, c11) = cov.tolist()
+    sig_se, om_se = math.sqrt(max(c00, 0.0)), math.sqrt(max(c11, 0.0))  # DecayFit's stderrs
+    fit_noise = math.sqrt(s2)
+    floor = noise_sd if noise_sd is not None else max(fit_noise, 1e-15 * prep.ptp)
     cycles = _cycles(amp, sig, om, float(tw[-1] - tw[0]), floor)
-    warnings = _common_warnings(fit, cycles, xw, xw - r, floor)
+    warnings = _common_warnings(sig, sig_se, cycles, xw, lambda at: xw[at] - r[at], floor)
     # detection statistic of the mode: its norm over the window in noise sds (pure noise gives
     # ~5 for the best of all (σ, ω_d); a real decay of the sample set ~10³)
-    ab = beta[1:3]
-    snr = math.sqrt(max(float(ab @ K[1:3, 1:3] @ ab), 0.0)) / max(fit.noise_sd, 1e-300)
+    (k11, k12), (k21, k22) = K[1:3, 1:3].tolist()
+    snr = math.sqrt(max(a * (k11 * a + k12 * b) + b * (k21 * a + k22 * b), 0.0)) / max(
+        fit_noise, 1e-300)
     if (
         # the order-3 starting guess sees no complex pair when a slow non-dominant real mode is
         # in the record; with that mode given in ``fast_roots`` the final fit decides alone
         (not prep.oscillating and fast.size == 0)
-        or not om > 3.0 * fit.omega_d_stderr
+        or not om > 3.0 * om_se
         or om * (tw[-1] - tw[0]) < math.pi
         or snr < _MIN_MODE_SNR
     ):
         warnings.append(
             "no oscillation: the dominant motion is not a resolvable damped oscillation "
-            f"(omega_d = {om:.4g} ± {fit.omega_d_stderr:.2g} rad/s, mode {snr:.3g} noise sds "
+            f"(omega_d = {om:.4g} ± {om_se:.2g} rad/s, mode {snr:.3g} noise sds "
             "strong); sigma and omega_d describe no underdamped mode"
         )
-    if fast.size and np.any(-fast.real <= sig):
+    if any(-z.real <= sig for z in fl):
         warnings.append(
             "fast_roots: a root given as non-dominant decays no faster than the fitted dominant "
             f"mode (sigma = {sig:.4g} 1/s); check the roots"
@@ -1610,26 +1726,48 @@ def _fit_finish(prep: _Prepared, sig: float, om: float, beta: np.ndarray, K: np.
             "the estimate may not be the least-squares optimum"
         )
     ref = noise_sd if noise_sd is not None else prep.hold_sd
-    if ref and fit.noise_sd > 1.5 * ref:
+    if ref and fit_noise > 1.5 * ref:
         warnings.append(
-            f"misfit: residual sd {fit.noise_sd:.3g} m is {fit.noise_sd / ref:.2f} times the "
+            f"misfit: residual sd {fit_noise:.3g} m is {fit_noise / ref:.2f} times the "
             f"noise sd {ref:.3g} m ({'given' if noise_sd is not None else 'held segment'}); "
             "the record holds more than one damped mode (increase `skip`?) or friction"
         )
-    return replace(fit, cycles=cycles, warnings=tuple(warnings))
+    return DecayFit(
+        sigma=float(sig),
+        omega_d=float(om),
+        cov=cov,
+        amplitude=amp,
+        phase=phase,
+        offset=off,
+        t_ref=float(tw[0]),
+        t_start=float(tw[0]),
+        t_end=float(tw[-1]),
+        release=prep.release,
+        n_samples=int(n),
+        cycles=cycles,
+        noise_sd=fit_noise,
+        residual_rms=math.sqrt(rss / n),
+        method="mode-fit",
+        fast_modes=tuple(fast_modes),
+        warnings=tuple(warnings),
+    )
 
 
-def _common_warnings(fit: DecayFit, cycles: float, xw, model, floor) -> list[str]:
+def _common_warnings(sigma: float, sigma_stderr: float, cycles: float, xw, model, floor
+                     ) -> list[str]:
+    """The warnings every decay fit can give: few cycles, a growing oscillation (σ < 0, 1/s,
+    with its stderr), a clipped record (``model`` as for :func:`_clipped`; ``floor``: noise
+    sd, m)."""
     w = []
     if cycles < MIN_CYCLES:
         w.append(
             f"few cycles: only {cycles:.1f} oscillation cycles above the noise floor "
             f"(< {MIN_CYCLES:g}); sigma and omega_d are poorly supported by the data"
         )
-    if fit.sigma < 0:
-        sure = fit.sigma < -2.0 * fit.sigma_stderr
+    if sigma < 0:
+        sure = sigma < -2.0 * sigma_stderr
         w.append(
-            f"growing oscillation: sigma = {fit.sigma:.4g} ± {fit.sigma_stderr:.2g} 1/s < 0 "
+            f"growing oscillation: sigma = {sigma:.4g} ± {sigma_stderr:.2g} 1/s < 0 "
             + ("(unstable loop)" if sure else "(within 2 stderr of 0: marginally stable loop?)")
         )
     if _clipped(xw, model, floor):
@@ -1771,7 +1909,7 @@ def logdec(t, x, *, release=None, skip=0.0) -> DecayFit:
     0.500000 6.200000
     """
     t, x = _check_record(t, x)
-    release, hold_sd, tw, xw = _window(t, x, release, skip, None)
+    release, hold_sd, tw, xw, _ptp = _window(t, x, release, skip, None)
     t_ref = float(tw[0])
     noise = hold_sd if hold_sd else _diff_noise(xw)
     noise = max(noise, 1e-15 * float(np.ptp(xw)))
@@ -1826,7 +1964,7 @@ def logdec(t, x, *, release=None, skip=0.0) -> DecayFit:
         method="logdec",
     )
     cycles = _cycles(amp, sig, om, float(tw[-1] - tw[0]), noise)
-    warnings += _common_warnings(fit, cycles, xw, fit.model(tw), noise)
+    warnings += _common_warnings(fit.sigma, fit.sigma_stderr, cycles, xw, fit.model(tw), noise)
     if ext["n_extrema"] < 2 * MIN_CYCLES:
         warnings.append(
             f"few extrema: only {ext['n_extrema']} extrema above the noise floor were used"

@@ -90,21 +90,23 @@ class _Batch:
         Cpad[:, 1, 2] = 2.0 * bB
         self.Cpad = Cpad
         # fast-mode columns, zero beyond each record's own span
-        cols = [_d._fast_columns(p.tau, p.fast, dt) if p.fast.size else None for p in preps]
-        kc = 0 if cols[0] is None else cols[0].shape[0]
+        kc = int(preps[0].fast.size + np.count_nonzero(preps[0].fast.imag))
         self.kc = kc
         self.lin, _lin_ix, self.perm, _pix = _d._lin_index(kc)
         self.m = 5 + kc
         self.dof = np.maximum(n - self.lin.size - 2, 1)
         if kc:
-            # per record (each stays in cache): the columns, their Gram matrix, Σ F, F x and
-            # the stacked (F; τF) for the cross sums with the damped mode
-            self.cols = cols
-            self.FF = np.stack([c @ c.T for c in cols])
-            self.Fx = np.stack([c @ x[: c.shape[1]] for c, x in zip(cols, self.xs, strict=True)])
-            self.Fsum = np.stack([c.sum(axis=1) for c in cols])
-            self.FT = [np.vstack((c, c * p.tau[: c.shape[1]])) for c, p in
-                       zip(cols, preps, strict=True)]
+            # the columns of all records, zero beyond each record's own nf samples (FT: the
+            # stacked (F; τF) for the cross sums with the damped mode), their Gram matrices,
+            # Σ F and F x; ``cols`` the views of each record's own columns
+            FT, nf = _fast_columns_many([p.tau for p in preps], [p.fast for p in preps], dt)
+            C = FT[:, :kc]
+            self.nf, self.nfmax = nf, FT.shape[2]
+            self.cols = [C[i, :, : nf[i]] for i in range(R)]
+            self.FF = C @ C.transpose(0, 2, 1)
+            self.Fx = (C @ flat[:, : self.nfmax, None])[:, :, 0]  # (nf ≤ n: within flat)
+            self.Fsum = C.sum(axis=2)
+            self.FT = FT
 
     # -- the sums of one evaluation ------------------------------------------------------------
 
@@ -166,12 +168,13 @@ class _Batch:
             Gx5 = np.stack([self.sx[idx], s0.real, s0.imag, s1.real * dt, s1.imag * dt], axis=1)
             kc = self.kc
             if kc:
-                Pc = np.empty((r, 2 * kc, 2))
-                for q, i in enumerate(idx.tolist()):
-                    FT = self.FT[i]
-                    nf = FT.shape[1]
-                    zh = np.multiply.outer(W[q, : -(-nf // B)], F[q]).ravel()[:nf]
-                    np.matmul(FT, zh.view(float).reshape(nf, 2), out=Pc[q])
+                # Σ_n (F; τF)_n w^n over each record's fast samples, w^n = W_b F_j (n = bB + j)
+                # (FT is zero beyond a record's nf; a w^n there that overflows is one of the
+                # record's own samples, which makes its main sums overflow too: not ok either way)
+                nfm = self.nfmax
+                zh = (W[:, : -(-nfm // B), None] * F[:, None, :]).reshape(r, -1)[:, :nfm]
+                FT = self.FT if r == self.R else self.FT[idx]
+                Pc = FT @ np.ascontiguousarray(zh).view(float).reshape(r, nfm, 2)
                 K = np.empty((r, 5 + kc, 5 + kc))
                 K[:, :5, :5] = K5
                 K[:, 0, 5:] = self.Fsum[idx]
@@ -272,6 +275,58 @@ class _Batch:
             Minv[ok] = _inv_each(M[ok] / dd) / dd
         ok &= np.isfinite(Minv).all(axis=(1, 2))
         return Minv, g, ok
+
+
+def _fast_columns_many(taus: Sequence[np.ndarray], roots: Sequence[np.ndarray], dt: float
+                       ) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`phoid.decay._fast_columns` of R records of uniform step ``dt`` (s) and the same
+    number kc of columns, stacked with τ times them: (R, 2 kc, nf_max), zero beyond each
+    record's own nf samples, and nf (R,). Every column is computed as there, element for
+    element (the same exponentials, the same table products), so the columns are the same
+    numbers bit for bit."""
+    R = len(taus)
+    nf = np.array([int(np.searchsorted(tau, tau[0] + 37.0 / min(-z.real for z in r.tolist()),
+                                       side="right")) for tau, r in zip(taus, roots, strict=True)])
+    nfm = int(nf.max())
+    kc = int(roots[0].size + np.count_nonzero(roots[0].imag))
+    TF = np.zeros((R, nfm))
+    for i, tau in enumerate(taus):
+        np.subtract(tau[: nf[i]], tau[0], out=TF[i, : nf[i]])
+    out = np.empty((R, 2 * kc, nfm))
+    # (record, first column, root) of every complex root of each kind and of every real root
+    tab: list[tuple[int, int, complex]] = []
+    direct: list[tuple[int, int, complex]] = []
+    real: list[tuple[int, int, float]] = []
+    for i, rr in enumerate(roots):
+        col = 0
+        for z in rr.tolist():
+            if z.imag != 0:
+                (tab if nf[i] > 256 else direct).append((i, col, z))
+                col += 2
+            else:
+                real.append((i, col, z.real))
+                col += 1
+    with np.errstate(over="ignore", invalid="ignore", under="ignore"):
+        if tab:
+            ii, cc, zz = (np.array(v) for v in zip(*tab, strict=True))
+            ls = zz * dt
+            Ft = np.exp(ls[:, None] * np.arange(64.0)[None, :])
+            Wt = np.exp((ls * 64)[:, None] * np.arange(-(-nfm // 64), dtype=float)[None, :])
+            e = (Wt[:, :, None] * Ft[:, None, :]).reshape(len(tab), -1)[:, :nfm]
+            out[ii, cc] = e.real
+            out[ii, cc + 1] = e.imag
+        if direct:
+            ii, cc, zz = (np.array(v) for v in zip(*direct, strict=True))
+            e = np.exp(zz[:, None] * TF[ii])
+            out[ii, cc] = e.real
+            out[ii, cc + 1] = e.imag
+        if real:
+            ii, cc, zz = (np.array(v) for v in zip(*real, strict=True))
+            out[ii, cc] = np.exp(zz[:, None] * TF[ii])
+    # zero beyond nf (|e^{rτ}| ≤ 1 there: no overflow); τF is, as TF is
+    out[:, :kc] *= (np.arange(nfm)[None, :] < nf[:, None])[:, None, :]
+    np.multiply(out[:, :kc], TF[:, None, :], out=out[:, kc:])
+    return out, nf
 
 
 def _solve_each(A: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -522,11 +577,25 @@ def start_decays(records: Sequence[tuple[np.ndarray, np.ndarray]], *, skip: floa
     """
     out: list[_d.DecayStart | str | None] = [None] * len(records)
     pres: dict[int, _d._StartInput] = {}
+    checked: dict[int, tuple[np.ndarray, np.ndarray]] = {}
     for i, (t, x) in enumerate(records):
         try:
-            pres[i] = _d._start_prepare(t, x, skip=skip, coarse_release=coarse_release)
+            checked[i] = _d._check_record(t, x)
+        except ValueError as exc:
+            out[i] = str(exc)
+    # the releases' change points in one batch, the spectral periods in one FFT
+    detected = dict(zip(checked, _d._releases([t for t, _ in checked.values()],
+                                               [x for _, x in checked.values()],
+                                               not coarse_release), strict=True))
+    grids: dict[int, _d._StartGrid] = {}
+    for i, (t, x) in checked.items():
+        try:
+            grids[i] = _d._start_grid(t, x, None, skip, not coarse_release, detected[i])
         except (ValueError, RuntimeError, np.linalg.LinAlgError) as exc:
             out[i] = str(exc)
+    periods = _d._dominant_periods([g.xg for g in grids.values()])
+    for (i, g), per in zip(grids.items(), periods, strict=True):
+        pres[i] = _d._start_input(g, per)
     order = 3
     grams: dict[int, list[tuple[int, np.ndarray]]] = {}
     for i, pre in pres.items():

@@ -634,7 +634,7 @@ def _measure(data, P, D, delay, *, rough=None, first=None, noise=None, digital=N
             left = [q for q in rest if q not in fitted]
             omitted = left[0] if left else None
             # release amplitude scale and the first omitted mode's share of it (its residue)
-            x0 = float(np.max(np.abs(np.asarray(x) - st.offset)))
+            x0 = max(float(x.max()) - st.offset, st.offset - float(x.min()))  # max |x − offset|
             if omitted is None:
                 a_omit = 0.0
             elif digital is not None:
