@@ -46,7 +46,11 @@ def finite_array(name: str, value: Any, ndim: int | None = None) -> np.ndarray:
         raise ValueError(f"`{name}` must be an array of real numbers") from None
     if ndim is not None and a.ndim != ndim:
         raise ValueError(f"`{name}` must be {ndim}-dimensional; got shape {a.shape}")
-    if not np.all(np.isfinite(a)):
+    # a finite sum means every element is finite (a NaN or inf makes it NaN or inf), in one
+    # pass; an infinite one (NaN/inf, or finite values whose sum overflows) is looked at closely
+    with np.errstate(over="ignore", invalid="ignore"):
+        total = float(np.add.reduce(a, axis=None))
+    if not math.isfinite(total) and not np.all(np.isfinite(a)):
         bad = a[~np.isfinite(a)].ravel()[0]
         raise ValueError(f"`{name}` must be finite; got {bad}")
     return a

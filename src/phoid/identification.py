@@ -261,10 +261,12 @@ def _residue(s, m, c, k, P, D, delay) -> complex:
 def _modes(roots: np.ndarray) -> list[complex]:
     """Distinct modes (one root of each conjugate pair, Im ≥ 0), rightmost first."""
     out: list[complex] = []
-    for r in roots:
-        r = complex(r.real, abs(r.imag))
-        if not any(abs(r - o) <= 1e-9 * max(1.0, abs(o)) for o in out):
+    tol: list[float] = []  # 1e−9 max(1, |o|) of each kept mode o
+    for z in np.asarray(roots, dtype=complex).tolist():
+        r = complex(z.real, abs(z.imag))
+        if not any(abs(r - o) <= e for o, e in zip(out, tol, strict=True)):
             out.append(r)
+            tol.append(1e-9 * max(1.0, abs(r)))
     return out
 
 
