@@ -227,3 +227,150 @@ def test_rightmost_roots_many_matches_per_run_roots(name, count, monkeypatch):
     elif count == 8:
         # the sweep does cross the change: runs without a real root and runs with one
         assert {r.size % 2 for r in ref} == {0, 1}
+
+
+# the bench's mass-damper set with the rough plant identify_data continues from (k < 0: the
+# fitted lines' stiffness of a spring-less plant): D crosses 0 between runs 4 and 5, where the
+# delay chain moves by ln|D|/Δt and a real root enters from the left
+MASS_DAMPER = (Plant(0.999075, 9.997728, 1.0), 110.0 + 80.0 * np.arange(12.0),
+               -6.8 + 1.4 * np.arange(12.0), 0.01)
+_MD_K = -0.2597680858367359
+
+
+def test_continuation_crosses_d_zero_from_one_full_computation(monkeypatch):
+    # With the chain's own starts (_chain_starts) added to the runs whose continuation lost
+    # roots, every run of the mass-damper set continues from the first: one full computation
+    # (there were three, and two more certificate rounds, before). The roots are those of the
+    # per-run computation to 1e-12 of max(|s|, 1): Newton-converged from different starts
+    # (differences of a few ulps, 2e-16 seen), far below the roots' spacing (> 1 1/s). Run 5
+    # (D = 0.2) per run also exercises the quick attempt's fallback: its abscissa falls so
+    # near a root it missed that the count does not resolve.
+    plant, P, D, delay = MASS_DAMPER
+    m, c = plant.m, plant.c
+    ref = [loop._rightmost_roots(m, c, _MD_K, float(p), float(d), delay, count=12)
+           for p, d in zip(P, D, strict=True)]
+    full = loop._rightmost_roots
+    calls = []
+    monkeypatch.setattr(loop, "_rightmost_roots",
+                        lambda *a, **kw: calls.append(a) or full(*a, **kw))
+    got = loop._rightmost_roots_many(m, c, _MD_K, P, D, delay, count=8)
+    assert len(calls) == 1
+    for r, g in zip(loop._trim_pairs(ref, 8), got, strict=True):
+        assert g.shape == r.shape
+        np.testing.assert_array_less(np.abs(g - r), 1e-12 * np.maximum(np.abs(r), 1.0))
+        # a real root is exactly real in both (identification tells real modes by Im s == 0)
+        assert np.array_equal(g.imag == 0, r.imag == 0)
+    assert {g.size % 2 for g in got} == {0, 1}  # runs with and without the real root
+
+
+def test_chain_starts_lead_newton_to_the_chain_roots():
+    # Newton from the asymptotic starts finds the delay chain's roots (all but the dominant
+    # pair of the first 12, for either sign of D, the real root of D > 0 included) to the
+    # same 1e-12 of max(|s|, 1) as the per-run computation (both are Newton-converged)
+    plant, P, D, delay = MASS_DAMPER
+    P, D = P[[0, 6]], D[[0, 6]]
+    starts = loop._chain_starts(plant.m, plant.c, _MD_K, P, D, delay, 8)
+    z, res = loop._newton_rows(starts, plant.m, plant.c, _MD_K, P[:, None], D[:, None], delay)
+    for i in range(2):
+        ref = loop._rightmost_roots(plant.m, plant.c, _MD_K, float(P[i]), float(D[i]), delay,
+                                    count=12)
+        chain = [r for r in ref[2:] if r.imag >= 0]
+        zi = z[i][np.isfinite(res[i])]
+        for r in chain:
+            assert np.min(np.abs(zi - r)) < 1e-12 * max(abs(r), 1.0)
+
+
+
+
+def _designs(seed: int, count: int) -> list[tuple]:
+    """Random designs (m, c, k, P, D, Δt): m in [0.1, 10] kg, c in [0, 50] N·s/m, k in
+    [0, 200] N/m, Δt in [0.2, 5] ms, 5–25 runs on a line in (P, D), D of both signs."""
+    rng = np.random.default_rng(seed)
+    out = []
+    for _ in range(count):
+        m, c, k, tau = rng.uniform(0.1, 10), rng.uniform(0, 50), rng.uniform(0, 200), \
+            rng.uniform(2e-4, 5e-3)
+        n = int(rng.integers(5, 26))
+        p0, p1 = rng.uniform(0, 3 * k + 200, 2)
+        d0, d1 = rng.uniform(-0.9 * c - 2, c + 10, 2)
+        out.append((m, c, k, np.linspace(p0, p1, n), np.linspace(d0, d1, n), tau))
+    return out
+
+
+DESIGNS = _designs(11, 6)
+
+
+@pytest.mark.parametrize("j", range(len(DESIGNS)))
+def test_quick_full_computation_and_its_fallback_agree(j, monkeypatch):
+    # _rightmost_roots first tries a coarse discretisation with a short Newton; forcing that
+    # attempt to find nothing (its Newton returns no converged root) exercises the fallback,
+    # the full computation. Both are certified, so they are the same roots, to 1e-12 of
+    # max(|s|, 1) (Newton-converged from different eigenvalues: a few ulps apart, far below
+    # the roots' spacing); the same for the continuation over the design's runs.
+    m, c, k, P, D, tau = DESIGNS[j]
+    quick = [loop._rightmost_roots(m, c, k, float(p), float(d), tau, count=8)
+             for p, d in zip(P, D, strict=True)]
+    many = loop._rightmost_roots_many(m, c, k, P, D, tau, count=8)
+    rows = loop._newton_rows
+    calls = []
+
+    def no_roots(s, *a, **kw):
+        calls.append(1)
+        z, res = rows(s, *a, **kw)
+        return z, np.full(res.shape, np.inf)
+
+    monkeypatch.setattr(loop, "_newton_rows", no_roots)
+    full = [loop._rightmost_roots(m, c, k, float(p), float(d), tau, count=8)
+            for p, d in zip(P, D, strict=True)]
+    assert len(calls) == P.size  # each run tried the quick attempt once, then fell back
+    for q, f, g in zip(quick, full, many, strict=True):
+        assert q.shape == f.shape == g.shape
+        np.testing.assert_array_less(np.abs(q - f), 1e-12 * np.maximum(np.abs(f), 1.0))
+        np.testing.assert_array_less(np.abs(g - f), 1e-12 * np.maximum(np.abs(f), 1.0))
+
+
+@pytest.mark.parametrize("j", range(len(DESIGNS)))
+def test_outer_edges_bound_gives_the_sampled_count(j, monkeypatch):
+    # The outer edges' turn of arg f from the bound |f − m s²| < m|s|² (_outer_turn) must
+    # give the count of the fully sampled contour (the bound switched off: the scalar count
+    # samples all edges, the batched one leaves every loop to it). Counts are integers:
+    # equality. Abscissae between consecutive roots (as the certificates place them) and just
+    # left of the dominant pair (as pho._dominant_many does).
+    m, c, k, P, D, tau = DESIGNS[j]
+    roots = loop._rightmost_roots_many(m, c, k, P, D, tau, count=8)
+    for pick in (lambda r: 0.5 * (r[1].real + r[2].real),
+                 lambda r: r[0].real - max(0.5, 0.5 * abs(r[0].real))):
+        a = np.array([pick(r) for r in roots])
+        got = count_roots_right_of_many(a, m, c, k, P, D, tau, near=roots)
+        scalar = [count_roots_right_of(a[i], m, c, k, P[i], D[i], tau, near=roots[i])
+                  for i in range(P.size)]
+        want = [int(np.count_nonzero(r.real > x)) for r, x in zip(roots, a, strict=True)]
+        with monkeypatch.context() as mp:
+            mp.setattr(loop, "_outer_turn",
+                       lambda a_, *args: (np.zeros(np.size(a_)), np.zeros(np.size(a_), bool)))
+            assert np.all(count_roots_right_of_many(a, m, c, k, P, D, tau, near=roots) == -1)
+            sampled = [count_roots_right_of(a[i], m, c, k, P[i], D[i], tau, near=roots[i])
+                       for i in range(P.size)]
+        assert scalar == sampled
+        assert [g for g in got.tolist() if g >= 0] == [s for g, s in zip(got, scalar,
+                                                                          strict=True) if g >= 0]
+        assert scalar == want  # every root right of a is one of the certified ones
+
+
+def test_left_ordinates_are_the_scalar_counts_samples():
+    # the batched left edges (_left_ordinates) hold exactly the scalar count's ordinates
+    # (np.unique of the uniform and the local samples, descending), padded by repeats:
+    # bit-for-bit, so the batched and the scalar count sum the same angles
+    plant, P, D, delay = MASS_DAMPER
+    roots = loop._rightmost_roots_many(plant.m, plant.c, _MD_K, P, D, delay, count=8)
+    a = np.array([0.5 * (r[1].real + r[2].real) - 0.3 for r in roots])
+    R = 1.05 * np.array([loop._root_radius(plant.m, plant.c, _MD_K, p, d, delay, x)
+                         for p, d, x in zip(P, D, a, strict=True)]) + 1.0
+    n = 160
+    Y = loop._left_ordinates(roots, a, R, n)
+    u = np.linspace(0.0, 1.0, n, endpoint=False)
+    for i in range(P.size):
+        y = np.unique(np.concatenate([R[i] * (1.0 - u),
+                                      loop._local_samples(roots[i], a[i], R[i], n)]))[::-1]
+        row = Y[i][np.concatenate([[True], Y[i][1:] != Y[i][:-1]])]
+        assert np.array_equal(row, y)

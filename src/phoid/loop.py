@@ -274,8 +274,13 @@ def count_roots_right_of(
 
     The roots in that half-plane all lie in the disc |s| ≤ R (see :func:`_root_radius`), so the
     winding number of f along the rectangle [a, R] × [−R, R] counts them. By conjugate
-    symmetry only the upper half of the boundary is sampled, finely enough that f turns by less
-    than 0.5 rad between samples (refined until so, up to 4·2²² samples; a RuntimeError beyond).
+    symmetry only the upper half of the boundary is sampled. On its outer edges (right and
+    top) f = m s²(1 + w) with |w| < 1 bounded rigorously, so their turn of arg f follows
+    exactly from the two corner values (:func:`_outer_turn`); only the left edge, where the
+    roots near Re s = a make f turn, is sampled, finely enough that f turns by less than
+    0.5 rad between samples (refined until so, up to 4·2²² samples; a RuntimeError beyond).
+    Where that bound does not hold (|c|, |k| too large for the radius) the whole upper half
+    boundary is sampled instead.
 
     Parameters
     ----------
@@ -300,8 +305,11 @@ def count_roots_right_of(
         return 0
     R = R * 1.05 + 1.0
     # f has real coefficients, f(s̄) = conj f(s): the lower half of the rectangle turns f by as
-    # much as the upper half, so only the path (R, 0) → (R, R) → (a, R) → (a, 0) is sampled and
-    # its turn doubled. The sampling is refined until f turns by < 0.5 rad between samples.
+    # much as the upper half, so only the path (R, 0) → (R, R) → (a, R) → (a, 0) is followed
+    # and its turn doubled (the count is the turn over 2π, i.e. the half path's over π)
+    turn, sure = _outer_turn(np.array([a]), np.array([R]), np.array([float(m)]), c, k,
+                             np.array([float(P)]), np.array([float(D)]), delay)
+    outer = float(turn[0]) if sure[0] else None
     n = max(128, int(8 * (1 + R * delay)))
     corners = (complex(R, 0.0), complex(R, R), complex(a, R), complex(a, 0.0))
     # only roots the uniform spacing R/n would not resolve (f turns by ~spacing/d there)
@@ -311,18 +319,70 @@ def count_roots_right_of(
         u = np.linspace(0.0, 1.0, n, endpoint=False)
         # the left edge, from (a, R) down to (a, 0), with the local samples merged in
         y = np.unique(np.concatenate([R * (1.0 - u), local]))[::-1]
-        z = np.concatenate(
-            [corners[i] + (corners[i + 1] - corners[i]) * u for i in range(2)]
-            + [a + 1j * y, [corners[3]]]
-        )
+        left = [a + 1j * y, [corners[3]]]
+        z = np.concatenate(left if outer is not None else
+                           [corners[i] + (corners[i + 1] - corners[i]) * u for i in range(2)]
+                           + left)
         f, _ = characteristic(z, m, c, k, P, D, delay)
         if np.any(f == 0):
             raise ValueError(f"abscissa a = {a:g} 1/s passes through a characteristic root")
         dang = np.angle(f[1:] / f[:-1])
         if np.max(np.abs(dang)) < 0.5:
-            return round(float(dang.sum()) / np.pi)
+            return round(((outer or 0.0) + float(dang.sum())) / np.pi)
         n *= 2
     raise RuntimeError("argument-principle count did not resolve; the loop is pathological")
+
+
+def _outer_turn(a, R, m, c, k, P, D, delay):
+    """Turn of arg f along the outer edges (R, 0) → (R, R) → (a, R), exactly, from two values.
+
+    On those edges |s| ≥ R and Re s ≥ a, so (triangle inequality, with |c| and |k|: any sign)
+
+        |f(s) − m s²| ≤ |c||s| + |k| + (|D||s| + |P|) e^{−aΔt} =: h(|s|),
+
+    and h(r)/(m r²) decreases in r. Where h(R) < m R² ("sure"), w = f/(m s²) − 1 has |w| < 1
+    all along the edges: f has no zero there (nor anywhere with Re s ≥ a and |s| ≥ R, so the
+    rectangle holds every root right of a), and arg f = 2 arg s + Arg(1 + w) with the principal
+    Arg continuous (Re(1 + w) > 0). Its turn is therefore exactly
+
+        Δ arg f = 2 atan2(R, a) + Arg(f(a + iR)/(m (a + iR)²)) − Arg(f(R)/(m R²)),
+
+    arg s going continuously from 0 to atan2(R, a) ∈ (0, π) (Im s = R > 0 on the top edge).
+    No sampling is needed there: it is a bound, not a sampled check.
+
+    Parameters
+    ----------
+    a, R : ndarray
+        Abscissae (1/s) and contour half-widths (1/s), R > a.
+    m : ndarray
+        Masses, kg.
+    c, k : float
+        Damping (N·s/m) and stiffness (N/m).
+    P, D : ndarray
+        Gains, N/m and N·s/m.
+    delay : float
+        Loop delay Δt, s.
+
+    Returns
+    -------
+    turn : ndarray
+        Δ arg f along the outer edges, rad (meaningful where ``sure``).
+    sure : ndarray of bool
+        Where the bound h(R) < m R² holds (with a relative margin of 1e-12 for rounding).
+    """
+    g = np.exp(-a * delay)
+    h = abs(c) * R + abs(k) + (np.abs(D) * R + np.abs(P)) * g
+    sure = (m > 0) & (h < (1.0 - 1e-12) * m * R * R)
+    end = a + 1j * R
+    with np.errstate(all="ignore"):
+        fe, _ = characteristic(end, m, c, k, P, D, delay)
+        fs, _ = characteristic(R + 0j, m, c, k, P, D, delay)
+        turn = (2.0 * np.arctan2(R, a) + np.angle(fe / (m * end * end))
+                - np.angle(fs / (m * R * R)))
+    return turn, sure & np.isfinite(turn)
+
+
+_LOCAL_OFF = np.linspace(-6.0, 6.0, 73)  # local samples: ±6d about a near root, d/6 apart
 
 
 def _local_samples(r: np.ndarray, a: float, R: float, n: int) -> np.ndarray:
@@ -332,9 +392,55 @@ def _local_samples(r: np.ndarray, a: float, R: float, n: int) -> np.ndarray:
     keep = (d > 0) & (d < 3.0 * R / n) & (np.abs(r.imag) - 6 * d < R)
     if not np.any(keep):
         return np.zeros(0)
-    off = np.linspace(-6.0, 6.0, 73)  # ±6d in steps of d/6
-    local = (np.abs(r.imag[keep])[:, None] + d[keep][:, None] * off).ravel()
+    local = (np.abs(r.imag[keep])[:, None] + d[keep][:, None] * _LOCAL_OFF).ravel()
     return local[(local > 0) & (local < R)]
+
+
+def _left_ordinates(near, a, R, n):
+    """Every loop's left-edge ordinates, descending: the uniform R(1 − u) and the local samples
+    of :func:`_local_samples` (the same numbers), all loops at once.
+
+    Parameters
+    ----------
+    near : list of array_like of complex, or None
+        Each loop's known roots, 1/s.
+    a, R : ndarray, shape (n_loops,)
+        Abscissae and contour half-widths, 1/s.
+    n : int
+        Uniform samples per edge.
+
+    Returns
+    -------
+    ndarray, shape (n_loops, w)
+        Row i: the distinct ordinates of loop i in decreasing order, padded by repeating the
+        last (a repeated point adds no turn of f, f(z)/f(z) = 1 exactly).
+    """
+    u = np.linspace(0.0, 1.0, n, endpoint=False)
+    Y = np.multiply.outer(R, 1.0 - u)
+    if near is None:
+        return Y
+    rs = [np.asarray(r, dtype=complex).ravel() for r in near]
+    size = np.array([r.size for r in rs])
+    if not size.sum():
+        return Y
+    # the known roots as a NaN-padded (loops × roots) table
+    row = np.repeat(np.arange(len(rs)), size)
+    col = np.arange(size.sum()) - np.repeat(np.cumsum(size) - size, size)
+    r = np.full((len(rs), int(size.max())), np.nan, dtype=complex)
+    r[row, col] = np.concatenate(rs)
+    with np.errstate(invalid="ignore"):
+        d = np.abs(r.real - a[:, None])
+        Rc = R[:, None]
+        keep = (d > 0) & (d < 3.0 * Rc / n) & (np.abs(r.imag) - 6 * d < Rc)
+        if not keep.any():
+            return Y
+        local = np.abs(r.imag)[:, :, None] + d[:, :, None] * _LOCAL_OFF
+        Rc = Rc[:, :, None]
+        local = np.where(keep[:, :, None] & (local > 0) & (local < Rc), local, np.nan)
+    Y = -np.sort(-np.concatenate([Y, local.reshape(len(rs), -1)], axis=1), axis=1)  # NaN last
+    valid = np.count_nonzero(np.isfinite(Y), axis=1)
+    Y = Y[:, : int(valid.max())]
+    return np.where(np.isnan(Y), Y[np.arange(len(rs)), valid - 1][:, None], Y)
 
 
 def count_roots_right_of_many(
@@ -343,13 +449,15 @@ def count_roots_right_of_many(
 ) -> np.ndarray:
     """:func:`count_roots_right_of` for many loops at once (one abscissa each), vectorised.
 
-    Every loop's half contour is sampled with the same number of points (the most any of them
-    needs at the first refinement level of the scalar count), so that f is evaluated for all
-    of them in one array operation; the left edges, which carry a different number of local
-    samples per loop, are padded by repeating their last point (a repeated point adds no turn
-    of f). A loop whose count does not resolve at that sampling (f turns by 0.5 rad or more
-    between two samples) or whose contour meets a root gets −1: the caller then asks
-    :func:`count_roots_right_of` for it, which refines its own sampling or raises.
+    The outer edges' turn of arg f is exact (:func:`_outer_turn`); every loop's left edge is
+    sampled with the points of the first refinement level of the scalar count (the uniform
+    ones, as many for every loop: the most any of them needs, and the local ones), so that f
+    is evaluated for all of them in one array operation; the left edges, which carry a
+    different number of local samples per loop, are padded by repeating their last point (a
+    repeated point adds no turn of f). A loop whose count does not resolve at that sampling (f
+    turns by 0.5 rad or more between two samples), whose contour meets a root or whose outer
+    edges the bound does not cover gets −1: the caller then asks :func:`count_roots_right_of`
+    for it, which refines its own sampling or raises.
 
     Parameters
     ----------
@@ -389,34 +497,17 @@ def count_roots_right_of_many(
     if idx.size == 0:
         return out
     R = R[idx] * 1.05 + 1.0
+    ai, mi, Pi, Di = a[idx], mm[idx], P[idx], D[idx]
+    outer, sure = _outer_turn(ai, R, mi, c, k, Pi, Di, delay)
     n = int(max(128, int(np.max(8 * (1 + R * delay)))))
-    u = np.linspace(0.0, 1.0, n, endpoint=False)
-    # left edges: R(1 − u), descending; loops with local samples get them merged in
-    locals_: dict[int, np.ndarray] = {}
-    if near is not None:
-        for j, i in enumerate(idx.tolist()):
-            loc = _local_samples(np.asarray(near[i], dtype=complex).ravel(), a[i], R[j], n)
-            if loc.size:
-                locals_[j] = np.unique(np.concatenate([R[j] * (1.0 - u), loc]))[::-1]
-    width = max([n, *(y.size for y in locals_.values())])
-    Y = np.empty((idx.size, width))
-    Y[:, :n] = np.multiply.outer(R, 1.0 - u)
-    Y[:, n:] = Y[:, n - 1 : n]
-    for j, y in locals_.items():
-        Y[j, : y.size] = y
-        Y[j, y.size :] = y[-1]
-    ai, Rc = a[idx][:, None], R[:, None]
-    z = np.concatenate([
-        Rc + 1j * Rc * u,                 # (R, 0) → (R, R)
-        Rc * (1.0 + 1j) + (ai - Rc) * u,  # (R, R) → (a, R)
-        ai + 1j * Y,                      # (a, R) → (a, 0), local samples merged in
-        ai + 0j,                          # (a, 0)
-    ], axis=1)
-    f, _ = characteristic(z, mm[idx][:, None], c, k, P[idx][:, None], D[idx][:, None], delay)
+    Y = _left_ordinates(None if near is None else [near[i] for i in idx.tolist()], ai, R, n)
+    # the left edge (a, R) → (a, 0), local samples merged in, and its end (a, 0)
+    z = np.concatenate([ai[:, None] + 1j * Y, ai[:, None] + 0j], axis=1)
+    f, _ = characteristic(z, mi[:, None], c, k, Pi[:, None], Di[:, None], delay)
     with np.errstate(divide="ignore", invalid="ignore"):
         dang = np.angle(f[:, 1:] / f[:, :-1])
-    good = np.all(f != 0, axis=1) & np.all(np.abs(dang) < 0.5, axis=1)
-    out[idx[good]] = np.rint(dang[good].sum(axis=1) / np.pi).astype(int)
+    good = sure & np.all(f != 0, axis=1) & np.all(np.abs(dang) < 0.5, axis=1)
+    out[idx[good]] = np.rint((outer[good] + dang[good].sum(axis=1)) / np.pi).astype(int)
     return out
 
 
@@ -457,17 +548,34 @@ def characteristic_roots(
 
 
 def _rightmost_roots(m, c, k, P, D, tau, *, count=6, verify=True):
-    """:func:`characteristic_roots` on raw numbers (m > 0; c, k of any sign)."""
+    """:func:`characteristic_roots` on raw numbers (m > 0; c, k of any sign).
+
+    The first attempt is a quick one: a coarser discretisation (order 16, or 24 where more
+    than 3 roots are asked) and Newton of at most :data:`_CONT_ITERS` steps per start, each
+    start stopped on its own (:func:`_newton_rows`; the wanted roots converge in a handful from
+    the eigenvalues, the spurious ones would take all 30 of the full iteration). Its result is
+    certified like any other (and only a certified set is returned), so it is the same set of
+    roots as the full computation's; where it does not certify (a root missed or not
+    converged, or its abscissa so near a missed root that the count does not resolve), the
+    full computation follows: order 16 or 32, Newton of up to 30 steps, the order doubled
+    until the certificate agrees.
+    """
     if tau == 0.0:
         return _quadratic_roots(m, c + D, k + P)
     n = 16 if count <= 3 else 32  # doubled until the certificate (argument principle) agrees
-    for _attempt in range(6):
-        eig = _generator_eigs(m, c, k, P, D, tau, n)
+    for attempt in range(7 if verify else 6):
+        quick = verify and attempt == 0
+        eig = _generator_eigs(m, c, k, P, D, tau, (16 if count <= 3 else 24) if quick else n)
         eig = eig[np.isfinite(eig)]
         # candidates: the rightmost eigenvalues, generously many
         order = np.argsort(-eig.real)
         cand = eig[order[: max(4 * count, 16)]]
-        roots, res = _newton(cand, m, c, k, P, D, tau)
+        if quick:
+            roots, res = _newton_rows(cand[None, :], m, c, k, np.array([[P]]), np.array([[D]]),
+                                      tau)
+            roots, res = roots[0], res[0]
+        else:
+            roots, res = _newton(cand, m, c, k, P, D, tau)
         scale = np.abs(m * roots**2) + np.abs(c * roots) + k + np.abs(D * roots) + abs(P)
         ok = res <= 1e-9 * np.maximum(scale, 1e-300)
         roots = _unique(roots[ok])
@@ -485,9 +593,16 @@ def _rightmost_roots(m, c, k, P, D, tau, *, count=6, verify=True):
             # certify: count zeros right of an abscissa between the last kept root and the next
             nxt = roots[cut].real if roots.size > cut else sel[-1].real - 1.0
             a = 0.5 * (sel[-1].real + nxt)
-            if count_roots_right_of(a, m, c, k, P, D, tau, near=roots) == sel.size:
-                return _sort_pairs(sel)
-        n *= 2
+            try:
+                if count_roots_right_of(a, m, c, k, P, D, tau, near=roots) == sel.size:
+                    return _sort_pairs(sel)
+            except (RuntimeError, ValueError):
+                # a root the quick attempt missed lies (almost) on its abscissa: the count
+                # cannot resolve there; the full computation places its own abscissa
+                if not quick:
+                    raise
+        if not quick:
+            n *= 2
     raise RuntimeError(
         f"could not certify the rightmost roots for P={P:g}, D={D:g}, delay={tau:g}"
     )
@@ -508,7 +623,11 @@ def _rightmost_roots_many(m, c, k, P, D, tau, *, count=6):
     1. every run still to do is continued from the settled run (one whose roots are certified)
        nearest to it, all at once: Newton on a (runs × roots) array (:func:`_newton_rows`), the
        de-duplication, sorting and cut of every run's roots on that array
-       (:func:`_continued_roots`). Where the gains vary smoothly this settles every run.
+       (:func:`_continued_roots`). The runs whose continuation lost roots (the gains crossed a
+       change of the root structure: D through 0, where the delay chain moves by ln|D|/Δt and
+       a real root enters) are continued once more, batched, with the chain's asymptotic
+       starts (:func:`_chain_starts`) added. Where the gains vary smoothly, or cross D = 0
+       (the bench's mass–damper set), this settles every run.
     2. the runs pass 1 did not settle are continued one at a time, each from its nearest
        neighbour (settled, or continued in this pass, certified on its own all the same), so
        that the steps are short; a run whose continuation loses roots (the gains crossed a
@@ -548,6 +667,21 @@ def _rightmost_roots_many(m, c, k, P, D, tau, *, count=6):
             row[j] = r
         starts = table[[row[j] for j in seed.tolist()]]
         roots, size, pairs, cut = _continued_roots(starts, m, c, k, P[ids], D[ids], tau, count)
+        if np.any(lost := cut == 0):
+            # the gains crossed a change of the root structure (the delay chain moves by
+            # ln|D|/Δt, a real root enters as D turns positive): those runs again, the chain's
+            # own starts added to the neighbour's roots: the real one first, so that where a
+            # complex start also lands on the real root (Im s at rounding level, not 0), the
+            # de-duplication keeps the exactly real one, as the full computation finds it
+            chain = _chain_starts(m, c, k, P[ids[lost]], D[ids[lost]], tau, count)
+            more = np.concatenate([chain[:, :1], starts[lost], chain[:, 1:]], axis=1)
+            rl, sl, pl, cl = _continued_roots(more, m, c, k, P[ids[lost]], D[ids[lost]], tau,
+                                              count)
+            w = max(roots.shape[1], rl.shape[1])
+            roots, pairs = (np.pad(x, ((0, 0), (0, w - x.shape[1])), constant_values=np.nan)
+                            for x in (roots, pairs))
+            roots[lost, : rl.shape[1]], pairs[lost, : pl.shape[1]] = rl, pl
+            size[lost], cut[lost] = sl, cl
         ok = np.flatnonzero(cut > 0)
         for r in ok.tolist():
             out[int(ids[r])] = pairs[r, : size[r]]
@@ -606,6 +740,48 @@ def _rightmost_roots_many(m, c, k, P, D, tau, *, count=6):
         settled = np.append(settled, failed[0])
         todo = failed[1:]
     return _trim_pairs(out, count)
+
+
+def _chain_starts(m, c, k, P, D, tau, count):
+    """Starting points for the delay chain's roots of many loops, from their asymptotics.
+
+    f(s) = 0 is e^{sΔt} = −(D s + P)/(m s² + c s + k), i.e. s is a fixed point of
+
+        G_j(s) = [Log(−(D s + P)/(m s² + c s + k)) + 2πi j]/Δt,   j = 0, 1, …
+
+    (Log the principal logarithm), whose derivative is ≈ 1/(Δt|s|): a contraction on the chain
+    (|Im s| ≳ π/Δt), converging from s = i(2j + ½)π/Δt. The branch j = 0 from a real start
+    −ln(e + m/(|D|Δt))/Δt finds the real root that a positive D adds far left. Eight steps
+    each; only starting points (Newton refines them and the certificate judges the result).
+
+    Parameters
+    ----------
+    m, c, k : float
+        Plant (kg, N·s/m, N/m).
+    P, D : ndarray, shape (n,)
+        Each loop's gains, N/m and N·s/m.
+    tau : float
+        Loop delay Δt, s (> 0).
+    count : int
+        Roots the caller keeps: branches j = 0 … count/2 + 1 are started.
+
+    Returns
+    -------
+    ndarray of complex, shape (n, count//2 + 3)
+        The starts (the real one first: Im exactly 0 where the iteration stays real), NaN
+        where an iteration ran off.
+    """
+    j = np.arange(count // 2 + 2)
+    Pc, Dc = P[:, None], D[:, None]
+    real0 = -np.log(np.e + m / (np.maximum(np.abs(Dc), 1e-300) * tau)) / tau
+    s = np.concatenate([real0 + 0j,
+                        np.broadcast_to(1j * (2.0 * j + 0.5) * np.pi / tau, (P.size, j.size))],
+                       axis=1)
+    twopij = np.concatenate([[0.0], 2j * np.pi * j])
+    with np.errstate(all="ignore"):
+        for _ in range(8):
+            s = (np.log(-(Dc * s + Pc) / (m * s * s + c * s + k)) + twopij) / tau
+    return np.where(np.isfinite(s), s, np.nan)
 
 
 def _continued_roots(starts, m, c, k, P, D, tau, count):
