@@ -209,3 +209,19 @@ def test_change_points_match_brute_force_least_squares():
     assert decay._change_points(ts, xs, i1s) == want
     alone = [decay._change_points([t], [x], [i])[0] for t, x, i in zip(ts, xs, i1s, strict=True)]
     assert alone == want
+
+
+def test_change_points_of_a_record_without_finite_candidates_is_zero_in_a_batch():
+    # a record whose every candidate's sums overflow (values ~1e200) has no finite residual;
+    # alone its change point is 0 (the first candidate), and so it must be in a batch, where
+    # the padding before it is no candidate (it gave a negative index, and an IndexError)
+    t1 = np.arange(200) * 1e-3
+    x1 = np.where(t1 >= 0.1, 1e200 * (t1 - 0.1) ** 2, 0.0)
+    t2 = np.arange(400) * 1e-3
+    x2 = 1e-3 + 5 * np.maximum(t2 - 0.2, 0) ** 2
+    with np.errstate(over="ignore"):
+        alone = decay._change_points([t1], [x1], [150])
+        both = decay._change_points([t1, t2], [x1, x2], [150, 250])
+    assert alone == [0]
+    assert both[0] == 0
+    assert both[1] == decay._change_points([t2], [x2], [250])[0]

@@ -7,6 +7,8 @@ import pytest
 
 from phoid import DelayedPD, Plant, alphas, characteristic_roots, forward_map, inverse_map, loop
 from phoid.loop import (
+    _rightmost_roots,
+    _rightmost_roots_many,
     characteristic,
     count_roots_right_of,
     count_roots_right_of_many,
@@ -374,3 +376,69 @@ def test_left_ordinates_are_the_scalar_counts_samples():
                                       loop._local_samples(roots[i], a[i], R[i], n)]))[::-1]
         row = Y[i][np.concatenate([[True], Y[i][1:] != Y[i][:-1]])]
         assert np.array_equal(row, y)
+
+
+# --- regressions from the review of the 2026-12-01 speed work ---------------------------------
+
+
+@pytest.mark.parametrize("args", [
+    # (m, c, k, P, D, Δt): a far-left real root (small D > 0) that the quick first attempt's
+    # coarse discretisation has no real eigenvalue for; Newton from a complex start converged
+    # onto it with Im ≈ 1e−27 (1e−41), which identification takes for a complex pair
+    (0.17694871307830098, 0.0444688574705507, 1.057570884739352, 2.9995684284455826,
+     0.016748895071099047, 0.023682513007618047),
+    (369.3466025223794, 10574.266950135421, 96838.0442495711, 441437.48890873895,
+     300.2590775978475, 0.0027372528937925304),
+])
+def test_real_roots_come_back_exactly_real(args):
+    # expected: every root either exactly real (Im == 0, as Newton from a real start keeps it)
+    # or clearly complex (|Im| > 1e−6 |s|: these loops' pairs are far from the axis)
+    roots = _rightmost_roots(*args, count=6)
+    assert roots.size >= 6
+    for z in roots:
+        assert z.imag == 0 or abs(z.imag) > 1e-6 * abs(z)
+    assert any(z.imag == 0 for z in roots)
+
+
+def test_continuation_across_d_zero_keeps_real_roots_exactly_real():
+    # the chain-start retry (gains crossing D = 0): its complex starts landed on the entering
+    # real root with Im ≈ 1e−33. Expected: the roots of the per-run computation (1e−12
+    # relative: both are Newton-converged, to ~1e−15) with the same real/complex pattern
+    m, c, k = 0.08131448170937326, 0.04679323639257897, 0.5420258995121682
+    tau = 0.12844755385671094
+    P = np.array([2.0436855855962657, 1.8617162920749128, 1.8278896880910795, 0.9562268612807474,
+                  1.7290284164689478, 0.9152673661165458, 1.0514550303355548])
+    D = np.array([-0.16536439438798123, -0.19422788153438936, 0.07155138843885685,
+                  -0.1287967143580461, 0.19164243187796617, 0.027293359994510845,
+                  0.032109535045036816])
+    many = _rightmost_roots_many(m, c, k, P, D, tau, count=8)
+    for i, got in enumerate(many):
+        want = _rightmost_roots(m, c, k, P[i], D[i], tau, count=12)[: got.size]
+        assert got.size >= 8
+        np.testing.assert_allclose(got, want, rtol=1e-12, atol=0)
+        assert [z.imag == 0 for z in got] == [z.imag == 0 for z in want]
+
+
+@pytest.mark.parametrize("args, count", [
+    ((156.9744368877158, 0.0, 0.0, 2163361.5283653736, 10957.263035892202,
+      0.00024618634981964685), 14),
+    ((161.79483518168934, 0.0, 66181834.329523236, 68166471.900587, 683.3887137201364,
+      2.274545459849884e-05), 12),
+])
+def test_quick_attempt_never_returns_fewer_roots_than_asked(args, count):
+    # the quick first attempt found too few roots for a real-part gap after `count` and cut at
+    # all it had (13 of 14, 11 of 12); its certificate proved no root missed right of the last,
+    # not that `count` were there. Expected: at least `count` roots (whole pairs)
+    assert _rightmost_roots(*args, count=count).size >= count
+
+
+@pytest.mark.parametrize("a, m, c, k, want", [
+    # P = D = 0: the roots are those of m s² + c s + k, exact (s = 0 and 10; s = 3 and −2)
+    (-1.0, 1.0, -10.0, 0.0, 2),
+    (-1.0, 1.0, -1.0, -6.0, 1),
+    (-3.0, 1.0, -1.0, -6.0, 2),
+])
+def test_root_count_with_negative_damping_or_stiffness(a, m, c, k, want):
+    # the disc holding every root right of `a` used c and k with their signs: too small for
+    # c < 0 or k < 0 (the count missed roots, or its square root failed)
+    assert count_roots_right_of(a, m, c, k, 0.0, 0.0, 1.0) == want

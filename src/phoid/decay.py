@@ -347,7 +347,9 @@ def _change_points(ts: Sequence[np.ndarray], xs: Sequence[np.ndarray], i1s: Sequ
             sse = s_yy - L * s_y - a * s_yq
         valid = np.arange(W)[None, :] >= first
         sse = np.where(valid & np.isfinite(sse) & (det > 0), sse, np.inf)
-        j0 = np.argmin(sse, axis=1) - first[:, 0]
+        # (a record none of whose candidates is finite gets 0, as alone: its padding is not
+        # a candidate)
+        j0 = np.where(np.isfinite(sse.min(axis=1)), np.argmin(sse, axis=1) - first[:, 0], 0)
         for r, i in enumerate(grp):
             out[i] = int(j0[r])
     return out

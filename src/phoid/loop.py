@@ -131,7 +131,59 @@ def _newton(s, m, c, k, P, D, delay, iters=30):
             if np.all(np.abs(step) <= 1e-15 * np.maximum(np.abs(s), 1.0)):
                 break
     f, _ = characteristic(s, m, c, k, P, D, delay)
-    return s, np.abs(f)
+    return _snap_real(s, np.abs(f), m, c, k, P, D, delay)
+
+
+#: a converged root within this (relative) distance of the real axis, Im ≠ 0, is re-converged
+#: from its real part in real arithmetic (:func:`_snap_real`)
+_REAL_SNAP = 1e-10
+
+
+def _snap_real(z, res, m, c, k, P, D, delay):
+    """Roots that a complex start took onto a real root, made exactly real.
+
+    Newton from a complex start converges to a real root with Im s at rounding level (1e−27
+    … 1e−41), not 0, while from a real start it stays exactly real. A root so near the axis
+    would be taken for a complex pair downstream (two fit columns, one of them ~1e−33 τe^{sτ}
+    and, scaled, free), so every converged z with 0 < |Im z| ≤ 1e−10 max(|z|, 1) is iterated
+    again from Re z + 0i (real arithmetic: the iterate stays real) and replaced by the result
+    where that converges within 1e−6 max(|z|, 1) of z; a genuine complex pair that close to
+    the axis has no real root there to converge to and is kept.
+
+    Parameters
+    ----------
+    z : ndarray of complex
+        Refined roots, 1/s.
+    res : ndarray
+        |f(z)|, N/m (∞ where the iteration ran off).
+    m, c, k : float
+        Plant (kg, N·s/m, N/m).
+    P, D : float or ndarray broadcastable to z.shape
+        Gains, N/m and N·s/m.
+    delay : float
+        Loop delay Δt, s.
+
+    Returns
+    -------
+    (ndarray of complex, ndarray)
+        z and res, the snapped entries replaced.
+    """
+    z = np.asarray(z, dtype=complex)
+    res = np.asarray(res, dtype=float)
+    with np.errstate(invalid="ignore"):
+        near = (np.isfinite(res) & (z.imag != 0)
+                & (np.abs(z.imag) <= _REAL_SNAP * np.maximum(np.abs(z), 1.0)))
+    if not near.any():
+        return z, res
+    z, res = z.copy(), res.copy()
+    Pb, Db = np.broadcast_to(P, z.shape), np.broadcast_to(D, z.shape)
+    for idx in zip(*np.nonzero(near), strict=True):
+        w = complex(z[idx])
+        x, r = _newton_scalar(np.array([complex(w.real, 0.0)]), m, c, k, float(Pb[idx]),
+                              float(Db[idx]), delay, _CONT_ITERS)
+        if math.isfinite(r[0]) and x[0].imag == 0 and abs(x[0] - w) <= 1e-6 * max(abs(w), 1.0):
+            z[idx], res[idx] = x[0], r[0]
+    return z, res
 
 
 def _newton_few(s, m, c, k, P, D, delay, iters=_CONT_ITERS):
@@ -143,6 +195,12 @@ def _newton_few(s, m, c, k, P, D, delay, iters=_CONT_ITERS):
     plain ``cmath`` is several times faster. Returns the refined points and |f| there, ∞ for a
     start that ran off or has not converged in ``iters`` steps (rejected by the callers).
     """
+    z, res = _newton_scalar(s, m, c, k, P, D, delay, iters)
+    return _snap_real(z, res, m, c, k, P, D, delay)
+
+
+def _newton_scalar(s, m, c, k, P, D, delay, iters):
+    """:func:`_newton_few` without its :func:`_snap_real` (a real start stays real here)."""
     out, res = [], []
     for z in np.asarray(s, dtype=complex).tolist():
         try:
@@ -224,9 +282,9 @@ def _newton_rows(s, m, c, k, P, D, delay, iters=_CONT_ITERS, tail=12):
         for i in np.flatnonzero(live.any(axis=1)).tolist():
             # the last few still iterating: scalar steps, as many as are left, one call a row
             j = live[i]
-            z[i, j], res[i, j] = _newton_few(z[i, j], m, c, k, float(P[i, 0]), float(D[i, 0]),
-                                             delay, iters=iters - done)
-    return z, res
+            z[i, j], res[i, j] = _newton_scalar(z[i, j], m, c, k, float(P[i, 0]),
+                                                float(D[i, 0]), delay, iters - done)
+    return _snap_real(z, res, m, c, k, P, D, delay)
 
 
 def _cheb(n: int) -> tuple[np.ndarray, np.ndarray]:
@@ -258,11 +316,12 @@ def _generator_eigs(m, c, k, P, D, delay, n):
 def _root_radius(m, c, k, P, D, delay, a):
     """Radius R such that every root with Re s ≥ a satisfies |s| ≤ R.
 
-    From |m s² + c s + k| ≥ m|s|² − c|s| − k and |(D s + P) e^{−sΔt}| ≤ (|D||s| + |P|) e^{−aΔt}.
+    From |m s² + c s + k| ≥ m|s|² − |c||s| − |k| and |(D s + P) e^{−sΔt}| ≤ (|D||s| + |P|)
+    e^{−aΔt} (c, k of either sign: planning and the friction fits pass negative ones).
     """
     g = math.exp(-a * delay) if delay > 0 else 1.0
-    b = c + abs(D) * g
-    d = k + abs(P) * g
+    b = abs(c) + abs(D) * g
+    d = abs(k) + abs(P) * g
     return (b + math.sqrt(b * b + 4 * m * d)) / (2 * m) + 1e-9
 
 
@@ -489,8 +548,8 @@ def count_roots_right_of_many(
         return out
     # the disc holding every root with Re s ≥ a (the triangle inequality, _root_radius)
     g = np.exp(-a * delay)
-    b = c + np.abs(D) * g
-    d = k + np.abs(P) * g
+    b = abs(c) + np.abs(D) * g
+    d = abs(k) + np.abs(P) * g
     R = (b + np.sqrt(b * b + 4 * mm * d)) / (2 * mm) + 1e-9
     out[R <= a] = 0
     idx = np.flatnonzero(R > a)
@@ -587,6 +646,10 @@ def _rightmost_roots(m, c, k, P, D, tau, *, count=6, verify=True):
                 re[:-1] - re[1:] > 1e-9 * np.maximum(np.abs(re[:-1]), 1.0)
             )
             cut = next((g + 1 for g in gaps if g + 1 >= count), roots.size)
+            if quick and cut == roots.size:
+                # no gap after `count` roots among those found: the certificate below would
+                # only prove that none is missed right of the last, not that `count` are there
+                continue
             sel = roots[:cut]
             if not verify:
                 return _sort_pairs(sel)
@@ -670,9 +733,8 @@ def _rightmost_roots_many(m, c, k, P, D, tau, *, count=6):
         if np.any(lost := cut == 0):
             # the gains crossed a change of the root structure (the delay chain moves by
             # ln|D|/Δt, a real root enters as D turns positive): those runs again, the chain's
-            # own starts added to the neighbour's roots: the real one first, so that where a
-            # complex start also lands on the real root (Im s at rounding level, not 0), the
-            # de-duplication keeps the exactly real one, as the full computation finds it
+            # own starts added to the neighbour's roots (the real one first; a complex start
+            # that lands on the real root is made exactly real by _snap_real)
             chain = _chain_starts(m, c, k, P[ids[lost]], D[ids[lost]], tau, count)
             more = np.concatenate([chain[:, :1], starts[lost], chain[:, 1:]], axis=1)
             rl, sl, pl, cl = _continued_roots(more, m, c, k, P[ids[lost]], D[ids[lost]], tau,
@@ -751,8 +813,10 @@ def _chain_starts(m, c, k, P, D, tau, count):
 
     (Log the principal logarithm), whose derivative is ≈ 1/(Δt|s|): a contraction on the chain
     (|Im s| ≳ π/Δt), converging from s = i(2j + ½)π/Δt. The branch j = 0 from a real start
-    −ln(e + m/(|D|Δt))/Δt finds the real root that a positive D adds far left. Eight steps
-    each; only starting points (Newton refines them and the certificate judges the result).
+    −ln(e + m/(|D|Δt))/Δt heads for the real root that a positive D adds far left (where the
+    right-hand side is negative there, its Log leaves the axis; Newton's :func:`_snap_real`
+    makes a root found that way exactly real). Eight steps each; only starting points (Newton
+    refines them and the certificate judges the result).
 
     Parameters
     ----------
@@ -768,7 +832,7 @@ def _chain_starts(m, c, k, P, D, tau, count):
     Returns
     -------
     ndarray of complex, shape (n, count//2 + 3)
-        The starts (the real one first: Im exactly 0 where the iteration stays real), NaN
+        The starts (the real one first: Im exactly 0 while the iteration stays real), NaN
         where an iteration ran off.
     """
     j = np.arange(count // 2 + 2)

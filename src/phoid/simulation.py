@@ -1181,7 +1181,7 @@ def _release_response(plant: Any, P: np.ndarray, D: np.ndarray, *, delay: float,
     (y₀, w) of all the runs. A short delay means many blocks (Python iterations), so the fewer
     array operations per block are what count (half simulate's time for 45 blocks of 5 steps).
     The sums are those of the exact 2 × 2 recursion, so the result agrees with
-    :func:`simulate`'s to its rounding (≈ 1e−13 of x₀; no refinement needed). Otherwise
+    :func:`simulate`'s to its rounding (≲ 1e−11 of x₀; no refinement needed). Otherwise
     simulate's own recursion on the same grid (the same numbers).
 
     Parameters
