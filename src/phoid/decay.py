@@ -1246,35 +1246,6 @@ def start_decay(
 
 
 @dataclass(frozen=True)
-class _StartInput:
-    """What :func:`start_decay` computes before its ESPRIT (by :func:`_start_prepare`): the
-    release (s), the window (``tw``, ``xw``; ``tau`` = tw − tw[0], s), noise (m), the window on a
-    uniform grid ``xg`` with its step ``dt`` (s; ``udt`` the step if the sampling was uniform),
-    the spectral period ``per`` (samples) and ESPRIT's input (block means ``y`` of ``q``
-    samples, active length ``n_act``)."""
-
-    release: float
-    tw: np.ndarray
-    xw: np.ndarray
-    tau: np.ndarray
-    noise: float
-    xg: np.ndarray
-    dt: float
-    udt: float | None
-    per: float
-    y: np.ndarray
-    q: int
-    n_act: int
-
-
-def _start_prepare(t, x, *, release=None, skip=0.0, coarse_release=False) -> _StartInput:
-    """:func:`start_decay` up to its ESPRIT (checks, release, window, noise, period)."""
-    t, x = _check_record(t, x)
-    grid = _start_grid(t, x, release, skip, not coarse_release)
-    return _start_input(grid, _dominant_period(grid.xg))
-
-
-@dataclass(frozen=True)
 class _StartGrid:
     """:func:`_start_grid`'s window: release (s), t and x, τ = t − t[0] (s), noise (m), x on
     a uniform grid, its step (s) and the step if the sampling was uniform (else None)."""
@@ -1287,6 +1258,26 @@ class _StartGrid:
     xg: np.ndarray
     dt: float
     udt: float | None
+
+
+@dataclass(frozen=True)
+class _StartInput(_StartGrid):
+    """What :func:`start_decay` computes before its ESPRIT (by :func:`_start_prepare`): the
+    window of :class:`_StartGrid` (release, ``tw``, ``xw``, ``tau``, noise, ``xg``, ``dt``,
+    ``udt``), the spectral period ``per`` (samples) and ESPRIT's input (block means ``y`` of
+    ``q`` samples, active length ``n_act``)."""
+
+    per: float
+    y: np.ndarray
+    q: int
+    n_act: int
+
+
+def _start_prepare(t, x, *, release=None, skip=0.0, coarse_release=False) -> _StartInput:
+    """:func:`start_decay` up to its ESPRIT (checks, release, window, noise, period)."""
+    t, x = _check_record(t, x)
+    grid = _start_grid(t, x, release, skip, not coarse_release)
+    return _start_input(grid, _dominant_period(grid.xg))
 
 
 def _start_grid(t, x, release, skip, refine_release=True, detected=None) -> _StartGrid:
@@ -1304,8 +1295,7 @@ def _start_input(g: _StartGrid, per: float) -> _StartInput:
     """:func:`start_decay`'s ESPRIT input from its window and the spectral period ``per``
     (samples)."""
     y, q, n_act = _guess_input(g.xg, per, g.noise)
-    return _StartInput(release=g.release, tw=g.tw, xw=g.xw, tau=g.tau, noise=g.noise, xg=g.xg,
-                       dt=g.dt, udt=g.udt, per=float(per), y=y, q=q, n_act=n_act)
+    return _StartInput(**vars(g), per=float(per), y=y, q=q, n_act=n_act)
 
 
 def _start_finish(pre: _StartInput, s: np.ndarray, energy: np.ndarray | None,
