@@ -72,7 +72,7 @@ def test_uniform_shortcut_matches_the_general_path(monkeypatch):
     fits = [start_decay(t, x, skip=0.015, coarse_release=True) for t, x in data]
     args = (data, fits, (0.5, 40.0, 20.0), P, D, 0.005)
     fast = ident._model_releases(*args)
-    monkeypatch.setattr(ident, "_REL_UNIFORM", -1.0)  # no record counts as uniform
+    monkeypatch.setattr(ident, "_uniform_step", lambda *a: None)  # no span counts as uniform
     general = ident._model_releases(*args)
     assert all(f is not None for f in fast) and [f is None for f in general] == [False] * 8
     # the same fit; g on the data's grid or interpolated on one 4× finer differs by simulate's

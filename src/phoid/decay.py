@@ -1362,16 +1362,13 @@ def _cycles(amplitude, sigma, omega, duration, noise) -> float:
     return max(omega * t_above / (2 * math.pi), 0.0)
 
 
-def _clipped(x: np.ndarray, model, noise: float) -> bool:
-    """Flat tops: ≥ 5 samples at the record's extreme value that the fitted mode overshoots.
-
-    ``model``: the fitted model at the samples of x, or a function giving it at the samples
-    a boolean mask selects (so that a fit without flat tops need not evaluate it at all)."""
+def _clipped(x: np.ndarray, resid: np.ndarray, noise: float) -> bool:
+    """Flat tops: ≥ 5 samples at the record's extreme value that the fitted mode overshoots
+    (``resid`` = x − the fitted model, m)."""
     for ext, sign in ((x.max(), 1.0), (x.min(), -1.0)):
         at = x == ext
         if np.count_nonzero(at) >= 5:
-            at_model = model(at) if callable(model) else model[at]
-            over = sign * (at_model - ext)  # how far the mode goes beyond the flat level
+            over = -sign * resid[at]  # how far the model goes beyond the flat level x = ext
             if over.max() > 5.0 * noise:
                 return True
     return False
@@ -1688,7 +1685,7 @@ def _fit_finish(prep: _Prepared, sig: float, om: float, beta: np.ndarray, K: np.
     fit_noise = math.sqrt(s2)
     floor = noise_sd if noise_sd is not None else max(fit_noise, 1e-15 * prep.ptp)
     cycles = _cycles(amp, sig, om, float(tw[-1] - tw[0]), floor)
-    warnings = _common_warnings(sig, sig_se, cycles, xw, lambda at: xw[at] - r[at], floor)
+    warnings = _common_warnings(sig, sig_se, cycles, xw, r, floor)
     # detection statistic of the mode: its norm over the window in noise sds (pure noise gives
     # ~5 for the best of all (σ, ω_d); a real decay of the sample set ~10³)
     (k11, k12), (k21, k22) = K[1:3, 1:3].tolist()
@@ -1745,10 +1742,10 @@ def _fit_finish(prep: _Prepared, sig: float, om: float, beta: np.ndarray, K: np.
     )
 
 
-def _common_warnings(sigma: float, sigma_stderr: float, cycles: float, xw, model, floor
+def _common_warnings(sigma: float, sigma_stderr: float, cycles: float, xw, resid, floor
                      ) -> list[str]:
     """The warnings every decay fit can give: few cycles, a growing oscillation (σ < 0, 1/s,
-    with its stderr), a clipped record (``model`` as for :func:`_clipped`; ``floor``: noise
+    with its stderr), a clipped record (``resid``: x − model over the window; ``floor``: noise
     sd, m)."""
     w = []
     if cycles < MIN_CYCLES:
@@ -1762,7 +1759,7 @@ def _common_warnings(sigma: float, sigma_stderr: float, cycles: float, xw, model
             f"growing oscillation: sigma = {sigma:.4g} ± {sigma_stderr:.2g} 1/s < 0 "
             + ("(unstable loop)" if sure else "(within 2 stderr of 0: marginally stable loop?)")
         )
-    if _clipped(xw, model, floor):
+    if _clipped(xw, resid, floor):
         w.append(
             "clipped record: flat tops at the extreme value of x that the fitted mode exceeds "
             "(sensor saturation?); the estimate is biased"
@@ -1956,7 +1953,8 @@ def logdec(t, x, *, release=None, skip=0.0) -> DecayFit:
         method="logdec",
     )
     cycles = _cycles(amp, sig, om, float(tw[-1] - tw[0]), noise)
-    warnings += _common_warnings(fit.sigma, fit.sigma_stderr, cycles, xw, fit.model(tw), noise)
+    warnings += _common_warnings(fit.sigma, fit.sigma_stderr, cycles, xw, xw - fit.model(tw),
+                                 noise)
     if ext["n_extrema"] < 2 * MIN_CYCLES:
         warnings.append(
             f"few extrema: only {ext['n_extrema']} extrema above the noise floor were used"

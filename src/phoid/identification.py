@@ -27,7 +27,7 @@ import numpy as np
 from scipy.special import chdtri  # chi2 quantile: chdtri(dof, 1 - p) = chi2.ppf(p, dof)
 
 from phoid._threads import single_blas_thread
-from phoid.decay import DecayFit, _fit_checked, detect_release, start_decay
+from phoid.decay import DecayFit, _fit_checked, _uniform_step, detect_release, start_decay
 from phoid.decay_batch import FitJob, fit_decays, start_decays
 from phoid.errors import IdentificationError
 from phoid.loop import _rightmost_roots_many, characteristic
@@ -307,7 +307,6 @@ def _unusable(fit: DecayFit) -> str | None:
 
 
 _REL_HALF = 32  # model-fitted release: samples searched either side of the detected one
-_REL_UNIFORM = 16 * np.finfo(float).eps  # times uniform to this (relative) rounding
 
 
 def _model_releases(data, fits, rough, P, D, delay, dm=None, digital=None
@@ -379,10 +378,10 @@ def _model_releases(data, fits, rough, P, D, delay, dm=None, digital=None
         key = (float(f"{dt:.12g}"), 0.0 if dm is None else float(dm[i]))
         lo = max(j0 - 2 * half, 0)
         jobs.setdefault(key, []).append((i, lo, hi, j0))
-        # uniform sampling over the span, to the rounding of the times themselves
+        # uniform sampling over the span (the decay fit's test: every time within 1e−9 of a
+        # step of the grid, or the rounding of the times; g then errs by ≲ 1e−9 of its jump)
         tr = np.asarray(t[lo:hi], dtype=float)
-        grid = tr[0] + (tr[-1] - tr[0]) / (tr.size - 1) * np.arange(tr.size)
-        uniform &= bool(np.max(np.abs(tr - grid)) <= _REL_UNIFORM * np.max(np.abs(tr)))
+        uniform &= _uniform_step(tr - tr[0], float(tr[0])) is not None
     # each simulated run: (run, span start, span end, detected release), grid rate, response
     runs: list[tuple[tuple[int, int, int, int], float, np.ndarray]] = []
     for (dt, added), items in jobs.items():

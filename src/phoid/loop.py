@@ -317,12 +317,14 @@ def _root_radius(m, c, k, P, D, delay, a):
     """Radius R such that every root with Re s ≥ a satisfies |s| ≤ R.
 
     From |m s² + c s + k| ≥ m|s|² − |c||s| − |k| and |(D s + P) e^{−sΔt}| ≤ (|D||s| + |P|)
-    e^{−aΔt} (c, k of either sign: planning and the friction fits pass negative ones).
+    e^{−aΔt} (c, k of either sign: planning and the friction fits pass negative ones). ``a``,
+    ``m``, ``P``, ``D`` may be arrays (broadcast together: R per element); floats give a float.
     """
-    g = math.exp(-a * delay) if delay > 0 else 1.0
-    b = abs(c) + abs(D) * g
-    d = abs(k) + abs(P) * g
-    return (b + math.sqrt(b * b + 4 * m * d)) / (2 * m) + 1e-9
+    g = np.exp(-np.asarray(a) * delay)
+    b = abs(c) + np.abs(D) * g
+    d = abs(k) + np.abs(P) * g
+    R = (b + np.sqrt(b * b + 4 * m * d)) / (2 * m) + 1e-9
+    return float(R) if np.ndim(R) == 0 else R
 
 
 def count_roots_right_of(
@@ -546,11 +548,7 @@ def count_roots_right_of_many(
     out = np.full(nl, -1, dtype=int)
     if nl == 0:
         return out
-    # the disc holding every root with Re s ≥ a (the triangle inequality, _root_radius)
-    g = np.exp(-a * delay)
-    b = abs(c) + np.abs(D) * g
-    d = abs(k) + np.abs(P) * g
-    R = (b + np.sqrt(b * b + 4 * mm * d)) / (2 * mm) + 1e-9
+    R = _root_radius(mm, c, k, P, D, delay, a)  # the disc holding every root with Re s ≥ a
     out[R <= a] = 0
     idx = np.flatnonzero(R > a)
     if idx.size == 0:

@@ -428,7 +428,7 @@ def fit_run(
     u_only = _Joint(t[:0], x[:0], tu, uu, fit.t_ref, roots[1:], cplx, float(P), float(D))
     _r, J0 = u_only.evaluate(th)
     pred = J0[:, -2]  # the force the gains imply, −(P x + D ẋ)(t − Δt), from the x fit (g = 1)
-    if _clipped(uu, pred + float(np.median(uu - pred)), noise_u0):
+    if _clipped(uu, uu - (pred + float(np.median(uu - pred))), noise_u0):
         return URun(used=False, reason="clipped u: flat tops at its extreme value that the "
                                        "force −(P x + D ẋ)(t − Δt) exceeds (saturated "
                                        "amplifier?)")
