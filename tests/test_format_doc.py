@@ -1,11 +1,14 @@
-"""docs/format.md, the one definition of phoid/1, kept honest against the code.
+"""docs/format.md (the one definition of phoid/1) and docs/equations.md, kept honest.
 
 Every key that the reader recognises (manifest, ``[loop]``, ``[[run]]``, columns, the reader's
 limits) and every key of the JSON objects that the commands actually print must be named in the
 page's section for it; the page's minimal example must be a set the reader accepts, and its JSON
 example may show only keys that ``phoid identify --json`` prints. The JSON comes from small sets
 that ``phoid simulate`` writes into a temporary folder (no shared data needed), identified in
-process through the CLI (the whole file runs in about 10 s).
+process through the CLI (the whole file takes about 10 s of CPU time).
+
+docs/equations.md: every correction the code or the tests cite as "ERRATA N" is explained
+there, and every phoid function it names exists.
 
 A key counts as named when it appears as inline code (`` `key` ``, or ``[loop]``/``[[run]]`` for
 the tables) or quoted (``"key"``, as in the page's JSON shapes) inside the section.
@@ -227,3 +230,38 @@ def test_the_minimal_example_is_a_valid_set(tmp_path):
     assert [r.added_mass for r in exp.runs] == [0.0, 0.5, 0.0]
     assert all(r.u is not None and r.n == 3 for r in exp.runs)
     assert len({(r.P, r.D) for r in exp.runs}) == 3  # three distinct gain pairs, as it says
+
+
+# --------------------------------------------------------------------------------------------
+# docs/equations.md: the seed paper's equations and their corrections
+
+EQUATIONS = (DOC_PATH.parent / "equations.md").read_text(encoding="utf-8")
+SRC = Path(__file__).resolve().parents[1] / "src" / "phoid"
+
+
+def test_every_erratum_the_code_cites_is_explained():
+    # the code and the tests cite corrections as "ERRATA N"; each N has its own paragraph
+    cited = {int(n) for p in [*SRC.glob("*.py"), *Path(__file__).parent.glob("*.py")]
+             for n in re.findall(r"ERRATA (\d+)", p.read_text(encoding="utf-8"))}
+    assert cited  # the pattern matches the citations
+    explained = {int(n) for n in re.findall(r"\*\*ERRATA (\d+) — ", EQUATIONS)}
+    assert cited <= explained, sorted(cited - explained)
+
+
+def test_every_function_the_equations_page_names_exists():
+    import importlib
+
+    names = set(re.findall(r"`(phoid(?:\.\w+)+)`", EQUATIONS))
+    assert len(names) > 20
+    for name in sorted(names):
+        parts = name.split(".")
+        # the longest importable module, then attributes
+        for cut in range(len(parts), 0, -1):
+            try:
+                obj = importlib.import_module(".".join(parts[:cut]))
+                break
+            except ModuleNotFoundError:
+                continue
+        for attr in parts[cut:]:
+            assert hasattr(obj, attr), name
+            obj = getattr(obj, attr)
