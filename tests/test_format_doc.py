@@ -81,8 +81,12 @@ def cli(*args: str, ok=(0,)) -> str:
     return r.stdout
 
 
+def _not_json(name: str) -> None:
+    raise AssertionError(f"{name} in the output: not strict JSON (the page promises null)")
+
+
 def json_of(*args: str, ok=(0,)) -> dict:
-    return json.loads(cli(*args, ok=ok))
+    return json.loads(cli(*args, ok=ok), parse_constant=_not_json)
 
 
 # --------------------------------------------------------------------------------------------
