@@ -1,7 +1,8 @@
 """phoid — identify m, c, k (and f_c, Δt) of second-order systems by parametric oscillation.
 
 The public API is re-exported here; see the module docstrings for the seed-paper equations each
-function implements.
+function implements, and docs/equations.md for those equations and their corrections (ERRATA
+1–6) explained.
 
 >>> import phoid
 >>> result = phoid.identify(phoid.read_experiment("../shared/data/paper-sample"))  # doctest: +SKIP

@@ -2,7 +2,7 @@
 
 Each run applies one sinusoidal force F(t) = B sin(ωt − θ) (eq. 16) and records x(t) and F(t).
 Once the start-up transient has died the response is x_p = C sin(ωt − φ) (eq. 17), and eq. (18)
-gives, per frequency (eq. 20, ERRATA 3: R in N/m, C in m),
+gives, per frequency (eq. 20; ERRATA 3 in docs/equations.md: R in N/m, C in m),
 
     k − mω² = R cos ρ,    cω = R sin ρ,    R = B/C,  ρ = φ − θ   (eq. 21).
 

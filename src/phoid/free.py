@@ -2,7 +2,7 @@
 
 A free release of the plant m x'' + c x' + k x = 0 (no feedback) follows the unified response of
 the seed's eq. (2) with eqs. (3)–(8), valid for underdamped, critically damped and overdamped
-plants alike (ERRATA 4):
+plants alike (ERRATA 4 in docs/equations.md):
 
     x(t) = x_off + x₀ [C(τ) + σ S(τ)] + v₀ S(τ),   τ = t − t₀ ≥ 0,
 

@@ -1,7 +1,10 @@
 """Experiment sets in the ``phoid/1`` format: read, validate and write.
 
-An experiment set is a folder holding one manifest, ``experiment.toml``, and one data file per
-run (the contract is ``shared/spec/experiment-format.md``)::
+The format is defined in one place, ``docs/format.md`` in the repository: the manifest's keys
+(with the extensions ``added_mass``, ``bias``, ``mass`` and the digital ``[loop]`` keys), the
+data files, the rules this reader applies, and the JSON that ``phoid identify --json`` prints.
+In short: an experiment set is a folder holding one manifest, ``experiment.toml``, and one data
+file per run::
 
     title  = "Linear stage, PHO sweep"   # optional
     format = "phoid/1"                   # optional; when present it must be "phoid/1"
@@ -19,44 +22,12 @@ Each data file is comma-separated text whose first line names the columns: ``t``
 increasing) and ``x`` (m) always, ``u`` (N, the feedback force actually applied) optionally,
 ``F`` (N, the external force) for forced runs. Extra columns are ignored.
 
-Extensions of ``phoid/1`` supported here (all optional and backward compatible)
--------------------------------------------------------------------------------
-- ``added_mass`` (kg, finite, ≥ 0; default 0) in a ``[[run]]`` table: a known mass added for
-  that run (:attr:`Run.added_mass`).
-- ``bias`` (N, finite, ≥ 0; default 0) in a ``[[run]]`` table: the magnitude b of a DC offset
-  added to the run's PD command in the direction of the controller's velocity (the seed's
-  "DC offset in the (alternating) direction of oscillation", Discussion, last paragraph):
-  u = −P x(t − Δt) − D ẋ(t − Δt) + b·sign(ẋ(t − Δt)), sign(0) = 0 (:attr:`Run.bias`).
-- ``mass`` (kg, finite, > 0) at the top level: the known mass, for free-decay sets
-  (:attr:`ExperimentSet.mass`).
-- ``[loop]``: the whole table is kept as read in :attr:`ExperimentSet.loop`, so that future keys
-  (``sample_time``, ``velocity``, ``delay_samples``, …) reach the code that understands them.
-  Only ``delay`` is checked here (finite, ≥ 0 s). The table is read for every method, although
-  the spec uses it for ``pho`` only.
-- Unknown keys are kept, not rejected: unknown top-level keys in :attr:`ExperimentSet.extra`,
-  unknown keys of a ``[[run]]`` table in :attr:`Run.extra`. A key that differs from a known key
-  only in letter case (``p`` for ``P``, ``Delay`` for ``delay``, ``Run`` for ``run``) is
-  rejected: keys are case-sensitive, and such a key is almost certainly a typo that would
-  otherwise be silently ignored. Near misses of other kinds (``omgea``) cannot be told from
-  future keys and are kept; a missing required key names the unknown keys of its table.
-
-Rules this reader applies where the spec is silent
---------------------------------------------------
-- Manifest numbers must be TOML numbers (``P = 0.25``, not ``P = "0.25"``; booleans are not
-  numbers) and finite (TOML allows ``nan`` and ``inf``; they are rejected).
-- ``file`` is a relative path with ``/`` separators, without ``..`` components, naming a regular
-  file that, after symbolic links are resolved, lies inside the manifest's folder. Its name ends
-  in ``.csv`` or ``.csv.gz`` (any letter case). Two runs may not use the same file.
-- Compression is recognised by content: a file that starts with the gzip signature is
-  decompressed whatever its name; a ``.gz`` file without the signature is an error.
-- Text is UTF-8 (a byte-order mark is allowed); lines end in LF, CRLF or CR. Column names are
-  stripped of surrounding blanks and double quotes and are case-sensitive; a name may appear
-  only once in the header (empty names are allowed and ignored, e.g. a spreadsheet's index
-  column). Cells may carry surrounding blanks. Blank lines are skipped; every other line must
-  have as many fields as the header. Line numbers in messages are physical line numbers of the
-  file (the header is line 1). There are no comment lines.
-- The ``t``, ``x``, ``u`` and ``F`` cells must be finite numbers; a run needs at least two data
-  rows.
+This module checks what can be checked without knowing the method's model: the keys, their
+types and ranges, their letter case (a key that differs from a known one only in letter case is
+an error), the data files' paths, compression, text and cells. It keeps the whole ``[loop]`` table
+(:attr:`ExperimentSet.loop`; only ``delay`` is checked here, the identification checks the
+rest) and every unknown key (:attr:`ExperimentSet.extra`, :attr:`Run.extra`), so that tools can
+store their own information in a set.
 
 Every problem raises :class:`phoid.errors.ExperimentError` (a ``ValueError``) with a one-line
 message naming the manifest, the run and the key, column or line, e.g.

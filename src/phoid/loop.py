@@ -13,8 +13,9 @@ half-plane Re s ≥ a (which all lie in a computable disc) is counted along a re
 and must equal the number of roots found there, so a root cannot be missed.
 
 For a dominant mode s = −σ + iω_d the delayed signal is exactly x(t−Δt) = e^{−sΔt}x(t) =
-[(α₁ − σα₂) x − α₂ ẋ](t) with α₁ = e^{σΔt} cos(ω_dΔt) (ERRATA 1 — the paper's eq. 29 prints an
-extra −(σ/ω_d) sin term) and α₂ = e^{σΔt} sin(ω_dΔt)/ω_d, which gives eqs. (28)–(32).
+[(α₁ − σα₂) x − α₂ ẋ](t) with α₁ = e^{σΔt} cos(ω_dΔt) (ERRATA 1 in docs/equations.md — the
+paper's eq. 29 prints an extra −(σ/ω_d) sin term) and α₂ = e^{σΔt} sin(ω_dΔt)/ω_d, which gives
+eqs. (28)–(32).
 """
 
 from __future__ import annotations

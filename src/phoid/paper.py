@@ -1,8 +1,9 @@
 """The seed paper's Table 1 and Figure 1, reproduced.
 
 The paper simulates m = 2 kg, c = 1 N·s/m, k = 64 N/m under PD feedback delayed by Δt = 0.1 s,
-19 runs with Pᵢ = 0.25 + 1.375 i N/m and Dᵢ = 0.6 + 0.3 i N·s/m (i = 0 … 18, ERRATA 6), measures
-each run's σᵢ, ω_dᵢ and fits the two lines of eq. (35) with and without delay compensation.
+19 runs with Pᵢ = 0.25 + 1.375 i N/m and Dᵢ = 0.6 + 0.3 i N·s/m (i = 0 … 18, ERRATA 6 in
+docs/equations.md), measures each run's σᵢ, ω_dᵢ and fits the two lines of eq. (35) with and
+without delay compensation.
 
 phoid does the same with its own simulator (noise-free, 15 s at 1 kHz, released from 10 mm with
 the controller already running during a short hold) and its dominant-mode decay fit in place of the

@@ -1,7 +1,7 @@
 """The second-order plant m x'' + c x' + k x + f_c sign(x') = F(t) (seed eq. 1).
 
 The free response is implemented once, in the unified hyperbolic form of the seed's eqs. (2)–(15)
-(see ERRATA 4): with q = σ² − ω₀² and w = √|q|,
+(see ERRATA 4 in docs/equations.md): with q = σ² − ω₀² and w = √|q|,
 
     x(t) = x₀ C(t) + (ẋ₀ + σ x₀) S(t),
     C(t) = e^{−σt} cosh(w t)         (q ≥ 0)   or   e^{−σt} cos(w t)      (q < 0),
