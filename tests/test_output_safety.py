@@ -284,3 +284,29 @@ def test_names_outside_the_folder_are_refused(tmp_path, name):
     with pytest.raises(OutputError, match="relative path inside the output folder"):
         OutputFolder(tmp_path / "o").check([name])
     assert not (tmp_path / "o").exists()
+
+
+def test_output_folder_named_through_a_link_is_the_users_choice(tmp_path):
+    """The folder the user names may itself be a link to a folder: only links *inside* it are
+    refused."""
+    real = tmp_path / "real"
+    real.mkdir()
+    (tmp_path / "named").symlink_to(real)
+    r = runner.invoke(app, ["simulate", str(tmp_path / "named"), *_SIM])
+    assert r.exit_code == 0, r.output
+    assert sorted(p.name for p in real.iterdir()) == ["experiment.toml", "run01.csv.gz",
+                                                       "run02.csv.gz"]
+
+
+@pytest.mark.skipif(not hasattr(os, "geteuid") or os.geteuid() == 0,
+                    reason="needs a user whom file permissions bind (not root)")
+def test_unwritable_folder_is_one_line_naming_the_file(tmp_path):
+    out = tmp_path / "ro"
+    out.mkdir()
+    out.chmod(0o555)
+    try:
+        refused(runner.invoke(app, ["simulate", str(out), *_SIM]), str(out / "run01.csv.gz"),
+                "cannot be written")
+        assert not list(out.iterdir())
+    finally:
+        out.chmod(0o755)
