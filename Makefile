@@ -13,7 +13,7 @@ $(STAMP): pyproject.toml
 
 ## install and run the main job: the seed paper's Table 1 and Figure 1
 demo: $(STAMP)
-	$(VENV)/bin/phoid paper
+	$(VENV)/bin/phoid paper --overwrite
 
 ## install and run the test suite (and the linter)
 test: $(STAMP)

@@ -11,7 +11,7 @@ function implements, and docs/equations.md for those equations and their correct
 
 from phoid.decay import DecayFit, detect_release, fit_decay, logdec
 from phoid.digital import DigitalPD, DigitalRoots, digital_modes, digital_roots
-from phoid.errors import ExperimentError, IdentificationError, PhoidError
+from phoid.errors import ExperimentError, IdentificationError, OutputError, PhoidError
 from phoid.fisher import CramerRao, cramer_rao
 from phoid.forced import (
     ForcedIdentification,
@@ -63,6 +63,7 @@ __all__ = [
     "IdentificationError",
     "LoopModes",
     "MCKFit",
+    "OutputError",
     "PhoidError",
     "PlannedRun",
     "Plant",

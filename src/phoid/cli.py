@@ -45,12 +45,17 @@ def _version(value: bool) -> None:
 
 @app.callback()
 def _root(
+    ctx: typer.Context,
     version: Annotated[
         bool, typer.Option("--version", callback=_version, is_eager=True,
                            help="Print the version and exit.")
     ] = False,
 ) -> None:
     """phoid: identify m, c, k of second-order systems by parametric harmonic oscillation."""
+    from phoid._output import cli_wording
+
+    # a file in the way: the messages name the CLI's --overwrite, not the Python keyword
+    ctx.with_resource(cli_wording())
 
 
 @app.command()
@@ -58,6 +63,8 @@ def paper(
     out: Annotated[Path, typer.Option(
         "--out", "-o", help="Folder for the Figure 1 PNG files (created if needed).")
     ] = Path("phoid-out"),
+    overwrite: Annotated[bool, typer.Option(
+        help="Replace existing figure1a.png and figure1b.png in --out.")] = False,
     as_json: Annotated[bool, typer.Option(
         "--json", help="Print the numbers as one JSON object on standard output instead of the "
                        "table (figures are still written).")
@@ -77,8 +84,11 @@ def paper(
     from phoid.report import figure1
 
     try:
+        from phoid._output import OutputFolder
+
+        OutputFolder(out, overwrite=overwrite).check(["figure1a.png", "figure1b.png"])
         result = reproduce_table1(duration=duration, fs=fs)
-        fa, fb = figure1(result, out)
+        fa, fb = figure1(result, out, overwrite=overwrite)
     except (ValueError, OSError) as exc:
         _fail(str(exc))
     if as_json:
@@ -119,6 +129,8 @@ def identify(
         "--friction", help="pho: fit Coulomb friction f_c too (JSON key fc), by a full-record "
                            "fit through the stick-slip simulator (seconds, not milliseconds; "
                            "the loop delay must be known).")] = False,
+    overwrite: Annotated[bool, typer.Option(
+        help="Replace existing figures in --plots.")] = False,
 ) -> None:
     """Identify m, c, k (with standard errors) from a recorded experiment set.
 
@@ -157,7 +169,7 @@ def identify(
         else:
             result = _identify_other(exp, mass=mass, delay=delay, estimator=estimator,
                                      no_compensation=no_compensation)
-        written = result.plot(plots) if plots is not None else []
+        written = result.plot(plots, overwrite=overwrite) if plots is not None else []
     except (ValueError, OSError) as exc:
         _fail(str(exc))
     if as_json:
@@ -506,7 +518,8 @@ def design(
     check_set: Annotated[Path | None, typer.Option(
         "--check", help="Evaluate the gains of an existing set or skeleton instead of "
                         "designing; without --m/--c/--k its data are identified first.")] = None,
-    overwrite: Annotated[bool, typer.Option(help="Replace an existing --out file.")] = False,
+    overwrite: Annotated[bool, typer.Option(
+        help="Replace an existing --out or --plot file.")] = False,
 ) -> None:
     """Design the gains of a PHO experiment: every run rings stably, m, c, k come out best.
 
@@ -528,10 +541,18 @@ def design(
             "pmax": pmax, "dmax": dmax, "max_freq": max_freq, "delay_margin": delay_margin,
         }.items() if val is not None}
         settings.update(zeta=_band(zeta), min_cycles=min_cycles, tolerance=tolerance)
-        if check_set is not None:
+        if check_set is not None and out is not None:
+            raise ValueError("`--out` writes a designed schedule; it cannot be used with "
+                             "--check")
+        if out is not None or plot is not None:  # files in the way: refused before the work
+            from phoid._output import OutputFolder
+            from phoid.planning import _schedule_target
+
             if out is not None:
-                raise ValueError("`--out` writes a designed schedule; it cannot be used with "
-                                 "--check")
+                _schedule_target(out, overwrite=overwrite)
+            if plot is not None:
+                OutputFolder(plot.parent, overwrite=overwrite).check([plot.name])
+        if check_set is not None:
             result = check_experiment(check_set, m, c, k, delay=delay, **settings)
         else:
             missing = [f"--{n}" for n, val in (("m", m), ("c", c), ("k", k)) if val is None]
@@ -545,7 +566,7 @@ def design(
         if plot is not None:
             import matplotlib.pyplot as plt
 
-            plt.close(result.plot(plot))
+            plt.close(result.plot(plot, overwrite=overwrite))
     except (ValueError, OSError) as exc:
         _fail(str(exc))
     if as_json:

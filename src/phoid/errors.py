@@ -6,7 +6,7 @@ or the builtin, as in python-control's ``control.exception``.
 
 from __future__ import annotations
 
-__all__ = ["ExperimentError", "IdentificationError", "PhoidError"]
+__all__ = ["ExperimentError", "IdentificationError", "OutputError", "PhoidError"]
 
 
 class PhoidError(ValueError):
@@ -19,3 +19,7 @@ class ExperimentError(PhoidError):
 
 class IdentificationError(PhoidError):
     """The data cannot determine the requested parameters (e.g. too few usable runs)."""
+
+
+class OutputError(PhoidError):
+    """A file cannot be written safely: a link in the way, a file that exists, a write failure."""

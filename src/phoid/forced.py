@@ -654,21 +654,26 @@ class ForcedIdentification:
             lines += ["", "warnings:"] + [f"  - {w}" for w in self.warnings]
         return "\n".join(lines)
 
-    def plot(self, out_dir: str | Path) -> list[Path]:
+    def plot(self, out_dir: str | Path, *, overwrite: bool = False) -> list[Path]:
         """Write per-run fits (x, model, residual; F) and the eq. (20) lines as PNG files.
 
-        Returns the list of paths written.
+        ``out_dir`` is created if needed; existing files are replaced only with ``overwrite``
+        and links in it are refused (:mod:`phoid._output`; all names checked before the first
+        figure is written). Returns the list of paths written.
         """
         from matplotlib.figure import Figure
 
+        from phoid._output import OutputFolder
         from phoid.report import _save
 
-        out = Path(out_dir)
-        out.mkdir(parents=True, exist_ok=True)
+        plotted = [i for i, r in enumerate(self.runs) if r.used and i < len(self.data)]
+        names = {i: f"forced-{i + 1:02d}-{Path(self.runs[i].file).name.split('.')[0]}.png"
+                 for i in plotted}
+        out = OutputFolder(out_dir, overwrite=overwrite)
+        out.check([*names.values(), "eq20-lines.png"])
         written: list[Path] = []
-        for i, r in enumerate(self.runs):
-            if not r.used or i >= len(self.data):
-                continue
+        for i in plotted:
+            r = self.runs[i]
             t, x, F = self.data[i]
             sel = t >= r.t_start
             model = r.model(t[sel])
@@ -686,12 +691,11 @@ class ForcedIdentification:
             axf.plot(t, F, lw=0.6, color="C2")
             axf.set_ylabel("F (N)")
             axf.set_xlabel("t (s)")
-            stem = Path(r.file).name.split(".")[0]
-            written.append(_save(fig, out / f"forced-{i + 1:02d}-{stem}.png"))
-        written.append(self._eq20_figure(out / "eq20-lines.png"))
+            written.append(_save(fig, out, names[i]))
+        written.append(self._eq20_figure(out, "eq20-lines.png"))
         return written
 
-    def _eq20_figure(self, path: Path) -> Path:
+    def _eq20_figure(self, out: Any, name: str) -> Path:
         from matplotlib.figure import Figure
 
         from phoid.report import _save
@@ -717,7 +721,7 @@ class ForcedIdentification:
         b.set_ylabel("R sin ρ (N/m)")
         b.legend(fontsize=8)
         fig.suptitle("eq. (20), per-run error bars ±1 stderr")
-        return _save(fig, path)
+        return _save(fig, out, name)
 
 
 # --------------------------------------------------------------------------------------------

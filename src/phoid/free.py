@@ -603,21 +603,26 @@ class FreeIdentification:
             lines += ["", "warnings:"] + [f"  - {w}" for w in self.warnings]
         return "\n".join(lines)
 
-    def plot(self, out_dir: str | Path) -> list[Path]:
+    def plot(self, out_dir: str | Path, *, overwrite: bool = False) -> list[Path]:
         """Write one PNG per run (record, fitted free response, residual) into ``out_dir``.
 
-        Returns the list of paths written.
+        ``out_dir`` is created if needed; existing files are replaced only with ``overwrite``
+        and links in it are refused (:mod:`phoid._output`; all names checked before the first
+        figure is written). Returns the list of paths written.
         """
         from matplotlib.figure import Figure
 
+        from phoid._output import OutputFolder
         from phoid.report import _save
 
-        out = Path(out_dir)
-        out.mkdir(parents=True, exist_ok=True)
+        plotted = [i for i, r in enumerate(self.runs) if r.used and i < len(self.data)]
+        names = {i: f"free-{i + 1:02d}-{Path(self.runs[i].file).name.split('.')[0]}.png"
+                 for i in plotted}
+        out = OutputFolder(out_dir, overwrite=overwrite)
+        out.check(names.values())
         written = []
-        for i, r in enumerate(self.runs):
-            if not r.used or i >= len(self.data):
-                continue
+        for i in plotted:
+            r = self.runs[i]
             t, x = self.data[i]
             sel = (t >= r.t_start) & (t <= r.t_end)
             model = self.model(i, t[sel])
@@ -633,8 +638,7 @@ class FreeIdentification:
             axr.plot(t[sel], (x[sel] - model) * 1e3, lw=0.5, color="C1")
             axr.set_ylabel("residual (mm)")
             axr.set_xlabel("t (s)")
-            stem = Path(r.file).name.split(".")[0]
-            written.append(_save(fig, out / f"free-{i + 1:02d}-{stem}.png"))
+            written.append(_save(fig, out, names[i]))
         return written
 
 

@@ -227,14 +227,15 @@ class Identification:
 
         return identification_text(self)
 
-    def plot(self, out_dir: str | Any) -> list:
+    def plot(self, out_dir: str | Any, *, overwrite: bool = False) -> list:
         """Write per-run decay fits with residuals and the two eq. (35) lines as PNG files.
 
-        Returns the list of paths written.
+        Existing files are replaced only with ``overwrite``; links in ``out_dir`` are refused
+        (:func:`phoid.report.plot_identification`). Returns the list of paths written.
         """
         from phoid.report import plot_identification
 
-        return plot_identification(self, out_dir)
+        return plot_identification(self, out_dir, overwrite=overwrite)
 
 
 # ------------------------------------------------------------------------------------------

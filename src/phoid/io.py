@@ -59,6 +59,7 @@ from typing import Any, NoReturn
 import numpy as np
 import tomli_w
 
+from phoid._output import OutputFolder
 from phoid.errors import ExperimentError
 
 __all__ = [
@@ -877,7 +878,9 @@ def write_experiment(
     Parameters
     ----------
     folder : str or os.PathLike
-        The set's folder; created if missing.
+        The set's folder; created if missing. Files are never written through a symbolic link
+        (a link in the folder, or a subfolder that leads outside it, is refused) and each file
+        is written atomically (a temporary file beside it, then renamed).
     runs : iterable of Run, or ExperimentSet
         The runs, in manifest order. With an :class:`ExperimentSet`, every keyword left at
         None below is taken from the set.
@@ -900,7 +903,8 @@ def write_experiment(
         ``.csv.gz``; the suffix decides compression), instead of ``run01.csv[.gz]``, … . Pass
         ``[r.file for r in runs]`` to keep the names of a set that was read.
     overwrite : bool, default False
-        Replace existing files; otherwise an existing manifest or data file is an error.
+        Replace existing regular files; otherwise an existing manifest or data file is an
+        error. Links are refused either way.
 
     Returns
     -------
@@ -911,7 +915,9 @@ def write_experiment(
     ------
     ExperimentError
         For an invalid set (no runs, a pho run without gains, bad names, …) or files in the
-        way; nothing is written then.
+        way (an existing file without ``overwrite``, a symbolic link); nothing is written then.
+        A write that fails midway (disk full) raises it too, leaving whole files only (the
+        manifest is written last).
     """
     folder = Path(folder)
     manifest = folder / MANIFEST
@@ -968,10 +974,10 @@ def write_experiment(
                    for i, (r, f) in enumerate(zip(run_list, files, strict=True), start=1))
     exp = ExperimentSet(path=manifest, runs=placed, method=method, delay=None,
                         title=title, mass=mass, loop=loop_table, extra=extra or {})
-    if not overwrite:
-        for p in (manifest, *targets):
-            if p.exists() or p.is_symlink():
-                _fail(where, f"{str(p)!r} exists already (pass overwrite=True to replace it)")
+    # every target checked before the first is written: no links followed, nothing replaced
+    # without `overwrite` (phoid._output)
+    out = OutputFolder(folder, overwrite=overwrite, error=ExperimentError)
+    out.check([*files, MANIFEST])
 
     doc: dict[str, Any] = {}
     if exp.title is not None:
@@ -1000,17 +1006,13 @@ def write_experiment(
     except (TypeError, ValueError) as exc:
         _fail(where, f"cannot write the manifest as TOML: {exc}")
 
-    try:
-        folder.mkdir(parents=True, exist_ok=True)
-        for run, target in zip(exp.runs, targets, strict=True):
-            target.parent.mkdir(parents=True, exist_ok=True)
-            data = _csv_bytes(run)
-            if target.name.lower().endswith(".gz"):
-                data = _gzip.compress(data, compresslevel=6, mtime=0)
-            target.write_bytes(data)
-        manifest.write_text(text, encoding="utf-8")
-    except OSError as exc:
-        _fail(where, f"cannot write the set: {exc}")
+    # data files first, the manifest last: a set is complete once its manifest is there
+    for run, name in zip(exp.runs, files, strict=True):
+        data = _csv_bytes(run)
+        if name.lower().endswith(".gz"):
+            data = _gzip.compress(data, compresslevel=6, mtime=0)
+        out.write(name, data)
+    out.write(MANIFEST, text.encode("utf-8"))
     return manifest
 
 

@@ -93,6 +93,7 @@ from typing import Any
 import numpy as np
 
 from phoid import _validate as v
+from phoid._output import OutputFolder, _png
 from phoid.decay import MIN_CYCLES
 from phoid.errors import PhoidError
 from phoid.fisher import _safe_inverse, mode_information, release_amplitude
@@ -806,7 +807,7 @@ class Design:
             lines.extend(f"  - {w}" for w in self.warnings)
         return "\n".join(lines)
 
-    def plot(self, path: str | Path | None = None, *, ax=None):
+    def plot(self, path: str | Path | None = None, *, ax=None, overwrite: bool = False):
         """Root locus of the planned runs and their predicted uncertainties.
 
         Left: each run's dominant root at every plant of the prior grid (the nominal plant
@@ -816,9 +817,12 @@ class Design:
         Parameters
         ----------
         path : str or Path, optional
-            Write the figure there as PNG.
+            Write the figure there as PNG (atomically; its folder is created if needed; an
+            existing file is replaced only with ``overwrite``, a symbolic link never).
         ax : sequence of two matplotlib Axes, optional
             Draw into these instead of a new figure.
+        overwrite : bool
+            Replace an existing file at ``path``.
 
         Returns
         -------
@@ -826,6 +830,9 @@ class Design:
         """
         import matplotlib
 
+        if path is not None:  # refuse a file in the way before drawing
+            out = OutputFolder(Path(path).parent, overwrite=overwrite, error=DesignError)
+            out.check([Path(path).name])
         if ax is None:
             matplotlib.use("Agg", force=False)
             import matplotlib.pyplot as plt
@@ -867,7 +874,7 @@ class Design:
         a1.legend(fontsize=8)
         fig.tight_layout()
         if path is not None:
-            fig.savefig(path, dpi=110)
+            out.write(Path(path).name, _png(fig, 110))
         return fig
 
     def to_toml(self, *, gzip: bool = False) -> str:
@@ -910,18 +917,32 @@ class Design:
         return "".join(parts)
 
     def write(self, path: str | Path, *, overwrite: bool = False) -> Path:
-        """Write :meth:`to_toml` to ``path`` (a folder gets ``experiment.toml``); returns it."""
-        path = Path(path)
-        if path.is_dir() or not path.suffix:
-            path = path / "experiment.toml"
-        if path.exists() and not overwrite:
-            raise DesignError(f"{path}: exists already (pass overwrite=True to replace it)")
-        try:
-            path.parent.mkdir(parents=True, exist_ok=True)
-            path.write_text(self.to_toml(), encoding="utf-8")
-        except OSError as exc:
-            raise DesignError(f"{path}: cannot write the schedule: {exc}") from None
-        return path
+        """Write :meth:`to_toml` to ``path`` (a folder gets ``experiment.toml``); returns it.
+
+        The file is written atomically (a temporary file beside it, then renamed); its folder
+        is created if needed. An existing file is replaced only with ``overwrite``; a symbolic
+        link as the file, or a dangling one as the folder, is refused either way
+        (:mod:`phoid._output`).
+
+        Raises
+        ------
+        DesignError
+            A file in the way or a failed write, naming the path.
+        """
+        out, name = _schedule_target(path, overwrite=overwrite)
+        return out.write(name, self.to_toml().encode("utf-8"))
+
+
+def _schedule_target(path: str | Path, *, overwrite: bool) -> tuple[OutputFolder, str]:
+    """The folder and file name :meth:`Design.write` writes to, checked (nothing written)."""
+    path = Path(path)
+    if path.is_dir() or not path.suffix:
+        folder, name = path, "experiment.toml"
+    else:
+        folder, name = path.parent, path.name
+    out = OutputFolder(folder, overwrite=overwrite, error=DesignError)
+    out.check([name])
+    return out, name
 
 
 def _fmt_range(r) -> str:

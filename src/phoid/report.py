@@ -10,6 +10,7 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
+from phoid._output import OutputFolder, _png
 from phoid.loop import inverse_map
 
 if TYPE_CHECKING:
@@ -59,13 +60,14 @@ def identification_text(ident: Identification) -> str:
     return "\n".join(lines)
 
 
-def _save(fig: Figure, path: Path) -> Path:
+def _save(fig: Figure, out: OutputFolder, name: str) -> Path:
+    """Render ``fig`` as PNG into ``out``/``name`` (atomic, no links followed)."""
     FigureCanvasAgg(fig)
-    fig.savefig(path, dpi=120)
-    return path
+    return out.write(name, _png(fig, 120))
 
 
-def plot_identification(ident: Identification, out_dir: str | Path) -> list[Path]:
+def plot_identification(ident: Identification, out_dir: str | Path, *,
+                        overwrite: bool = False) -> list[Path]:
     """Per-run record with fitted decay and residuals, and the eq. (35) lines with error bars.
 
     Parameters
@@ -73,18 +75,28 @@ def plot_identification(ident: Identification, out_dir: str | Path) -> list[Path
     ident : Identification
     out_dir : path
         Folder to write PNG files into (created if needed).
+    overwrite : bool
+        Replace existing files of the same names (otherwise they are an error; links in the
+        folder are refused either way: see :mod:`phoid._output`).
 
     Returns
     -------
     list of Path
         The files written.
+
+    Raises
+    ------
+    phoid.errors.OutputError
+        A file in the way; checked for all figures before the first is written.
     """
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    plotted = [i for i, r in enumerate(ident.runs) if r.fit is not None and i < len(ident.data)]
+    names = {i: f"run-{i + 1:02d}-{Path(ident.runs[i].file).name.split('.')[0]}.png"
+             for i in plotted}
+    out = OutputFolder(out_dir, overwrite=overwrite)
+    out.check([*names.values(), "eq35-lines.png"])
     written: list[Path] = []
-    for i, r in enumerate(ident.runs):
-        if r.fit is None or i >= len(ident.data):
-            continue
+    for i in plotted:
+        r = ident.runs[i]
         t, x = ident.data[i]
         fig = Figure(figsize=(8, 5.5), layout="constrained")
         ax, axr = fig.subplots(2, 1, sharex=True, height_ratios=[3, 1])
@@ -101,9 +113,8 @@ def plot_identification(ident: Identification, out_dir: str | Path) -> list[Path
         axr.plot(t[sel], (x[sel] - model) * 1e3, lw=0.5, color="C1")
         axr.set_ylabel("residual (mm)")
         axr.set_xlabel("t (s)")
-        stem = Path(r.file).name.split(".")[0]
-        written.append(_save(fig, out / f"run-{i + 1:02d}-{stem}.png"))
-    written.append(_lines_figure(ident, out / "eq35-lines.png"))
+        written.append(_save(fig, out, names[i]))
+    written.append(_lines_figure(ident, out, "eq35-lines.png"))
     return written
 
 
@@ -129,7 +140,7 @@ def _line_errors(ident: Identification):
     return np.array(rows)
 
 
-def _lines_figure(ident: Identification, path: Path) -> Path:
+def _lines_figure(ident: Identification, out: OutputFolder, name: str) -> Path:
     used = [r for r in ident.runs if r.used]
     s = np.array([r.sigma for r in used])
     w = np.array([r.omega_d for r in used])
@@ -153,22 +164,37 @@ def _lines_figure(ident: Identification, path: Path) -> Path:
     b.set_ylabel("k′ᵢ (N/m)")
     b.legend(fontsize=8)
     fig.suptitle("eq. (35) lines, per-run error bars ±1 stderr")
-    return _save(fig, path)
+    return _save(fig, out, name)
 
 
-def figure1(result: PaperResult, out_dir: str | Path) -> tuple[Path, Path]:
+def figure1(result: PaperResult, out_dir: str | Path, *,
+            overwrite: bool = False) -> tuple[Path, Path]:
     """The seed paper's Figure 1(a) and 1(b) as PNG files.
 
     (a) c′ᵢ against 2σᵢ, (b) k′ᵢ against ω₀ᵢ²: delay-compensated points as circles with the solid
     least-squares line, uncompensated points as crosses with the dashed line.
 
+    Parameters
+    ----------
+    result : PaperResult
+    out_dir : path
+        Folder to write the PNG files into (created if needed).
+    overwrite : bool
+        Replace existing files of the same names (otherwise they are an error; links in the
+        folder are refused either way: see :mod:`phoid._output`).
+
     Returns
     -------
     (Path, Path)
-        ``figure1a.png`` and ``figure1b.png`` in ``out_dir`` (created if needed).
+        ``figure1a.png`` and ``figure1b.png`` in ``out_dir``.
+
+    Raises
+    ------
+    phoid.errors.OutputError
+        A file in the way; checked for both figures before the first is written.
     """
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    out = OutputFolder(out_dir, overwrite=overwrite)
+    out.check(["figure1a.png", "figure1b.png"])
     paths = []
     w, wo = result.with_compensation, result.without_compensation
     for tag, line_w, line_wo, xlabel, ylabel, unit, title in (
@@ -192,7 +218,7 @@ def figure1(result: PaperResult, out_dir: str | Path) -> tuple[Path, Path]:
         ax.set_title(title)
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
-        paths.append(_save(fig, out / f"figure1{tag}.png"))
+        paths.append(_save(fig, out, f"figure1{tag}.png"))
     return paths[0], paths[1]
 
 

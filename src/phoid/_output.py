@@ -1,0 +1,278 @@
+"""Safe output: every file phoid writes goes through here.
+
+The rules, the same for every command and function that writes (``write_experiment``,
+``Design.write``/``plot``, the identification, forced, free and Figure 1 plots):
+
+* The output folder is the one the caller names (itself a link to a folder is fine: the user
+  chose it); it is created, with its parents, when missing — but never through a dangling link.
+* A file is never written through a symbolic link: a target that is a link (to a file, to a
+  folder or to nothing) is refused, with or without ``overwrite``; so is a target whose
+  subfolders lead outside the output folder (a linked subfolder, a dangling link on the way).
+* An existing file is replaced only when ``overwrite`` is asked; a folder, FIFO or device in the
+  way is never replaced.
+* Every check is made for all targets before the first file is written, and each file is written
+  atomically: into a temporary file in the same folder, flushed to disk, then renamed over the
+  target (``os.replace``, which replaces a link rather than following it). A failure leaves the
+  old file (or no file) and no temporary file behind.
+
+Problems raise :class:`OutputError` (a ``ValueError``) with one line naming the path. The
+remedy for an existing file is worded for the caller: ``pass overwrite=True`` from Python,
+``pass --overwrite`` from the command line (:func:`cli_wording`).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import contextvars
+import os
+import secrets
+import stat
+from collections.abc import Callable, Iterable, Iterator
+from pathlib import Path, PurePosixPath
+from typing import IO, Any
+
+from phoid.errors import OutputError, PhoidError
+
+__all__ = ["OutputFolder", "cli_wording", "save_figure"]
+
+_OVERWRITE_HINT: contextvars.ContextVar[str] = contextvars.ContextVar(
+    "phoid_overwrite_hint", default="overwrite=True")
+
+
+@contextlib.contextmanager
+def cli_wording() -> Iterator[None]:
+    """Within this context, refusals to replace a file say ``pass --overwrite`` (the CLI flag)."""
+    token = _OVERWRITE_HINT.set("--overwrite")
+    try:
+        yield
+    finally:
+        _OVERWRITE_HINT.reset(token)
+
+
+def _fail(path: Path | str, message: str, error: type[PhoidError] = OutputError) -> PhoidError:
+    text = f"{path}: {message}"
+    return error(" ".join(text.splitlines()))
+
+
+def _inside(path: str, root: str) -> bool:
+    return path == root or path.startswith(root.rstrip(os.sep) + os.sep)
+
+
+Writer = Callable[[IO[bytes]], Any]
+
+
+class OutputFolder:
+    """A folder phoid writes files into, with the rules of this module.
+
+    Parameters
+    ----------
+    folder : str or Path
+        The output folder (created with its parents on the first write when missing).
+    overwrite : bool
+        Replace existing regular files (never links, folders or special files).
+    error : type
+        The :class:`phoid.errors.PhoidError` subclass raised (the caller's own, e.g.
+        ``ExperimentError`` for :func:`phoid.write_experiment`); default :class:`OutputError`.
+
+    Raises
+    ------
+    PhoidError
+        ``error``, when ``folder`` is under a dangling link or exists and is not a folder.
+    """
+
+    def __init__(self, folder: str | Path, *, overwrite: bool = False,
+                 error: type[PhoidError] = OutputError) -> None:
+        self.folder = Path(folder)
+        self.overwrite = bool(overwrite)
+        self.error = error
+        if self.folder.exists() and not self.folder.is_dir():
+            raise self._fail(self.folder, "exists and is not a folder")
+        for above in (self.folder, *self.folder.parents):  # the part to be created
+            if above.exists():
+                break
+            if above.is_symlink():
+                raise self._fail(above, "is a symbolic link to nothing; phoid does not "
+                                        "create folders through links (remove it or choose "
+                                        "another folder)")
+        # the real folder (its own links resolved: the user named it), as a string prefix
+        self._root = os.path.realpath(self.folder)
+
+    def _fail(self, path: Path | str, message: str) -> PhoidError:
+        return _fail(path, message, self.error)
+
+    # ---------------------------------------------------------------------------------------
+    def path(self, name: str) -> Path:
+        """The target ``name`` (a relative '/'-separated path) as the caller spells it."""
+        return self.folder.joinpath(*PurePosixPath(name).parts)
+
+    def check(self, names: Iterable[str]) -> list[Path]:
+        """Check every target before anything is written; returns their paths.
+
+        Raises
+        ------
+        OutputError
+            For the first target that is a link, leads outside the folder, is not a regular file
+            or exists without ``overwrite`` (nothing is written then).
+        """
+        seen: set[str] = set()
+        paths = []
+        for name in names:
+            self._check(name)
+            if name in seen:
+                raise self._fail(self.path(name), "is written twice")
+            seen.add(name)
+            paths.append(self.path(name))
+        return paths
+
+    def _check(self, name: str) -> None:
+        parts = PurePosixPath(name).parts
+        target = self.path(name)
+        if (not parts or PurePosixPath(name).is_absolute() or ".." in parts
+                or "\\" in name or "\x00" in name):
+            raise self._fail(target, "must be a relative path inside the output folder")
+        here = self._root
+        for i, part in enumerate(parts):
+            here = os.path.join(here, part)
+            shown = self.folder.joinpath(*parts[: i + 1])
+            try:
+                st = os.lstat(here)
+            except FileNotFoundError:
+                return  # the rest is created
+            except OSError as exc:
+                raise self._fail(shown, f"cannot be checked: {exc.strerror or exc}") from None
+            last = i == len(parts) - 1
+            if stat.S_ISLNK(st.st_mode):
+                if last:
+                    raise self._fail(shown, "is a symbolic link; phoid does not write through "
+                                            "links (remove it or choose another folder)")
+                real = os.path.realpath(here)
+                if not _inside(real, self._root):
+                    raise self._fail(shown, "is a symbolic link leading outside the output "
+                                            f"folder {str(self.folder)!r}; phoid does not "
+                                            "write through it")
+                if not os.path.isdir(real):
+                    raise self._fail(shown, "is a symbolic link to nothing; phoid does not "
+                                            "write through it")
+                here = real
+            elif not last and not stat.S_ISDIR(st.st_mode):
+                raise self._fail(shown, "is in the way: it is not a folder")
+            elif last and stat.S_ISDIR(st.st_mode):
+                raise self._fail(shown, "is a folder; phoid writes a file there")
+            elif last and not stat.S_ISREG(st.st_mode):
+                raise self._fail(shown, "exists and is not a regular file; phoid does not "
+                                        "replace it")
+            elif last and not self.overwrite:
+                raise self._fail(shown, f"exists already (pass {_OVERWRITE_HINT.get()} to "
+                                        "replace it)")
+
+    # ---------------------------------------------------------------------------------------
+    def write(self, name: str, data: bytes | Writer) -> Path:
+        """Write ``data`` (bytes, or a function writing to a binary file) atomically to ``name``.
+
+        Returns the path written, as the caller spells it.
+        """
+        self._check(name)
+        target = self.path(name)
+        try:
+            parent = self._make_parent(name)
+            final = os.path.join(parent, PurePosixPath(name).name)
+            tmp = self._temporary(parent, PurePosixPath(name).name)
+            try:
+                with os.fdopen(tmp[0], "wb") as fh:
+                    if callable(data):
+                        data(fh)
+                    else:
+                        fh.write(data)
+                    fh.flush()
+                    os.fsync(fh.fileno())
+                os.replace(tmp[1], final)
+            except BaseException:
+                with contextlib.suppress(OSError):
+                    os.unlink(tmp[1])
+                raise
+            _sync_folder(parent)
+        except OSError as exc:
+            raise self._fail(target, f"cannot be written: {exc.strerror or exc}") from None
+        return target
+
+    def _make_parent(self, name: str) -> str:
+        """Create the folder and the target's subfolders (no links followed out); its real path."""
+        os.makedirs(self._root, exist_ok=True)
+        here = self._root
+        for part in PurePosixPath(name).parts[:-1]:
+            here = os.path.join(here, part)
+            with contextlib.suppress(FileExistsError):
+                os.mkdir(here)
+            real = os.path.realpath(here)
+            if not _inside(real, self._root) or not os.path.isdir(real):
+                raise OSError(f"{here} changed while writing")
+            here = real
+        return here
+
+    @staticmethod
+    def _temporary(parent: str, name: str) -> tuple[int, str]:
+        """A new file ``.NAME.XXXXXXXX.tmp`` beside the target (mode from the umask)."""
+        flags = os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0) \
+            | getattr(os, "O_BINARY", 0)
+        for _ in range(100):
+            path = os.path.join(parent, f".{name}.{secrets.token_hex(4)}.tmp")
+            try:
+                return os.open(path, flags, 0o666), path
+            except FileExistsError:
+                continue
+        raise OSError(f"no free temporary name beside {name}")
+
+
+def _sync_folder(folder: str) -> None:
+    """Flush the folder's entry of the renamed file to disk (POSIX; best effort)."""
+    if os.name != "posix":
+        return
+    try:
+        fd = os.open(folder, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
+
+
+def save_figure(fig: Any, path: str | Path, *, overwrite: bool = False,
+                dpi: float = 120) -> Path:
+    """Save a matplotlib figure as PNG to ``path`` with the rules of this module.
+
+    Parameters
+    ----------
+    fig : matplotlib.figure.Figure
+    path : str or Path
+        The PNG file; its folder is the output folder (created when missing).
+    overwrite : bool
+        Replace an existing file of that name.
+    dpi : float
+        Resolution, dots per inch.
+
+    Returns
+    -------
+    Path
+        ``path``.
+    """
+    path = Path(path)
+    out = OutputFolder(path.parent, overwrite=overwrite)
+    return out.write(path.name, _png(fig, dpi))
+
+
+def _png(fig: Any, dpi: float) -> Writer:
+    """A writer that renders ``fig`` as PNG (Agg canvas attached if it has none)."""
+
+    def write(fh: IO[bytes]) -> None:
+        from matplotlib.backend_bases import FigureCanvasBase
+
+        if type(fig.canvas) is FigureCanvasBase:  # a bare Figure: draw it with Agg
+            from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+            FigureCanvasAgg(fig)
+        fig.savefig(fh, format="png", dpi=dpi)
+
+    return write
