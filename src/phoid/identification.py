@@ -821,6 +821,7 @@ def identify(
     added_mass = np.array([getattr(r, "added_mass", 0.0) for r in runs], dtype=float)
     digital = _digital_loop(experiment)
     if digital is not None:
+        _check_sample_time(experiment, digital, runs)
         if delay is not None or experiment.delay is not None:
             raise IdentificationError(
                 f"{experiment.path}: [loop] delay: a digital loop (sample_time) takes its delay "
@@ -983,6 +984,11 @@ def _estimate_delay(data, P, D, *, files, names, source, added_mass=None) -> Ide
     dm = np.zeros(n) if added_mass is None else np.asarray(added_mass, dtype=float)
     prof = delay_profile(sig, wd, P[ok], D[ok], grid, added_mass=dm[ok])
     j = int(np.argmin(prof))
+    cause = None
+    if j == grid.size - 1:
+        cause = _probable_cause([(st, None) for st in starts], data, P, D, None, names, dm, True)
+    if cause is not None:
+        raise IdentificationError(f"{where}{cause}")
     if j == grid.size - 1:
         raise IdentificationError(
             f"{where}the loop delay estimate hits its upper bound ({hi:.4g} s, half the period "
@@ -997,6 +1003,11 @@ def _estimate_delay(data, P, D, *, files, names, source, added_mass=None) -> Ide
             result = _identify_core(data, P, D, tau, files=files, names=names, source=source,
                                     estimate_delay=True, added_mass=dm)
         except IdentificationError as exc:
+            cause = _probable_cause([(st, None) for st in starts], data, P, D, None, names, dm,
+                                    True)
+            if cause is not None:
+                raise IdentificationError(f"{where}{cause} (estimating the loop delay: {exc})"
+                                          ) from None
             raise IdentificationError(
                 f"{where}estimating the loop delay: {exc} (the delay is searched in 0–{hi:.4g} "
                 "s, half the period of the fastest run: a longer delay must be given, [loop] "
@@ -1015,6 +1026,35 @@ def _estimate_delay(data, P, D, *, files, names, source, added_mass=None) -> Ide
     if notes:
         result = replace(result, warnings=tuple(notes) + result.warnings)
     return result
+
+
+# a controller sampling more than this many times per recorded sample is no sampled loop phoid
+# can model (its z-domain model degenerates as T_s |s| -> 0: JᵀJ singular at 1e-300 s), and no
+# rig records that much slower than it controls; such a loop is a continuous one
+_MAX_CONTROL_PER_RECORD = 1e4
+
+
+def _check_sample_time(experiment: Any, digital: Any, runs: Sequence[Any]) -> None:
+    """Refuse a ``[loop] sample_time`` far below the records' own sample step (a unit mistake,
+    or a controller so fast it is a continuous loop)."""
+    steps = []
+    for r in runs:
+        try:
+            t = np.asarray(r.t, dtype=float)
+            if t.size >= 2:
+                steps.append(float(np.median(np.diff(t[: min(t.size, 64)]))))
+        except (TypeError, ValueError):
+            continue
+    steps = [h for h in steps if math.isfinite(h) and h > 0]
+    if not steps:
+        return
+    h = float(np.median(steps))
+    if digital.sample_time * _MAX_CONTROL_PER_RECORD < h:
+        raise IdentificationError(
+            f"{experiment.path}: [loop] sample_time = {digital.sample_time:.3g} s is "
+            f"{h / digital.sample_time:.3g} times shorter than the records' sample step "
+            f"({h:.3g} s): is it in seconds? A controller that fast is a continuous loop: give "
+            "[loop] delay instead of sample_time")
 
 
 _DIGITAL_KEYS = ("sample_time", "delay_samples", "velocity", "cutoff")
@@ -1049,6 +1089,57 @@ def _digital_loop(experiment: Any):
         raise IdentificationError(f"{experiment.path}: [loop]: {exc}") from None
 
 
+# an added mass more than this many times the mass the runs without one give is no mass a rig
+# adds (a unit or typing mistake); beyond it the loop's numbers overflow
+_MAX_ADDED_RATIO = 1e6
+
+
+def _check_added_mass(first, P, D, delay, dm, names, source) -> None:
+    """Refuse an added mass far beyond the plant's own mass, as the runs without added mass
+    give it roughly (the eq. (35) lines of their first-pass modes); no check when fewer than
+    two of them, with distinct gains, oscillate."""
+    free = [i for i, (st, _e) in enumerate(first)
+            if dm[i] == 0 and st is not None and st.oscillating]
+    if len({(float(P[i]), float(D[i])) for i in free}) < 2:
+        return
+    try:
+        with np.errstate(all="ignore"):
+            m0 = fit_lines([first[i][0].sigma for i in free], [first[i][0].omega_d for i in free],
+                           P[free], D[free], delay).m
+    except (ValueError, np.linalg.LinAlgError):
+        return
+    if not (math.isfinite(m0) and m0 > 0):
+        return
+    i = int(np.argmax(dm))
+    if dm[i] > _MAX_ADDED_RATIO * m0:
+        where = f"{source}: " if source else ""
+        raise IdentificationError(
+            f"{where}{names[i]}: added_mass = {float(dm[i]):.3g} kg is {float(dm[i]) / m0:.3g} "
+            f"times the mass the runs without added mass give ({m0:.3g} kg): check its value "
+            "(kg)")
+
+
+def _probable_cause(first, data, P, D, delay, names, dm, estimate_delay) -> str | None:
+    """:func:`phoid.diagnose.probable_cause` from the first pass's rough modes (``first``: each
+    run's (start, error)); ``delay`` None (a digital loop, or a delay being estimated) skips
+    the delay check."""
+    from phoid.diagnose import probable_cause
+
+    sig = np.full(len(data), np.nan)
+    wd = np.full(len(data), np.nan)
+    steps = np.full(len(data), np.nan)
+    for i, (st, _err) in enumerate(first):
+        if st is not None and st.oscillating:
+            sig[i], wd[i] = st.sigma, st.omega_d
+        try:
+            t = np.asarray(data[i][0], dtype=float)
+            steps[i] = float(np.median(np.diff(t[: min(t.size, 64)])))
+        except (TypeError, ValueError, IndexError):
+            pass
+    return probable_cause(sig, wd, P, D, None if estimate_delay else delay, steps=steps,
+                          names=names, added_mass=dm)
+
+
 def _identify_core(data, P, D, delay, *, files, names, estimator="gls", compensate=True,
                    source="", estimate_delay=False, notes=(), digital=None,
                    added_mass=None) -> Identification:
@@ -1056,8 +1147,13 @@ def _identify_core(data, P, D, delay, *, files, names, estimator="gls", compensa
     ``delay`` then being its start), refine on misfit, and assemble the result."""
     n = len(data)
     dm = np.zeros(n) if added_mass is None else np.asarray(added_mass, dtype=float)
+    first = None
+    if np.any(dm):
+        first = [(st, None) if not isinstance(st, str) else (None, st) for st in
+                 start_decays(data, skip=3.0 * delay, refine="auto", coarse_release=True)]
+        _check_added_mass(first, P, D, delay, dm, names, source)
     first, fits, reasons, _skips, rough = _measure(data, P, D, delay, digital=digital,
-                                                   added_mass=dm)
+                                                   added_mass=dm, first=first)
     used = [i for i in range(n) if reasons[i] is None]
     if not used:
         raise IdentificationError(
@@ -1075,7 +1171,15 @@ def _identify_core(data, P, D, delay, *, files, names, estimator="gls", compensa
         return fit_lines(sig, wd, P[used], D[used], delay, compensate=compensate,
                          added_mass=dm[used])
 
-    mck = combine(fits, used)
+    try:
+        mck = combine(fits, used)
+    except IdentificationError as exc:
+        cause = _probable_cause(first, data, P, D, None if digital is not None else delay,
+                                names, dm, estimate_delay)
+        if cause is None:
+            raise
+        where = f"{source}: " if source else ""
+        raise IdentificationError(f"{where}{cause} ({exc})") from None
     # The second pass took the loop's fast modes from a rough plant (first pass). Where that
     # plant was poor — a run whose next root is slow biases the first pass — the runs then
     # disagree beyond their noise: refit the modes with the weighted estimate (at most twice)
@@ -1105,6 +1209,11 @@ def _identify_core(data, P, D, delay, *, files, names, estimator="gls", compensa
         elif f is not None:
             warnings.extend(f"{names[i]}: {w}" for w in f.warnings)
     warnings.extend(mck.warnings)
+    if _misfit(mck):
+        cause = _probable_cause(first, data, P, D, None if digital is not None else delay,
+                                names, dm, estimate_delay)
+        if cause is not None:
+            warnings.append(f"probably: {cause}")
     misfits = [i for i in used if any(w.startswith("misfit") for w in fits[i].warnings)]
     if digital is None and len(misfits) >= max(2, len(used) // 2):
         warnings.append(

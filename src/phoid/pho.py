@@ -97,9 +97,10 @@ def _ols(x: np.ndarray, y: np.ndarray) -> LineFit:
     n = x.size
     if n > 2:
         r = y - A @ coef
-        s2 = float(r @ r) / (n - 2)
-        cov = s2 * np.linalg.inv(A.T @ A)
-        se = np.sqrt(np.diag(cov))
+        with np.errstate(over="ignore", invalid="ignore"):  # absurd inputs: inf, said below
+            s2 = float(r @ r) / (n - 2)
+            cov = s2 * np.linalg.inv(A.T @ A)
+            se = np.sqrt(np.diag(cov))
     else:
         se = np.array([math.nan, math.nan])
     return LineFit(float(coef[0]), float(coef[1]), float(se[0]), float(se[1]), x, y)
@@ -435,6 +436,11 @@ def fit_modes(
     dm = _added(added_mass, sigma.size)
     lines = fit_lines(sigma, omega_d, P, D, delay, added_mass=dm)
     theta = np.array(start if start is not None else (lines.m, lines.c, lines.k), dtype=float)
+    if not np.all(np.isfinite(theta)):
+        raise IdentificationError(
+            "the runs give no usable start for the weighted fit: the eq. (35) lines give "
+            f"m = {float(theta[0]):.4g} kg, c = {float(theta[1]):.4g} N s/m, "
+            f"k = {float(theta[2]):.4g} N/m")
     npar = 4 if estimate_delay else 3
     if digital is not None and estimate_delay:
         raise ValueError("`estimate_delay` is not available for a digital loop")

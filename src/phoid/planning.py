@@ -1485,6 +1485,7 @@ def check_experiment(
             raise DesignError("the set has no [loop] delay: give --delay")
         settings["delay"] = delay
     notes: list[str] = []
+    carried: list[str] = []  # warnings of the identification the check relies on
     if read_error is not None:
         notes.append(f"the set's data were not used ({read_error}): gains checked against the "
                      "prior only")
@@ -1507,6 +1508,12 @@ def check_experiment(
                    and math.isfinite(r.fit.noise_sd)]
             if sds:
                 from_data["noise"] = float(np.median(sds))
+        # the check relies on this estimate: what the identification warned of stays with it
+        carried.extend(f"identification of the set: {w}" for w in ident.warnings)
+        for name, val in (("c", c), ("k", k)):
+            if not isinstance(val, (str, Sequence)) and float(val) < 0.0:
+                carried.append(f"the set's identification gives {name} = {float(val):.4g} < 0: "
+                               f"the check uses {name} = 0; give the prior --{name}")
         c = max(float(c), 0.0) if not isinstance(c, (str, Sequence)) else c
         k = max(float(k), 0.0) if not isinstance(k, (str, Sequence)) else k
     for key, val in from_data.items():
@@ -1516,6 +1523,8 @@ def check_experiment(
     d = check(P, D, m, c, k, **settings)
     if notes:
         d = dataclasses.replace(d, notes=tuple(notes))
+    if carried:
+        d = dataclasses.replace(d, warnings=tuple(carried) + tuple(d.warnings))
     return d
 
 
