@@ -947,9 +947,55 @@ def identify_data(
                       rerun=lambda tau: _identify_core(data, P, D, tau, files=files,
                                                        names=names, source=source,
                                                        estimate_delay=True, added_mass=dm))
-    return _identify_core(data, P, D, float(delay), files=files, names=names,
-                          estimator=estimator, compensate=compensate, source=source,
-                          added_mass=added_mass)
+    res = _identify_core(data, P, D, float(delay), files=files, names=names,
+                         estimator=estimator, compensate=compensate, source=source,
+                         added_mass=added_mass)
+    if u is not None and any(ui is not None for ui in u):
+        from phoid.udelay import check_u
+
+        note = _u_contradicts_gains(data, check_u(u, data), P, D, float(delay), names)
+        if note is not None:
+            res = replace(res, warnings=res.warnings + (note,))
+    return res
+
+
+# the recorded force and the gains agree when u's least-squares scale on −(P x + D ẋ)(t − Δt)
+# is 1; a smoothed derivative of noisy x biases it low by a few per cent and a force sensor's
+# calibration is rarely better than a few per cent, so only a scale outside 0.8 … 1.25 (a gain
+# or unit mistake, e.g. gains off by 2×: scale 0.5) is reported
+_U_SCALE_OK = (0.8, 1.25)
+
+
+def _u_contradicts_gains(data, u, P, D, delay, names) -> str | None:
+    """A warning naming the runs whose recorded u contradicts the given gains and delay
+    (u ≠ −[P x(t − Δt) + D ẋ(t − Δt)] by more than a calibration could explain), or None."""
+    from scipy.signal import savgol_filter
+
+    bad = []
+    for i, ((t, x), ui) in enumerate(zip(data, u, strict=True)):
+        if ui is None or t.size < 32 or not (P[i] or D[i]):
+            continue
+        h = float(np.median(np.diff(t)))
+        # a short smoothing window (≤ 1/20 of the record, odd, ≥ 5 samples) for ẋ
+        win = max(5, min(t.size // 20, 31) | 1)
+        with np.errstate(all="ignore"):
+            xs = savgol_filter(x, win, 2)
+            vs = savgol_filter(x, win, 2, deriv=1, delta=h)
+            sel = t - delay >= t[0]
+            pred = -(P[i] * np.interp(t[sel] - delay, t, xs)
+                     + D[i] * np.interp(t[sel] - delay, t, vs))
+            uu = np.asarray(ui, dtype=float)[sel]
+            pc, uc = pred - pred.mean(), uu - uu.mean()
+            den = float(pc @ pc)
+            g = float(pc @ uc) / den if den > 0 else math.nan
+        if math.isfinite(g) and not _U_SCALE_OK[0] <= g <= _U_SCALE_OK[1]:
+            bad.append((names[i], g))
+    if not bad:
+        return None
+    listed = ", ".join(f"{n} ({g:.2g})" for n, g in bad[:5]) + (" …" if len(bad) > 5 else "")
+    return (f"the recorded u contradicts the given gains and delay in {len(bad)} run(s): u is "
+            f"not -(P x + D x') at t - delay but that times {listed}: check P, D (and u's units, "
+            "N), or the delay; m, c, k assume the gains are right")
 
 
 _DELAY_GRID = 400  # candidate delays of the starting profile
@@ -1006,8 +1052,9 @@ def _estimate_delay(data, P, D, *, files, names, source, added_mass=None) -> Ide
             cause = _probable_cause([(st, None) for st in starts], data, P, D, None, names, dm,
                                     True)
             if cause is not None:
-                raise IdentificationError(f"{where}{cause} (estimating the loop delay: {exc})"
-                                          ) from None
+                msg = str(exc) if cause in str(exc) else (
+                    f"{where}{cause} (estimating the loop delay: {exc})")
+                raise IdentificationError(msg) from None
             raise IdentificationError(
                 f"{where}estimating the loop delay: {exc} (the delay is searched in 0–{hi:.4g} "
                 "s, half the period of the fastest run: a longer delay must be given, [loop] "

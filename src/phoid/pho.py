@@ -61,12 +61,13 @@ class Estimate:
     unit: str
 
     def to_dict(self) -> dict:
-        """Plain JSON-ready dict ``{"value", "stderr", "unit"}``."""
-        return {
-            "value": float(self.value),
-            "stderr": None if self.stderr is None else float(self.stderr),
-            "unit": self.unit,
-        }
+        """Plain JSON-ready dict ``{"value", "stderr", "unit"}``; a value or stderr that is not
+        finite (a stderr the data cannot give) is null, never NaN (not JSON)."""
+
+        def num(x):
+            return None if x is None or not math.isfinite(float(x)) else float(x)
+
+        return {"value": num(self.value), "stderr": num(self.stderr), "unit": self.unit}
 
 
 @dataclass(frozen=True)
@@ -272,7 +273,7 @@ def fit_lines(
     cov = np.diag([kl.slope_stderr**2, cl.intercept_stderr**2, kl.intercept_stderr**2])
     warnings: list[str] = []
     if sigma.size < 3:
-        warnings.append("only two runs: the eq. (35) lines have no residual, stderr unknown")
+        warnings.append("only two runs: the eq. (35) lines have no residual, so the standard errors of m, c, k are unknown (null in --json)")
     return MCKFit(
         m=kl.slope, c=-cl.intercept, k=-kl.intercept, cov=cov, estimator="ols",
         compensated=compensate, c_prime=cp, k_prime=kp, c_line=cl, k_line=kl,
