@@ -796,7 +796,8 @@ def identify(
     if estimator not in ("gls", "ols"):
         raise ValueError(f"`estimator` must be 'gls' or 'ols'; got {estimator!r}")
     if estimator == "gls" and not compensate:
-        raise ValueError("`compensate=False` is only available with estimator='ols'")
+        raise ValueError("leaving the delay uncompensated (--no-compensation, compensate=False) "
+                         "needs the eq. (35) lines: --estimator ols (estimator='ols')")
     method = getattr(experiment, "method", "pho")
     _refuse_bias(experiment, method)
     if method in ("forced", "free"):
@@ -953,9 +954,10 @@ def identify_data(
     if u is not None and any(ui is not None for ui in u):
         from phoid.udelay import check_u
 
-        note = _u_contradicts_gains(data, check_u(u, data), P, D, float(delay), names)
+        wd = [r.omega_d for r in res.runs]
+        note = _u_contradicts_gains(data, check_u(u, data), P, D, float(delay), names, wd)
         if note is not None:
-            res = replace(res, warnings=res.warnings + (note,))
+            res = replace(res, warnings=(*res.warnings, note))
     return res
 
 
@@ -966,18 +968,22 @@ def identify_data(
 _U_SCALE_OK = (0.8, 1.25)
 
 
-def _u_contradicts_gains(data, u, P, D, delay, names) -> str | None:
+def _u_contradicts_gains(data, u, P, D, delay, names, omega_d) -> str | None:
     """A warning naming the runs whose recorded u contradicts the given gains and delay
     (u ≠ −[P x(t − Δt) + D ẋ(t − Δt)] by more than a calibration could explain), or None."""
     from scipy.signal import savgol_filter
 
     bad = []
     for i, ((t, x), ui) in enumerate(zip(data, u, strict=True)):
-        if ui is None or t.size < 32 or not (P[i] or D[i]):
+        if ui is None or t.size < 32 or not (P[i] or D[i]) or not math.isfinite(omega_d[i]):
             continue
         h = float(np.median(np.diff(t)))
-        # a short smoothing window (≤ 1/20 of the record, odd, ≥ 5 samples) for ẋ
+        # a short smoothing window (≤ 1/20 of the record, odd, ≥ 5 samples) for ẋ, and at
+        # least 10 windows per period (else the smoothed derivative is not accurate to the
+        # band's few per cent: the check is skipped)
         win = max(5, min(t.size // 20, 31) | 1)
+        if 2 * math.pi / (omega_d[i] * h) < 10 * win:
+            continue
         with np.errstate(all="ignore"):
             xs = savgol_filter(x, win, 2)
             vs = savgol_filter(x, win, 2, deriv=1, delta=h)
@@ -1166,6 +1172,35 @@ def _check_added_mass(first, P, D, delay, dm, names, source) -> None:
             "(kg)")
 
 
+# ω_d·h above this (fewer than ~30 samples per period) leaves the release's sub-sample timing
+# unresolved: a release between two samples biases c by several stderr (measured: fs 12 Hz,
+# ω_d ≈ 6–9 rad/s, ω_d·h ≈ 0.5–0.75; exact when the release falls on a sample)
+_COARSE_WD_H = 0.2
+
+
+def _coarse_sampling(data, fits) -> str | None:
+    """A warning when the runs are sampled too coarsely for the release's timing, or None."""
+    worst, wmax = 0.0, 0.0
+    for (t, _x), f in zip(data, fits, strict=False):
+        if f is None or not math.isfinite(f.omega_d) or np.size(t) < 2:
+            continue
+        h = float(np.median(np.diff(np.asarray(t[: min(np.size(t), 64)], dtype=float))))
+        worst, wmax = max(worst, f.omega_d * h), max(wmax, f.omega_d)
+    if worst <= _COARSE_WD_H:
+        return None
+    return (f"the records are sampled coarsely ({2 * math.pi / worst:.3g} samples per period of "
+            "the fastest run): a release that falls between two samples is not resolved, which "
+            "can bias c (and k) by several standard errors; record at "
+            f"{wmax / _COARSE_WD_H:.3g} Hz or more")
+
+
+def _cli_words(message: str) -> str:
+    """A decay fit's message in the identification's words: its ``skip`` is not a setting
+    here but three loop delays after the release (set through the delay, --delay)."""
+    return (message.replace("(increase `skip`?)", "(is the loop delay, --delay, right?)")
+            .replace("[release + skip, t_end]", "[release + 3 delay, end]"))
+
+
 def _probable_cause(first, data, P, D, delay, names, dm, estimate_delay) -> str | None:
     """:func:`phoid.diagnose.probable_cause` from the first pass's rough modes (``first``: each
     run's (start, error)); ``delay`` None (a digital loop, or a delay being estimated) skips
@@ -1250,11 +1285,12 @@ def _identify_core(data, P, D, delay, *, files, names, estimator="gls", compensa
             break
         fits, reasons, used, mck, rough = fits2, reasons2, used2, mck2, (mck2.m, mck2.c, mck2.k)
     warnings: list[str] = list(notes)
+    reasons = [None if r is None else _cli_words(r) for r in reasons]
     for i, f in enumerate(fits):
         if reasons[i] is not None:
             warnings.append(f"{names[i]}: set aside: {reasons[i]}")
         elif f is not None:
-            warnings.extend(f"{names[i]}: {w}" for w in f.warnings)
+            warnings.extend(f"{names[i]}: {_cli_words(w)}" for w in f.warnings)
     warnings.extend(mck.warnings)
     if _misfit(mck):
         cause = _probable_cause(first, data, P, D, None if digital is not None else delay,
@@ -1281,6 +1317,9 @@ def _identify_core(data, P, D, delay, *, files, names, estimator="gls", compensa
             f"their correlation matrix {float(np.linalg.cond(corr)):.3g}, c known to "
             f"{100 * sd[1] / max(abs(mck.c), 1e-300):.2g} %"
         )
+    coarse = _coarse_sampling(data, [fits[i] for i in used])
+    if coarse is not None:
+        warnings.append(coarse)
     if len(used) < 3:
         warnings.append(f"only {len(used)} usable runs: m, c, k are barely determined")
     se = mck.stderr
@@ -1300,7 +1339,8 @@ def _identify_core(data, P, D, delay, *, files, names, estimator="gls", compensa
             omega_d_stderr=f.omega_d_stderr if f else math.nan,
             c_prime=cp, k_prime=kp, cycles=f.cycles if f else math.nan,
             residual_rms=f.residual_rms if f else math.nan, used=i in used,
-            warnings=tuple(([reasons[i]] if reasons[i] else []) + (list(f.warnings) if f else [])),
+            warnings=tuple(([reasons[i]] if reasons[i] else [])
+                           + ([_cli_words(w) for w in f.warnings] if f else [])),
             fit=f, added_mass=float(dm[i]),
         ))
     return Identification(

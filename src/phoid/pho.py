@@ -273,7 +273,8 @@ def fit_lines(
     cov = np.diag([kl.slope_stderr**2, cl.intercept_stderr**2, kl.intercept_stderr**2])
     warnings: list[str] = []
     if sigma.size < 3:
-        warnings.append("only two runs: the eq. (35) lines have no residual, so the standard errors of m, c, k are unknown (null in --json)")
+        warnings.append("only two runs: the eq. (35) lines have no residual, so the standard "
+                        "errors of m, c, k are unknown (null in --json)")
     return MCKFit(
         m=kl.slope, c=-cl.intercept, k=-kl.intercept, cov=cov, estimator="ols",
         compensated=compensate, c_prime=cp, k_prime=kp, c_line=cl, k_line=kl,
