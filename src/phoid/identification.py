@@ -796,8 +796,7 @@ def identify(
     if estimator not in ("gls", "ols"):
         raise ValueError(f"`estimator` must be 'gls' or 'ols'; got {estimator!r}")
     if estimator == "gls" and not compensate:
-        raise ValueError("leaving the delay uncompensated (--no-compensation, compensate=False) "
-                         "needs the eq. (35) lines: --estimator ols (estimator='ols')")
+        raise ValueError("`compensate=False` is only available with estimator='ols'")
     method = getattr(experiment, "method", "pho")
     _refuse_bias(experiment, method)
     if method in ("forced", "free"):
