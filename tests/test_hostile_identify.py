@@ -120,6 +120,10 @@ CASES = [
     # item 2: other crashes
     ("added_mass = 1e300", "added_1e300", [], 2, ["run 2", "added_mass = 1e+300"]),
     ("sample_time = 1e-300", "digital_1e-300", [], 2, ["sample_time = 1e-300", "seconds"]),
+    ("negative delay", "base", ["--delay", "-1"], 2, ["--delay", "≥ 0"]),
+    ("delay longer than the records", "base", ["--delay", "5"], 2, ["too long", "seconds"]),
+    ("delay far below the sample step", "base", ["--delay", "1e-300"], 2,
+     ["shorter than the records' sample step", "seconds"]),
     # item 5: silently wrong numbers
     ("gains doubled, u recorded", "gains_x2", [], 0, ["u contradicts the given gains"]),
     ("release between samples at 12 Hz", "fs12", [], 0, ["sampled coarsely"]),

@@ -947,6 +947,7 @@ def identify_data(
                       rerun=lambda tau: _identify_core(data, P, D, tau, files=files,
                                                        names=names, source=source,
                                                        estimate_delay=True, added_mass=dm))
+    _check_delay(float(delay), data, source)
     res = _identify_core(data, P, D, float(delay), files=files, names=names,
                          estimator=estimator, compensate=compensate, source=source,
                          added_mass=added_mass)
@@ -958,6 +959,42 @@ def identify_data(
         if note is not None:
             res = replace(res, warnings=(*res.warnings, note))
     return res
+
+
+# a given delay shorter than this fraction of the records' sample step is no delay the data can
+# tell from 0 (and the release model would step through it in 1e300 steps): a unit mistake
+_MIN_DELAY_PER_STEP = 1e-6
+
+
+def _check_delay(delay: float, data, source: str) -> None:
+    """Refuse a given loop delay that cannot be right: not finite or negative, far below the
+    records' sample step, or so long that the fit's start (3 delays after the release) lies
+    beyond every record's end."""
+    where = f"{source}: " if source else ""
+    what = "the loop delay ([loop] delay, or --delay)"
+    if not (math.isfinite(delay) and delay >= 0.0):
+        raise IdentificationError(f"{where}{what} must be a finite number ≥ 0 s; got {delay:g}")
+    spans, steps = [], []
+    for t, _x in data:
+        try:
+            t = np.asarray(t, dtype=float)
+            if t.size >= 2 and np.all(np.isfinite(t[[0, -1]])):
+                spans.append(float(t[-1] - t[0]))
+                steps.append(float(np.median(np.diff(t[: min(t.size, 64)]))))
+        except (TypeError, ValueError):
+            continue
+    if not spans:
+        return
+    h = float(np.median(steps))
+    if 0.0 < delay < _MIN_DELAY_PER_STEP * h:
+        raise IdentificationError(
+            f"{where}{what} = {delay:.3g} s is {h / delay:.3g} times shorter than the records' "
+            f"sample step ({h:.3g} s): is it in seconds? Give 0 for a loop without delay")
+    if 3.0 * delay >= max(spans):
+        raise IdentificationError(
+            f"{where}{what} = {delay:.4g} s is too long for the records: the fit starts 3 "
+            f"delays ({3 * delay:.4g} s) after the release, beyond the longest record "
+            f"({max(spans):.4g} s); is it in seconds?")
 
 
 # the recorded force and the gains agree when u's least-squares scale on −(P x + D ẋ)(t − Δt)
