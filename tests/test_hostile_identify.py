@@ -78,6 +78,14 @@ def sets(tmp_path_factory) -> dict[str, Path]:
     with f.open("w", newline="") as fh:
         csv.writer(fh).writerows([rows[0]] + [[repr(float(r[0]) * 1000), *r[1:]]
                                               for r in rows[1:]])
+    # one run's x scaled absurdly, and one run's x in mm
+    for name, scale in (("x_1e300", 1e300), ("x_mm", 1e3)):
+        f = copy(name) / "run01.csv"
+        with f.open(newline="") as fh:
+            rows = list(csv.reader(fh))
+        with f.open("w", newline="") as fh:
+            csv.writer(fh).writerows([rows[0]] + [[r[0], repr(float(r[1]) * scale), r[2]]
+                                                  for r in rows[1:]])
     # one run's P absurd
     _manifest_edit(copy("p_1e20"), lambda s: _nth_run_field(s, 3, "P", "1e20"))
     # one run's added mass absurd
@@ -124,7 +132,10 @@ CASES = [
     ("delay longer than the records", "base", ["--delay", "5"], 2, ["too long", "seconds"]),
     ("delay far below the sample step", "base", ["--delay", "1e-300"], 2,
      ["shorter than the records' sample step", "seconds"]),
+    ("one run's x times 1e300", "x_1e300", [], 0, ["run 1", "set aside", "is it in m?"]),
     # item 5: silently wrong numbers
+    ("one run's x in mm, u recorded", "x_mm", [], 0, ["run 1", "u contradicts",
+                                                     "units of x (m)"]),
     ("gains doubled, u recorded", "gains_x2", [], 0, ["u contradicts the given gains"]),
     ("release between samples at 12 Hz", "fs12", [], 0, ["sampled coarsely"]),
     ("two runs, OLS", "two", ["--estimator", "ols"], 0, ["standard errors", "null in --json"]),
