@@ -1036,8 +1036,8 @@ def _u_contradicts_gains(data, u, P, D, delay, names, omega_d) -> str | None:
         return None
     listed = ", ".join(f"{n} ({g:.2g})" for n, g in bad[:5]) + (" …" if len(bad) > 5 else "")
     return (f"the recorded u contradicts the given gains and delay in {len(bad)} run(s): u is "
-            f"not -(P x + D x') at t - delay but that times {listed}: check P, D, the units of x (m) "
-            "and u (N), or the delay; m, c, k assume the gains are right")
+            f"not -(P x + D x') at t - delay but that times {listed}: check P, D, the units "
+            "of x (m) and u (N), or the delay; m, c, k assume the gains are right")
 
 
 _DELAY_GRID = 400  # candidate delays of the starting profile
