@@ -181,15 +181,19 @@ def test_valid_set_has_no_false_alarm(sets):
 
 @pytest.mark.parametrize(("which", "args", "status", "words"), [
     ("neg_d", [], 2, ["D negated", SIGN]),
+    # with the prior given nothing is identified: the gains are checked as given, are unsafe
+    # (status 1, the documented answer of --check to an unsafe run), and the sign is named
+    ("neg_d", ["--m", "2", "--c", "1", "--k", "64"], 1, ["every run's D is negative", SIGN]),
     # the identification's warnings are carried through (its chi2/dof ~1e5 no longer silent)
     ("base", ["--delay", "0.05"], 0, ["identification of the set", "runs disagree",
                                        "too long"]),
-], ids=["wrong sign", "delay too long"])
+], ids=["wrong sign", "wrong sign, prior given", "delay too long"])
 def test_design_check_hostile(sets, which, args, status, words):
     r = runner.invoke(app, ["design", "--check", str(sets[which]), "--json", *args])
-    # design --check exits 1 by design when a run is unsafe on the prior (documented); the
-    # hostile sets here must give 0 (result) or 2 (one-line error)
+    # design --check exits 1 by design when a run is unsafe on the prior (documented, with the
+    # full result on stdout); anything else is 0 (result) or 2 (one-line error)
     assert r.exit_code == status, (r.exit_code, r.output, r.exception)
+    assert r.exception is None or isinstance(r.exception, SystemExit), r.exception
     if status == 2:
         err = r.stderr.strip().splitlines()
         assert len(err) == 1 and err[0].startswith("phoid: error:"), r.stderr

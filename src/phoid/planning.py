@@ -1521,6 +1521,13 @@ def check_experiment(
             settings[key] = val
     settings = {key: val for key, val in settings.items() if val is not None}
     d = check(P, D, m, c, k, **settings)
+    negative = [name for name, g in (("P", P), ("D", D)) if g.size and np.all(g < 0)]
+    if negative:
+        from phoid.diagnose import SIGN_CONVENTION
+
+        what = " and ".join(negative)
+        carried.insert(0, f"every run's {what} is negative: {SIGN_CONVENTION}; if the rig's "
+                          f"controller uses the other sign, give {what} with phoid's")
     if notes:
         d = dataclasses.replace(d, notes=tuple(notes))
     if carried:
