@@ -82,6 +82,7 @@ the release, the delay known.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import itertools
 import math
 import tomllib
@@ -261,6 +262,11 @@ def delay_margin(
 # inputs
 
 
+# a prior m, c or k beyond this (or, if not 0, below its inverse) makes the loop's roots and
+# their squares overflow: no rig's plant, a unit mistake
+_PRIOR_MAX = 1e100
+
+
 def _range(name: str, value: Any, *, positive: bool) -> tuple[float, float]:
     """A prior value or range as (lo, hi); accepts a number, a (lo, hi) pair or 'lo:hi'."""
     unit = {"m": "kg", "c": "N·s/m", "k": "N/m"}[name]
@@ -280,6 +286,10 @@ def _range(name: str, value: Any, *, positive: bool) -> tuple[float, float]:
         lo = hi = v.finite(name, value, unit)
     if not lo <= hi:
         raise ValueError(f"`{name}` range must have lo ≤ hi; got {lo:g}:{hi:g} {unit}")
+    if hi > _PRIOR_MAX or (lo > 0 and lo < 1 / _PRIOR_MAX):
+        given = f"{lo:g}" if lo == hi else f"{lo:g}:{hi:g}"
+        raise ValueError(f"`{name}` = {given} {unit} is beyond the loop computations' range "
+                         f"({1 / _PRIOR_MAX:g} … {_PRIOR_MAX:g}): is it in {unit}?")
     if positive and not lo > 0:
         raise ValueError(f"`{name}` must be > 0 {unit}; got {lo:g}")
     if not positive and not lo >= 0:
@@ -1122,6 +1132,25 @@ def _nominal_root(m, c, k, P, D, delay) -> complex:
 # design
 
 
+def _roots_in_range(func):
+    """:func:`design` and :func:`check` with the loop-root computation's failure (a prior so far
+    from the gains' scale that the roots cannot be certified: a unit mistake) as a DesignError
+    that says so, instead of a RuntimeError."""
+
+    @functools.wraps(func)
+    def wrapper(*args, **kwargs):
+        try:
+            return func(*args, **kwargs)
+        except RuntimeError as exc:
+            raise DesignError(
+                f"the loop's roots cannot be computed for this prior plant and these gains "
+                f"({exc}): a plant this far from the gains' scale is usually in other units "
+                "(m in kg, c in N s/m, k in N/m; P in N/m, D in N s/m)") from None
+
+    return wrapper
+
+
+@_roots_in_range
 def design(
     m: Any,
     c: Any,
@@ -1382,6 +1411,7 @@ def _why_infeasible(st: DesignSettings, prior: _Prior, ok_lim: np.ndarray, ev: _
 # check
 
 
+@_roots_in_range
 def check(
     P: Sequence[float] | np.ndarray,
     D: Sequence[float] | np.ndarray,
