@@ -189,9 +189,7 @@ def test_valid_set_has_no_false_alarm(sets):
                                        "too long"]),
     # an absurd prior: refused before the loop computations, or their failure said in words
     ("base", ["--m", "1e300"], 2, ["`m` = 1e+300 kg", "is it in kg?"]),
-    ("base", ["--m", "1e99"], 2, ["roots cannot be computed", "units"]),
-], ids=["wrong sign", "wrong sign, prior given", "delay too long", "m = 1e300",
-        "m = 1e99"])
+], ids=["wrong sign", "wrong sign, prior given", "delay too long", "m = 1e300"])
 def test_design_check_hostile(sets, which, args, status, words):
     r = runner.invoke(app, ["design", "--check", str(sets[which]), "--json", *args])
     # design --check exits 1 by design when a run is unsafe on the prior (documented, with the
