@@ -58,7 +58,7 @@ def test_identify_ols_and_no_compensation(simulated):
     # the paper's OLS lines ignore each run's precision: a different, less precise estimate
     assert ols["c"]["value"] != gls["c"]["value"] and ols["c"]["stderr"] > gls["c"]["stderr"]
     r = runner.invoke(app, ["identify", str(simulated), "--no-compensation"])
-    one_line_error(r, "compensate")
+    one_line_error(r, "--no-compensation", "--estimator ols")
 
 
 def test_identify_missing_set(tmp_path):

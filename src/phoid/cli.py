@@ -147,6 +147,8 @@ def identify(
     from phoid.io import read_experiment
 
     try:
+        if no_compensation and estimator != "ols":
+            raise ValueError("--no-compensation needs --estimator ols (the eq. (35) lines)")
         exp = read_experiment(experiment)
         if friction and (exp.method != "pho" or estimator != "gls" or no_compensation
                          or plots is not None):

@@ -218,7 +218,17 @@ def _check_record(t, x) -> tuple[np.ndarray, np.ndarray]:
         )
     if not x.max() > x.min():
         raise ValueError(f"`x` is constant ({x[0]:g} m): no motion to analyse")
+    for name, a, unit in (("t", t, "s"), ("x", x, "m")):
+        big = max(abs(float(a[0])), abs(float(a[-1])), float(np.abs(a).max()))
+        if big > _MAX_MAGNITUDE:
+            raise ValueError(f"`{name}` reaches {big:.3g} {unit}: beyond any record the fit "
+                             f"can square without overflow (is it in {unit}?)")
     return t, x
+
+
+# |t|, |x| beyond this overflow the fits' sums of squares (1e100² · samples ≪ 1.8e308) and are
+# no position in m, or time in s, a rig records
+_MAX_MAGNITUDE = 1e100
 
 
 def _med(a: np.ndarray) -> float:

@@ -822,6 +822,7 @@ def identify(
     added_mass = np.array([getattr(r, "added_mass", 0.0) for r in runs], dtype=float)
     digital = _digital_loop(experiment)
     if digital is not None:
+        _check_sample_time(experiment, digital, runs)
         if delay is not None or experiment.delay is not None:
             raise IdentificationError(
                 f"{experiment.path}: [loop] delay: a digital loop (sample_time) takes its delay "
@@ -947,9 +948,103 @@ def identify_data(
                       rerun=lambda tau: _identify_core(data, P, D, tau, files=files,
                                                        names=names, source=source,
                                                        estimate_delay=True, added_mass=dm))
-    return _identify_core(data, P, D, float(delay), files=files, names=names,
-                          estimator=estimator, compensate=compensate, source=source,
-                          added_mass=added_mass)
+    _check_delay(float(delay), data, source)
+    res = _identify_core(data, P, D, float(delay), files=files, names=names,
+                         estimator=estimator, compensate=compensate, source=source,
+                         added_mass=added_mass)
+    if u is not None and any(ui is not None for ui in u):
+        from phoid.udelay import check_u
+
+        wd = [r.omega_d for r in res.runs]
+        note = _u_contradicts_gains(data, check_u(u, data), P, D, float(delay), names, wd)
+        if note is not None:
+            res = replace(res, warnings=(*res.warnings, note))
+    return res
+
+
+# a given delay shorter than this fraction of the records' sample step is no delay the data can
+# tell from 0 (and the release model would step through it in 1e300 steps): a unit mistake
+_MIN_DELAY_PER_STEP = 1e-6
+
+
+def _check_delay(delay: float, data, source: str) -> None:
+    """Refuse a given loop delay that cannot be right: not finite or negative, far below the
+    records' sample step, or so long that the fit's start (3 delays after the release) lies
+    beyond every record's end."""
+    where = f"{source}: " if source else ""
+    what = "the loop delay ([loop] delay, or --delay)"
+    if not (math.isfinite(delay) and delay >= 0.0):
+        raise IdentificationError(f"{where}{what} must be a finite number ≥ 0 s; got {delay:g}")
+    spans, steps = [], []
+    for t, _x in data:
+        try:
+            t = np.asarray(t, dtype=float)
+            if t.size >= 2 and np.all(np.isfinite(t[[0, -1]])):
+                spans.append(float(t[-1] - t[0]))
+                steps.append(float(np.median(np.diff(t[: min(t.size, 64)]))))
+        except (TypeError, ValueError):
+            continue
+    if not spans:
+        return
+    h = float(np.median(steps))
+    if 0.0 < delay < _MIN_DELAY_PER_STEP * h:
+        raise IdentificationError(
+            f"{where}{what} = {delay:.3g} s is {h / delay:.3g} times shorter than the records' "
+            f"sample step ({h:.3g} s): is it in seconds? Give 0 for a loop without delay")
+    if 3.0 * delay >= max(spans):
+        raise IdentificationError(
+            f"{where}{what} = {delay:.4g} s is too long for the records: the fit starts 3 "
+            f"delays ({3 * delay:.4g} s) after the release, beyond the longest record "
+            f"({max(spans):.4g} s); is it in seconds?")
+
+
+# the recorded force and the gains agree when u's least-squares scale on −(P x + D ẋ)(t − Δt)
+# is 1; a smoothed derivative of noisy x biases it low by a few per cent and a force sensor's
+# calibration is rarely better than a few per cent, so only a scale outside 0.8 … 1.25 (a gain
+# or unit mistake, e.g. gains off by 2×: scale 0.5) is reported
+_U_SCALE_OK = (0.8, 1.25)
+
+
+def _u_contradicts_gains(data, u, P, D, delay, names, omega_d) -> str | None:
+    """A warning naming the runs whose recorded u contradicts the given gains and delay
+    (u ≠ −[P x(t − Δt) + D ẋ(t − Δt)] by more than a calibration could explain), or None."""
+    from scipy.signal import savgol_filter
+
+    bad = []
+    for i, ((t, x), ui) in enumerate(zip(data, u, strict=True)):
+        if ui is None or t.size < 32 or not (P[i] or D[i]) or not math.isfinite(omega_d[i]):
+            continue
+        h = float(np.median(np.diff(t)))
+        period = 2 * math.pi / omega_d[i]
+        # a dense record is averaged in blocks of k samples down to ~200 per period (noise
+        # down by √k; the block mean attenuates the mode by < 1e-4), then ẋ comes from a
+        # quadratic Savitzky–Golay fit over 11 samples; with fewer than 10 such windows per
+        # period the derivative is not accurate to the band's few per cent: no check
+        win = 11
+        kb = max(1, int(period / (200 * h)))
+        nb = t.size // kb
+        if nb < 2 * win or period / (kb * h) < 10 * win:
+            continue
+        uu = np.asarray(ui, dtype=float)
+        t, x, uu = (a[: nb * kb].reshape(nb, kb).mean(axis=1) for a in (t, x, uu))
+        with np.errstate(all="ignore"):
+            xs = savgol_filter(x, win, 2)
+            vs = savgol_filter(x, win, 2, deriv=1, delta=kb * h)
+            sel = t - delay >= t[0]
+            pred = -(P[i] * np.interp(t[sel] - delay, t, xs)
+                     + D[i] * np.interp(t[sel] - delay, t, vs))
+            uu = uu[sel]
+            pc, uc = pred - pred.mean(), uu - uu.mean()
+            den = float(pc @ pc)
+            g = float(pc @ uc) / den if den > 0 else math.nan
+        if math.isfinite(g) and not _U_SCALE_OK[0] <= g <= _U_SCALE_OK[1]:
+            bad.append((names[i], g))
+    if not bad:
+        return None
+    listed = ", ".join(f"{n} ({g:.2g})" for n, g in bad[:5]) + (" …" if len(bad) > 5 else "")
+    return (f"the recorded u contradicts the given gains and delay in {len(bad)} run(s): u is "
+            f"not -(P x + D x') at t - delay but that times {listed}: check P, D, the units "
+            "of x (m) and u (N), or the delay; m, c, k assume the gains are right")
 
 
 _DELAY_GRID = 400  # candidate delays of the starting profile
@@ -984,6 +1079,11 @@ def _estimate_delay(data, P, D, *, files, names, source, added_mass=None) -> Ide
     dm = np.zeros(n) if added_mass is None else np.asarray(added_mass, dtype=float)
     prof = delay_profile(sig, wd, P[ok], D[ok], grid, added_mass=dm[ok])
     j = int(np.argmin(prof))
+    cause = None
+    if j == grid.size - 1:
+        cause = _probable_cause([(st, None) for st in starts], data, P, D, None, names, dm, True)
+    if cause is not None:
+        raise IdentificationError(f"{where}{cause}")
     if j == grid.size - 1:
         raise IdentificationError(
             f"{where}the loop delay estimate hits its upper bound ({hi:.4g} s, half the period "
@@ -998,6 +1098,12 @@ def _estimate_delay(data, P, D, *, files, names, source, added_mass=None) -> Ide
             result = _identify_core(data, P, D, tau, files=files, names=names, source=source,
                                     estimate_delay=True, added_mass=dm)
         except IdentificationError as exc:
+            cause = _probable_cause([(st, None) for st in starts], data, P, D, None, names, dm,
+                                    True)
+            if cause is not None:
+                msg = str(exc) if cause in str(exc) else (
+                    f"{where}{cause} (estimating the loop delay: {exc})")
+                raise IdentificationError(msg) from None
             raise IdentificationError(
                 f"{where}estimating the loop delay: {exc} (the delay is searched in 0–{hi:.4g} "
                 "s, half the period of the fastest run: a longer delay must be given, [loop] "
@@ -1016,6 +1122,35 @@ def _estimate_delay(data, P, D, *, files, names, source, added_mass=None) -> Ide
     if notes:
         result = replace(result, warnings=tuple(notes) + result.warnings)
     return result
+
+
+# a controller sampling more than this many times per recorded sample is no sampled loop phoid
+# can model (its z-domain model degenerates as T_s |s| -> 0: JᵀJ singular at 1e-300 s), and no
+# rig records that much slower than it controls; such a loop is a continuous one
+_MAX_CONTROL_PER_RECORD = 1e4
+
+
+def _check_sample_time(experiment: Any, digital: Any, runs: Sequence[Any]) -> None:
+    """Refuse a ``[loop] sample_time`` far below the records' own sample step (a unit mistake,
+    or a controller so fast it is a continuous loop)."""
+    steps = []
+    for r in runs:
+        try:
+            t = np.asarray(r.t, dtype=float)
+            if t.size >= 2:
+                steps.append(float(np.median(np.diff(t[: min(t.size, 64)]))))
+        except (TypeError, ValueError):
+            continue
+    steps = [h for h in steps if math.isfinite(h) and h > 0]
+    if not steps:
+        return
+    h = float(np.median(steps))
+    if digital.sample_time * _MAX_CONTROL_PER_RECORD < h:
+        raise IdentificationError(
+            f"{experiment.path}: [loop] sample_time = {digital.sample_time:.3g} s is "
+            f"{h / digital.sample_time:.3g} times shorter than the records' sample step "
+            f"({h:.3g} s): is it in seconds? A controller that fast is a continuous loop: give "
+            "[loop] delay instead of sample_time")
 
 
 _DIGITAL_KEYS = ("sample_time", "delay_samples", "velocity", "cutoff")
@@ -1050,6 +1185,86 @@ def _digital_loop(experiment: Any):
         raise IdentificationError(f"{experiment.path}: [loop]: {exc}") from None
 
 
+# an added mass more than this many times the mass the runs without one give is no mass a rig
+# adds (a unit or typing mistake); beyond it the loop's numbers overflow
+_MAX_ADDED_RATIO = 1e6
+
+
+def _check_added_mass(first, P, D, delay, dm, names, source) -> None:
+    """Refuse an added mass far beyond the plant's own mass, as the runs without added mass
+    give it roughly (the eq. (35) lines of their first-pass modes); no check when fewer than
+    two of them, with distinct gains, oscillate."""
+    free = [i for i, (st, _e) in enumerate(first)
+            if dm[i] == 0 and st is not None and st.oscillating]
+    if len({(float(P[i]), float(D[i])) for i in free}) < 2:
+        return
+    try:
+        with np.errstate(all="ignore"):
+            m0 = fit_lines([first[i][0].sigma for i in free], [first[i][0].omega_d for i in free],
+                           P[free], D[free], delay).m
+    except (ValueError, np.linalg.LinAlgError):
+        return
+    if not (math.isfinite(m0) and m0 > 0):
+        return
+    i = int(np.argmax(dm))
+    if dm[i] > _MAX_ADDED_RATIO * m0:
+        where = f"{source}: " if source else ""
+        raise IdentificationError(
+            f"{where}{names[i]}: added_mass = {float(dm[i]):.3g} kg is {float(dm[i]) / m0:.3g} "
+            f"times the mass the runs without added mass give ({m0:.3g} kg): check its value "
+            "(kg)")
+
+
+# ω_d·h above this (fewer than ~30 samples per period) leaves the release's sub-sample timing
+# unresolved: a release between two samples biases c by several stderr (measured: fs 12 Hz,
+# ω_d ≈ 6–9 rad/s, ω_d·h ≈ 0.5–0.75; exact when the release falls on a sample)
+_COARSE_WD_H = 0.2
+
+
+def _coarse_sampling(data, fits) -> str | None:
+    """A warning when the runs are sampled too coarsely for the release's timing, or None."""
+    worst, wmax = 0.0, 0.0
+    for (t, _x), f in zip(data, fits, strict=False):
+        if f is None or not math.isfinite(f.omega_d) or np.size(t) < 2:
+            continue
+        h = float(np.median(np.diff(np.asarray(t[: min(np.size(t), 64)], dtype=float))))
+        worst, wmax = max(worst, f.omega_d * h), max(wmax, f.omega_d)
+    if worst <= _COARSE_WD_H:
+        return None
+    return (f"the records are sampled coarsely ({2 * math.pi / worst:.3g} samples per period of "
+            "the fastest run): a release that falls between two samples is not resolved, which "
+            "can bias c (and k) by several standard errors; record at "
+            f"{wmax / _COARSE_WD_H:.3g} Hz or more")
+
+
+def _cli_words(message: str) -> str:
+    """A decay fit's message in the identification's words: its ``skip`` is not a setting
+    here but three loop delays after the release (set through the delay, --delay)."""
+    return (message.replace("(increase `skip`?)", "(is the loop delay, --delay, right?)")
+            .replace("[release + skip, t_end]", "[release + 3 delay, end]"))
+
+
+def _probable_cause(first, data, P, D, delay, names, dm, estimate_delay) -> str | None:
+    """:func:`phoid.diagnose.probable_cause` from the first pass's rough modes (``first``: each
+    run's (start, error)); ``delay`` None (a digital loop, or a delay being estimated) skips
+    the delay check."""
+    from phoid.diagnose import probable_cause
+
+    sig = np.full(len(data), np.nan)
+    wd = np.full(len(data), np.nan)
+    steps = np.full(len(data), np.nan)
+    for i, (st, _err) in enumerate(first):
+        if st is not None and st.oscillating:
+            sig[i], wd[i] = st.sigma, st.omega_d
+        try:
+            t = np.asarray(data[i][0], dtype=float)
+            steps[i] = float(np.median(np.diff(t[: min(t.size, 64)])))
+        except (TypeError, ValueError, IndexError):
+            pass
+    return probable_cause(sig, wd, P, D, None if estimate_delay else delay, steps=steps,
+                          names=names, added_mass=dm)
+
+
 def _identify_core(data, P, D, delay, *, files, names, estimator="gls", compensate=True,
                    source="", estimate_delay=False, notes=(), digital=None,
                    added_mass=None) -> Identification:
@@ -1057,8 +1272,13 @@ def _identify_core(data, P, D, delay, *, files, names, estimator="gls", compensa
     ``delay`` then being its start), refine on misfit, and assemble the result."""
     n = len(data)
     dm = np.zeros(n) if added_mass is None else np.asarray(added_mass, dtype=float)
+    first = None
+    if np.any(dm):
+        first = [(st, None) if not isinstance(st, str) else (None, st) for st in
+                 start_decays(data, skip=3.0 * delay, refine="auto", coarse_release=True)]
+        _check_added_mass(first, P, D, delay, dm, names, source)
     first, fits, reasons, _skips, rough = _measure(data, P, D, delay, digital=digital,
-                                                   added_mass=dm)
+                                                   added_mass=dm, first=first)
     used = [i for i in range(n) if reasons[i] is None]
     if not used:
         raise IdentificationError(
@@ -1076,7 +1296,15 @@ def _identify_core(data, P, D, delay, *, files, names, estimator="gls", compensa
         return fit_lines(sig, wd, P[used], D[used], delay, compensate=compensate,
                          added_mass=dm[used])
 
-    mck = combine(fits, used)
+    try:
+        mck = combine(fits, used)
+    except IdentificationError as exc:
+        cause = _probable_cause(first, data, P, D, None if digital is not None else delay,
+                                names, dm, estimate_delay)
+        if cause is None:
+            raise
+        where = f"{source}: " if source else ""
+        raise IdentificationError(f"{where}{cause} ({exc})") from None
     # The second pass took the loop's fast modes from a rough plant (first pass). Where that
     # plant was poor — a run whose next root is slow biases the first pass — the runs then
     # disagree beyond their noise: refit the modes with the weighted estimate (at most twice)
@@ -1100,12 +1328,18 @@ def _identify_core(data, P, D, delay, *, files, names, estimator="gls", compensa
             break
         fits, reasons, used, mck, rough = fits2, reasons2, used2, mck2, (mck2.m, mck2.c, mck2.k)
     warnings: list[str] = list(notes)
+    reasons = [None if r is None else _cli_words(r) for r in reasons]
     for i, f in enumerate(fits):
         if reasons[i] is not None:
             warnings.append(f"{names[i]}: set aside: {reasons[i]}")
         elif f is not None:
-            warnings.extend(f"{names[i]}: {w}" for w in f.warnings)
+            warnings.extend(f"{names[i]}: {_cli_words(w)}" for w in f.warnings)
     warnings.extend(mck.warnings)
+    if _misfit(mck):
+        cause = _probable_cause(first, data, P, D, None if digital is not None else delay,
+                                names, dm, estimate_delay)
+        if cause is not None:
+            warnings.append(f"probably: {cause}")
     misfits = [i for i in used if any(w.startswith("misfit") for w in fits[i].warnings)]
     if digital is None and len(misfits) >= max(2, len(used) // 2):
         warnings.append(
@@ -1126,6 +1360,9 @@ def _identify_core(data, P, D, delay, *, files, names, estimator="gls", compensa
             f"their correlation matrix {float(np.linalg.cond(corr)):.3g}, c known to "
             f"{100 * sd[1] / max(abs(mck.c), 1e-300):.2g} %"
         )
+    coarse = _coarse_sampling(data, [fits[i] for i in used])
+    if coarse is not None:
+        warnings.append(coarse)
     if len(used) < 3:
         warnings.append(f"only {len(used)} usable runs: m, c, k are barely determined")
     se = mck.stderr
@@ -1145,7 +1382,8 @@ def _identify_core(data, P, D, delay, *, files, names, estimator="gls", compensa
             omega_d_stderr=f.omega_d_stderr if f else math.nan,
             c_prime=cp, k_prime=kp, cycles=f.cycles if f else math.nan,
             residual_rms=f.residual_rms if f else math.nan, used=i in used,
-            warnings=tuple(([reasons[i]] if reasons[i] else []) + (list(f.warnings) if f else [])),
+            warnings=tuple(([reasons[i]] if reasons[i] else [])
+                           + ([_cli_words(w) for w in f.warnings] if f else [])),
             fit=f, added_mass=float(dm[i]),
         ))
     return Identification(

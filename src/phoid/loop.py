@@ -157,8 +157,10 @@ def _snap_real(z, res, m, c, k, P, D, delay):
         Refined roots, 1/s.
     res : ndarray
         |f(z)|, N/m (∞ where the iteration ran off).
-    m, c, k : float
-        Plant (kg, N·s/m, N/m).
+    m : float or ndarray broadcastable to z.shape
+        Plant mass, kg (one per run where runs add mass).
+    c, k : float
+        Plant damping and stiffness (N·s/m, N/m).
     P, D : float or ndarray broadcastable to z.shape
         Gains, N/m and N·s/m.
     delay : float
@@ -177,11 +179,14 @@ def _snap_real(z, res, m, c, k, P, D, delay):
     if not near.any():
         return z, res
     z, res = z.copy(), res.copy()
+    # m too may be one per run (m + Δmᵢ: the added-mass trick); the scalar iteration takes
+    # each run's own numbers
     Pb, Db = np.broadcast_to(P, z.shape), np.broadcast_to(D, z.shape)
+    mb = np.broadcast_to(np.asarray(m, dtype=float), z.shape)
     for idx in zip(*np.nonzero(near), strict=True):
         w = complex(z[idx])
-        x, r = _newton_scalar(np.array([complex(w.real, 0.0)]), m, c, k, float(Pb[idx]),
-                              float(Db[idx]), delay, _CONT_ITERS)
+        x, r = _newton_scalar(np.array([complex(w.real, 0.0)]), float(mb[idx]), c, k,
+                              float(Pb[idx]), float(Db[idx]), delay, _CONT_ITERS)
         if math.isfinite(r[0]) and x[0].imag == 0 and abs(x[0] - w) <= 1e-6 * max(abs(w), 1.0):
             z[idx], res[idx] = x[0], r[0]
     return z, res

@@ -61,12 +61,13 @@ class Estimate:
     unit: str
 
     def to_dict(self) -> dict:
-        """Plain JSON-ready dict ``{"value", "stderr", "unit"}``."""
-        return {
-            "value": float(self.value),
-            "stderr": None if self.stderr is None else float(self.stderr),
-            "unit": self.unit,
-        }
+        """Plain JSON-ready dict ``{"value", "stderr", "unit"}``; a value or stderr that is not
+        finite (a stderr the data cannot give) is null, never NaN (not JSON)."""
+
+        def num(x):
+            return None if x is None or not math.isfinite(float(x)) else float(x)
+
+        return {"value": num(self.value), "stderr": num(self.stderr), "unit": self.unit}
 
 
 @dataclass(frozen=True)
@@ -97,9 +98,10 @@ def _ols(x: np.ndarray, y: np.ndarray) -> LineFit:
     n = x.size
     if n > 2:
         r = y - A @ coef
-        s2 = float(r @ r) / (n - 2)
-        cov = s2 * np.linalg.inv(A.T @ A)
-        se = np.sqrt(np.diag(cov))
+        with np.errstate(over="ignore", invalid="ignore"):  # absurd inputs: inf, said below
+            s2 = float(r @ r) / (n - 2)
+            cov = s2 * np.linalg.inv(A.T @ A)
+            se = np.sqrt(np.diag(cov))
     else:
         se = np.array([math.nan, math.nan])
     return LineFit(float(coef[0]), float(coef[1]), float(se[0]), float(se[1]), x, y)
@@ -271,7 +273,8 @@ def fit_lines(
     cov = np.diag([kl.slope_stderr**2, cl.intercept_stderr**2, kl.intercept_stderr**2])
     warnings: list[str] = []
     if sigma.size < 3:
-        warnings.append("only two runs: the eq. (35) lines have no residual, stderr unknown")
+        warnings.append("only two runs: the eq. (35) lines have no residual, so the standard "
+                        "errors of m, c, k are unknown (null in --json)")
     return MCKFit(
         m=kl.slope, c=-cl.intercept, k=-kl.intercept, cov=cov, estimator="ols",
         compensated=compensate, c_prime=cp, k_prime=kp, c_line=cl, k_line=kl,
@@ -435,6 +438,11 @@ def fit_modes(
     dm = _added(added_mass, sigma.size)
     lines = fit_lines(sigma, omega_d, P, D, delay, added_mass=dm)
     theta = np.array(start if start is not None else (lines.m, lines.c, lines.k), dtype=float)
+    if not np.all(np.isfinite(theta)):
+        raise IdentificationError(
+            "the runs give no usable start for the weighted fit: the eq. (35) lines give "
+            f"m = {float(theta[0]):.4g} kg, c = {float(theta[1]):.4g} N s/m, "
+            f"k = {float(theta[2]):.4g} N/m")
     npar = 4 if estimate_delay else 3
     if digital is not None and estimate_delay:
         raise ValueError("`estimate_delay` is not available for a digital loop")

@@ -82,6 +82,7 @@ the release, the delay known.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import itertools
 import math
 import tomllib
@@ -262,6 +263,11 @@ def delay_margin(
 # inputs
 
 
+# a prior m, c or k beyond this (or, if not 0, below its inverse) makes the loop's roots and
+# their squares overflow: no rig's plant, a unit mistake
+_PRIOR_MAX = 1e100
+
+
 def _range(name: str, value: Any, *, positive: bool) -> tuple[float, float]:
     """A prior value or range as (lo, hi); accepts a number, a (lo, hi) pair or 'lo:hi'."""
     unit = {"m": "kg", "c": "N·s/m", "k": "N/m"}[name]
@@ -281,6 +287,10 @@ def _range(name: str, value: Any, *, positive: bool) -> tuple[float, float]:
         lo = hi = v.finite(name, value, unit)
     if not lo <= hi:
         raise ValueError(f"`{name}` range must have lo ≤ hi; got {lo:g}:{hi:g} {unit}")
+    if hi > _PRIOR_MAX or (lo > 0 and lo < 1 / _PRIOR_MAX):
+        given = f"{lo:g}" if lo == hi else f"{lo:g}:{hi:g}"
+        raise ValueError(f"`{name}` = {given} {unit} is beyond the loop computations' range "
+                         f"({1 / _PRIOR_MAX:g} … {_PRIOR_MAX:g}): is it in {unit}?")
     if positive and not lo > 0:
         raise ValueError(f"`{name}` must be > 0 {unit}; got {lo:g}")
     if not positive and not lo >= 0:
@@ -1143,6 +1153,25 @@ def _nominal_root(m, c, k, P, D, delay) -> complex:
 # design
 
 
+def _roots_in_range(func):
+    """:func:`design` and :func:`check` with the loop-root computation's failure (a prior so far
+    from the gains' scale that the roots cannot be certified: a unit mistake) as a DesignError
+    that says so, instead of a RuntimeError."""
+
+    @functools.wraps(func)
+    def wrapper(*args, **kwargs):
+        try:
+            return func(*args, **kwargs)
+        except RuntimeError as exc:
+            raise DesignError(
+                f"the loop's roots cannot be computed for this prior plant and these gains "
+                f"({exc}): a plant this far from the gains' scale is usually in other units "
+                "(m in kg, c in N s/m, k in N/m; P in N/m, D in N s/m)") from None
+
+    return wrapper
+
+
+@_roots_in_range
 def design(
     m: Any,
     c: Any,
@@ -1403,6 +1432,7 @@ def _why_infeasible(st: DesignSettings, prior: _Prior, ok_lim: np.ndarray, ev: _
 # check
 
 
+@_roots_in_range
 def check(
     P: Sequence[float] | np.ndarray,
     D: Sequence[float] | np.ndarray,
@@ -1506,6 +1536,7 @@ def check_experiment(
             raise DesignError("the set has no [loop] delay: give --delay")
         settings["delay"] = delay
     notes: list[str] = []
+    carried: list[str] = []  # warnings of the identification the check relies on
     if read_error is not None:
         notes.append(f"the set's data were not used ({read_error}): gains checked against the "
                      "prior only")
@@ -1528,6 +1559,12 @@ def check_experiment(
                    and math.isfinite(r.fit.noise_sd)]
             if sds:
                 from_data["noise"] = float(np.median(sds))
+        # the check relies on this estimate: what the identification warned of stays with it
+        carried.extend(f"identification of the set: {w}" for w in ident.warnings)
+        for name, val in (("c", c), ("k", k)):
+            if not isinstance(val, (str, Sequence)) and float(val) < 0.0:
+                carried.append(f"the set's identification gives {name} = {float(val):.4g} < 0: "
+                               f"the check uses {name} = 0; give the prior --{name}")
         c = max(float(c), 0.0) if not isinstance(c, (str, Sequence)) else c
         k = max(float(k), 0.0) if not isinstance(k, (str, Sequence)) else k
     for key, val in from_data.items():
@@ -1535,8 +1572,17 @@ def check_experiment(
             settings[key] = val
     settings = {key: val for key, val in settings.items() if val is not None}
     d = check(P, D, m, c, k, **settings)
+    negative = [name for name, g in (("P", P), ("D", D)) if g.size and np.all(g < 0)]
+    if negative:
+        from phoid.diagnose import SIGN_CONVENTION
+
+        what = " and ".join(negative)
+        carried.insert(0, f"every run's {what} is negative: {SIGN_CONVENTION}; if the rig's "
+                          f"controller uses the other sign, give {what} with phoid's")
     if notes:
         d = dataclasses.replace(d, notes=tuple(notes))
+    if carried:
+        d = dataclasses.replace(d, warnings=tuple(carried) + tuple(d.warnings))
     return d
 
 

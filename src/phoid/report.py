@@ -43,14 +43,15 @@ def identification_text(ident: Identification) -> str:
     lines.append(f"  open-loop ω₀ = {_fmt(w0.value, w0.stderr)} rad/s,  "
                  f"ζ = {_fmt(z.value, z.stderr) if math.isfinite(z.value) else 'inf (k = 0)'}")
     lines.append("")
-    head = (f"  {'run':<16}{'P N/m':>10}{'D N s/m':>10}{'σ 1/s':>18}{'ω_d rad/s':>20}"
+    # a space before each wide column: a long value (σ ± stderr) never runs into the one before
+    head = (f"  {'run':<16}{'P N/m':>10}{'D N s/m':>10} {'σ 1/s':>19} {'ω_d rad/s':>19}"
             f"{'c′ N s/m':>11}{'k′ N/m':>11}{'cycles':>8}{'resid m':>10}")
     lines.append(head)
     for r in ident.runs:
         mark = "" if r.used else "  (set aside)"
         lines.append(
-            f"  {r.file:<16}{r.P:>10.4g}{r.D:>10.4g}{_fmt(r.sigma, r.sigma_stderr):>18}"
-            f"{_fmt(r.omega_d, r.omega_d_stderr):>20}{r.c_prime:>11.5g}{r.k_prime:>11.5g}"
+            f"  {r.file:<16}{r.P:>10.4g}{r.D:>10.4g} {_fmt(r.sigma, r.sigma_stderr):>19}"
+            f" {_fmt(r.omega_d, r.omega_d_stderr):>19}{r.c_prime:>11.5g}{r.k_prime:>11.5g}"
             f"{r.cycles:>8.1f}{r.residual_rms:>10.2g}{mark}"
         )
     if ident.warnings:
