@@ -4,6 +4,12 @@ with the exact characteristic of that hybrid loop, from the manifest's [loop] ke
 The data come from phoid's sampled-loop simulator, which tests/test_digital.py checks against
 a per-sample reference built on scipy.signal.cont2discrete and against solve_ivp; expected
 values are the simulation's parameters; noisy checks use |estimate − truth| < 3·stderr.
+
+Statistical tolerances: "within 3 reported stderr of the truth" (|z| < 3) fails with probability
+0.27 % per quantity for a calibrated Gaussian stderr (under 1 % for m, c, k together). The noise
+is seeded or recorded, so each such check gives the same verdict on every machine: the estimates
+move across BLAS kernels and thread counts by ~1e-9 of a stderr, and no |z| here is that close
+to 3.
 """
 
 from __future__ import annotations

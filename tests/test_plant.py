@@ -1,7 +1,8 @@
 """Plant: the unified free response of eqs. (2)–(15) against closed forms and an ODE solver.
 
 References: closed forms evaluated in 50-digit arithmetic with mpmath (so the reference itself has
-no cancellation near critical damping), and scipy's DOP853 at rtol 1e-12.
+no cancellation near critical damping), and the ODE integrated by mpmath's Taylor-series solver at
+20 digits (independent of the closed forms).
 """
 
 import math
@@ -9,7 +10,6 @@ import math
 import mpmath as mp
 import numpy as np
 import pytest
-from scipy.integrate import solve_ivp
 
 from phoid import Plant
 
@@ -71,6 +71,8 @@ def test_eq12_critical_from_rest_position():
     p = plant_with_zeta(1.0)
     t = np.linspace(0, 2, 21)
     x, _ = p.free_response(t, 0.0, 0.3)
+    # a few roundings and one exp on each side (<= ~4 ulp each): ~1e-15 relative; 10x that
+    # (observed 1.3e-16); atol for x(0) = 0
     np.testing.assert_allclose(x, t * np.exp(-p.sigma * t) * 0.3, rtol=1e-14, atol=1e-16)
 
 
@@ -80,9 +82,12 @@ def test_mass_damper_k_zero():
     t = np.linspace(0, 5, 51)
     x, xd = p.free_response(t, 0.01, 0.2)
     s2 = 2 * p.sigma
+    # x ~ x0 + v0/2σ with no cancellation: a few roundings and one exp, ~1e-15; 10x that
     np.testing.assert_allclose(x, 0.01 + 0.2 * (1 - np.exp(-s2 * t)) / s2, rtol=1e-14)
-    # velocity to rounding of the initial velocity scale (C − σS cancels to e^{-2σt} here)
-    np.testing.assert_allclose(xd, 0.2 * np.exp(-s2 * t), rtol=0, atol=1e-15 * 0.2)
+    # velocity to rounding of the initial velocity scale (C − σS cancels to e^{-2σt} here): the
+    # terms are ~v0/2 each, so a handful of roundings (1.1e-16 each) plus exp's error (<= ~4 ulp
+    # in numpy's SIMD/libm variants) bound it by ~1e-15 v0; 10x that (observed 3e-17, ~1 ulp)
+    np.testing.assert_allclose(xd, 0.2 * np.exp(-s2 * t), rtol=0, atol=1e-14 * 0.2)
     assert p.zeta == math.inf and p.omega0 == 0.0
     np.testing.assert_allclose(p.roots, [0.0, -s2])
 
@@ -92,23 +97,49 @@ def test_no_damping_no_stiffness():
     p = Plant(1.0, 0.0, 0.0)
     t = np.linspace(0, 3, 7)
     x, _ = p.free_response(t, 0.1, 0.5)
+    # x0 C + v0 S with C = 1, S = t: two or three roundings (<= 3.3e-16 relative), ~3x margin,
+    # tight on purpose: any approximation in the σ = ω0 = 0 limit would show at >= 1e-12
     np.testing.assert_allclose(x, 0.1 + 0.5 * t, rtol=1e-15)
+
+
+def ode_reference(m, c, k, x0, v0, t):
+    """x, v of m x'' + c x' + k x = 0 integrated by mpmath's Taylor-series ODE solver.
+
+    ``mp.odefun`` picks degree and step so that each step's error is below the working precision
+    (20 digits here), so over these few hundred steps the reference is good to ~1e-17 of the state
+    scale: it integrates the ODE, independently of the closed forms, with an error far below the
+    double-precision rounding the tests allow the formula.
+    """
+    with mp.workdps(20):
+        mm, cc, kk = (mp.mpf(repr(float(z))) for z in (m, c, k))
+        sol = mp.odefun(
+            lambda _t, y: [y[1], -(cc * y[1] + kk * y[0]) / mm],
+            0,
+            [mp.mpf(repr(float(x0))), mp.mpf(repr(float(v0)))],
+        )
+        out = [sol(mp.mpf(repr(float(ti)))) for ti in t]
+    return np.array([[float(y[0]) for y in out], [float(y[1]) for y in out]])
 
 
 @pytest.mark.parametrize("zeta", [0.05, 0.7, 1.0, 5.0])
 def test_free_response_matches_ode_solver(zeta):
+    # Reference: the ODE integrated to ~1e-17 of the state scale (mpmath Taylor series, see
+    # ode_reference). It used to be scipy's DOP853 at rtol 1e-12, whose own error at zeta = 5
+    # is ~1e-11 m here and machine-dependent (1.11e-11 failed a 1e-11 tolerance on another
+    # CPU); that error does not shrink with a tighter rtol (3e-12 at rtol 2.2e-14), so DOP853
+    # cannot serve as a reference at the formula's rounding level.
     p = plant_with_zeta(zeta)
     t = np.linspace(0.0, 4.0, 81)
-    sol = solve_ivp(
-        lambda _t, y: [y[1], -(p.c * y[1] + p.k * y[0]) / p.m],
-        (0, 4), [0.01, 0.1], method="DOP853", rtol=1e-12, atol=1e-15, t_eval=t,
-    )
+    ref_x, ref_v = ode_reference(p.m, p.c, p.k, 0.01, 0.1, t)
     x, xd = p.free_response(t, 0.01, 0.1)
-    # DOP853 at rtol 1e-12 has a global error of ~1e-9 of the state over these few periods
-    # (the closed-form tests above pin the formula to 1e-13; this checks it solves the ODE)
-    np.testing.assert_allclose(x, sol.y[0], rtol=0, atol=1e-9 * 0.01)
-    # velocity from DOP853's dense output (t_eval) is an order of magnitude less accurate
-    np.testing.assert_allclose(xd, sol.y[1], rtol=0, atol=1e-8 * 0.1)
+    # The bound is the unified formula's double-precision rounding, as in the closed-form test:
+    # 1e-13 of the state scale (a few dozen operations at 1.1e-16 each is ~1e-14; observed
+    # errors are <= 1e-16 of the scale, so the margin to the bound is ~10x and to the observed
+    # ~1000x, and a wrong formula -- an error in a digit of sigma, a sign -- is off by >= 1e-6).
+    scale_x = 0.01 + 0.1 / p.omega0
+    scale_v = 0.1 + p.omega0 * 0.01 + 2 * p.sigma * 0.01
+    np.testing.assert_allclose(x, ref_x, rtol=0, atol=1e-13 * scale_x)
+    np.testing.assert_allclose(xd, ref_v, rtol=0, atol=1e-13 * scale_v)
 
 
 def test_heavily_overdamped_long_time_no_overflow():
