@@ -4,7 +4,8 @@ The public API is re-exported here; see the module docstrings for the seed-paper
 function implements.
 
 >>> import phoid
->>> result = phoid.identify(phoid.read_experiment("../shared/data/paper-sample"))  # doctest: +SKIP
+>>> # from the repository's root: the example set in examples/ (examples/README.md)
+>>> result = phoid.identify(phoid.read_experiment("examples/paper-sample"))  # doctest: +SKIP
 >>> print(result.report())  # doctest: +SKIP
 """
 

@@ -188,7 +188,7 @@ class Identification:
         return open_loop_zeta(self.m.value, self.c.value, self.k.value, self.cov)
 
     def summary(self) -> dict[str, Any]:
-        """The JSON object of ``phoid identify --json`` (shared/spec/experiment-format.md).
+        """The JSON object of ``phoid identify --json`` (docs/format.md).
 
         Top-level keys are the spec's (method, m, c, k, delay, runs, warnings) plus the optional
         ``omega0`` and ``zeta`` in the same {value, stderr, unit} shape; each run carries the

@@ -1,7 +1,7 @@
 """Experiment sets in the ``phoid/1`` format: read, validate and write.
 
 An experiment set is a folder holding one manifest, ``experiment.toml``, and one data file per
-run (the contract is ``shared/spec/experiment-format.md``)::
+run (the format is defined in the repository's ``docs/format.md``)::
 
     title  = "Linear stage, PHO sweep"   # optional
     format = "phoid/1"                   # optional; when present it must be "phoid/1"
@@ -562,7 +562,7 @@ def read_experiment(path: str | os.PathLike[str]) -> ExperimentSet:
 
     Examples
     --------
-    >>> exp = read_experiment("shared/data/paper-sample")  # doctest: +SKIP
+    >>> exp = read_experiment("examples/paper-sample")  # the repository's example  # doctest: +SKIP
     >>> exp.runs[2].name, exp.runs[2].P, exp.delay  # doctest: +SKIP
     ('run 3 (run03.csv.gz)', 3.0, 0.1)
     """
