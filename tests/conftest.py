@@ -30,8 +30,8 @@ SHARED_SAMPLE = SHARED / "data" / "paper-sample"
 SHARED_TRUTH = SHARED / "data" / "truth.json"
 SHARED_ABSENT = (
     f"cross-check against the project's shared sample set skipped: {SHARED_SAMPLE} is absent "
-    "(it lies beside the checkout in CI, not in a clone; the same test runs on "
-    "examples/paper-sample)"
+    "(it lies beside the checkout in CI, not in a clone; the check runs on "
+    "examples/paper-sample all the same)"
 )
 
 
