@@ -2,8 +2,9 @@
 VENV   ?= .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
+LINTED := src tests bench examples .ci
 
-.PHONY: demo test lint bench clean
+.PHONY: demo test lint readme wheel min-versions bench clean
 
 $(STAMP): pyproject.toml
 	python3 -m venv $(VENV)
@@ -17,15 +18,27 @@ demo: $(STAMP)
 
 ## install and run the test suite (and the linter)
 test: $(STAMP)
-	$(VENV)/bin/ruff check src tests bench
+	$(VENV)/bin/ruff check $(LINTED)
 	$(PY) -m pytest -q
 
 lint: $(STAMP)
-	$(VENV)/bin/ruff check src tests bench
+	$(VENV)/bin/ruff check $(LINTED)
+
+## run every sh and python block of README.md as written, in a temporary copy of the checkout
+readme: $(STAMP)
+	$(PY) .ci/readme_check.py --venv $(VENV)
+
+## build the wheel, install it into a clean venv and run `phoid paper` there
+wheel:
+	.ci/wheel_check.sh
+
+## the test suite against the lowest dependency versions (.ci/min-versions.txt)
+min-versions:
+	.ci/min_versions_check.sh
 
 ## benchmarks (not part of the tests): writes BENCHMARKS.md and bench/results.json
 bench: $(STAMP)
 	$(PY) bench/run.py
 
 clean:
-	rm -rf $(VENV) phoid-out build *.egg-info
+	rm -rf $(VENV) phoid-out build dist *.egg-info

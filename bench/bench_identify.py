@@ -42,7 +42,9 @@ from phoid.identification import identify_data
 from phoid.io import read_experiment
 from phoid.pho import MCKFit, fit_lines
 
-SHARED = Path(__file__).resolve().parents[1].parent / "shared"
+ROOT = Path(__file__).resolve().parents[1]
+SHARED = ROOT.parent / "shared"  # the project's material beside the checkout (CI has it)
+EXAMPLE = ROOT / "examples" / "paper-sample"  # in the repository: the fallback
 PIPELINES = ("phoid", "curve_fit+OLS", "logdec+OLS")
 NUMJAC = "curve_fit+OLS, numerical Jacobian"  # timed only (same optimum as curve_fit+OLS)
 
@@ -238,11 +240,15 @@ def monte_carlo(spec: SetSpec, crb: np.ndarray, replicas: int = 200, *,
 
 
 def speed_data(spec: SetSpec, seed: int = 7) -> tuple[list, str]:
-    """The records timed for a set: the shared sample set for ``table1`` (made by jitcdde, read
-    from ../shared/data/paper-sample), a seeded noisy replica otherwise."""
-    if spec.name == "table1" and (SHARED / "data" / "paper-sample").is_dir():
-        exp = read_experiment(SHARED / "data" / "paper-sample")
-        return [(r.t, r.x) for r in exp.runs], "../shared/data/paper-sample (jitcdde-made)"
+    """The records timed for a set: for ``table1`` an independent sample set made by jitcdde,
+    ../shared/data/paper-sample where it is present, else the repository's
+    examples/paper-sample (the same experiment); a seeded noisy replica otherwise."""
+    if spec.name == "table1":
+        for folder, label in ((SHARED / "data" / "paper-sample", "../shared/data/paper-sample"),
+                              (EXAMPLE, "examples/paper-sample")):
+            if (folder / "experiment.toml").is_file():
+                exp = read_experiment(folder)
+                return [(r.t, r.x) for r in exp.runs], f"{label} (jitcdde-made)"
     t, X = simulate_replicas(spec, 1, np.random.default_rng(seed))
     return [(t, X[0, i]) for i in range(spec.runs)], f"one noisy replica (seed {seed})"
 

@@ -1,6 +1,8 @@
 """Cramér–Rao standard deviations of (m, c, k) for a PHO experiment set (benchmark helper).
 
-The model is the one stated in ../shared/data/truth.json's ``crb_sd`` note: every run i records,
+The model is the one stated in the sample sets' truth.json ``crb_sd`` notes
+(examples/paper-sample/truth.json, whose numbers this module computes, and the project's
+../shared/data/truth.json): every run i records,
 from its release on (τ = t − t_release ≥ 0), a single dominant mode
 
     x_i(τ) = o_i + e^{−σ_i τ} (a_i cos ω_i τ + b_i sin ω_i τ) + white noise of sd s,
@@ -28,7 +30,8 @@ x₀ N(s)/f′(s), N(s) = m s + c + D e^{−sΔt} − P (1 − e^{−sΔt})/s (L
 so a_i − i b_i = 2 x₀ N(s_i)/f′(s_i). (``amplitude="release"`` instead gives the single mode
 the release's own initial conditions, x(0) = x₀ and ẋ(0) = 0: a_i = x₀, b_i = σ_i x₀/ω_i. That
 variant ignores the share of the release taken by the loop's fast modes; it is kept because it
-reproduces truth.json's numbers to < 0.5 %, which identifies how those were computed.)
+reproduces ../shared/data/truth.json's numbers to < 0.5 %, which identifies how those were
+computed.)
 """
 
 from __future__ import annotations

@@ -84,6 +84,9 @@ def _rate(r: dict) -> str:
 
 
 def _truth() -> dict | None:
+    """../shared/data/truth.json's ``crb_sd`` (an independent bound), or None where it is absent:
+    examples/paper-sample/truth.json's bound is bench/crb.py's own, so checking against it would
+    prove nothing, and the check is left out of the report."""
     p = bench_identify.SHARED / "data" / "truth.json"
     if not p.is_file():
         return None
@@ -123,7 +126,7 @@ def _sets_section(res: dict) -> list[str]:
     chk = res.get("crb_check")
     lines += [
         "",
-        "Cramér–Rao sd: `bench/crb.py`, the model of ../shared/data/truth.json's `crb_sd` note "
+        "Cramér–Rao sd: `bench/crb.py`, the model of the sample sets' truth.json `crb_sd` notes "
         "(single dominant mode per run; amplitude, phase and offset unknown per run; delay "
         "known): per-run Fisher information of (σ, ω_d) summed over the sample grid with the "
         "nuisance parameters profiled out, chained to (m, c, k) through the exact loop roots "

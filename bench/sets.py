@@ -3,7 +3,7 @@
 * **table1** — the seed paper's Table 1 set (ERRATA 6): m = 2 kg, c = 1 N·s/m, k = 64 N/m,
   Δt = 0.1 s, Pᵢ = 0.25 + 1.375 i N/m, Dᵢ = 0.6 + 0.3 i N·s/m (i = 0 … 18), 15 s at 1 kHz,
   released from 10 mm after a 0.2 s hold; 0.1 mm noise, 1 µm quantisation, −0.3 mm offset (as
-  ../shared/data/paper-sample).
+  examples/paper-sample and ../shared/data/paper-sample).
 * **overdamped** — m = 0.5 kg, c = 40 N·s/m, k = 20 N/m (ζ = 6.3: open-loop roots −0.5 and
   −79.5 1/s), Δt = 5 ms. The loop must *remove* damping to ring, so D < 0:
   Pᵢ = 50 + 72 i N/m, Dᵢ = −38.4 + 0.6 i N·s/m (i = 0 … 14). The end points were chosen by

@@ -1,22 +1,89 @@
-"""Shared fixtures: the independent sample set in ../shared/data (beside the checkout)."""
+"""Shared fixtures: the independent sample set, in the repository and (cross-check) beside it.
+
+* ``examples/paper-sample`` (in the repository, so the suite runs from a clone alone): the seed
+  paper's Table 1 experiment made by jitcdde (examples/make_paper_sample.py, not by phoid), with
+  its truth in ``examples/paper-sample/truth.json``. Fixtures ``sample_set_path`` and ``truth``.
+* ``../shared/data/paper-sample`` (beside the checkout: the project's own independent set, made
+  by someone else's jitcdde run; CI has it, a clone does not): the same experiment with another
+  noise draw and other digits written. Tests that *additionally* cross-check against it use
+  ``shared_sample_set_path`` / ``shared_truth`` or the parametrised ``paper_sample``, and are
+  skipped, with the reason, where it is absent.
+
+Both truths give m, c, k, fc, delay, noise, x0, fs, T and ``crb_sd``; their ``crb_sd`` differ in
+the amplitude model (examples: each run's dominant-mode residue, bench/crb.py's default, the
+model of phoid.fisher; shared: the release's own initial conditions, ≈2 % lower).
+"""
+
+from __future__ import annotations
 
 import json
+from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
 
-SHARED = Path(__file__).resolve().parents[1].parent / "shared"
-SAMPLE = SHARED / "data" / "paper-sample"
-TRUTH = SHARED / "data" / "truth.json"
+ROOT = Path(__file__).resolve().parents[1]
+EXAMPLE = ROOT / "examples" / "paper-sample"
+EXAMPLE_TRUTH = EXAMPLE / "truth.json"
+SHARED = ROOT.parent / "shared"
+SHARED_SAMPLE = SHARED / "data" / "paper-sample"
+SHARED_TRUTH = SHARED / "data" / "truth.json"
+SHARED_ABSENT = (
+    f"cross-check against the project's shared sample set skipped: {SHARED_SAMPLE} is absent "
+    "(it lies beside the checkout in CI, not in a clone; the check runs on "
+    "examples/paper-sample all the same)"
+)
+
+
+@dataclass(frozen=True)
+class SampleSet:
+    """An independent (jitcdde-made) paper-sample set: where it is, its truth, and its source."""
+
+    path: Path
+    truth: dict
+    source: str  # "examples" or "shared"
+
+
+def _example() -> SampleSet:
+    if not (EXAMPLE / "experiment.toml").is_file() or not EXAMPLE_TRUTH.is_file():
+        pytest.fail(f"the example set is missing from the checkout: {EXAMPLE} "
+                    "(remake it with `python examples/make_paper_sample.py`)")
+    return SampleSet(EXAMPLE, json.loads(EXAMPLE_TRUTH.read_text()), "examples")
+
+
+def _shared() -> SampleSet:
+    if not SHARED_SAMPLE.is_dir() or not SHARED_TRUTH.is_file():
+        pytest.skip(SHARED_ABSENT)
+    return SampleSet(SHARED_SAMPLE, json.loads(SHARED_TRUTH.read_text())["paper-sample"],
+                     "shared")
 
 
 @pytest.fixture(scope="session")
 def sample_set_path() -> Path:
-    if not SAMPLE.is_dir():
-        pytest.fail(f"the shared sample set is missing: {SAMPLE}")
-    return SAMPLE
+    """examples/paper-sample (in the repository)."""
+    return _example().path
 
 
 @pytest.fixture(scope="session")
 def truth() -> dict:
-    return json.loads(TRUTH.read_text())["paper-sample"]
+    """examples/paper-sample/truth.json."""
+    return _example().truth
+
+
+@pytest.fixture(scope="session")
+def shared_sample_set_path() -> Path:
+    """../shared/data/paper-sample; the test is skipped where it is absent."""
+    return _shared().path
+
+
+@pytest.fixture(scope="session")
+def shared_truth() -> dict:
+    """../shared/data/truth.json's "paper-sample"; the test is skipped where it is absent."""
+    return _shared().truth
+
+
+@pytest.fixture(scope="session", params=["examples", "shared"])
+def paper_sample(request) -> SampleSet:
+    """Both independent sets in turn: the repository's, then (a cross-check, skipped where
+    absent) the shared one."""
+    return _example() if request.param == "examples" else _shared()

@@ -4,9 +4,10 @@ Where every expected value comes from:
 - noise-free records are exactly eq. (15) plus an offset, so (σ, ω_d) are known exactly;
 - the Cramér–Rao bound (CRB) is computed here, independently of phoid, from the Fisher
   information JᵀJ/sd² of the exact single-mode model (5 parameters: offset, a, b, σ, ω_d);
-- the sample set (shared/data/paper-sample, made by jitcdde, not by phoid) is compared with the
-  exact dominant closed-loop roots, found here by Newton's method on
-  m s² + c s + k + (D s + P) e^{−sΔt} = 0 from the delay-free root (truth.json's plant).
+- the sample set (examples/paper-sample, made by jitcdde, not by phoid; again, as a cross-check,
+  ../shared/data/paper-sample where it is present, as in CI) is compared with the exact dominant
+  closed-loop roots, found here by Newton's method on m s² + c s + k + (D s + P) e^{−sΔt} = 0
+  from the delay-free root (truth.json's plant).
 """
 
 from __future__ import annotations
@@ -14,24 +15,12 @@ from __future__ import annotations
 import json
 import math
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 from phoid import decay
 from phoid.decay import DecayFit, detect_release, fit_decay, logdec
-
-_HERE = Path(__file__).resolve()
-SAMPLE = next(
-    (
-        b / "shared" / "data" / "paper-sample"
-        for b in (_HERE.parents[1], _HERE.parents[2])
-        if (b / "shared" / "data" / "paper-sample").is_dir()
-    ),
-    _HERE.parents[2] / "shared" / "data" / "paper-sample",
-)
-TRUTH = SAMPLE.parent / "truth.json"
 
 SD = 1e-4  # m, white-noise sd of the sample set (truth.json)
 Q = 1e-6  # m, quantisation step of the sample set (truth.json)
@@ -109,15 +98,16 @@ def next_roots(m, c, k, P, D, delay):
 
 
 @pytest.fixture(scope="module")
-def sample():
-    if not TRUTH.is_file():
-        pytest.skip(f"sample set not found at {SAMPLE}")
-    truth = json.loads(TRUTH.read_text())["paper-sample"]
+def sample(paper_sample):
+    """(truth, runs) of examples/paper-sample, then of ../shared/data/paper-sample (a
+    cross-check, skipped where absent; tests/conftest.py)."""
+    truth = paper_sample.truth
     runs = []
     P = 0.25 + 1.375 * np.arange(19)  # ERRATA 6
     D = 0.6 + 0.3 * np.arange(19)
     for i in range(19):
-        d = np.loadtxt(SAMPLE / f"run{i + 1:02d}.csv.gz", delimiter=",", skiprows=1, usecols=(0, 1))
+        d = np.loadtxt(paper_sample.path / f"run{i + 1:02d}.csv.gz", delimiter=",", skiprows=1,
+                       usecols=(0, 1))
         runs.append((d[:, 0], d[:, 1], P[i], D[i]))
     return truth, runs
 

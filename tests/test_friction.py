@@ -194,7 +194,7 @@ def test_no_friction_is_not_detected(friction_free):
 
 
 def test_evidence_on_the_independent_sample_set(sample_set_path, truth):
-    """The shared paper-sample set (made by jitcdde, not by phoid; no friction): nothing is
+    """The paper-sample set (examples/, made by jitcdde, not by phoid; no friction): nothing is
     detected, and the viscous full-record fit behind the test finds m, c, k within 3 stderr,
     with stderr at the set's Cramér–Rao bound (truth.json: 0.9–1.5 × crb_sd; the fit uses
     the residual variance and more nuisances than the bound's model)."""

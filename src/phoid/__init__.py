@@ -5,7 +5,8 @@ function implements, and docs/equations.md for those equations and their correct
 1–6) explained.
 
 >>> import phoid
->>> result = phoid.identify(phoid.read_experiment("../shared/data/paper-sample"))  # doctest: +SKIP
+>>> # from the repository's root: the example set in examples/ (examples/README.md)
+>>> result = phoid.identify(phoid.read_experiment("examples/paper-sample"))  # doctest: +SKIP
 >>> print(result.report())  # doctest: +SKIP
 """
 

@@ -1,7 +1,7 @@
 """Cramér–Rao bound of m, c, k for a planned or recorded PHO experiment set.
 
-The model of the bound (the one ``shared/data/truth.json`` states for its ``crb_sd``): each run
-records, from its release on, the loop's **dominant mode only**,
+The model of the bound (the one ``examples/paper-sample/truth.json`` states for its
+``crb_sd``): each run records, from its release on, the loop's **dominant mode only**,
 
     x(τ) = offset + Re[w e^{sτ}],   s = −σ + iω_d,   τ = n/f_s, n = 0 … N−1,
 

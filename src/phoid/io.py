@@ -534,7 +534,7 @@ def read_experiment(path: str | os.PathLike[str]) -> ExperimentSet:
 
     Examples
     --------
-    >>> exp = read_experiment("shared/data/paper-sample")  # doctest: +SKIP
+    >>> exp = read_experiment("examples/paper-sample")  # the repository's example  # doctest: +SKIP
     >>> exp.runs[2].name, exp.runs[2].P, exp.delay  # doctest: +SKIP
     ('run 3 (run03.csv.gz)', 3.0, 0.1)
     """
