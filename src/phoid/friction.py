@@ -757,11 +757,13 @@ class _Problem:
             fill(col, XVp, _FD_REL)
         return G
 
-    def jacobian(self, theta, local, XV, G: np.ndarray) -> np.ndarray:
-        """Weighted Jacobian: the global columns G (unweighted) and the exact local ones."""
+    def jacobian(self, theta, local, XV, G: np.ndarray) -> _BlockJacobian:
+        """Weighted Jacobian: the global columns G (unweighted) and the exact local ones, by
+        blocks (:class:`_BlockJacobian`: memory linear in the data)."""
         _, posts, herm = self.model(local, XV)
-        J = np.zeros((int(self.rows[-1]), self.ng + 3 * self.B))
-        J[:, : self.ng] = G[:, : self.ng]
+        N = int(self.rows[-1])
+        glob = np.empty((N, self.ng))
+        loc = np.empty((N, 3))
         fc = theta[3]
         for i in range(self.B):
             r = slice(int(self.rows[i]), int(self.rows[i + 1]))
@@ -772,12 +774,114 @@ class _Problem:
             dfc = G[r, self.ng - 1] if self.free[3] else 0.0
             db = G[r, self.ng] if self.biased else 0.0
             dx0 = (hv - fc * dfc - db) / x0 if x0 != 0 else np.zeros_like(hv)
-            c0 = self.ng + 3 * i
-            J[r, c0] = np.where(post, dx0, 1.0)
-            J[r, c0 + 1] = 1.0
-            J[r, c0 + 2] = np.where(post, -hd, 0.0)
-            J[r] *= self.w[i]
-        return J
+            wi = self.w[i]
+            glob[r] = G[r, : self.ng] * wi
+            loc[r, 0] = np.where(post, dx0, 1.0) * wi
+            loc[r, 1] = wi
+            loc[r, 2] = np.where(post, -hd, 0.0) * wi
+        return _BlockJacobian(glob, loc, self.rows.astype(np.intp))
+
+
+# --------------------------------------------------------------------------------------------
+# the Jacobian's block structure: globals dense, each run's (x₀ᵢ, bᵢ, τᵢ) on its own rows
+
+
+@dataclass(frozen=True)
+class _BlockJacobian:
+    """Weighted Jacobian of :class:`_Problem` stored by blocks, in memory linear in the data.
+
+    The columns of the ``ng`` globals are dense (``glob``, shape (N, ng)); the three columns of
+    run i's local parameters (x₀ᵢ, bᵢ, τᵢ) are zero outside its rows, so they are kept as one
+    (N, 3) array ``loc`` whose rows ``rows[i]:rows[i+1]`` belong to run i. The dense
+    N × (ng + 3B) matrix, quadratic in the number of runs (300 runs: 5.5 GB), is never formed.
+    """
+
+    glob: np.ndarray  # (N, ng)
+    loc: np.ndarray  # (N, 3)
+    rows: np.ndarray  # (B + 1,) row offsets of the runs
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return (self.glob.shape[0], self.glob.shape[1] + 3 * (self.rows.size - 1))
+
+    def tdot(self, r: np.ndarray) -> np.ndarray:
+        """Jᵀr for a vector r of N rows (globals first, then (x₀ᵢ, bᵢ, τᵢ) per run)."""
+        gl = self.glob.T @ r
+        lr = self.loc * r[:, None]
+        loc = np.add.reduceat(lr, self.rows[:-1], axis=0) if lr.shape[0] else lr
+        return np.concatenate([gl, loc.ravel()])
+
+    def dot(self, d: np.ndarray) -> np.ndarray:
+        """J d for a parameter vector d."""
+        ng = self.glob.shape[1]
+        dl = d[ng:].reshape(-1, 3)
+        per_row = np.repeat(dl, np.diff(self.rows), axis=0)  # (N, 3)
+        return self.glob @ d[:ng] + np.einsum("nj,nj->n", self.loc, per_row)
+
+    def normal(self) -> _Normal:
+        """The normal matrix JᵀJ by blocks."""
+        g, lc, rows = self.glob, self.loc, self.rows
+        start = rows[:-1]
+        # per run: Σ over its rows of g ⊗ l (ng × 3) and l ⊗ l (3 × 3)
+        gl = np.add.reduceat(g[:, :, None] * lc[:, None, :], start, axis=0)
+        ll = np.add.reduceat(lc[:, :, None] * lc[:, None, :], start, axis=0)
+        return _Normal(g.T @ g, gl, ll)
+
+
+@dataclass(frozen=True)
+class _Normal:
+    """JᵀJ of a :class:`_BlockJacobian`: the block-arrow matrix [[Agg, Agl], [Alg, diag(Allᵢ)]].
+
+    ``gg`` (ng, ng); ``gl`` (B, ng, 3), run i's coupling of the globals with its locals; ``ll``
+    (B, 3, 3), run i's locals. Linear systems are solved through the Schur complement of the
+    block-diagonal part, S = Agg − Σᵢ Aglᵢ Allᵢ⁻¹ Alg ᵢ (ng × ng): O(B) memory and work.
+    """
+
+    gg: np.ndarray
+    gl: np.ndarray
+    ll: np.ndarray
+
+    def diag(self) -> np.ndarray:
+        return np.concatenate([np.diag(self.gg), np.einsum("bjj->bj", self.ll).ravel()])
+
+    def quad(self, d: np.ndarray) -> float:
+        """dᵀ (JᵀJ) d."""
+        ng = self.gg.shape[0]
+        dg, dl = d[:ng], d[ng:].reshape(-1, 3)
+        return float(dg @ self.gg @ dg + 2.0 * np.einsum("i,bij,bj->", dg, self.gl, dl)
+                     + np.einsum("bi,bij,bj->", dl, self.ll, dl))
+
+    def solve(self, rhs: np.ndarray, lam: float = 0.0, keep: np.ndarray | None = None,
+              floor: np.ndarray | None = None) -> np.ndarray:
+        """Solve (A + λ diag A) δ = rhs over the globals ``keep`` (a boolean mask; the others
+        held at δ = 0) and every local; raises numpy.linalg.LinAlgError when singular.
+
+        ``floor`` is the diagonal used for the damping (default diag A)."""
+        ng = self.gg.shape[0]
+        dA = self.diag() if floor is None else floor
+        keep = np.ones(ng, dtype=bool) if keep is None else keep
+        kg = np.flatnonzero(keep)
+        Mgg = self.gg[np.ix_(kg, kg)] + lam * np.diag(dA[:ng][kg])
+        Mll = self.ll + lam * (np.eye(3)[None] * dA[ng:].reshape(-1, 1, 3))
+        Mgl = self.gl[:, kg, :]  # (B, k, 3)
+        rg, rl = rhs[:ng][kg], rhs[ng:].reshape(-1, 3)
+        # Mll⁻¹ [Mlg, rl] per run in one batched solve
+        Z = np.linalg.solve(Mll, np.concatenate([np.swapaxes(Mgl, 1, 2), rl[:, :, None]],
+                                                axis=2))  # (B, 3, k + 1)
+        S = Mgg - np.einsum("bik,bkj->ij", Mgl, Z[:, :, :-1])
+        sg = rg - np.einsum("bik,bk->i", Mgl, Z[:, :, -1])
+        dg = np.linalg.solve(S, sg)
+        dl = Z[:, :, -1] - np.einsum("bkj,j->bk", Z[:, :, :-1], dg)
+        out = np.zeros(rhs.size)
+        out[kg] = dg
+        out[ng:] = dl.ravel()
+        return out
+
+    def inv_globals(self) -> np.ndarray:
+        """The globals' block of (JᵀJ)⁻¹: the inverse of the Schur complement."""
+        Z = np.linalg.solve(self.ll, np.swapaxes(self.gl, 1, 2))  # (B, 3, ng)
+        S = self.gg - np.einsum("bik,bkj->ij", self.gl, Z)
+        return np.linalg.inv(S)
 
 
 # --------------------------------------------------------------------------------------------
@@ -788,26 +892,23 @@ class _Problem:
 class _LMResult:
     p: np.ndarray
     XV: Any
-    J: np.ndarray
+    J: _BlockJacobian
     cost: float
     converged: bool
     iterations: int
 
 
-def _solve_step(A, g, lam, p, ifc):
+def _solve_step(A: _Normal, g, lam, p, ifc, ng):
     """(A + λ diag A) δ = g, holding f_c at its bound 0 when the step would push it below."""
-    dA = np.maximum(np.diag(A), 1e-300)
-    active = np.ones(p.size, dtype=bool)
+    dA = np.maximum(A.diag(), 1e-300)
+    keep = np.ones(ng, dtype=bool)
     for _ in range(2):
-        M = A[np.ix_(active, active)] + lam * np.diag(dA[active])
         try:
-            da = np.linalg.solve(M, g[active])
+            delta = A.solve(g, lam, keep, dA)
         except np.linalg.LinAlgError:
             return None
-        delta = np.zeros(p.size)
-        delta[active] = da
-        if ifc is not None and active[ifc] and p[ifc] <= 0 and delta[ifc] < 0:
-            active[ifc] = False
+        if ifc is not None and keep[ifc] and p[ifc] <= 0 and delta[ifc] < 0:
+            keep[ifc] = False
             continue
         return delta
     return None
@@ -854,13 +955,13 @@ def _levenberg_marquardt(prob: _Problem, p0: np.ndarray, fixed: np.ndarray,
     converged = False
     it = chords = 0
     while it < max_iter:
-        A = J.T @ J
-        g = J.T @ r
+        A = J.normal()
+        g = J.tdot(r)
         s2 = cost / dof
         exact = bool(np.array_equal(p, p_G))
-        d_gn = _solve_step(A, g, 0.0, p, ifc)
-        if d_gn is not None and float(d_gn @ A @ d_gn) <= tol * tol * s2:
-            if not confirm or float((p - p_G) @ A @ (p - p_G)) <= _CHORD_SPAN**2 * s2:
+        d_gn = _solve_step(A, g, 0.0, p, ifc, prob.ng)
+        if d_gn is not None and A.quad(d_gn) <= tol * tol * s2:
+            if not confirm or A.quad(p - p_G) <= _CHORD_SPAN**2 * s2:
                 converged = True
                 break
             # converged with columns from far away: confirm (and get the covariance) with
@@ -872,7 +973,7 @@ def _levenberg_marquardt(prob: _Problem, p0: np.ndarray, fixed: np.ndarray,
             J = prob.jacobian(theta, local, XV, G)
             continue
         it += 1
-        delta = _solve_step(A, g, lam, p, ifc)
+        delta = _solve_step(A, g, lam, p, ifc, prob.ng)
         ok = delta is not None
         if ok:
             p_new = p + delta
@@ -904,7 +1005,7 @@ def _levenberg_marquardt(prob: _Problem, p0: np.ndarray, fixed: np.ndarray,
             if lam > 1e12:
                 break
             continue
-        pred = float(2 * delta @ g - delta @ A @ delta)
+        pred = float(2 * delta @ g) - A.quad(delta)
         rho = (cost - cost_n) / pred if pred > 0 else 0.0
         lam *= max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
         nu = 2.0
@@ -1308,8 +1409,7 @@ def _result(setup, idx, reasons, prob, fixed, res, facts, iterations) -> Frictio
     chi2 = res.cost
     warnings = list(setup.warnings)
     try:
-        cinv = np.linalg.inv(J.T @ J)
-        cov = cinv[:4, :4] * (chi2 / dof)
+        cov = J.normal().inv_globals()[:4, :4] * (chi2 / dof)
     except np.linalg.LinAlgError:
         cov = np.full((4, 4), math.nan)
         warnings.append("the Jacobian is singular: m, c, k, fc are not all determined")
@@ -1447,16 +1547,15 @@ def friction_evidence(
     r = prob.residual(local_f, res.XV)
     dof = max(J.shape[0] - J.shape[1] - 1, 1)
     s2 = res.cost / dof
-    A = J.T @ J
-    coef = np.linalg.solve(A, J.T @ j)
-    jp = j - J @ coef  # Πj
+    A = J.normal()
+    coef = A.solve(J.tdot(j))
+    jp = j - J.dot(coef)  # Πj
     info = float(jp @ jp)
     score = float(jp @ r)
     z = score / math.sqrt(s2 * info) if info > 0 else 0.0
     p_value = float(stats.norm.sf(z))
     fc1 = score / info if info > 0 else 0.0
-    cinv = np.linalg.inv(A)
-    se = np.sqrt(np.clip(np.diag(cinv)[:3] * s2, 0.0, None))
+    se = np.sqrt(np.clip(np.diag(A.inv_globals())[:3] * s2, 0.0, None))
     warnings = [f"{setup.names[i]}: set aside: {setup.reasons[i]}" for i in range(n)
                 if setup.reasons[i] is not None]
     if not res.converged:
