@@ -135,7 +135,7 @@ from scipy import signal, stats
 
 from phoid._threads import single_blas_thread
 from phoid.decay import detect_release
-from phoid.errors import ExperimentError, IdentificationError
+from phoid.errors import ExperimentError, IdentificationError, PhoidError
 from phoid.loop import dominant_roots, inverse_map
 from phoid.pho import Estimate, fit_lines
 
@@ -152,6 +152,9 @@ _FD_REL = 1e-5  # forward-difference step, relative to the parameter's scale
 _MIN_REVERSALS = 2  # fewer velocity reversals before sticking: "stops within a cycle"
 _MAX_CHORDS = 3  # chord steps in a row before the globals' columns are recomputed
 _CHORD_SPAN = 10.0  # the covariance needs the globals' columns within this many stderr
+_DT_PER_DELAY = 10.0  # a sample interval longer than this many loop delays: a wrong time base
+_U_TOL = 0.2  # u's implied gains off by more than this part of the force swing: a warning
+_U_R2 = 0.9  # … when the delayed x, ẋ explain at least this part of u's variance
 
 
 # --------------------------------------------------------------------------------------------
@@ -470,6 +473,129 @@ def _survey(name: str, t: np.ndarray, y: np.ndarray) -> _Survey:
             "last quarter of the record): an unstable loop that friction does not bound"
         )
     return _Survey(name, t, y, release, level, final, sd, motion_end, reason)
+
+
+# --------------------------------------------------------------------------------------------
+# the recorded force u against the gains and x (model-free)
+
+
+def _u_gains(t: np.ndarray, x: np.ndarray, u: np.ndarray, delay: float,
+             bias: float) -> tuple[float, float, float, float, float] | None:
+    """Gains that the recorded u implies: least squares of u − b sign(ẋ(t − Δt)) on
+    x(t − Δt), ẋ(t − Δt) and a constant (the sensor offset times P).
+
+    ẋ is a Savitzky–Golay derivative (cubic, over a tenth of the dominant period) of x; both
+    are read at t − Δt by linear interpolation. Returns (P̂, D̂, R², sd of x(t − Δt), sd of
+    ẋ(t − Δt)), or None when the record is too short or u is constant.
+    """
+    sel = t - delay >= t[0]
+    if np.count_nonzero(sel) < _MIN_SAMPLES or not np.ptp(u[sel]) > 0:
+        return None
+    dt = float(np.median(np.diff(t)))
+    # the window: a tenth of the record's dominant period (its spectrum's peak), at least 5
+    # samples: it smooths the noise out of ẋ (a noisy regressor would bias D̂ low)
+    spec = np.abs(np.fft.rfft(x - x.mean()))
+    f_peak = max(int(np.argmax(spec[1:])) + 1, 1) / (x.size * dt)
+    win = max(5, min(round(0.1 / (f_peak * dt)), x.size // 4))
+    win += 1 - win % 2
+    v = signal.savgol_filter(x, win, 3, deriv=1, delta=dt)
+    td = t[sel] - delay
+    xd = np.interp(td, t, x)
+    vd = np.interp(td, t, v)
+    target = u[sel] - bias * np.sign(vd)
+    A = np.c_[xd, vd, np.ones(xd.size)]
+    coef, *_ = np.linalg.lstsq(A, target, rcond=None)
+    res = target - A @ coef
+    tss = float(np.sum((target - target.mean()) ** 2))
+    r2 = 1.0 - float(res @ res) / tss if tss > 0 else 0.0
+    return -float(coef[0]), -float(coef[1]), r2, float(np.std(xd)), float(np.std(vd))
+
+
+def _u_diagnosis(P: float, D: float, Ph: float, Dh: float, sx: float,
+                 sv: float) -> tuple[str, str] | None:
+    """What the gains (P̂, D̂) implied by u say about the given (P, D): None when they agree
+    within 20 % of the force swing, else (kind, the probable cause in words)."""
+    F = math.hypot(P * sx, D * sv)
+    Fh = math.hypot(Ph * sx, Dh * sv)
+    scale = max(F, Fh)
+    if not scale > 0 or math.hypot((Ph - P) * sx, (Dh - D) * sv) <= _U_TOL * scale:
+        return None
+    if D != 0 and math.hypot((Ph - P) * sx, (Dh + D) * sv) <= _U_TOL * scale:
+        return "sign D", ("D has the opposite sign to the one u implies (phoid/1's convention: "
+                          "u = -P x(t - delay) - D x'(t - delay))")
+    if F > 0:  # one factor g for both gains?
+        g = (Ph * P * sx * sx + Dh * D * sv * sv) / (F * F)
+        if 1e-4 < abs(g) < 1e4 and \
+                math.hypot((Ph - g * P) * sx, (Dh - g * D) * sv) <= _U_TOL * scale:
+            if g < 0:
+                return "sign u", ("u has the opposite sign to the force the gains imply "
+                                  "(recorded as +P x + D x'?)")
+            for factor, what in ((1e-3, "x in mm instead of m, or u in mN instead of N"),
+                                 (1e-2, "x in cm instead of m"),
+                                 (1e3, "x in km, or u in kN instead of N")):
+                if abs(g / factor - 1.0) <= _U_TOL:
+                    return f"units {factor:g}", (
+                        f"u is {g:.3g} times the force the gains and x imply: {what}?")
+            return "scale", (f"u is {g:.3g} times the force the gains and x imply: check the "
+                             "gains (all off by one factor?) and the units of x and u")
+    return "gains", (f"u implies P = {Ph:.4g} N/m, D = {Dh:.4g} N s/m where the set gives "
+                     f"P = {P:.4g}, D = {D:.4g}: check the loop delay, the gains and their "
+                     "sign convention")
+
+
+def _u_delay(t, x, u, P, D, delay, bias) -> float | None:
+    """The delay at which u agrees with the given gains (:func:`_u_diagnosis`), searched over
+    whole sample intervals up to max(3Δt, 20 samples) (at most 200 trials); None if none."""
+    dt = float(np.median(np.diff(t)))
+    top = min(max(3.0 * delay, 20.0 * dt), 200.0 * dt, 0.25 * float(t[-1] - t[0]))
+    best, best_err = None, math.inf
+    for lag in np.arange(0.0, top + 0.5 * dt, dt):
+        got = _u_gains(t, x, u, float(lag), bias)
+        if got is None or not got[2] >= _U_R2:
+            continue
+        Ph, Dh, _, sx, sv = got
+        err = math.hypot((Ph - P) * sx, (Dh - D) * sv)
+        if err < best_err:
+            best, best_err = float(lag), err
+    if best is None or _u_diagnosis(P, D, *_u_gains(t, x, u, best, bias)[:2],
+                                    *_u_gains(t, x, u, best, bias)[3:]) is not None:
+        return None
+    return best
+
+
+def _check_u(names, surveys, u, P, D, delay, bias) -> list[str]:
+    """Warnings for the runs whose recorded u contradicts the gains and x (one per probable
+    cause, naming the runs; the text of the first such run)."""
+    groups: dict[str, list[tuple[str, str]]] = {}
+    lags: dict[str, float] = {}
+    for i, s in enumerate(surveys):
+        ui = None if u is None else u[i]
+        if ui is None:
+            continue
+        ui = np.asarray(ui, dtype=float)
+        if ui.shape != s.t.shape or not np.all(np.isfinite(ui)):
+            continue
+        got = _u_gains(s.t, s.y, ui, delay, float(bias[i]))
+        if got is None or not got[2] >= _U_R2:  # u not a linear function of delayed x, ẋ
+            continue
+        found = _u_diagnosis(float(P[i]), float(D[i]), *got[:2], *got[3:])
+        if found is not None and found[0] == "gains":
+            lag = _u_delay(s.t, s.y, ui, float(P[i]), float(D[i]), delay, float(bias[i]))
+            if lag is not None:
+                lags[names[i]] = lag
+                found = "delay", (f"u implies a loop delay of about {lag:.3g} s, not the "
+                                  f"{delay:.3g} s given")
+        if found is not None:
+            groups.setdefault(found[0], []).append((names[i], found[1]))
+    out = []
+    for kind, runs in groups.items():
+        text = runs[0][1]
+        if kind == "delay":  # the runs' median
+            lag = float(np.median([lags[n] for n, _ in runs]))
+            text = f"u implies a loop delay of about {lag:.3g} s, not the {delay:.3g} s given"
+        out.append(f"{', '.join(n for n, _ in runs)}: the recorded u contradicts the gains "
+                   f"and x: {text}")
+    return out
 
 
 # --------------------------------------------------------------------------------------------
@@ -1073,6 +1199,32 @@ def _check_start(start) -> list[float] | None:
     return st
 
 
+class _StartError(IdentificationError):
+    """No viscous starting point; ``cause`` is the viscous identification's own message (None
+    when it failed internally) and ``hint`` what the recorded u says, if anything."""
+
+    def __init__(self, message: str, cause: str | None, hint: str | None):
+        super().__init__(message)
+        self.cause = cause
+        self.hint = hint
+
+
+def _check_time_base(names, surveys, delay: float) -> None:
+    """Refuse a record whose sample interval is many loop delays long: t in ms (or the delay
+    in the wrong unit). The fit simulates the loop in steps of at most one delay, so this also
+    bounds its work to _DT_PER_DELAY steps per recorded sample."""
+    if not delay > 0:
+        return
+    for name, s in zip(names, surveys, strict=True):
+        dt = float(np.median(np.diff(s.t)))
+        if dt > _DT_PER_DELAY * delay:
+            raise ExperimentError(
+                f"{name}: the sample interval {dt:.3g} s is {dt / delay:.3g} times the loop "
+                f"delay {delay:.3g} s: t in milliseconds instead of seconds, or the delay in "
+                f"the wrong unit? (the friction fit needs a sample interval of at most "
+                f"{_DT_PER_DELAY:g} delays)")
+
+
 def _dominant(m, c, k, P, D, delay, digital):
     """Dominant root of each run's loop: the continuous delayed loop, or the sampled one."""
     if digital is None:
@@ -1083,7 +1235,7 @@ def _dominant(m, c, k, P, D, delay, digital):
 
 
 def _prepare(data, P, D, delay, start, names, need_fc: bool, added_mass=None,
-             digital=None, bias=None) -> _Setup:
+             digital=None, bias=None, u=None) -> _Setup:
     from phoid.identification import identify_data
 
     n = len(data)
@@ -1137,13 +1289,16 @@ def _prepare(data, P, D, delay, start, names, need_fc: bool, added_mass=None,
             raise ExperimentError(f"{names[i]}: each run must be a pair (t, x)") from None
         t, x = _check_run(names[i], t, x)
         surveys.append(_survey(names[i], t, x))
+    _check_time_base(names, surveys, delay)
+    # the recorded force (continuous loops): u = −P x(t − Δt) − D ẋ(t − Δt) + b sign(ẋ(t − Δt))
+    warnings: list[str] = _check_u(names, surveys, u, P, D, delay, bs) \
+        if u is not None and digital is None else []
     reasons = [s.reason for s in surveys]
     cand = [i for i in range(n) if reasons[i] is None]
     if not cand:
         raise IdentificationError(
             "no usable runs: " + "; ".join(f"{names[i]}: {reasons[i]}" for i in range(n))
         )
-    warnings: list[str] = []
     release = np.array([s.release for s in surveys])
     offset = np.array([s.final for s in surveys])
     omega = np.full(n, math.nan)
@@ -1153,10 +1308,13 @@ def _prepare(data, P, D, delay, start, names, need_fc: bool, added_mass=None,
                                  delay if digital is None else None,
                                  names=[names[i] for i in cand], added_mass=dm[cand],
                                  digital=digital)
-        except (IdentificationError, ValueError) as exc:
-            raise IdentificationError(
-                f"no viscous starting point for the friction fit ({exc}); pass "
-                "`start=(m, c, k)` or `start=(m, c, k, fc)`"
+        except (IdentificationError, ValueError, ArithmeticError) as exc:
+            cause = str(exc) if isinstance(exc, PhoidError) else None
+            hint = "; ".join(warnings) or None
+            raise _StartError(
+                f"no viscous starting point for the friction fit"
+                f"{f' ({cause})' if cause else ''}{f'; {hint}' if hint else ''}; pass "
+                "`start=(m, c, k)` or `start=(m, c, k, fc)`", cause, hint
             ) from None
         m0, c0, k0 = visc.m.value, visc.c.value, visc.k.value
         fc0 = None
@@ -1170,10 +1328,11 @@ def _prepare(data, P, D, delay, start, names, need_fc: bool, added_mass=None,
         m0, c0, k0 = st[:3]
         fc0 = st[3] if len(st) == 4 else None
     if not (m0 > 0 and math.isfinite(c0) and math.isfinite(k0)):
-        raise IdentificationError(
-            f"the viscous starting point (m, c, k) = ({m0:.6g}, {c0:.6g}, {k0:.6g}) is not "
-            "physical; pass `start=(m, c, k)`"
-        )
+        cause = (f"the viscous identification gives m = {m0:.6g} kg, c = {c0:.6g} N s/m, "
+                 f"k = {k0:.6g} N/m")
+        hint = "; ".join(warnings) or None
+        raise _StartError(f"no physical starting point for the friction fit ({cause}"
+                          f"{f'; {hint}' if hint else ''}); pass `start=(m, c, k)`", cause, hint)
     todo = [i for i in cand if not omega[i] > 0]
     if todo:
         for added in np.unique(dm[todo]):  # one plant per added mass
@@ -1287,6 +1446,7 @@ def identify_friction(
     added_mass: Sequence[float] | None = None,
     digital: Any = None,
     bias: Sequence[float] | None = None,
+    u: Sequence[np.ndarray | None] | None = None,
 ) -> FrictionFit:
     """Estimate m, c, k and the kinetic friction force f_c from a PHO experiment set.
 
@@ -1322,6 +1482,13 @@ def identify_friction(
         Known DC offset bᵢ ≥ 0 (N) of each run's command in the direction of the controller's
         velocity, + bᵢ sign(ẋ(t − Δt)) (or + bᵢ sign(v̂) of a sampled loop): the seed's
         augmented PD feedback (Discussion, last paragraph); default none.
+    u : sequence of ndarray or None, optional
+        Each run's recorded feedback force, N, on the run's sample times (None where not
+        recorded). Used as a check only (continuous loops): the gains u implies, by least
+        squares of u − bᵢ sign(ẋ(t − Δt)) on x(t − Δt), ẋ(t − Δt) and a constant, must agree
+        with (Pᵢ, Dᵢ) to 20 % of the force swing; runs that do not are named in a warning with
+        the probable cause (D's sign convention, u's sign, the units of x or u, the gains or
+        the delay).
 
     Returns
     -------
@@ -1350,7 +1517,7 @@ def identify_friction(
     (0.05, 2.0)
     """
     setup = _prepare(data, P, D, delay, start, names, need_fc=True, added_mass=added_mass,
-                     digital=digital, bias=bias)
+                     digital=digital, bias=bias, u=u)
     n = len(setup.surveys)
     reasons = list(setup.reasons)
     idx = [i for i in range(n) if reasons[i] is None]
@@ -1616,8 +1783,17 @@ def identify_friction_set(experiment: Any, *, delay: float | None = None) -> Fri
                                  names=[r.file for r in runs],
                                  added_mass=[getattr(r, "added_mass", 0.0) for r in runs],
                                  digital=digital,
-                                 bias=[getattr(r, "bias", 0.0) for r in runs])
+                                 bias=[getattr(r, "bias", 0.0) for r in runs],
+                                 u=[getattr(r, "u", None) for r in runs])
     except ExperimentError as exc:
         raise ExperimentError(f"{where}: {exc}") from None
+    except _StartError as exc:  # in the command line's words (no `start=`)
+        cause = f" ({exc.cause})" if exc.cause else ""
+        hint = exc.hint or (
+            "check the loop delay ([loop] delay or --delay), the gains' sign convention "
+            "(u = -P x(t - delay) - D x'(t - delay)) and the units of t (s) and x (m)")
+        raise IdentificationError(
+            f"{where}: the friction fit needs the viscous identification of the same runs as "
+            f"its starting point, and it failed{cause}: {hint}") from None
     except IdentificationError as exc:
         raise IdentificationError(f"{where}: {exc}") from None
