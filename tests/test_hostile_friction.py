@@ -160,6 +160,8 @@ SIZES = [
     (["simulate", "{tmp}/s", "--method", "free", "--duration", "1e9"], ["--duration"]),
     (["simulate", "{tmp}/s", "--method", "forced", "--fs", "1e9"], ["--fs"]),
     (["simulate", "{tmp}/s", "--delay", "1e-9", "--duration", "100"], ["internal steps"]),
+    (["simulate", "{tmp}/s", "--duration", "inf"], ["--duration must be finite"]),
+    (["simulate", "{tmp}/s", "--fs", "nan"], ["--fs must be finite"]),
     (["design", "--m", "0.5", "--c", "40", "--k", "20", "--delay", "0.005",
       "--runs", "100000"], ["--runs", "1000"]),
     (["design", "--m", "0.5", "--c", "40", "--k", "20", "--delay", "0.005",

@@ -404,6 +404,11 @@ def _check_simulation_size(runs: int, hold: float, duration: float, fs: float) -
     """Refuse, in the command's words, a simulation above the simulator's sample limit."""
     from phoid.simulation import MAX_SAMPLES
 
+    for flag, val, unit in (("--duration", duration, "s"), ("--fs", fs, "Hz")):
+        if not (math.isfinite(val) and val > 0):
+            raise ValueError(f"{flag} must be finite and > 0 {unit}; got {val:g}")
+    if not (math.isfinite(hold) and hold >= 0):
+        raise ValueError(f"--hold must be finite and ≥ 0 s; got {hold:g}")
     total = runs * (hold + duration) * fs
     if math.isfinite(total) and total > MAX_SAMPLES:
         raise ValueError(
