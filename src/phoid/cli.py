@@ -247,8 +247,11 @@ def simulate(
                            "--fs, --duration, --noise and --x0 from a schedule written by "
                            "`phoid design --out` (instead of --P/--D).")] = None,
     delay: Annotated[float, typer.Option(help="Loop delay, s.")] = 0.1,
-    duration: Annotated[float, typer.Option(help="Record length after release, s.")] = 15.0,
-    fs: Annotated[float, typer.Option(help="Sample rate, Hz.")] = 1000.0,
+    duration: Annotated[float, typer.Option(
+        help="Record length after release, s. Limit: runs x (hold + duration) x fs at most "
+             "5e7 samples (about 3 GB).")] = 15.0,
+    fs: Annotated[float, typer.Option(
+        help="Sample rate, Hz (see --duration for the size limit).")] = 1000.0,
     x0: Annotated[float, typer.Option(help="Release position, m.")] = 0.01,
     hold: Annotated[float, typer.Option(
         help="Held segment before the release (controller on), s.")] = 0.2,
@@ -365,6 +368,7 @@ def simulate(
                              f"got {len(bs)}")
         if not all(np.isfinite(bs)) or min(bs) < 0:
             raise ValueError(f"`bias` must be finite and ≥ 0 N; got {bias!r}")
+        _check_simulation_size(len(Ps), hold, duration, fs)
         plant = Plant(m, c, k, fc)
         rng = np.random.default_rng(seed)
         digital: dict = {}
@@ -410,6 +414,24 @@ def simulate(
     typer.echo(f"wrote {len(Ps)} runs to {path}")
 
 
+def _check_simulation_size(runs: int, hold: float, duration: float, fs: float) -> None:
+    """Refuse, in the command's words, a simulation above the simulator's sample limit."""
+    from phoid.simulation import MAX_SAMPLES
+
+    for flag, val, unit in (("--duration", duration, "s"), ("--fs", fs, "Hz")):
+        if not (math.isfinite(val) and val > 0):
+            raise ValueError(f"{flag} must be finite and > 0 {unit}; got {val:g}")
+    if not (math.isfinite(hold) and hold >= 0):
+        raise ValueError(f"--hold must be finite and ≥ 0 s; got {hold:g}")
+    total = runs * (hold + duration) * fs
+    if math.isfinite(total) and total > MAX_SAMPLES:
+        raise ValueError(
+            f"--duration {duration:g} s and --fs {fs:g} Hz give {total:.3g} samples over {runs} "
+            f"runs (with --hold {hold:g} s), above the limit of {MAX_SAMPLES:.0e} samples "
+            f"(about {64 * MAX_SAMPLES / 1e9:.0f} GB): shorten --duration, lower --fs or "
+            "simulate fewer runs")
+
+
 def _simulate_other(ctx, out, *, method, m, c, k, fc, B, omega, duration, fs, x0, v0, hold,
                     noise, quantum, offset, seed, write_mass, gzip, overwrite) -> None:
     """`phoid simulate --method forced|free`: a sine sweep or a free release, no loop."""
@@ -442,6 +464,7 @@ def _simulate_other(ctx, out, *, method, m, c, k, fc, B, omega, duration, fs, x0
             from phoid.forced import simulate_forced
 
             omegas = _numbers("omega", omega)
+            _check_simulation_size(len(omegas), hold, duration, fs)
             rest = x0 if given("x0") else 0.0
             runs = simulate_forced(plant, omegas, B=B, duration=duration, fs=fs, hold=hold,
                                    x0=rest, noise=noise, quantum=quantum, offset=offset,
@@ -453,6 +476,7 @@ def _simulate_other(ctx, out, *, method, m, c, k, fc, B, omega, duration, fs, x0
             from phoid.io import run_from_arrays
             from phoid.simulation import simulate as _simulate
 
+            _check_simulation_size(1, hold, duration, fs)
             sim = _simulate(plant, 0.0, 0.0, duration=duration, fs=fs, x0=x0, v0=v0,
                             hold=hold, noise=noise, quantum=quantum, offset=offset, rng=rng)
             runs = [run_from_arrays(sim.t, sim.x[0], index=1)]
@@ -485,7 +509,7 @@ def design(
         "--k", help="Prior stiffness, N/m: a value or a range lo:hi.")] = None,
     delay: Annotated[float | None, typer.Option(
         help="Loop delay, s (with --check: default the set's).")] = None,
-    runs: Annotated[int, typer.Option(help="Number of runs.")] = 10,
+    runs: Annotated[int, typer.Option(help="Number of runs, 2 to 1000.")] = 10,
     pmax: Annotated[float | None, typer.Option(help="Limit on |P|, N/m.")] = None,
     dmax: Annotated[float | None, typer.Option(help="Limit on |D|, N s/m.")] = None,
     max_freq: Annotated[float | None, typer.Option(
@@ -563,6 +587,11 @@ def design(
                                  "(a value or a range lo:hi each)")
             if delay is None:
                 raise ValueError("give the loop delay --delay (s)")
+            from phoid.planning import MAX_RUNS
+
+            if not 2 <= runs <= MAX_RUNS:
+                raise ValueError(f"--runs must be from 2 to {MAX_RUNS} (the design's work and "
+                                 f"memory grow with the runs); got {runs}")
             result = make_design(m, c, k, delay=delay, runs=runs, **settings)
         written = result.write(out, overwrite=overwrite) if out is not None else None
         if plot is not None:

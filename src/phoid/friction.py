@@ -70,6 +70,29 @@ The covariance of θ is the (θ, θ) block of (JᵀWJ)⁻¹ scaled by χ²/dof (
 in units of the noise sd): the Gauss–Newton (Fisher) covariance with every nuisance parameter
 profiled out.
 
+Memory and work are linear in the data: run i's nuisances (x₀ᵢ, bᵢ, τᵢ) touch only its own
+rows, so the Jacobian is kept as its dense global columns plus three local columns per row
+(:class:`_BlockJacobian`), JᵀJ as a block-arrow matrix, and each linear system is solved
+through the Schur complement of its block-diagonal part (a 4 × 4 system plus one 3 × 3 per
+run). The dense N × (4 + 3B) Jacobian needed 11 GB for 300 runs of 3 s at 1 kHz; the block
+form peaks at 0.4 GB. Every loop is bounded by the input: at most ``max_iter`` steps per fit,
+at most one refit per run set aside, and the simulation's step is at least a tenth of the
+sample interval (next section).
+
+Checks before fitting
+---------------------
+* **Time base.** A sample interval longer than 10 loop delays is refused: t in milliseconds
+  (or the delay in the wrong unit) is the likely cause, and the fit, which simulates in steps
+  of at most one delay, would take that many steps per sample.
+* **The recorded force u**, where given (continuous loops): the gains u implies, by least
+  squares of u − bᵢ sign(ẋ(t − Δt)) on x(t − Δt), ẋ(t − Δt) and a constant (ẋ a
+  Savitzky–Golay derivative over a tenth of the dominant period), must agree with (Pᵢ, Dᵢ) to
+  20 % of the force swing. Runs that do not are named in a warning with the probable cause:
+  D of the opposite sign (the sign convention), u of the opposite sign, one factor on both
+  gains (1e−3: x in mm; or the gains themselves), or — where a delay among whole sample
+  intervals up to 3Δt reconciles them — the delay u implies. When the viscous starting point
+  then fails, the error carries that diagnosis.
+
 Starting point, and two stages. m, c, k come from :func:`phoid.identification.identify_data`
 (the viscous dominant-mode fit of the same runs), τᵢ from its model-fitted releases. The
 envelopes then give the rest: successive extrema pₙ of each record lie about bᵢ with a
@@ -135,7 +158,7 @@ from scipy import signal, stats
 
 from phoid._threads import single_blas_thread
 from phoid.decay import detect_release
-from phoid.errors import ExperimentError, IdentificationError
+from phoid.errors import ExperimentError, IdentificationError, PhoidError
 from phoid.loop import dominant_roots, inverse_map
 from phoid.pho import Estimate, fit_lines
 
@@ -152,6 +175,9 @@ _FD_REL = 1e-5  # forward-difference step, relative to the parameter's scale
 _MIN_REVERSALS = 2  # fewer velocity reversals before sticking: "stops within a cycle"
 _MAX_CHORDS = 3  # chord steps in a row before the globals' columns are recomputed
 _CHORD_SPAN = 10.0  # the covariance needs the globals' columns within this many stderr
+_DT_PER_DELAY = 10.0  # a sample interval longer than this many loop delays: a wrong time base
+_U_TOL = 0.2  # u's implied gains off by more than this part of the force swing: a warning
+_U_R2 = 0.9  # … when the delayed x, ẋ explain at least this part of u's variance
 
 
 # --------------------------------------------------------------------------------------------
@@ -473,6 +499,129 @@ def _survey(name: str, t: np.ndarray, y: np.ndarray) -> _Survey:
 
 
 # --------------------------------------------------------------------------------------------
+# the recorded force u against the gains and x (model-free)
+
+
+def _u_gains(t: np.ndarray, x: np.ndarray, u: np.ndarray, delay: float,
+             bias: float) -> tuple[float, float, float, float, float] | None:
+    """Gains that the recorded u implies: least squares of u − b sign(ẋ(t − Δt)) on
+    x(t − Δt), ẋ(t − Δt) and a constant (the sensor offset times P).
+
+    ẋ is a Savitzky–Golay derivative (cubic, over a tenth of the dominant period) of x; both
+    are read at t − Δt by linear interpolation. Returns (P̂, D̂, R², sd of x(t − Δt), sd of
+    ẋ(t − Δt)), or None when the record is too short or u is constant.
+    """
+    sel = t - delay >= t[0]
+    if np.count_nonzero(sel) < _MIN_SAMPLES or not np.ptp(u[sel]) > 0:
+        return None
+    dt = float(np.median(np.diff(t)))
+    # the window: a tenth of the record's dominant period (its spectrum's peak), at least 5
+    # samples: it smooths the noise out of ẋ (a noisy regressor would bias D̂ low)
+    spec = np.abs(np.fft.rfft(x - x.mean()))
+    f_peak = max(int(np.argmax(spec[1:])) + 1, 1) / (x.size * dt)
+    win = max(5, min(round(0.1 / (f_peak * dt)), x.size // 4))
+    win += 1 - win % 2
+    v = signal.savgol_filter(x, win, 3, deriv=1, delta=dt)
+    td = t[sel] - delay
+    xd = np.interp(td, t, x)
+    vd = np.interp(td, t, v)
+    target = u[sel] - bias * np.sign(vd)
+    A = np.c_[xd, vd, np.ones(xd.size)]
+    coef, *_ = np.linalg.lstsq(A, target, rcond=None)
+    res = target - A @ coef
+    tss = float(np.sum((target - target.mean()) ** 2))
+    r2 = 1.0 - float(res @ res) / tss if tss > 0 else 0.0
+    return -float(coef[0]), -float(coef[1]), r2, float(np.std(xd)), float(np.std(vd))
+
+
+def _u_diagnosis(P: float, D: float, Ph: float, Dh: float, sx: float,
+                 sv: float) -> tuple[str, str] | None:
+    """What the gains (P̂, D̂) implied by u say about the given (P, D): None when they agree
+    within 20 % of the force swing, else (kind, the probable cause in words)."""
+    F = math.hypot(P * sx, D * sv)
+    Fh = math.hypot(Ph * sx, Dh * sv)
+    scale = max(F, Fh)
+    if not scale > 0 or math.hypot((Ph - P) * sx, (Dh - D) * sv) <= _U_TOL * scale:
+        return None
+    if D != 0 and math.hypot((Ph - P) * sx, (Dh + D) * sv) <= _U_TOL * scale:
+        return "sign D", ("D has the opposite sign to the one u implies (phoid/1's convention: "
+                          "u = -P x(t - delay) - D x'(t - delay))")
+    if F > 0:  # one factor g for both gains?
+        g = (Ph * P * sx * sx + Dh * D * sv * sv) / (F * F)
+        if 1e-4 < abs(g) < 1e4 and \
+                math.hypot((Ph - g * P) * sx, (Dh - g * D) * sv) <= _U_TOL * scale:
+            if g < 0:
+                return "sign u", ("u has the opposite sign to the force the gains imply "
+                                  "(recorded as +P x + D x'?)")
+            for factor, what in ((1e-3, "x in mm instead of m, or u in mN instead of N"),
+                                 (1e-2, "x in cm instead of m"),
+                                 (1e3, "x in km, or u in kN instead of N")):
+                if abs(g / factor - 1.0) <= _U_TOL:
+                    return f"units {factor:g}", (
+                        f"u is {g:.3g} times the force the gains and x imply: {what}?")
+            return "scale", (f"u is {g:.3g} times the force the gains and x imply: check the "
+                             "gains (all off by one factor?) and the units of x and u")
+    return "gains", (f"u implies P = {Ph:.4g} N/m, D = {Dh:.4g} N s/m where the set gives "
+                     f"P = {P:.4g}, D = {D:.4g}: check the loop delay, the gains and their "
+                     "sign convention")
+
+
+def _u_delay(t, x, u, P, D, delay, bias) -> float | None:
+    """The delay at which u agrees with the given gains (:func:`_u_diagnosis`), searched over
+    whole sample intervals up to max(3Δt, 20 samples) (at most 200 trials); None if none."""
+    dt = float(np.median(np.diff(t)))
+    top = min(max(3.0 * delay, 20.0 * dt), 200.0 * dt, 0.25 * float(t[-1] - t[0]))
+    best, best_err = None, math.inf
+    for lag in np.arange(0.0, top + 0.5 * dt, dt):
+        got = _u_gains(t, x, u, float(lag), bias)
+        if got is None or not got[2] >= _U_R2:
+            continue
+        Ph, Dh, _, sx, sv = got
+        err = math.hypot((Ph - P) * sx, (Dh - D) * sv)
+        if err < best_err:
+            best, best_err = float(lag), err
+    if best is None or _u_diagnosis(P, D, *_u_gains(t, x, u, best, bias)[:2],
+                                    *_u_gains(t, x, u, best, bias)[3:]) is not None:
+        return None
+    return best
+
+
+def _check_u(names, surveys, u, P, D, delay, bias) -> list[str]:
+    """Warnings for the runs whose recorded u contradicts the gains and x (one per probable
+    cause, naming the runs; the text of the first such run)."""
+    groups: dict[str, list[tuple[str, str]]] = {}
+    lags: dict[str, float] = {}
+    for i, s in enumerate(surveys):
+        ui = None if u is None else u[i]
+        if ui is None:
+            continue
+        ui = np.asarray(ui, dtype=float)
+        if ui.shape != s.t.shape or not np.all(np.isfinite(ui)):
+            continue
+        got = _u_gains(s.t, s.y, ui, delay, float(bias[i]))
+        if got is None or not got[2] >= _U_R2:  # u not a linear function of delayed x, ẋ
+            continue
+        found = _u_diagnosis(float(P[i]), float(D[i]), *got[:2], *got[3:])
+        if found is not None and found[0] == "gains":
+            lag = _u_delay(s.t, s.y, ui, float(P[i]), float(D[i]), delay, float(bias[i]))
+            if lag is not None:
+                lags[names[i]] = lag
+                found = "delay", (f"u implies a loop delay of about {lag:.3g} s, not the "
+                                  f"{delay:.3g} s given")
+        if found is not None:
+            groups.setdefault(found[0], []).append((names[i], found[1]))
+    out = []
+    for kind, runs in groups.items():
+        text = runs[0][1]
+        if kind == "delay":  # the runs' median
+            lag = float(np.median([lags[n] for n, _ in runs]))
+            text = f"u implies a loop delay of about {lag:.3g} s, not the {delay:.3g} s given"
+        out.append(f"{', '.join(n for n, _ in runs)}: the recorded u contradicts the gains "
+                   f"and x: {text}")
+    return out
+
+
+# --------------------------------------------------------------------------------------------
 # the friction guess from the envelope's linear part
 
 
@@ -757,11 +906,13 @@ class _Problem:
             fill(col, XVp, _FD_REL)
         return G
 
-    def jacobian(self, theta, local, XV, G: np.ndarray) -> np.ndarray:
-        """Weighted Jacobian: the global columns G (unweighted) and the exact local ones."""
+    def jacobian(self, theta, local, XV, G: np.ndarray) -> _BlockJacobian:
+        """Weighted Jacobian: the global columns G (unweighted) and the exact local ones, by
+        blocks (:class:`_BlockJacobian`: memory linear in the data)."""
         _, posts, herm = self.model(local, XV)
-        J = np.zeros((int(self.rows[-1]), self.ng + 3 * self.B))
-        J[:, : self.ng] = G[:, : self.ng]
+        N = int(self.rows[-1])
+        glob = np.empty((N, self.ng))
+        loc = np.empty((N, 3))
         fc = theta[3]
         for i in range(self.B):
             r = slice(int(self.rows[i]), int(self.rows[i + 1]))
@@ -772,12 +923,114 @@ class _Problem:
             dfc = G[r, self.ng - 1] if self.free[3] else 0.0
             db = G[r, self.ng] if self.biased else 0.0
             dx0 = (hv - fc * dfc - db) / x0 if x0 != 0 else np.zeros_like(hv)
-            c0 = self.ng + 3 * i
-            J[r, c0] = np.where(post, dx0, 1.0)
-            J[r, c0 + 1] = 1.0
-            J[r, c0 + 2] = np.where(post, -hd, 0.0)
-            J[r] *= self.w[i]
-        return J
+            wi = self.w[i]
+            glob[r] = G[r, : self.ng] * wi
+            loc[r, 0] = np.where(post, dx0, 1.0) * wi
+            loc[r, 1] = wi
+            loc[r, 2] = np.where(post, -hd, 0.0) * wi
+        return _BlockJacobian(glob, loc, self.rows.astype(np.intp))
+
+
+# --------------------------------------------------------------------------------------------
+# the Jacobian's block structure: globals dense, each run's (x₀ᵢ, bᵢ, τᵢ) on its own rows
+
+
+@dataclass(frozen=True)
+class _BlockJacobian:
+    """Weighted Jacobian of :class:`_Problem` stored by blocks, in memory linear in the data.
+
+    The columns of the ``ng`` globals are dense (``glob``, shape (N, ng)); the three columns of
+    run i's local parameters (x₀ᵢ, bᵢ, τᵢ) are zero outside its rows, so they are kept as one
+    (N, 3) array ``loc`` whose rows ``rows[i]:rows[i+1]`` belong to run i. The dense
+    N × (ng + 3B) matrix, quadratic in the number of runs (300 runs: 5.5 GB), is never formed.
+    """
+
+    glob: np.ndarray  # (N, ng)
+    loc: np.ndarray  # (N, 3)
+    rows: np.ndarray  # (B + 1,) row offsets of the runs
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return (self.glob.shape[0], self.glob.shape[1] + 3 * (self.rows.size - 1))
+
+    def tdot(self, r: np.ndarray) -> np.ndarray:
+        """Jᵀr for a vector r of N rows (globals first, then (x₀ᵢ, bᵢ, τᵢ) per run)."""
+        gl = self.glob.T @ r
+        lr = self.loc * r[:, None]
+        loc = np.add.reduceat(lr, self.rows[:-1], axis=0) if lr.shape[0] else lr
+        return np.concatenate([gl, loc.ravel()])
+
+    def dot(self, d: np.ndarray) -> np.ndarray:
+        """J d for a parameter vector d."""
+        ng = self.glob.shape[1]
+        dl = d[ng:].reshape(-1, 3)
+        per_row = np.repeat(dl, np.diff(self.rows), axis=0)  # (N, 3)
+        return self.glob @ d[:ng] + np.einsum("nj,nj->n", self.loc, per_row)
+
+    def normal(self) -> _Normal:
+        """The normal matrix JᵀJ by blocks."""
+        g, lc, rows = self.glob, self.loc, self.rows
+        start = rows[:-1]
+        # per run: Σ over its rows of g ⊗ l (ng × 3) and l ⊗ l (3 × 3)
+        gl = np.add.reduceat(g[:, :, None] * lc[:, None, :], start, axis=0)
+        ll = np.add.reduceat(lc[:, :, None] * lc[:, None, :], start, axis=0)
+        return _Normal(g.T @ g, gl, ll)
+
+
+@dataclass(frozen=True)
+class _Normal:
+    """JᵀJ of a :class:`_BlockJacobian`: the block-arrow matrix [[Agg, Agl], [Alg, diag(Allᵢ)]].
+
+    ``gg`` (ng, ng); ``gl`` (B, ng, 3), run i's coupling of the globals with its locals; ``ll``
+    (B, 3, 3), run i's locals. Linear systems are solved through the Schur complement of the
+    block-diagonal part, S = Agg − Σᵢ Aglᵢ Allᵢ⁻¹ Alg ᵢ (ng × ng): O(B) memory and work.
+    """
+
+    gg: np.ndarray
+    gl: np.ndarray
+    ll: np.ndarray
+
+    def diag(self) -> np.ndarray:
+        return np.concatenate([np.diag(self.gg), np.einsum("bjj->bj", self.ll).ravel()])
+
+    def quad(self, d: np.ndarray) -> float:
+        """dᵀ (JᵀJ) d."""
+        ng = self.gg.shape[0]
+        dg, dl = d[:ng], d[ng:].reshape(-1, 3)
+        return float(dg @ self.gg @ dg + 2.0 * np.einsum("i,bij,bj->", dg, self.gl, dl)
+                     + np.einsum("bi,bij,bj->", dl, self.ll, dl))
+
+    def solve(self, rhs: np.ndarray, lam: float = 0.0, keep: np.ndarray | None = None,
+              floor: np.ndarray | None = None) -> np.ndarray:
+        """Solve (A + λ diag A) δ = rhs over the globals ``keep`` (a boolean mask; the others
+        held at δ = 0) and every local; raises numpy.linalg.LinAlgError when singular.
+
+        ``floor`` is the diagonal used for the damping (default diag A)."""
+        ng = self.gg.shape[0]
+        dA = self.diag() if floor is None else floor
+        keep = np.ones(ng, dtype=bool) if keep is None else keep
+        kg = np.flatnonzero(keep)
+        Mgg = self.gg[np.ix_(kg, kg)] + lam * np.diag(dA[:ng][kg])
+        Mll = self.ll + lam * (np.eye(3)[None] * dA[ng:].reshape(-1, 1, 3))
+        Mgl = self.gl[:, kg, :]  # (B, k, 3)
+        rg, rl = rhs[:ng][kg], rhs[ng:].reshape(-1, 3)
+        # Mll⁻¹ [Mlg, rl] per run in one batched solve
+        Z = np.linalg.solve(Mll, np.concatenate([np.swapaxes(Mgl, 1, 2), rl[:, :, None]],
+                                                axis=2))  # (B, 3, k + 1)
+        S = Mgg - np.einsum("bik,bkj->ij", Mgl, Z[:, :, :-1])
+        sg = rg - np.einsum("bik,bk->i", Mgl, Z[:, :, -1])
+        dg = np.linalg.solve(S, sg)
+        dl = Z[:, :, -1] - np.einsum("bkj,j->bk", Z[:, :, :-1], dg)
+        out = np.zeros(rhs.size)
+        out[kg] = dg
+        out[ng:] = dl.ravel()
+        return out
+
+    def inv_globals(self) -> np.ndarray:
+        """The globals' block of (JᵀJ)⁻¹: the inverse of the Schur complement."""
+        Z = np.linalg.solve(self.ll, np.swapaxes(self.gl, 1, 2))  # (B, 3, ng)
+        S = self.gg - np.einsum("bik,bkj->ij", self.gl, Z)
+        return np.linalg.inv(S)
 
 
 # --------------------------------------------------------------------------------------------
@@ -788,26 +1041,23 @@ class _Problem:
 class _LMResult:
     p: np.ndarray
     XV: Any
-    J: np.ndarray
+    J: _BlockJacobian
     cost: float
     converged: bool
     iterations: int
 
 
-def _solve_step(A, g, lam, p, ifc):
+def _solve_step(A: _Normal, g, lam, p, ifc, ng):
     """(A + λ diag A) δ = g, holding f_c at its bound 0 when the step would push it below."""
-    dA = np.maximum(np.diag(A), 1e-300)
-    active = np.ones(p.size, dtype=bool)
+    dA = np.maximum(A.diag(), 1e-300)
+    keep = np.ones(ng, dtype=bool)
     for _ in range(2):
-        M = A[np.ix_(active, active)] + lam * np.diag(dA[active])
         try:
-            da = np.linalg.solve(M, g[active])
+            delta = A.solve(g, lam, keep, dA)
         except np.linalg.LinAlgError:
             return None
-        delta = np.zeros(p.size)
-        delta[active] = da
-        if ifc is not None and active[ifc] and p[ifc] <= 0 and delta[ifc] < 0:
-            active[ifc] = False
+        if ifc is not None and keep[ifc] and p[ifc] <= 0 and delta[ifc] < 0:
+            keep[ifc] = False
             continue
         return delta
     return None
@@ -854,13 +1104,13 @@ def _levenberg_marquardt(prob: _Problem, p0: np.ndarray, fixed: np.ndarray,
     converged = False
     it = chords = 0
     while it < max_iter:
-        A = J.T @ J
-        g = J.T @ r
+        A = J.normal()
+        g = J.tdot(r)
         s2 = cost / dof
         exact = bool(np.array_equal(p, p_G))
-        d_gn = _solve_step(A, g, 0.0, p, ifc)
-        if d_gn is not None and float(d_gn @ A @ d_gn) <= tol * tol * s2:
-            if not confirm or float((p - p_G) @ A @ (p - p_G)) <= _CHORD_SPAN**2 * s2:
+        d_gn = _solve_step(A, g, 0.0, p, ifc, prob.ng)
+        if d_gn is not None and A.quad(d_gn) <= tol * tol * s2:
+            if not confirm or A.quad(p - p_G) <= _CHORD_SPAN**2 * s2:
                 converged = True
                 break
             # converged with columns from far away: confirm (and get the covariance) with
@@ -872,7 +1122,7 @@ def _levenberg_marquardt(prob: _Problem, p0: np.ndarray, fixed: np.ndarray,
             J = prob.jacobian(theta, local, XV, G)
             continue
         it += 1
-        delta = _solve_step(A, g, lam, p, ifc)
+        delta = _solve_step(A, g, lam, p, ifc, prob.ng)
         ok = delta is not None
         if ok:
             p_new = p + delta
@@ -904,7 +1154,7 @@ def _levenberg_marquardt(prob: _Problem, p0: np.ndarray, fixed: np.ndarray,
             if lam > 1e12:
                 break
             continue
-        pred = float(2 * delta @ g - delta @ A @ delta)
+        pred = float(2 * delta @ g) - A.quad(delta)
         rho = (cost - cost_n) / pred if pred > 0 else 0.0
         lam *= max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
         nu = 2.0
@@ -972,6 +1222,32 @@ def _check_start(start) -> list[float] | None:
     return st
 
 
+class _StartError(IdentificationError):
+    """No viscous starting point; ``cause`` is the viscous identification's own message (None
+    when it failed internally) and ``hint`` what the recorded u says, if anything."""
+
+    def __init__(self, message: str, cause: str | None, hint: str | None):
+        super().__init__(message)
+        self.cause = cause
+        self.hint = hint
+
+
+def _check_time_base(names, surveys, delay: float) -> None:
+    """Refuse a record whose sample interval is many loop delays long: t in ms (or the delay
+    in the wrong unit). The fit simulates the loop in steps of at most one delay, so this also
+    bounds its work to _DT_PER_DELAY steps per recorded sample."""
+    if not delay > 0:
+        return
+    for name, s in zip(names, surveys, strict=True):
+        dt = float(np.median(np.diff(s.t)))
+        if dt > _DT_PER_DELAY * delay:
+            raise ExperimentError(
+                f"{name}: the sample interval {dt:.3g} s is {dt / delay:.3g} times the loop "
+                f"delay {delay:.3g} s: t in milliseconds instead of seconds, or the delay in "
+                f"the wrong unit? (the friction fit needs a sample interval of at most "
+                f"{_DT_PER_DELAY:g} delays)")
+
+
 def _dominant(m, c, k, P, D, delay, digital):
     """Dominant root of each run's loop: the continuous delayed loop, or the sampled one."""
     if digital is None:
@@ -982,7 +1258,7 @@ def _dominant(m, c, k, P, D, delay, digital):
 
 
 def _prepare(data, P, D, delay, start, names, need_fc: bool, added_mass=None,
-             digital=None, bias=None) -> _Setup:
+             digital=None, bias=None, u=None) -> _Setup:
     from phoid.identification import identify_data
 
     n = len(data)
@@ -1036,13 +1312,16 @@ def _prepare(data, P, D, delay, start, names, need_fc: bool, added_mass=None,
             raise ExperimentError(f"{names[i]}: each run must be a pair (t, x)") from None
         t, x = _check_run(names[i], t, x)
         surveys.append(_survey(names[i], t, x))
+    _check_time_base(names, surveys, delay)
+    # the recorded force (continuous loops): u = −P x(t − Δt) − D ẋ(t − Δt) + b sign(ẋ(t − Δt))
+    warnings: list[str] = _check_u(names, surveys, u, P, D, delay, bs) \
+        if u is not None and digital is None else []
     reasons = [s.reason for s in surveys]
     cand = [i for i in range(n) if reasons[i] is None]
     if not cand:
         raise IdentificationError(
             "no usable runs: " + "; ".join(f"{names[i]}: {reasons[i]}" for i in range(n))
         )
-    warnings: list[str] = []
     release = np.array([s.release for s in surveys])
     offset = np.array([s.final for s in surveys])
     omega = np.full(n, math.nan)
@@ -1052,10 +1331,13 @@ def _prepare(data, P, D, delay, start, names, need_fc: bool, added_mass=None,
                                  delay if digital is None else None,
                                  names=[names[i] for i in cand], added_mass=dm[cand],
                                  digital=digital)
-        except (IdentificationError, ValueError) as exc:
-            raise IdentificationError(
-                f"no viscous starting point for the friction fit ({exc}); pass "
-                "`start=(m, c, k)` or `start=(m, c, k, fc)`"
+        except (IdentificationError, ValueError, ArithmeticError) as exc:
+            cause = str(exc) if isinstance(exc, PhoidError) else None
+            hint = "; ".join(warnings) or None
+            raise _StartError(
+                f"no viscous starting point for the friction fit"
+                f"{f' ({cause})' if cause else ''}{f'; {hint}' if hint else ''}; pass "
+                "`start=(m, c, k)` or `start=(m, c, k, fc)`", cause, hint
             ) from None
         m0, c0, k0 = visc.m.value, visc.c.value, visc.k.value
         fc0 = None
@@ -1069,10 +1351,11 @@ def _prepare(data, P, D, delay, start, names, need_fc: bool, added_mass=None,
         m0, c0, k0 = st[:3]
         fc0 = st[3] if len(st) == 4 else None
     if not (m0 > 0 and math.isfinite(c0) and math.isfinite(k0)):
-        raise IdentificationError(
-            f"the viscous starting point (m, c, k) = ({m0:.6g}, {c0:.6g}, {k0:.6g}) is not "
-            "physical; pass `start=(m, c, k)`"
-        )
+        cause = (f"the viscous identification gives m = {m0:.6g} kg, c = {c0:.6g} N s/m, "
+                 f"k = {k0:.6g} N/m")
+        hint = "; ".join(warnings) or None
+        raise _StartError(f"no physical starting point for the friction fit ({cause}"
+                          f"{f'; {hint}' if hint else ''}); pass `start=(m, c, k)`", cause, hint)
     todo = [i for i in cand if not omega[i] > 0]
     if todo:
         for added in np.unique(dm[todo]):  # one plant per added mass
@@ -1186,6 +1469,7 @@ def identify_friction(
     added_mass: Sequence[float] | None = None,
     digital: Any = None,
     bias: Sequence[float] | None = None,
+    u: Sequence[np.ndarray | None] | None = None,
 ) -> FrictionFit:
     """Estimate m, c, k and the kinetic friction force f_c from a PHO experiment set.
 
@@ -1221,6 +1505,13 @@ def identify_friction(
         Known DC offset bᵢ ≥ 0 (N) of each run's command in the direction of the controller's
         velocity, + bᵢ sign(ẋ(t − Δt)) (or + bᵢ sign(v̂) of a sampled loop): the seed's
         augmented PD feedback (Discussion, last paragraph); default none.
+    u : sequence of ndarray or None, optional
+        Each run's recorded feedback force, N, on the run's sample times (None where not
+        recorded). Used as a check only (continuous loops): the gains u implies, by least
+        squares of u − bᵢ sign(ẋ(t − Δt)) on x(t − Δt), ẋ(t − Δt) and a constant, must agree
+        with (Pᵢ, Dᵢ) to 20 % of the force swing; runs that do not are named in a warning with
+        the probable cause (D's sign convention, u's sign, the units of x or u, the gains or
+        the delay).
 
     Returns
     -------
@@ -1249,7 +1540,7 @@ def identify_friction(
     (0.05, 2.0)
     """
     setup = _prepare(data, P, D, delay, start, names, need_fc=True, added_mass=added_mass,
-                     digital=digital, bias=bias)
+                     digital=digital, bias=bias, u=u)
     n = len(setup.surveys)
     reasons = list(setup.reasons)
     idx = [i for i in range(n) if reasons[i] is None]
@@ -1308,8 +1599,7 @@ def _result(setup, idx, reasons, prob, fixed, res, facts, iterations) -> Frictio
     chi2 = res.cost
     warnings = list(setup.warnings)
     try:
-        cinv = np.linalg.inv(J.T @ J)
-        cov = cinv[:4, :4] * (chi2 / dof)
+        cov = J.normal().inv_globals()[:4, :4] * (chi2 / dof)
     except np.linalg.LinAlgError:
         cov = np.full((4, 4), math.nan)
         warnings.append("the Jacobian is singular: m, c, k, fc are not all determined")
@@ -1447,16 +1737,15 @@ def friction_evidence(
     r = prob.residual(local_f, res.XV)
     dof = max(J.shape[0] - J.shape[1] - 1, 1)
     s2 = res.cost / dof
-    A = J.T @ J
-    coef = np.linalg.solve(A, J.T @ j)
-    jp = j - J @ coef  # Πj
+    A = J.normal()
+    coef = A.solve(J.tdot(j))
+    jp = j - J.dot(coef)  # Πj
     info = float(jp @ jp)
     score = float(jp @ r)
     z = score / math.sqrt(s2 * info) if info > 0 else 0.0
     p_value = float(stats.norm.sf(z))
     fc1 = score / info if info > 0 else 0.0
-    cinv = np.linalg.inv(A)
-    se = np.sqrt(np.clip(np.diag(cinv)[:3] * s2, 0.0, None))
+    se = np.sqrt(np.clip(np.diag(A.inv_globals())[:3] * s2, 0.0, None))
     warnings = [f"{setup.names[i]}: set aside: {setup.reasons[i]}" for i in range(n)
                 if setup.reasons[i] is not None]
     if not res.converged:
@@ -1517,8 +1806,17 @@ def identify_friction_set(experiment: Any, *, delay: float | None = None) -> Fri
                                  names=[r.file for r in runs],
                                  added_mass=[getattr(r, "added_mass", 0.0) for r in runs],
                                  digital=digital,
-                                 bias=[getattr(r, "bias", 0.0) for r in runs])
+                                 bias=[getattr(r, "bias", 0.0) for r in runs],
+                                 u=[getattr(r, "u", None) for r in runs])
     except ExperimentError as exc:
         raise ExperimentError(f"{where}: {exc}") from None
+    except _StartError as exc:  # in the command line's words (no `start=`)
+        cause = f" ({exc.cause})" if exc.cause else ""
+        hint = exc.hint or (
+            "check the loop delay ([loop] delay or --delay), the gains' sign convention "
+            "(u = -P x(t - delay) - D x'(t - delay)) and the units of t (s) and x (m)")
+        raise IdentificationError(
+            f"{where}: the friction fit needs the viscous identification of the same runs as "
+            f"its starting point, and it failed{cause}: {hint}") from None
     except IdentificationError as exc:
         raise IdentificationError(f"{where}: {exc}") from None

@@ -161,6 +161,7 @@ from scipy.signal import lfilter
 
 from phoid import _validate as v
 from phoid.digital import DigitalPD, ZOHPlant, _coefficients, _expm, digital_roots
+from phoid.errors import PhoidError
 from phoid.plant import _quadratic_roots
 
 __all__ = ["Simulation", "simulate"]
@@ -169,6 +170,12 @@ __all__ = ["Simulation", "simulate"]
 # constants of the scheme
 
 _NQ = 6  # quintic force polynomials: coefficients c_0..c_5 in the step variable sigma in [0, 1]
+#: most samples one simulation may hold, all runs together (runs × (hold + duration) × fs): each
+#: costs about 64 bytes (positions, velocities, forces, noise), so the limit is about 3 GB
+MAX_SAMPLES = 50_000_000
+#: most internal steps one simulation may take, all runs together (runs × (hold + duration)/h,
+#: h ≤ min(1/fs, Δt) the internal step): bounds the work of a very short delay or a stiff plant
+MAX_STEPS = 200_000_000
 _RHO_H = 0.1  # largest allowed (closed-loop rate) x (internal step)
 _SAMPLES_PER_PERIOD = 4.0
 _LOBATTO = 0.5 - 0.5 * np.cos(np.pi * np.arange(_NQ) / (_NQ - 1))  # nodes on [0, 1]
@@ -552,7 +559,7 @@ class _Grid:
     unit: bool  # ... and sample j0 + n is grid point n
 
 
-def _make_grid(delay, fs, hold, N, rho) -> _Grid:
+def _make_grid(delay, fs, hold, N, rho, runs: int = 1) -> _Grid:
     h_acc = _RHO_H / rho if rho > 0 else math.inf
     if delay > 0:
         d_min = max(1, math.ceil(delay / h_acc - 1e-9), math.ceil(delay * fs - 1e-9))
@@ -568,6 +575,13 @@ def _make_grid(delay, fs, hold, N, rho) -> _Grid:
         d = 0
         M = max(1, math.ceil(1.0 / (fs * h_acc) - 1e-9))
         h = 1.0 / (fs * M)
+    steps = runs * max(N / fs - hold, 0.0) / h
+    if steps > MAX_STEPS:
+        raise PhoidError(
+            f"the simulation would take {steps:.3g} internal steps ({runs} runs × "
+            f"{max(N / fs - hold, 0.0):g} s in steps of {h:.3g} s, the shortest of the delay, "
+            f"the sample interval and 0.1/(fastest rate)), above the limit of {MAX_STEPS:.0e}: "
+            "check the units of the delay and the sample rate, or shorten the duration")
     j = np.arange(N)
     t = j / fs
     j0 = int(np.searchsorted(t, hold - 1e-12 / fs))
@@ -1034,6 +1048,11 @@ def simulate(
         its value), a sample rate too low for the closed-loop dynamics (``fs``), or, for a
         sampled controller, an ``fs`` that is not a whole multiple of 1/T_s or a ``hold`` that
         is not a whole number of recorder intervals.
+    phoid.errors.PhoidError
+        (a ValueError) Before anything is allocated, when the simulation would exceed its size
+        limits: B × (``hold`` + ``duration``) × ``fs`` above :data:`MAX_SAMPLES` (5e7 samples,
+        about 3 GB), or B × (``hold`` + ``duration``)/h above :data:`MAX_STEPS` (2e8 internal
+        steps of h ≤ min(1/``fs``, Δt)).
 
     Examples
     --------
@@ -1066,7 +1085,14 @@ def simulate(
     if np.any(arr["bias"] < 0):
         raise ValueError(f"`bias` must be ≥ 0 N; got {float(np.min(arr['bias']))!r}")
     biased = arr["bias"].copy() if np.any(arr["bias"] > 0) else None
-    N = round((hold + duration) * fs)
+    n_samples = (hold + duration) * fs
+    if B * n_samples > MAX_SAMPLES:
+        raise PhoidError(
+            f"{B} runs × (`hold` + `duration`) × `fs` = {B:d} × ({hold:g} + {duration:g}) s × "
+            f"{fs:g} Hz = {B * n_samples:.3g} samples, above the simulator's limit of "
+            f"{MAX_SAMPLES:.0e} (about {64 * MAX_SAMPLES / 1e9:.0f} GB): shorten the duration, "
+            "lower the sample rate or simulate fewer runs at a time")
+    N = round(n_samples)
     if N < 1:
         raise ValueError(f"`duration` × `fs` must give at least one sample; got {duration:g} s")
 
@@ -1138,7 +1164,7 @@ def _continuous_grid(m, c, k, P, D, delay, hold, fs, N) -> _Grid:
     rho = float(np.max(np.abs(roots))) if roots.size else 0.0
     plant_roots = _closed_loop_roots(m, c, k, np.zeros(1), np.zeros(1), 0.0)  # eig(A0)
     rho = max(rho, float(np.max(np.abs(plant_roots))))
-    return _make_grid(delay, fs, hold, N, rho)
+    return _make_grid(delay, fs, hold, N, rho, np.size(P))
 
 
 def _run_continuous(m, c, k, fc, P, D, delay, x0a, v0a, hold, fs, N, force, bias=None):
