@@ -135,3 +135,50 @@ def test_unexpected_failure_is_one_line_exit_1(monkeypatch, capsys):
     assert exit_info.value.code == 1
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "internal error" in err[0] and "root certification" in err[0]
+
+
+# --------------------------------------------------------------------------------------------
+# usage errors through the console entry point (phoid.cli.main, as the installed `phoid` runs
+# it): one line on stderr and exit status 2, like every other error, instead of typer's framed
+# multi-line box
+
+
+@pytest.mark.parametrize(
+    ("args", "needle"),
+    [
+        (["identify"], "Missing argument"),
+        (["identify", "--bogus", "x"], "--bogus"),
+        (["design", "--runs", "1e9", "--m", "1", "--c", "1", "--k", "1", "--delay", "0.01"],
+         "--runs"),
+        (["simulate", "out", "--fs", "fast"], "--fs"),
+        (["nosuchcommand"], "nosuchcommand"),
+    ],
+)
+def test_usage_errors_are_one_line(tmp_path, args, needle):
+    import subprocess
+    import sys
+
+    proc = subprocess.run([sys.executable, "-m", "phoid.cli", *args], cwd=tmp_path,
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2, proc.stderr
+    lines = proc.stderr.splitlines()
+    assert len(lines) == 1 and lines[0].startswith("phoid: error: "), proc.stderr
+    assert needle in lines[0] and "--help" in lines[0]
+    assert proc.stdout == ""
+    assert list(tmp_path.iterdir()) == []  # nothing written
+
+
+def test_entry_point_exit_statuses(tmp_path):
+    # no arguments: the help on standard output (status 2, as before); --help and --version: 0
+    import subprocess
+    import sys
+
+    def run(*args):
+        return subprocess.run([sys.executable, "-m", "phoid.cli", *args], cwd=tmp_path,
+                              capture_output=True, text=True, timeout=120)
+
+    bare = run()
+    assert bare.returncode == 2 and "identify" in bare.stdout
+    assert run("--help").returncode == 0
+    ver = run("--version")
+    assert ver.returncode == 0 and ver.stdout.startswith("phoid ")

@@ -625,17 +625,32 @@ def main() -> None:
     """
     import os
 
+    if not sys.argv[1:]:
+        app()  # no arguments: the help, as the root's no_args_is_help prints it
     try:
-        app()
+        status = app(standalone_mode=False)
     except KeyboardInterrupt:
         sys.exit(130)
     except Exception as exc:  # the last line of defence of a command-line tool
+        if callable(getattr(exc, "format_message", None)) and hasattr(exc, "exit_code"):
+            # a usage error (unknown option, value that does not parse, missing argument),
+            # raised by typer's click: one line, like every other error, with the help pointer
+            ctx = getattr(exc, "ctx", None)
+            where = f" (see '{ctx.command_path} --help')" if ctx is not None else ""
+            msg = " ".join(str(exc.format_message()).split())
+            print(f"phoid: error: {msg}{where}", file=sys.stderr)
+            sys.exit(exc.exit_code)
+        if type(exc).__name__ == "Abort":  # end of input at a prompt
+            sys.exit(1)
         if os.environ.get("PHOID_DEBUG"):
             raise
         msg = " ".join(str(exc).split()) or type(exc).__name__
         print(f"phoid: internal error ({type(exc).__name__}): {msg} -- please report it",
               file=sys.stderr)
         sys.exit(1)
+    # standalone_mode=False: a command's typer.Exit(code) comes back as its code, a finished
+    # command as its return value (None)
+    sys.exit(status if isinstance(status, int) else 0)
 
 
 if __name__ == "__main__":
