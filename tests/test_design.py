@@ -8,9 +8,9 @@ and Monte Carlo runs of the identification itself.
 
 Statistical tolerances: "within 3 reported stderr of the truth" (|z| < 3) fails with probability
 0.27 % per quantity for a calibrated Gaussian stderr (under 1 % for m, c, k together). The noise
-is seeded or recorded, so each such check gives the same verdict on every machine: the estimates
-move across BLAS kernels and thread counts by ~1e-9 of a stderr, and no |z| here is that close
-to 3.
+is seeded or recorded, so each such check gives the same verdict on every machine: the measured
+|z| move across BLAS kernels and thread counts by < 1e-7 relative (3e-8 measured), and no |z|
+here is that close to 3.
 """
 
 import gzip
