@@ -134,9 +134,29 @@ def _single_start(t, x, **kw):
         return str(exc)
 
 
+def _assert_same_starts(got, want):
+    # Both paths run the same LAPACK routine on the same matrices, and on x86-64 with OpenBLAS
+    # they agree bit for bit. Another BLAS, kernel or SIMD width may round the stacked
+    # (gufunc) and the single calls differently in the last bits, which the ESPRIT
+    # eigenvalues amplify by their condition number (≲ 1e4 for these records): rel 1e-9 is
+    # that with a 1e3 margin, while a mixed-up record, order or window moves a start by far
+    # more than 1e-6. Discrete outcomes (errors, the oscillation verdict, the release sample)
+    # must agree exactly.
+    assert len(got) == len(want)
+    for g, w in zip(got, want, strict=True):
+        if isinstance(w, str) or isinstance(g, str):
+            assert g == w
+            continue
+        assert (g.oscillating, g.release, g.t_start, g.t_end) == (
+            w.oscillating, w.release, w.t_start, w.t_end)
+        for f in ("sigma", "omega_d", "offset", "noise_sd"):
+            assert getattr(g, f) == pytest.approx(getattr(w, f), rel=1e-9, abs=1e-300), f
+
+
 def test_start_decays_equal_one_by_one_starts(sample_set_path):
     # the first look (stacked ESPRIT eigenproblems, solves and eigenvalues: the same LAPACK
-    # routine per matrix) gives bit-for-bit the one-record starts: exact equality expected.
+    # routine per matrix) gives the one-record starts (bit for bit on x86-64 OpenBLAS; to
+    # rounding elsewhere, see _assert_same_starts).
     # Records: the sample set's 19 runs (held segment, release) and others of every kind the
     # first look meets: no held segment, non-uniform sampling, a non-oscillating decay, a short
     # record (a smaller ESPRIT order L), a constant record and one with NaN (error messages)
@@ -157,16 +177,19 @@ def test_start_decays_equal_one_by_one_starts(sample_set_path):
     for kw in ({"skip": 0.3, "refine": "auto", "coarse_release": True}, {"skip": 0.0}):
         got = start_decays(recs, **kw)
         want = [_single_start(t, x, **kw) for t, x in recs]
-        assert got == want
+        _assert_same_starts(got, want)
         assert isinstance(got[-1], str) and isinstance(got[-2], str)
         assert not any(isinstance(g, str) for g in got[:-2])
 
 
 def test_fast_columns_many_equal_one_by_one():
     # the stacked fast-mode columns are those of phoid.decay._fast_columns, element for element
-    # (the same exponentials and table products): exact equality expected, zero beyond each
-    # record's nf. Records of different lengths, with complex roots tabulated (nf > 256) and
-    # direct (nf ≤ 256), and real roots, in different orders
+    # (the same exponentials and table products), zero beyond each record's nf. Bit for bit on
+    # x86-64; numpy may evaluate exp of a strided (stacked) and a contiguous array by different
+    # SIMD or libm paths on other machines (a few ulps each), and a column entry is a product of
+    # at most two tabulated exponentials: rel 32 eps covers that with margin, while a wrong root,
+    # record or offset changes entries at O(1). Records of different lengths, with complex
+    # roots tabulated (nf > 256) and direct (nf ≤ 256), and real roots, in different orders
     dt = 1e-3
     taus = [np.arange(n) * dt for n in (3000, 5000, 4000, 2000)]
     roots = [np.array([-40 + 300j, -9.0, -120.0]),
@@ -178,8 +201,10 @@ def test_fast_columns_many_equal_one_by_one():
     for i, (tau, r) in enumerate(zip(taus, roots, strict=True)):
         want = decay._fast_columns(tau, r, dt)
         assert nf[i] == want.shape[1]
-        np.testing.assert_array_equal(FT[i, :4, : nf[i]], want)
-        np.testing.assert_array_equal(FT[i, 4:, : nf[i]], want * tau[: nf[i]])
+        eps = np.finfo(float).eps
+        np.testing.assert_allclose(FT[i, :4, : nf[i]], want, rtol=32 * eps, atol=0)
+        np.testing.assert_allclose(FT[i, 4:, : nf[i]], want * tau[: nf[i]], rtol=32 * eps,
+                                   atol=0)
         assert not FT[i, :, nf[i]:].any()
 
 
