@@ -3,7 +3,7 @@ VENV   ?= .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: demo test lint bench clean
+.PHONY: demo test lint bench clean fuzz
 
 $(STAMP): pyproject.toml
 	python3 -m venv $(VENV)
@@ -26,6 +26,12 @@ lint: $(STAMP)
 ## benchmarks (not part of the tests): writes BENCHMARKS.md and bench/results.json
 bench: $(STAMP)
 	$(PY) bench/run.py
+
+## fuzz the readers for FUZZ_SECONDS (default 600; docs/fuzzing.md); findings: fuzz/crash-*
+FUZZ_SECONDS ?= 600
+fuzz: $(STAMP)
+	mkdir -p $${TMPDIR:-/tmp}/phoid-fuzz-corpus
+	$(PY) fuzz/fuzz_readers.py $${TMPDIR:-/tmp}/phoid-fuzz-corpus fuzz/seeds -dict=fuzz/readers.dict -max_len=8192 -timeout=30 -rss_limit_mb=2048 -artifact_prefix=fuzz/ -max_total_time=$(FUZZ_SECONDS)
 
 clean:
 	rm -rf $(VENV) phoid-out build *.egg-info

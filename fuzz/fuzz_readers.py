@@ -203,7 +203,12 @@ def main() -> None:
     parser.add_argument("--mutate", action="store_true", help="use the built-in mutator")
     parser.add_argument("--seconds", type=float, default=60.0)
     parser.add_argument("--seed", type=int, default=0)
-    args = parser.parse_args()
+    args, rest = parser.parse_known_args()
+    for arg in rest:  # libFuzzer's options (from `make fuzz`) where atheris is missing
+        if arg.startswith("-max_total_time="):
+            args.seconds = float(arg.split("=", 1)[1])
+    why = "--mutate" if atheris is not None else "atheris is not installed"
+    print(f"built-in mutator ({why}), {args.seconds:g} s", file=sys.stderr)
     try:
         n = run_mutator(args.seconds, args.seed)
     finally:

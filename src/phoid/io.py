@@ -57,6 +57,23 @@ Rules this reader applies where the spec is silent
   file (the header is line 1). There are no comment lines.
 - The ``t``, ``x``, ``u`` and ``F`` cells must be finite numbers; a run needs at least two data
   rows.
+- Only regular files are read (after symbolic links are resolved): a named pipe, a device
+  (``/dev/zero``) or a socket given as the manifest or as a data file is refused before it is
+  opened for reading.
+- Two runs may not list the same recording: the same path, a hard link to the same file, or a
+  byte-identical copy (same content after decompression) is refused, naming both runs. Two
+  recordings of a real experiment are never identical byte for byte, and a copy would be counted
+  twice (its weight doubled, the standard errors too small), so a refusal is the safe answer;
+  a noise-free simulation that repeats a run's gains gives identical files too: drop the repeat.
+- Limits (docs/limits.md), enforced while reading, each refused with a one-line message naming
+  the file and the limit: a manifest of at most :data:`MAX_MANIFEST_BYTES` (2 MiB), nested at
+  most :data:`MAX_NESTING` (32) levels, with at most :data:`MAX_RUNS` (20 000) runs; a data file
+  of at most :data:`MAX_DATA_BYTES` (4 GiB after decompression), :data:`MAX_LINES` (5e7) lines
+  counting the header and the blank lines, lines of at most :data:`MAX_LINE_BYTES` (1 MiB);
+  at most :data:`MAX_SET_ROWS` (2e8) data rows in all the runs of a set. Files are read and
+  decompressed in blocks: memory is a few MB plus the columns kept (8 bytes per number).
+- Messages quote input (file names, keys, cells) with control characters escaped as ``repr``
+  does (a NUL byte shows as ``\x00``) and long values cut to a few dozen characters.
 
 Every problem raises :class:`phoid.errors.ExperimentError` (a ``ValueError``) with a one-line
 message naming the manifest, the run and the key, column or line, e.g.
@@ -121,7 +138,7 @@ _UNITS = {"P": "N/m", "D": "N·s/m", "B": "N", "omega": "rad/s", "added_mass": "
 _GZIP_MAGIC = b"\x1f\x8b"
 _MAX_MESSAGE = 2000  # characters of one error message
 
-# Limits of the reader (docs/format.md, "Limits"): every read stops at the limit (at most one
+# Limits of the reader (docs/limits.md): every read stops at the limit (at most one
 # block of _BLOCK bytes past it), so that no input can make phoid read, decompress or hold
 # without bound. Generous for real recordings: a 10 kHz, 1-hour run is 3.6e7 rows.
 MAX_MANIFEST_BYTES = 2 * 2**20
@@ -381,7 +398,7 @@ class Run:
         if not (d > 0).all():
             i = int(np.flatnonzero(~(d > 0))[0])
             _fail(where, f"column 't' is not strictly increasing at index {i + 1}: "
-                         f"{t[i + 1]!r} s follows {t[i]!r} s")
+                         f"{float(t[i + 1])!r} s follows {float(t[i])!r} s")
         set_ = object.__setattr__
         set_(self, "t", t)
         set_(self, "x", _frozen_array(where, "x", self.x, t.size))
@@ -871,12 +888,16 @@ def _data_path(where: str, folder: Path, root: Path, file: str) -> tuple[Path, o
 def _blocks(where: str, real: Path, file: str) -> Iterator[bytes]:
     """The data file's bytes, decompressed, in blocks of at most _BLOCK bytes.
 
-    Stops with an error at MAX_DATA_BYTES (decompressed): never reads or decompresses more
-    than one block past the limit.
+    Stops with an error at MAX_DATA_BYTES (decompressed, or stored): never reads or
+    decompresses more than one block past the limit.
     """
-    f, _ = _open_regular(where, real, "data file")
+    f, st = _open_regular(where, real, "data file")
+    too_big = (f"the data file is larger than {MAX_DATA_BYTES // 2**30} GiB (after "
+               "decompression), phoid's limit for one run (MAX_DATA_BYTES)")
     total = 0
     with f:
+        if st.st_size > MAX_DATA_BYTES:
+            _fail(where, too_big)
         try:
             head = f.peek(2)[:2]
         except OSError as exc:
@@ -884,27 +905,68 @@ def _blocks(where: str, real: Path, file: str) -> Iterator[bytes]:
         if not head:
             _fail(where, "the data file is empty")
         if head == _GZIP_MAGIC:
-            stream: BinaryIO = _gzip.GzipFile(fileobj=f, mode="rb")
+            stream = _gunzip(where, f)
         elif file.lower().endswith(".gz"):
             _fail(where, "the data file is not a gzip file (it lacks the gzip signature), "
                          "although its name ends in .gz")
         else:
-            stream = f
-        while True:
-            try:
-                block = stream.read(_BLOCK)
-            except (EOFError, zlib.error, _gzip.BadGzipFile) as exc:
-                _fail(where, f"the data file is not a valid gzip file: {exc}")
-            except OSError as exc:
-                _fail(where, f"cannot read the data file: {exc.strerror or exc}")
-            if not block:
-                return
+            stream = _plain(where, f)
+        for block in stream:
             total += len(block)
             if total > MAX_DATA_BYTES:
-                _fail(where, f"the data file is larger than {MAX_DATA_BYTES // 2**30} GiB "
-                             "(after decompression), phoid's limit for one run "
-                             "(MAX_DATA_BYTES)")
+                _fail(where, too_big)
             yield block
+
+
+def _plain(where: str, f: BinaryIO) -> Iterator[bytes]:
+    while True:
+        try:
+            block = f.read(_BLOCK)
+        except OSError as exc:
+            _fail(where, f"cannot read the data file: {exc.strerror or exc}")
+        if not block:
+            return
+        yield block
+
+
+def _gunzip(where: str, f: BinaryIO) -> Iterator[bytes]:
+    """Decompress a gzip file (one member or several, one after the other) in blocks.
+
+    zlib parses the gzip header and checks the trailer (CRC-32 and length) in C; output is
+    bounded by _BLOCK per step (max_length), so a bomb is never expanded ahead of the reader.
+    """
+    bad = "the data file is not a valid gzip file"
+    d = zlib.decompressobj(31)
+    data = b""
+    fed = False
+    while True:
+        if not data:
+            try:
+                data = f.read(_BLOCK)
+            except OSError as exc:
+                _fail(where, f"cannot read the data file: {exc.strerror or exc}")
+            if not data:
+                if fed and not d.eof:
+                    try:
+                        tail = d.flush(_BLOCK)
+                    except zlib.error as exc:
+                        _fail(where, f"{bad}: {exc}")
+                    if tail:
+                        yield tail
+                    if not d.eof:
+                        _fail(where, f"{bad}: it ends before the end of its compressed data "
+                                     "(a truncated file?)")
+                return
+        if d.eof:  # the next member
+            d = zlib.decompressobj(31)
+        try:
+            out = d.decompress(data, _BLOCK)
+        except zlib.error as exc:
+            _fail(where, f"{bad}: {exc}")
+        fed = True
+        data = d.unused_data if d.eof else d.unconsumed_tail
+        if out:
+            yield out
 
 
 def _line_chunks(where: str, blocks: Iterable[bytes]) -> Iterator[tuple[int, bytes]]:
@@ -1064,7 +1126,7 @@ def _parse_csv(where: str, chunks: Iterator[tuple[int, bytes]], *, need_F: bool 
     if not up.all():
         r = int(np.argmin(up)) + 1
         _fail(where, f"column 't' is not strictly increasing at line {line_of(r)}: "
-                     f"{t[r]!r} s follows {t[r - 1]!r} s (line {line_of(r - 1)})")
+                     f"{float(t[r])!r} s follows {float(t[r - 1])!r} s (line {line_of(r - 1)})")
     return cols
 
 
