@@ -682,8 +682,7 @@ def read_experiment(path: str | os.PathLike[str]) -> ExperimentSet:
         if other is not None:
             _fail(rwhere, f"file {_show(spec['file'], 100)} is a hard link to "
                           f"{_show(other['file'], 100)} of {other['name']}: the same recording "
-                          "listed twice would be counted twice; remove one of the [[run]] "
-                          "tables or point it at its own recording")
+                          "would be counted twice; list each recording once")
         seen[real] = spec["name"]
         inodes[(st.st_dev, st.st_ino)] = spec
         spec["where"], spec["real"] = rwhere, real
@@ -698,10 +697,9 @@ def read_experiment(path: str | os.PathLike[str]) -> ExperimentSet:
         other = digests.get(digest)
         if other is not None:
             _fail(spec["where"], f"the data file has the same content, byte for byte, as "
-                                 f"{other['name']}'s: two recordings are never identical, so "
-                                 "one of the two is a copy that would be counted twice; remove "
-                                 "the [[run]] table that lists the copy or point it at its "
-                                 "own recording")
+                                 f"{other['name']}'s: a copy (or a noise-free repeat of a "
+                                 "simulated run) would be counted twice; list each recording "
+                                 "once")
         digests[digest] = spec
         try:
             runs.append(Run(file=spec["file"], index=spec["index"], extra=spec["extra"],
