@@ -83,14 +83,15 @@ def odds(draw: st.DrawFn, n: int) -> bool:
 
 
 @st.composite
-def run_tables(draw: st.DrawFn, files: list[str], clean: bool) -> dict:
+def run_tables(draw: st.DrawFn, files: list[str], clean: bool,
+               gains: tuple[float, float] | None = None) -> dict:
     table: dict = {}
     if clean or not odds(draw, 20):
         table["file"] = rarely(draw, st.sampled_from(files or BAD_NAMES),
                                st.sampled_from(BAD_NAMES), clean=clean)
-    for key, good in (("P", st.floats(0.05, 20.0)), ("D", st.floats(0.05, 5.0))):
+    for i, (key, good) in enumerate((("P", st.floats(0.05, 20.0)), ("D", st.floats(0.05, 5.0)))):
         if clean or not odds(draw, 20):
-            table[key] = rarely(draw, good, clean=clean)
+            table[key] = gains[i] if gains else rarely(draw, good, clean=clean)
     for key in ("B", "omega", "added_mass", "bias"):
         if odds(draw, 10):
             table[key] = rarely(draw, st.floats(0.0, 2.0), tenths=5, clean=clean)
@@ -100,7 +101,8 @@ def run_tables(draw: st.DrawFn, files: list[str], clean: bool) -> dict:
 
 
 @st.composite
-def manifests(draw: st.DrawFn, files: list[str], clean: bool) -> bytes:
+def manifests(draw: st.DrawFn, files: list[str], clean: bool,
+              gains: dict[str, tuple[float, float]]) -> bytes:
     doc: dict = {}
     if draw(st.booleans()):
         doc["title"] = rarely(draw, st.text(max_size=20), clean=clean)
@@ -108,19 +110,25 @@ def manifests(draw: st.DrawFn, files: list[str], clean: bool) -> bytes:
         doc["format"] = rarely(draw, st.just("phoid/1"), st.sampled_from(["phoid/2", 1, ""]),
                                clean=clean)
     if draw(st.booleans()):
-        doc["method"] = rarely(draw, st.sampled_from(["pho", "pho", "pho", "forced", "free"]),
-                               st.sampled_from(["Pho", 3, "", "pho "]), clean=clean)
+        doc["method"] = "pho" if clean else rarely(
+            draw, st.sampled_from(["pho", "pho", "pho", "forced", "free"]),
+            st.sampled_from(["Pho", 3, "", "pho "]))
     if odds(draw, 10):
         doc["mass"] = rarely(draw, st.floats(0.1, 10.0), tenths=5, clean=clean)
-    if not odds(draw, 4):
-        doc["loop"] = {"delay": rarely(draw, st.floats(0.0, 0.05), clean=clean)}
+    if clean:
+        doc["loop"] = {"delay": 0.0}  # the clean records below have no loop delay
+    elif not odds(draw, 4):
+        doc["loop"] = {"delay": rarely(draw, st.floats(0.0, 0.05))}
         if not clean and odds(draw, 5):
             doc["loop"].update(draw(st.dictionaries(keys, values, max_size=2)))
     if not clean and odds(draw, 5):
         doc.update(draw(st.dictionaries(keys.filter(lambda k: k not in ("run", "loop")),
                                         values, max_size=2)))
-    runs = draw(st.lists(run_tables(files, clean), min_size=0 if odds(draw, 10) else 1,
-                         max_size=4))
+    if clean and files:  # one run per data file, in a random order
+        runs = [draw(run_tables([f], clean, gains.get(f))) for f in draw(st.permutations(files))]
+    else:
+        runs = draw(st.lists(run_tables(files, clean), min_size=0 if odds(draw, 10) else 1,
+                             max_size=4))
     if runs or draw(st.booleans()):
         doc["run"] = runs
     try:
@@ -166,19 +174,27 @@ headers = st.lists(st.one_of(st.sampled_from(["t", "x", "u", "F", "T", " x ", '"
 
 
 @st.composite
-def csv_files(draw: st.DrawFn, clean: bool) -> tuple[bytes, bool]:
-    """A data file's bytes and whether to gzip them."""
+def csv_files(draw: st.DrawFn, clean: bool,
+              plant: tuple[float, float, float, float, float] = (1.0, 0.5, 50.0, 1.0, 0.5)
+              ) -> tuple[bytes, bool]:
+    """A data file's bytes and whether to gzip them. A clean file is the free decay of the
+    closed loop m x'' + (c + D) x' + (k + P) x = 0 from x = 1 cm at rest, ``plant`` =
+    (m, c, k, P, D), which identification can fit."""
     good = clean or not odds(draw, 3)  # mostly a well-formed t,x(,u) record to damage
     if good:
         names = draw(st.sampled_from([["t", "x"], ["t", "x", "u"], ["x", "t", "u", "F"],
                                       ["t", "x", "note"]]))
-        n = draw(st.integers(0, 300))
-        dt = draw(st.sampled_from([1e-3, 1e-2, 1.0, 1e-9, 1e3]))
-        amp = draw(st.sampled_from([1e-2, 0.0, 1e3, -5e-3]))
+        n = draw(st.integers(600, 2000) if clean else st.integers(0, 300))
+        dt = 1e-3 if clean else draw(st.sampled_from([1e-3, 1e-2, 1.0, 1e-9, 1e3]))
+        amp = 1e-2 if clean else draw(st.sampled_from([1e-2, 0.0, 1e3, -5e-3]))
+        m, c, k, P, D = plant
+        sigma = (c + D) / (2 * m)
+        omega = math.sqrt(max((k + P) / m - sigma**2, 1.0))
         rows = []
         for i in range(n):
             t = i * dt
-            x = amp * math.exp(-2.0 * t * (dt < 1)) * math.cos(30.0 * t)
+            x = amp * math.exp(-sigma * t) * (math.cos(omega * t)
+                                               + sigma / omega * math.sin(omega * t))
             row = {"t": repr(t), "x": repr(x), "u": repr(-0.5 * x), "F": repr(0.1 * x),
                    "note": "ok"}
             rows.append([row[k] for k in names])
@@ -210,15 +226,19 @@ def experiment_sets(draw: st.DrawFn) -> dict[str, bytes]:
     """File name (relative to the set's folder) → content; the manifest included. One set
     in four is clean (valid as far as the generator knows), so that identification runs too."""
     clean = odds(draw, 4)
-    names = draw(st.lists(st.sampled_from(NAMES), min_size=0 if odds(draw, 10) else 1,
+    m, c, k = (draw(st.floats(lo, hi)) for lo, hi in ((0.5, 5.0), (0.1, 2.0), (10.0, 200.0)))
+    names = draw(st.lists(st.sampled_from(NAMES),
+                          min_size=3 if clean else 0 if odds(draw, 10) else 1,
                           max_size=4, unique=True))
     files: dict[str, bytes] = {}
+    gains: dict[str, tuple[float, float]] = {}
     for name in names:
-        data, zipped = draw(csv_files(clean))
+        gains[name] = (draw(st.floats(0.5, 20.0)), draw(st.floats(0.1, 3.0)))
+        data, zipped = draw(csv_files(clean, (m, c, k, *gains[name])))
         files[name] = gzip.compress(data, mtime=0) if zipped else data
     if files and not clean and odds(draw, 6):  # a byte-identical copy under another name
         files["copy.csv"] = files[names[0]]
-    files["experiment.toml"] = draw(manifests(list(files), clean))
+    files["experiment.toml"] = draw(manifests(list(files), clean, gains))
     return files
 
 
