@@ -4,7 +4,7 @@ PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 LINTED := src tests bench examples .ci
 
-.PHONY: demo test lint readme wheel min-versions bench clean
+.PHONY: demo test lint readme wheel min-versions bench fuzz clean
 
 $(STAMP): pyproject.toml
 	python3 -m venv $(VENV)
@@ -39,6 +39,13 @@ min-versions:
 ## benchmarks (not part of the tests): writes BENCHMARKS.md and bench/results.json
 bench: $(STAMP)
 	$(PY) bench/run.py
+
+## fuzz the readers for FUZZ_SECONDS (default 600; docs/fuzzing.md); findings: fuzz/crash-*
+FUZZ_SECONDS ?= 600
+fuzz: $(STAMP)
+	$(PY) -m pip install -q -e '.[fuzz]'
+	mkdir -p $${TMPDIR:-/tmp}/phoid-fuzz-corpus
+	$(PY) fuzz/fuzz_readers.py $${TMPDIR:-/tmp}/phoid-fuzz-corpus fuzz/seeds -dict=fuzz/readers.dict -max_len=8192 -timeout=30 -rss_limit_mb=2048 -artifact_prefix=fuzz/ -max_total_time=$(FUZZ_SECONDS)
 
 clean:
 	rm -rf $(VENV) phoid-out build dist *.egg-info

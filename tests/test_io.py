@@ -60,10 +60,10 @@ D = 1.0
 N_ROWS = 100  # data rows per generated file: lines 2..101
 
 
-def rows(n: int = N_ROWS, dt: float = 1e-3) -> list[list[str]]:
+def rows(n: int = N_ROWS, dt: float = 1e-3, amplitude: float = 0.01) -> list[list[str]]:
     """Rows of t,x,u as text (repr: exact)."""
     t = np.arange(n) * dt
-    x = 0.01 * np.exp(-2 * t) * np.cos(30 * t)
+    x = amplitude * np.exp(-2 * t) * np.cos(30 * t)
     u = -0.5 * x
     return [[repr(float(a)), repr(float(b)), repr(float(c))] for a, b, c in zip(t, x, u,
                                                                               strict=True)]
@@ -90,11 +90,14 @@ def make_set(tmp_path: Path, manifest: str = MANIFEST, **files: str | bytes | No
     """A set folder with the given manifest; run01..03.csv.gz default to good data.
 
     Keyword names are file names with '.' written as '_' (run03_csv_gz=...); None: no file.
+    The default runs differ (release amplitude i cm for run i): the reader refuses two runs
+    with byte-identical data.
     """
     folder = tmp_path / "tiny"
     folder.mkdir(exist_ok=True)
     put(folder / "experiment.toml", manifest)
-    contents: dict[str, str | bytes | None] = {f"run0{i}.csv.gz": csv_text() for i in (1, 2, 3)}
+    contents: dict[str, str | bytes | None] = {
+        f"run0{i}.csv.gz": csv_text(body=rows(amplitude=0.01 * i)) for i in (1, 2, 3)}
     for key, value in files.items():
         contents[key.replace("_csv", ".csv").replace("_gz", ".gz")] = value
     for name, content in contents.items():
@@ -748,14 +751,14 @@ def test_experiment_set_checks(tmp_path: Path) -> None:
 def test_read_errors_from_the_os(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """OS-level read failures (as root, chmod cannot provoke them) name the file at fault."""
     folder = make_set(tmp_path)
-    real_read = Path.read_bytes
+    real_open = os.open
 
-    def failing(self: Path) -> bytes:
-        if self.name == target:
+    def failing(path: str | os.PathLike[str], flags: int, *args: int) -> int:
+        if Path(path).name == target:
             raise PermissionError(13, "Permission denied")
-        return real_read(self)
+        return real_open(path, flags, *args)
 
-    monkeypatch.setattr(Path, "read_bytes", failing)
+    monkeypatch.setattr(os, "open", failing)
     target = "experiment.toml"
     expect(error_of(folder), "tiny/experiment.toml: cannot read the manifest",
            "Permission denied")

@@ -41,20 +41,24 @@ by :func:`read_experiment` reproduces every array bit for bit.
 
 from __future__ import annotations
 
+import bisect
 import codecs
 import dataclasses
 import gzip as _gzip
+import hashlib
 import io as _io
+import itertools
 import math
 import numbers
 import os
 import re
+import stat
 import tomllib
 import zlib
 from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path, PurePosixPath, PureWindowsPath
-from typing import Any, NoReturn
+from typing import Any, BinaryIO, NoReturn
 
 import numpy as np
 import tomli_w
@@ -87,8 +91,31 @@ _COLUMNS = ("t", "x", "u", "F")
 _UNITS = {"P": "N/m", "D": "N·s/m", "B": "N", "omega": "rad/s", "added_mass": "kg",
           "bias": "N", "delay": "s", "mass": "kg"}
 _GZIP_MAGIC = b"\x1f\x8b"
+_MAX_MESSAGE = 2000  # characters of one error message
+
+# Limits of the reader (docs/limits.md): every read stops at the limit (at most one
+# block of _BLOCK bytes past it), so that no input can make phoid read, decompress or hold
+# without bound. Generous for real recordings: a 10 kHz, 1-hour run is 3.6e7 rows.
+MAX_MANIFEST_BYTES = 2 * 2**20
+"""Largest manifest (``experiment.toml``) read, bytes (2 MiB: about 40 000 ``[[run]]`` tables;
+Python's TOML parser needs up to about 10 s for 2 MiB of dense arrays)."""
+MAX_NESTING = 32
+"""Deepest nesting of tables and arrays in a manifest."""
+MAX_RUNS = 20_000
+"""Most ``[[run]]`` tables in one set."""
+MAX_LINES = 50_000_000
+"""Most lines in one data file: the header, the data rows and the blank lines (5e7)."""
+MAX_LINE_BYTES = 2**20
+"""Longest line of a data file, bytes (1 MiB)."""
+MAX_DATA_BYTES = 4 * 2**30
+"""Largest data file, bytes after decompression (4 GiB)."""
+MAX_SET_ROWS = 200_000_000
+"""Most data rows in all the runs of one set together (2e8: 4.8 GB as t, x, u doubles)."""
+_BLOCK = 2**20  # bytes read (or decompressed) at a time: memory while reading is this + the data
 _NUMBER_RE = re.compile(
-    r"[+-]?(?:(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?|inf(?:inity)?|nan)", re.IGNORECASE
+    # one way to match each number (\d+(?:\.\d*)?, not \d+\.?\d*): a long run of digits that
+    # fails to match costs linear, not quadratic, time (a 1 MiB cell took minutes)
+    r"[+-]?(?:(?:\d+(?:\.\d*)?|\.\d+)(?:[eE][+-]?\d+)?|inf(?:inity)?|nan)", re.IGNORECASE
 )
 
 
@@ -96,9 +123,21 @@ _NUMBER_RE = re.compile(
 # small helpers
 # --------------------------------------------------------------------------------------------
 def _fail(where: str, message: str) -> NoReturn:
-    """Raise ExperimentError("where: message") on one line."""
+    """Raise ExperimentError("where: message") on one printable line."""
     text = f"{where}: {message}" if where else message
-    raise ExperimentError(" ".join(text.splitlines())) from None
+    raise ExperimentError(_printable(text, _MAX_MESSAGE)) from None
+
+
+def _printable(text: str, limit: int = 120) -> str:
+    """``text`` with every non-printable character escaped as ``repr`` does, length-capped.
+
+    Messages quote file names, keys and cells from the input: a NUL byte, a terminal escape
+    sequence or a line break in them must not reach the user's terminal raw, and a 10 MB cell
+    must not make a 10 MB message.
+    """
+    if not text.isprintable():
+        text = "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
+    return text if len(text) <= limit else text[: limit - 1] + "…"
 
 
 def _show(value: Any, limit: int = 60) -> str:
@@ -106,13 +145,14 @@ def _show(value: Any, limit: int = 60) -> str:
     if isinstance(value, bool):
         text = "true" if value else "false"
     elif isinstance(value, str | bytes):
-        text = repr(value)
+        text = repr(value[: 4 * limit])
     elif isinstance(value, numbers.Real):
         text = repr(float(value)) if isinstance(value, float) else repr(value)
+    elif isinstance(value, Mapping | list | tuple):
+        text = f"{_kind(value)} of {len(value)} item(s)"
     else:
         text = repr(value)
-    text = " ".join(text.splitlines())
-    return text if len(text) <= limit else text[: limit - 1] + "…"
+    return _printable(text, limit)
 
 
 def _kind(value: Any) -> str:
@@ -313,7 +353,7 @@ class Run:
         if not (d > 0).all():
             i = int(np.flatnonzero(~(d > 0))[0])
             _fail(where, f"column 't' is not strictly increasing at index {i + 1}: "
-                         f"{t[i + 1]!r} s follows {t[i]!r} s")
+                         f"{float(t[i + 1])!r} s follows {float(t[i])!r} s")
         set_ = object.__setattr__
         set_(self, "t", t)
         set_(self, "x", _frozen_array(where, "x", self.x, t.size))
@@ -334,7 +374,7 @@ class Run:
     def name(self) -> str:
         """How messages name the run, e.g. ``"run 3 (run03.csv.gz)"``."""
         text = "run" + (f" {self.index}" if self.index else "")
-        return text + (f" ({self.file})" if self.file else "")
+        return text + (f" ({_printable(self.file, 80)})" if self.file else "")
 
     @property
     def n(self) -> int:
@@ -516,6 +556,12 @@ def run_from_arrays(
 def read_experiment(path: str | os.PathLike[str]) -> ExperimentSet:
     """Read an experiment set in the ``phoid/1`` format.
 
+    Every file is read in blocks and checked against the reader's limits while it is read
+    (:data:`MAX_MANIFEST_BYTES`, :data:`MAX_NESTING`, :data:`MAX_RUNS`, :data:`MAX_LINES`,
+    :data:`MAX_LINE_BYTES`, :data:`MAX_DATA_BYTES`, :data:`MAX_SET_ROWS`): memory stays
+    proportional to the rows accepted, whatever the input. Only regular files are opened
+    (a named pipe or a device is refused before it is read).
+
     Parameters
     ----------
     path : str or os.PathLike
@@ -547,19 +593,7 @@ def read_experiment(path: str | os.PathLike[str]) -> ExperimentSet:
         _fail(where, "no such file or folder")
     if manifest.is_dir():
         _fail(where, "the manifest is a folder, not a file")
-    try:
-        raw = manifest.read_bytes()
-    except OSError as exc:
-        _fail(where, f"cannot read the manifest: {exc.strerror or exc}")
-    try:
-        text = raw.decode("utf-8-sig")
-    except UnicodeDecodeError as exc:
-        line = raw[: exc.start].count(b"\n") + 1
-        _fail(where, f"the manifest is not UTF-8 text (bad byte at line {line})")
-    try:
-        doc = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        _fail(where, f"TOML syntax error: {exc}")
+    doc = _read_manifest(where, manifest)
 
     _case_clash(where, doc, _TOP_KEYS, "the manifest")
     fmt = doc.get("format", FORMAT)
@@ -593,17 +627,35 @@ def read_experiment(path: str | os.PathLike[str]) -> ExperimentSet:
     folder = manifest.parent
     root = _resolve(where, folder)
     seen: dict[Path, str] = {}
+    inodes: dict[tuple[int, int], dict[str, Any]] = {}
     for spec in specs:
         rwhere = f"{where}: {spec['name']}"
-        real = _data_path(rwhere, folder, root, spec["file"])
+        real, st = _data_path(rwhere, folder, root, spec["file"])
         if real in seen:
-            _fail(rwhere, f"file {spec['file']!r} is already used by {seen[real]}")
+            _fail(rwhere, f"file {_show(spec['file'], 100)} is already used by {seen[real]}")
+        other = inodes.get((st.st_dev, st.st_ino))
+        if other is not None:
+            _fail(rwhere, f"file {_show(spec['file'], 100)} is a hard link to "
+                          f"{_show(other['file'], 100)} of {other['name']}: the same recording "
+                          "would be counted twice; list each recording once")
         seen[real] = spec["name"]
+        inodes[(st.st_dev, st.st_ino)] = spec
         spec["where"], spec["real"] = rwhere, real
 
     runs = []
+    digests: dict[bytes, dict[str, Any]] = {}
+    budget = MAX_SET_ROWS
     for spec in specs:
-        cols = _parse_csv(spec["where"], _load_bytes(spec), need_F=(method == "forced"))
+        cols, digest = _read_csv(spec["where"], spec["real"], spec["file"],
+                                 need_F=(method == "forced"), max_rows=budget)
+        budget -= cols["t"].size
+        other = digests.get(digest)
+        if other is not None:
+            _fail(spec["where"], f"the data file has the same content, byte for byte, as "
+                                 f"{other['name']}'s: a copy (or a noise-free repeat of a "
+                                 "simulated run) would be counted twice; list each recording "
+                                 "once")
+        digests[digest] = spec
         try:
             runs.append(Run(file=spec["file"], index=spec["index"], extra=spec["extra"],
                             P=spec["P"], D=spec["D"], B=spec["B"], omega=spec["omega"],
@@ -618,10 +670,109 @@ def read_experiment(path: str | os.PathLike[str]) -> ExperimentSet:
         raise ExperimentError(str(exc)) from None
 
 
+_FILE_KINDS = ((stat.S_ISDIR, "a folder"), (stat.S_ISFIFO, "a named pipe (FIFO)"),
+               (stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"),
+               (stat.S_ISSOCK, "a socket"))
+
+
+def _not_regular(mode: int) -> str | None:
+    """What a non-regular file is ("a named pipe (FIFO)", …); None for a regular file."""
+    if stat.S_ISREG(mode):
+        return None
+    return next((name for test, name in _FILE_KINDS if test(mode)), "not a regular file")
+
+
+def _open_regular(where: str, path: Path, what: str) -> tuple[BinaryIO, os.stat_result]:
+    """Open a regular file for reading, refusing anything else before it is read.
+
+    A named pipe would block the read forever and a device (``/dev/zero``) would never end:
+    the file's type is checked (after symbolic links are resolved) before it is opened, and
+    again on the open file (non-blocking open, so that a pipe swapped in meanwhile cannot
+    block either).
+    """
+    try:
+        kind = _not_regular(os.stat(path).st_mode)
+    except OSError as exc:
+        _fail(where, f"cannot read the {what}: {exc.strerror or exc}")
+    if kind is not None:
+        _fail(where, f"the {what} is {kind}, not a regular file; phoid reads only regular "
+                     "files")
+    flags = os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_NOCTTY", 0) \
+        | getattr(os, "O_BINARY", 0)
+    try:
+        fd = os.open(path, flags)
+    except OSError as exc:
+        _fail(where, f"cannot read the {what}: {exc.strerror or exc}")
+    try:
+        st = os.fstat(fd)
+        kind = _not_regular(st.st_mode)
+        if kind is not None:
+            _fail(where, f"the {what} is {kind}, not a regular file; phoid reads only "
+                         "regular files")
+        return os.fdopen(fd, "rb"), st
+    except BaseException:
+        os.close(fd)
+        raise
+
+
+def _read_manifest(where: str, manifest: Path) -> dict[str, Any]:
+    """Read and parse a manifest: a regular file of at most MAX_MANIFEST_BYTES, UTF-8 TOML,
+    nested at most MAX_NESTING levels deep. Also used by :func:`phoid.planning.read_schedule`.
+    """
+    f, st = _open_regular(where, manifest, "manifest")
+    with f:
+        if st.st_size > MAX_MANIFEST_BYTES:
+            raw = b""
+        else:
+            try:
+                raw = f.read(MAX_MANIFEST_BYTES + 1)
+            except OSError as exc:
+                _fail(where, f"cannot read the manifest: {exc.strerror or exc}")
+    if st.st_size > MAX_MANIFEST_BYTES or len(raw) > MAX_MANIFEST_BYTES:
+        _fail(where, f"the manifest is larger than {MAX_MANIFEST_BYTES // 2**20} MiB, phoid's "
+                     "limit for experiment.toml (MAX_MANIFEST_BYTES)")
+    try:
+        text = raw.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        line = raw[: exc.start].count(b"\n") + 1
+        _fail(where, f"the manifest is not UTF-8 text (bad byte at line {line})")
+    too_deep = (f"the manifest nests tables or arrays more than {MAX_NESTING} levels deep, "
+                "phoid's limit (MAX_NESTING)")
+    try:
+        doc = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        _fail(where, f"not valid TOML, TOML syntax error: {exc}")
+    except RecursionError:  # tomllib parses nested arrays and inline tables recursively
+        _fail(where, too_deep)
+    if _depth(doc) > MAX_NESTING:
+        _fail(where, too_deep)
+    tables = doc.get("run")
+    if isinstance(tables, list) and len(tables) > MAX_RUNS:
+        _fail(where, f"the manifest has {len(tables):,} [[run]] tables; phoid reads at most "
+                     f"{MAX_RUNS:,} runs per set (MAX_RUNS)")
+    return doc
+
+
+def _depth(doc: Any) -> int:
+    """Nesting depth of tables and arrays (iterative: no recursion limit to hit)."""
+    deepest = 0
+    stack = [(doc, 1)]
+    while stack:
+        value, level = stack.pop()
+        if level > deepest:
+            deepest = level
+            if deepest > MAX_NESTING:
+                break
+        children = value.values() if isinstance(value, dict) else value
+        stack.extend((v, level + 1) for v in children if isinstance(v, dict | list))
+    return deepest
+
+
 def _run_spec(where: str, index: int, table: dict[str, Any], method: str) -> dict[str, Any]:
     """Check one [[run]] table (before any data is read)."""
     file = table.get("file")
-    name = f"run {index}" + (f" ({file})" if isinstance(file, str) and file else "")
+    name = f"run {index}" + (f" ({_printable(file, 80)})" if isinstance(file, str) and file
+                             else "")
     rwhere = f"{where}: {name}"
     _case_clash(rwhere, table, _RUN_KEYS, "the run's table")
     if file is None:
@@ -650,52 +801,176 @@ def _run_spec(where: str, index: int, table: dict[str, Any], method: str) -> dic
 def _resolve(where: str, path: Path) -> Path:
     try:
         return path.resolve()
-    except (OSError, RuntimeError) as exc:
-        _fail(where, f"cannot resolve {str(path)!r}: {exc}")
+    except (OSError, RuntimeError, ValueError) as exc:
+        _fail(where, f"cannot resolve {_show(str(path), 200)}: {exc}")
 
 
-def _data_path(where: str, folder: Path, root: Path, file: str) -> Path:
-    """The data file's resolved path, after checking that it stays inside the set's folder."""
+def _data_path(where: str, folder: Path, root: Path, file: str) -> tuple[Path, os.stat_result]:
+    """The data file's resolved path and status, after checking that it stays inside the set's
+    folder and is a regular file."""
+    shown = _show(file, 100)
     if "\x00" in file:
         _fail(where, "key 'file' contains a NUL character")
     if "\\" in file:
-        _fail(where, f"key 'file' must use '/' as the path separator; got {file!r}")
+        _fail(where, f"key 'file' must use '/' as the path separator; got {shown}")
     posix = PurePosixPath(file)
     if posix.is_absolute() or PureWindowsPath(file).drive:
         _fail(where, f"key 'file' must be a path relative to the manifest's folder; "
-                     f"got the absolute path {file!r}")
+                     f"got the absolute path {shown}")
     if ".." in posix.parts:
-        _fail(where, f"file {file!r} escapes the set's folder ('..' is not allowed)")
+        _fail(where, f"file {shown} escapes the set's folder ('..' is not allowed)")
     if not file.lower().endswith((".csv", ".csv.gz")):
-        _fail(where, f"file {file!r} must end in .csv or .csv.gz")
+        _fail(where, f"file {shown} must end in .csv or .csv.gz")
     real = _resolve(where, folder / file)
     if not real.is_relative_to(root):
-        _fail(where, f"file {file!r} escapes the set's folder (it resolves to {str(real)!r})")
-    if not real.exists():
-        _fail(where, f"data file not found: {str(folder / file)!r}")
-    if not real.is_file():
-        _fail(where, f"data file {file!r} is not a regular file")
-    return real
-
-
-def _load_bytes(spec: dict[str, Any]) -> bytes:
-    """Read and decompress one data file."""
-    where, real, file = spec["where"], spec["real"], spec["file"]
+        _fail(where, f"file {shown} escapes the set's folder (it resolves to "
+                     f"{_show(str(real), 200)})")
     try:
-        raw = real.read_bytes()
+        st = os.stat(real)
+    except FileNotFoundError:
+        _fail(where, f"data file not found: {_show(str(folder / file), 200)}")
     except OSError as exc:
         _fail(where, f"cannot read the data file: {exc.strerror or exc}")
-    if not raw:
-        _fail(where, "the data file is empty")
-    if raw.startswith(_GZIP_MAGIC):
+    kind = _not_regular(st.st_mode)
+    if kind is not None:
+        _fail(where, f"data file {shown} is {kind}, not a regular file; phoid reads only "
+                     "regular files")
+    return real, st
+
+
+def _blocks(where: str, real: Path, file: str) -> Iterator[bytes]:
+    """The data file's bytes, decompressed, in blocks of at most _BLOCK bytes.
+
+    Stops with an error at MAX_DATA_BYTES (decompressed, or stored): never reads or
+    decompresses more than one block past the limit.
+    """
+    f, st = _open_regular(where, real, "data file")
+    too_big = (f"the data file is larger than {MAX_DATA_BYTES // 2**30} GiB (after "
+               "decompression), phoid's limit for one run (MAX_DATA_BYTES)")
+    total = 0
+    with f:
+        if st.st_size > MAX_DATA_BYTES:
+            _fail(where, too_big)
         try:
-            raw = _gzip.decompress(raw)
-        except (OSError, EOFError, zlib.error) as exc:
-            _fail(where, f"the data file is not a valid gzip file: {exc}")
-    elif file.lower().endswith(".gz"):
-        _fail(where, "the data file is not a gzip file (it lacks the gzip signature), "
-                     "although its name ends in .gz")
-    return raw
+            head = f.peek(2)[:2]
+        except OSError as exc:
+            _fail(where, f"cannot read the data file: {exc.strerror or exc}")
+        if not head:
+            _fail(where, "the data file is empty")
+        if head == _GZIP_MAGIC:
+            stream = _gunzip(where, f)
+        elif file.lower().endswith(".gz"):
+            _fail(where, "the data file is not a gzip file (it lacks the gzip signature), "
+                         "although its name ends in .gz")
+        else:
+            stream = _plain(where, f)
+        for block in stream:
+            total += len(block)
+            if total > MAX_DATA_BYTES:
+                _fail(where, too_big)
+            yield block
+
+
+def _plain(where: str, f: BinaryIO) -> Iterator[bytes]:
+    while True:
+        try:
+            block = f.read(_BLOCK)
+        except OSError as exc:
+            _fail(where, f"cannot read the data file: {exc.strerror or exc}")
+        if not block:
+            return
+        yield block
+
+
+def _gunzip(where: str, f: BinaryIO) -> Iterator[bytes]:
+    """Decompress a gzip file (one member or several, one after the other) in blocks.
+
+    zlib parses the gzip header and checks the trailer (CRC-32 and length) in C; output is
+    bounded by _BLOCK per step (max_length), so a bomb is never expanded ahead of the reader.
+    """
+    bad = "the data file is not a valid gzip file"
+    d = zlib.decompressobj(31)
+    data = b""
+    fed = False
+    while True:
+        if not data:
+            try:
+                data = f.read(_BLOCK)
+            except OSError as exc:
+                _fail(where, f"cannot read the data file: {exc.strerror or exc}")
+            if not data:
+                if fed and not d.eof:
+                    try:
+                        tail = d.flush(_BLOCK)
+                    except zlib.error as exc:
+                        _fail(where, f"{bad}: {exc}")
+                    if tail:
+                        yield tail
+                    if not d.eof:
+                        _fail(where, f"{bad}: it ends before the end of its compressed data "
+                                     "(a truncated file?)")
+                return
+        if d.eof:  # the next member
+            d = zlib.decompressobj(31)
+        try:
+            out = d.decompress(data, _BLOCK)
+        except zlib.error as exc:
+            _fail(where, f"{bad}: {exc}")
+        fed = True
+        data = d.unused_data if d.eof else d.unconsumed_tail
+        if out:
+            yield out
+
+
+def _line_chunks(where: str, blocks: Iterable[bytes]) -> Iterator[tuple[int, bytes]]:
+    """Whole lines, LF-terminated, in chunks: (number of the chunk's first line, chunk).
+
+    A byte-order mark is dropped and CRLF and CR line ends become LF. Lines are counted as
+    they come: more than MAX_LINES lines, or a line longer than MAX_LINE_BYTES, is an error
+    before the next block is read.
+    """
+    carry = b""
+    line = 1
+    first = True
+    for block in blocks:
+        buf = carry + block if carry else block
+        if first:
+            if len(buf) < len(codecs.BOM_UTF8) and codecs.BOM_UTF8.startswith(buf):
+                carry = buf
+                continue
+            first = False
+            if buf.startswith(codecs.BOM_UTF8):
+                buf = buf[len(codecs.BOM_UTF8):]
+        held = b""
+        if buf.endswith(b"\r"):  # a CR at the end may be half of a CRLF
+            buf, held = buf[:-1], b"\r"
+        if b"\r" in buf:
+            buf = buf.replace(b"\r\n", b"\n").replace(b"\r", b"\n")
+        cut = buf.rfind(b"\n") + 1
+        chunk, carry = buf[:cut], buf[cut:] + held
+        if chunk:
+            count = chunk.count(b"\n")
+            _check_lines(where, line + count - 1)
+            yield line, chunk
+            line += count
+        if len(carry) > MAX_LINE_BYTES:
+            _fail(where, f"line {line} is longer than {MAX_LINE_BYTES // 2**20} MiB, phoid's "
+                         "limit for one line (MAX_LINE_BYTES): is this a CSV file with one row "
+                         "per line?")
+    if first and carry.startswith(codecs.BOM_UTF8):
+        carry = carry[len(codecs.BOM_UTF8):]
+    if carry:
+        carry = carry.replace(b"\r\n", b"\n").replace(b"\r", b"\n")
+        if not carry.endswith(b"\n"):
+            carry += b"\n"
+        _check_lines(where, line + carry.count(b"\n") - 1)
+        yield line, carry
+
+
+def _check_lines(where: str, last: int) -> None:
+    if last > MAX_LINES:
+        _fail(where, f"the data file has more than {MAX_LINES:,} lines (blank lines "
+                     "included), phoid's limit for one run (MAX_LINES)")
 
 
 def _clean_name(name: str) -> str:
@@ -705,22 +980,50 @@ def _clean_name(name: str) -> str:
     return name
 
 
-def _parse_csv(where: str, data: bytes, *, need_F: bool = False) -> dict[str, np.ndarray]:
-    """Parse a phoid/1 CSV (bytes, decompressed) into the known columns it has."""
-    if data.startswith(codecs.BOM_UTF8):
-        data = data[len(codecs.BOM_UTF8):]
-    if b"\r" in data:
-        data = data.replace(b"\r\n", b"\n").replace(b"\r", b"\n")
-    if not data.strip():
+def _read_csv(where: str, real: Path, file: str, *, need_F: bool = False,
+              max_rows: int = MAX_SET_ROWS) -> tuple[dict[str, np.ndarray], bytes]:
+    """Read, decompress and parse one phoid/1 CSV data file, streaming.
+
+    Returns the known columns it has (read-only float64 arrays) and a BLAKE2b digest of its
+    decompressed content. At most ``max_rows`` data rows are accepted.
+    """
+    digest = hashlib.blake2b(digest_size=32)
+
+    def hashed() -> Iterator[bytes]:
+        for block in _blocks(where, real, file):
+            digest.update(block)
+            yield block
+
+    try:
+        cols = _parse_csv(where, _line_chunks(where, hashed()), need_F=need_F,
+                          max_rows=max_rows)
+    except MemoryError:
+        _fail(where, "not enough memory to hold the data file's columns")
+    return cols, digest.digest()
+
+
+def _parse_csv(where: str, chunks: Iterator[tuple[int, bytes]], *, need_F: bool = False,
+               max_rows: int = MAX_SET_ROWS) -> dict[str, np.ndarray]:
+    """Parse a phoid/1 CSV, given as chunks of whole LF-terminated lines, into the known
+    columns it has."""
+    first = next(chunks, None)
+    if first is None:
         _fail(where, "the data file is empty")
-    cut = data.find(b"\n")
-    head, body = (data, b"") if cut < 0 else (data[:cut], data[cut + 1:])
+    start, chunk = first
+    cut = chunk.find(b"\n")
+    head, body = chunk[:cut], chunk[cut + 1:]
+    if not head.strip():
+        rest = body
+        while not rest.strip():  # all blank so far: an empty file, or a blank header line
+            nxt = next(chunks, None)
+            if nxt is None:
+                _fail(where, "the data file is empty")
+            rest = nxt[1]
+        _fail(where, "line 1 is blank; the first line must be a header naming the columns")
     try:
         header = head.decode("utf-8")
     except UnicodeDecodeError:
         _fail(where, "the header (line 1) is not UTF-8 text")
-    if not header.strip():
-        _fail(where, "line 1 is blank; the first line must be a header naming the columns")
     names = [_clean_name(n) for n in header.split(",")]
     if all(_NUMBER_RE.fullmatch(n) for n in names):
         _fail(where, f"line 1 looks like data ({_show(header.strip())}); the first line must "
@@ -728,21 +1031,70 @@ def _parse_csv(where: str, data: bytes, *, need_F: bool = False) -> dict[str, np
     position: dict[str, int] = {}
     for j, n in enumerate(names):
         if n and n in position:
-            _fail(where, f"the header names column {n!r} twice "
+            _fail(where, f"the header names column {_show(n)} twice "
                          f"(columns {position[n] + 1} and {j + 1})")
         position[n] = j
     for key in ("t", "x") + (("F",) if need_F else ()):
         if key not in position:
             _fail(where, _missing_column(key, names, header, need_F))
     wanted = [k for k in _COLUMNS if k in position]
-    if not body.strip():
-        _fail(where, "the data file has a header but no data rows")
-    if not body.endswith(b"\n"):
-        body += b"\n"
-
+    usecols = [position[k] for k in wanted]
     ncols = len(names)
-    rows: np.ndarray | None = None  # physical line number of each data row, when not row + 2
+
+    parts: list[np.ndarray] = []   # per chunk: rows × wanted columns
+    where_rows: list[tuple[int, int, np.ndarray | None]] = []  # (first row, first line, lines)
+    n = 0
+    bodies = itertools.chain([(start + 1, body)], ((s, c) for s, c in chunks))
+    for line0, text in bodies:
+        if not text:
+            continue
+        table, lines = _parse_chunk(where, text, line0, ncols, position, wanted, usecols)
+        if not table.shape[0]:
+            continue
+        if n + table.shape[0] > max_rows:
+            _fail(where, f"the set's data files hold more than {MAX_SET_ROWS:,} data rows in "
+                         "all (this one included), phoid's limit for one set (MAX_SET_ROWS)")
+        where_rows.append((n, line0, lines))
+        parts.append(table)
+        n += table.shape[0]
+    if n == 0:
+        _fail(where, "the data file has a header but no data rows")
+    if n < 2:
+        _fail(where, f"only {n} data row; at least 2 are needed")
+
+    def line_of(row: int) -> int:
+        i = bisect.bisect_right([w[0] for w in where_rows], row) - 1
+        first_row, line0, lines = where_rows[i]
+        return int(lines[row - first_row]) if lines is not None else line0 + row - first_row
+
+    cols: dict[str, np.ndarray] = {}
+    for i, key in enumerate(wanted):
+        col = np.concatenate([p[:, i] for p in parts]) if len(parts) > 1 \
+            else np.ascontiguousarray(parts[0][:, i])
+        col.flags.writeable = False
+        cols[key] = col
+    parts.clear()
+    t = cols["t"]
+    up = t[1:] > t[:-1]
+    if not up.all():
+        r = int(np.argmin(up)) + 1
+        _fail(where, f"column 't' is not strictly increasing at line {line_of(r)}: "
+                     f"{float(t[r])!r} s follows {float(t[r - 1])!r} s (line {line_of(r - 1)})")
+    return cols
+
+
+def _parse_chunk(where: str, body: bytes, line0: int, ncols: int, position: dict[str, int],
+                 wanted: list[str], usecols: list[int]
+                 ) -> tuple[np.ndarray, np.ndarray | None]:
+    """Parse whole lines (LF-terminated) starting at line ``line0`` into rows × wanted.
+
+    Returns the table and the physical line number of each row (None when the rows are the
+    consecutive lines from ``line0``: no blank line among them).
+    """
     table = None
+    lines: np.ndarray | None = None
+    if not body.strip():
+        return np.empty((0, len(wanted))), None
     if not body.startswith(b"\n") and b"\n\n" not in body:
         # fast path: every line a row, every column numeric
         try:
@@ -753,45 +1105,31 @@ def _parse_csv(where: str, data: bytes, *, need_F: bool = False) -> dict[str, np
         if table is not None and table.shape[1] != ncols:
             table = None
         if table is not None:
-            table = table[:, [position[k] for k in wanted]]
+            table = table[:, usecols]
     if table is None:
-        body, rows = _check_structure(where, body, ncols)
-        usecols = [position[k] for k in wanted]
+        body, lines = _check_structure(where, body, ncols, line0)
+        if not lines.size:
+            return np.empty((0, len(wanted))), None
         try:
             table = np.loadtxt(_io.StringIO(body.decode("utf-8", "replace")), delimiter=",",
                                comments=None, ndmin=2, dtype=np.float64, usecols=usecols)
         except ValueError as exc:
-            _diagnose_cells(where, body, rows, wanted, usecols)
+            _diagnose_cells(where, body, lines, wanted, usecols)
             _fail(where, f"cannot parse the data: {exc}")
-
-    def line_of(row: int) -> int:
-        return int(rows[row]) if rows is not None else row + 2
-
-    n = table.shape[0]
-    if n < 2:
-        _fail(where, f"only {n} data row; at least 2 are needed")
-    cols: dict[str, np.ndarray] = {}
-    for i, key in enumerate(wanted):
-        col = np.ascontiguousarray(table[:, i])
-        finite = np.isfinite(col)
-        if not finite.all():
-            r = int(np.argmin(finite))
-            cell = _cell_text(body, r, position[key])
-            _fail(where, f"column {key!r} has a non-finite value at line {line_of(r)}: "
-                         f"{_show(cell)}")
-        col.flags.writeable = False
-        cols[key] = col
-    t = cols["t"]
-    step = np.diff(t)
-    if not (step > 0).all():
-        r = int(np.argmin(step > 0)) + 1
-        _fail(where, f"column 't' is not strictly increasing at line {line_of(r)}: "
-                     f"{t[r]!r} s follows {t[r - 1]!r} s (line {line_of(r - 1)})")
-    return cols
+    finite = np.isfinite(table)
+    if not finite.all():
+        bad = ~finite.all(axis=0)
+        i = int(np.argmax(bad))
+        r = int(np.argmin(finite[:, i]))
+        line = int(lines[r]) if lines is not None else line0 + r
+        cell = _cell_text(body, r, usecols[i])
+        _fail(where, f"column {wanted[i]!r} has a non-finite value at line {line}: "
+                     f"{_show(cell)}")
+    return table, lines
 
 
 def _missing_column(key: str, names: list[str], header: str, need_F: bool) -> str:
-    shown = ", ".join(repr(n) for n in names[:12]) + (", …" if len(names) > 12 else "")
+    shown = ", ".join(_show(n, 40) for n in names[:12]) + (", …" if len(names) > 12 else "")
     text = f"missing column {key!r}"
     if key == "F" and need_F:
         text += " (a forced run needs the external force F)"
@@ -803,10 +1141,12 @@ def _missing_column(key: str, names: list[str], header: str, need_F: bool) -> st
     return text
 
 
-def _check_structure(where: str, body: bytes, ncols: int) -> tuple[bytes, np.ndarray]:
+def _check_structure(where: str, body: bytes, ncols: int, line0: int
+                     ) -> tuple[bytes, np.ndarray]:
     """Find ragged rows and blank lines (vectorised); drop the blank lines.
 
-    Returns the body without blank lines and the physical line number of each data row.
+    ``body`` holds whole LF-terminated lines, the first of them line ``line0``. Returns the
+    body without blank lines and the physical line number of each data row.
     """
     b = np.frombuffer(body, dtype=np.uint8)
     ends = np.flatnonzero(b == 10)  # body ends with "\n": every line has one
@@ -821,9 +1161,9 @@ def _check_structure(where: str, body: bytes, ncols: int) -> tuple[bytes, np.nda
     bad = np.flatnonzero(data & (commas != ncols - 1))
     if bad.size:
         i = int(bad[0])
-        _fail(where, f"line {i + 2} has {commas[i] + 1} fields but the header names {ncols} "
-                     "columns")
-    lines = np.flatnonzero(data) + 2
+        _fail(where, f"line {i + line0} has {commas[i] + 1} fields but the header names "
+                     f"{ncols} columns")
+    lines = np.flatnonzero(data) + line0
     if not data.all():
         keep = np.repeat(data, ends - starts + 1)
         body = b[keep].tobytes()

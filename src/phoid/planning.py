@@ -85,7 +85,6 @@ import dataclasses
 import functools
 import itertools
 import math
-import tomllib
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -1637,15 +1636,16 @@ def read_schedule(path: str | Path) -> dict[str, Any]:
     DesignError
         One line naming the file, run and key for anything missing or malformed.
     """
+    from phoid.errors import ExperimentError
+    from phoid.io import _read_manifest  # regular files only, size and nesting limited
+
     path = Path(path)
     if path.is_dir():
         path = path / "experiment.toml"
     try:
-        doc = tomllib.loads(path.read_text(encoding="utf-8"))
-    except OSError as exc:
-        raise DesignError(f"{path}: cannot read the schedule: {exc.strerror or exc}") from None
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise DesignError(f"{path}: not valid TOML: {exc}") from None
+        doc = _read_manifest(str(path), path)
+    except ExperimentError as exc:
+        raise DesignError(str(exc)) from None
     runs = doc.get("run")
     if not isinstance(runs, list) or not runs:
         raise DesignError(f"{path}: no [[run]] tables with gains P and D")
