@@ -205,7 +205,20 @@ def test_reader_keys_are_documented():
 def test_reader_limits_are_documented():
     # the reader's documented limits (constants MAX_… of phoid.io), each named in "Limits"
     limits = [name for name in vars(phoid.io) if name.startswith("MAX_")]
-    assert missing(limits, section("## Limits")) == []
+    text = section("## Limits")
+    assert missing(limits, text) == []
+    # … with the value the code enforces (the table's last cell: "2 MiB", "5·10⁷", "20 000")
+    sup = str.maketrans("⁰¹²³⁴⁵⁶⁷⁸⁹", "0123456789")
+    for name in limits:
+        row = next(line for line in text.splitlines() if f"`{name}`" in line)
+        cell = row.rstrip(" |").rsplit(",", 1)[-1].strip()
+        num = re.match(r"([\d ]+(?:\.\d+)?)(?:·10([⁰¹²³⁴⁵⁶⁷⁸⁹]+))?\s*(KiB|MiB|GiB)?", cell)
+        assert num, (name, cell)
+        value = float(num.group(1).replace(" ", ""))
+        if num.group(2):
+            value *= 10 ** int(num.group(2).translate(sup))
+        value *= {"KiB": 2**10, "MiB": 2**20, "GiB": 2**30, None: 1}[num.group(3)]
+        assert value == getattr(phoid.io, name), (name, cell)
 
 
 def test_keys_that_tools_write_are_documented(sets, outputs):
