@@ -240,8 +240,11 @@ def test_the_minimal_example_is_a_valid_set(tmp_path):
     csv = re.search(r"```csv\n(.*?)```", text, re.S).group(1)
     (tmp_path / "experiment.toml").write_text(toml, encoding="utf-8")
     (tmp_path / "run01.csv").write_text(csv, encoding="utf-8")
-    (tmp_path / "run02.csv").write_text(csv, encoding="utf-8")
-    (tmp_path / "run03.csv.gz").write_bytes(gzip.compress(csv.encode()))
+    # the other runs: their own recordings (a copy of run01 would be refused as a duplicate)
+    assert "0.0099," in csv
+    (tmp_path / "run02.csv").write_text(csv.replace("0.0099,", "0.0098,"), encoding="utf-8")
+    (tmp_path / "run03.csv.gz").write_bytes(gzip.compress(csv.replace("0.0099,", "0.0097,")
+                                                          .encode()))
     exp = phoid.io.read_experiment(tmp_path)
     assert exp.method == "pho" and exp.delay == 0.02 and len(exp.runs) == 3
     assert [r.added_mass for r in exp.runs] == [0.0, 0.5, 0.0]
