@@ -399,8 +399,8 @@ def test_skeleton_simulate_identify(tmp_path):
     plan = read_schedule(sched)
     assert plan["delay"] == 0.005 and plan["duration"] == 6.0 and len(plan["P"]) == 5
     # the skeleton is a phoid/1 manifest: readable once its data files exist
-    for name in plan["files"]:
-        (sched / name).write_text("t,x\n0,0.01\n0.001,0.01\n")
+    for i, name in enumerate(plan["files"]):  # distinct stand-ins (copies are refused)
+        (sched / name).write_text(f"t,x\n0,0.01\n0.001,{0.01 + 1e-4 * i}\n")
     exp = read_experiment(sched)
     assert [run.P for run in exp.runs] == plan["P"].tolist() and exp.delay == 0.005
     assert "design" in exp.extra and "predicted_sigma" in exp.runs[0].extra
@@ -463,5 +463,6 @@ def test_gzip_skeleton_name(tmp_path):
     # a filled-in gzip run reads back
     (tmp_path / "experiment.toml").write_text(text)
     for i in range(1, 4):
-        (tmp_path / f"run{i:02d}.csv.gz").write_bytes(gzip.compress(b"t,x\n0,1\n1,2\n"))
+        (tmp_path / f"run{i:02d}.csv.gz").write_bytes(gzip.compress(f"t,x\n0,1\n1,{i}\n"
+                                                                       .encode()))
     assert len(read_experiment(tmp_path).runs) == 3
