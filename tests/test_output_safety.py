@@ -14,6 +14,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
+from treesnap import snapshot
 from typer.testing import CliRunner
 
 from phoid import OutputError, read_experiment, run_from_arrays, write_experiment
@@ -61,24 +62,6 @@ def recorded(tmp_path_factory) -> Path:
                             "--duration", "2", "--fs", "200", "--seed", "1"])
     assert r.exit_code == 0, r.output
     return out
-
-
-def snapshot(root: Path) -> dict[str, tuple]:
-    """Every entry under root (links not followed): kind and content or link target."""
-    snap: dict[str, tuple] = {}
-    for here, dirs, files in os.walk(root):
-        for name in dirs + files:
-            p = Path(here) / name
-            rel = str(p.relative_to(root))
-            if p.is_symlink():
-                snap[rel] = ("link", os.readlink(p))
-            elif p.is_dir():
-                snap[rel] = ("dir",)
-            elif p.is_file():
-                snap[rel] = ("file", p.read_bytes())
-            else:
-                snap[rel] = ("other",)
-    return snap
 
 
 def refused(result, *needles: str) -> str:

@@ -25,6 +25,7 @@ from pathlib import Path
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from treesnap import snapshot
 from typer.testing import CliRunner
 
 from phoid.cli import app
@@ -81,22 +82,6 @@ SPECS = {
 
 VICTIM = b"a file outside the output folder\n"
 NOTES = b"the user's notes, never touched\n"
-
-
-def snapshot(root: Path) -> dict[str, tuple]:
-    """Every entry under root (links not followed): kind and content or link target."""
-    snap: dict[str, tuple] = {}
-    for here, dirs, files in os.walk(root):
-        for name in dirs + files:
-            p = Path(here) / name
-            rel = str(p.relative_to(root))
-            if p.is_symlink():
-                snap[rel] = ("link", os.readlink(p))
-            elif p.is_dir():
-                snap[rel] = ("dir",)
-            else:
-                snap[rel] = ("file", p.read_bytes())
-    return snap
 
 
 def _place(path: Path, kind: str, out: Path, outside: Path, n: int) -> None:
