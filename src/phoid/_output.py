@@ -33,7 +33,7 @@ from typing import IO, Any
 
 from phoid.errors import OutputError, PhoidError
 
-__all__ = ["OutputFolder", "cli_wording", "save_figure"]
+__all__ = ["OutputFolder", "cli_wording", "png_writer", "save_figure"]
 
 _OVERWRITE_HINT: contextvars.ContextVar[str] = contextvars.ContextVar(
     "phoid_overwrite_hint", default="overwrite=True")
@@ -260,10 +260,10 @@ def save_figure(fig: Any, path: str | Path, *, overwrite: bool = False,
     """
     path = Path(path)
     out = OutputFolder(path.parent, overwrite=overwrite)
-    return out.write(path.name, _png(fig, dpi))
+    return out.write(path.name, png_writer(fig, dpi))
 
 
-def _png(fig: Any, dpi: float) -> Writer:
+def png_writer(fig: Any, dpi: float) -> Writer:
     """A writer that renders ``fig`` as PNG (Agg canvas attached if it has none)."""
 
     def write(fh: IO[bytes]) -> None:

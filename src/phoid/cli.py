@@ -572,10 +572,10 @@ def design(
                              "--check")
         if out is not None or plot is not None:  # files in the way: refused before the work
             from phoid._output import OutputFolder
-            from phoid.planning import _schedule_target
+            from phoid.planning import schedule_target
 
             if out is not None:
-                _schedule_target(out, overwrite=overwrite)
+                schedule_target(out, overwrite=overwrite)
             if plot is not None:
                 OutputFolder(plot.parent, overwrite=overwrite).check([plot.name])
         if check_set is not None:

@@ -73,6 +73,7 @@ __all__ = [
     "ExperimentSet",
     "Run",
     "read_experiment",
+    "read_manifest",
     "run_from_arrays",
     "write_experiment",
 ]
@@ -593,7 +594,7 @@ def read_experiment(path: str | os.PathLike[str]) -> ExperimentSet:
         _fail(where, "no such file or folder")
     if manifest.is_dir():
         _fail(where, "the manifest is a folder, not a file")
-    doc = _read_manifest(where, manifest)
+    doc = read_manifest(where, manifest)
 
     _case_clash(where, doc, _TOP_KEYS, "the manifest")
     fmt = doc.get("format", FORMAT)
@@ -715,9 +716,12 @@ def _open_regular(where: str, path: Path, what: str) -> tuple[BinaryIO, os.stat_
         raise
 
 
-def _read_manifest(where: str, manifest: Path) -> dict[str, Any]:
+def read_manifest(where: str, manifest: Path) -> dict[str, Any]:
     """Read and parse a manifest: a regular file of at most MAX_MANIFEST_BYTES, UTF-8 TOML,
-    nested at most MAX_NESTING levels deep. Also used by :func:`phoid.planning.read_schedule`.
+    nested at most MAX_NESTING levels deep (docs/limits.md).
+
+    The one manifest reader: :func:`read_experiment` and :func:`phoid.planning.read_schedule`
+    both read through it. ``where`` prefixes the one-line :class:`ExperimentError` it raises.
     """
     f, st = _open_regular(where, manifest, "manifest")
     with f:

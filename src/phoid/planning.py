@@ -93,7 +93,7 @@ from typing import Any
 import numpy as np
 
 from phoid import _validate as v
-from phoid._output import OutputFolder, _png
+from phoid._output import OutputFolder, png_writer
 from phoid.decay import MIN_CYCLES
 from phoid.errors import PhoidError
 from phoid.fisher import _safe_inverse, mode_information, release_amplitude
@@ -885,7 +885,7 @@ class Design:
         a1.legend(fontsize=8)
         fig.tight_layout()
         if path is not None:
-            out.write(Path(path).name, _png(fig, 110))
+            out.write(Path(path).name, png_writer(fig, 110))
         return fig
 
     def to_toml(self, *, gzip: bool = False) -> str:
@@ -940,12 +940,15 @@ class Design:
         DesignError
             A file in the way or a failed write, naming the path.
         """
-        out, name = _schedule_target(path, overwrite=overwrite)
+        out, name = schedule_target(path, overwrite=overwrite)
         return out.write(name, self.to_toml().encode("utf-8"))
 
 
-def _schedule_target(path: str | Path, *, overwrite: bool) -> tuple[OutputFolder, str]:
-    """The folder and file name :meth:`Design.write` writes to, checked (nothing written)."""
+def schedule_target(path: str | Path, *, overwrite: bool) -> tuple[OutputFolder, str]:
+    """The folder and file name :meth:`Design.write` writes to, checked (nothing written).
+
+    The CLI calls it before designing, so that a file in the way is refused before the work.
+    """
     path = Path(path)
     if path.is_dir() or not path.suffix:
         folder, name = path, "experiment.toml"
@@ -1637,13 +1640,13 @@ def read_schedule(path: str | Path) -> dict[str, Any]:
         One line naming the file, run and key for anything missing or malformed.
     """
     from phoid.errors import ExperimentError
-    from phoid.io import _read_manifest  # regular files only, size and nesting limited
+    from phoid.io import read_manifest  # regular files only, size and nesting limited
 
     path = Path(path)
     if path.is_dir():
         path = path / "experiment.toml"
     try:
-        doc = _read_manifest(str(path), path)
+        doc = read_manifest(str(path), path)
     except ExperimentError as exc:
         raise DesignError(str(exc)) from None
     runs = doc.get("run")

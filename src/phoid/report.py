@@ -10,7 +10,7 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from phoid._output import OutputFolder, _png
+from phoid._output import OutputFolder, png_writer
 from phoid.loop import inverse_map
 
 if TYPE_CHECKING:
@@ -64,7 +64,7 @@ def identification_text(ident: Identification) -> str:
 def _save(fig: Figure, out: OutputFolder, name: str) -> Path:
     """Render ``fig`` as PNG into ``out``/``name`` (atomic, no links followed)."""
     FigureCanvasAgg(fig)
-    return out.write(name, _png(fig, 120))
+    return out.write(name, png_writer(fig, 120))
 
 
 def plot_identification(ident: Identification, out_dir: str | Path, *,
