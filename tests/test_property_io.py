@@ -262,6 +262,19 @@ def check_outcome(code: int, err: str, folder: Path) -> None:
         assert "Traceback" not in err
 
 
+@contextlib.contextmanager
+def generated_set(files: dict[str, bytes]):
+    """A temporary tree: the set's folder (``files`` written in it) and an empty working
+    folder beside it; yields (root, set folder, working folder, snapshot of root)."""
+    with tempfile.TemporaryDirectory(prefix="phoid-prop-") as tmp:
+        root = Path(tmp)
+        folder, cwd = root / "set", root / "cwd"
+        folder.mkdir()
+        cwd.mkdir()
+        write(folder, files)
+        yield root, folder, cwd, snapshot(root)
+
+
 # --------------------------------------------------------------------------------------------
 # the properties
 # --------------------------------------------------------------------------------------------
@@ -271,13 +284,7 @@ def test_identify_json_on_generated_sets(files: dict[str, bytes]) -> None:
     """In-process: exit 0 or 2, one line for an error, no file written, memory bounded."""
     from phoid.cli import main
 
-    with tempfile.TemporaryDirectory(prefix="phoid-prop-") as tmp:
-        root = Path(tmp)
-        folder, cwd = root / "set", root / "cwd"
-        folder.mkdir()
-        cwd.mkdir()
-        write(folder, files)
-        before = snapshot(root)
+    with generated_set(files) as (root, folder, cwd, before):
         out, err = io.StringIO(), io.StringIO()
         argv, old_cwd = sys.argv, os.getcwd()
         sys.argv = ["phoid", "identify", str(folder), "--json"]
@@ -334,13 +341,7 @@ def _limit() -> None:  # pragma: no cover - runs in the child
 @given(files=experiment_sets())
 def test_identify_json_in_a_capped_process(files: dict[str, bytes]) -> None:
     """As a user runs it: a subprocess under RLIMIT_AS (2 GiB), with a timeout."""
-    with tempfile.TemporaryDirectory(prefix="phoid-prop-") as tmp:
-        root = Path(tmp)
-        folder, cwd = root / "set", root / "cwd"
-        folder.mkdir()
-        cwd.mkdir()
-        write(folder, files)
-        before = snapshot(root)
+    with generated_set(files) as (root, folder, cwd, before):
         env = dict(os.environ, OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1")
         env.pop("PHOID_DEBUG", None)
         proc = subprocess.run([sys.executable, "-m", "phoid.cli", "identify", str(folder),
