@@ -22,11 +22,11 @@ import time
 
 import numpy as np
 
-from phoid.fisher import cramer_rao
-from phoid.identification import identify_data
-from phoid.planning import design
-from phoid.plant import Plant
-from phoid.simulation import simulate
+from phoid.dynamics.plant import Plant
+from phoid.methods.identification import identify_data
+from phoid.planning.fisher import cramer_rao
+from phoid.planning.sweep import design
+from phoid.simulation.core import simulate
 
 PAPER_P = 0.25 + 1.375 * np.arange(19)  # ERRATA 6
 PAPER_D = 0.6 + 0.3 * np.arange(19)

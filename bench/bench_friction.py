@@ -1,4 +1,4 @@
-"""Coulomb-friction fit (phoid.friction): stderr calibration, bias of the viscous fit, time.
+"""Coulomb-friction fit (phoid.methods.friction): stderr calibration, bias of the viscous fit, time.
 
 Monte Carlo over noisy replicas of the issue-6 acceptance set — m 1 kg, c 2 N s/m, k 100 N/m,
 f_c 0.05 N, Δt 20 ms, 10 runs with P = 0 … 200 N/m and D chosen so that the loop's dominant
@@ -26,9 +26,9 @@ import numpy as np
 from scipy.optimize import brentq
 
 from phoid import Plant, simulate
-from phoid.friction import identify_friction
-from phoid.identification import identify_data
-from phoid.loop import DelayedPD, characteristic_roots, dominant_roots
+from phoid.dynamics.loop import DelayedPD, characteristic_roots, dominant_roots
+from phoid.methods.friction import identify_friction
+from phoid.methods.identification import identify_data
 
 TRUTH = {"m": 1.0, "c": 2.0, "k": 100.0, "fc": 0.05}
 DELAY = 0.02

@@ -11,7 +11,7 @@
 
 Both truths give m, c, k, fc, delay, noise, x0, fs, T and ``crb_sd``; their ``crb_sd`` differ in
 the amplitude model (examples: each run's dominant-mode residue, bench/crb.py's default, the
-model of phoid.fisher; shared: the release's own initial conditions, ≈2 % lower).
+model of phoid.planning.fisher; shared: the release's own initial conditions, ≈2 % lower).
 """
 
 from __future__ import annotations

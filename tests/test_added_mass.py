@@ -21,8 +21,8 @@ from typer.testing import CliRunner
 
 from phoid import Plant, forward_map, read_experiment, run_from_arrays, simulate, write_experiment
 from phoid.cli import app
-from phoid.identification import identify, identify_data
-from phoid.pho import fit_lines, fit_modes
+from phoid.methods.identification import identify, identify_data
+from phoid.methods.pho import fit_lines, fit_modes
 
 runner = CliRunner()
 
@@ -107,7 +107,7 @@ def test_added_mass_with_a_digital_loop(tmp_path):
     # added; the bare and loaded runs are simulated as the plants m and m + 0.5 (phoid's
     # sampled-loop simulator, checked in test_digital.py). Expected: the simulation's bare plant
     # within 3 stderr, through the manifest and the CLI; ignoring the added mass, m is far off
-    from phoid.digital import DigitalPD
+    from phoid.dynamics.digital import DigitalPD
 
     Pd = np.repeat(np.linspace(20.0, 200.0, 5), 2)
     Dd = np.repeat(np.linspace(0.5, 5.0, 5), 2)

@@ -35,9 +35,9 @@ from typer.testing import CliRunner
 
 from phoid import Plant, read_experiment, run_from_arrays, simulate, write_experiment
 from phoid.cli import app
+from phoid.dynamics.loop import dominant_roots
 from phoid.errors import ExperimentError, IdentificationError
-from phoid.identification import identify
-from phoid.loop import dominant_roots
+from phoid.methods.identification import identify
 
 M, C, K, FC = 1.0, 0.3, 100.0, 0.2  # kg, N s/m, N/m, N
 DELAY = 0.01  # s
@@ -243,7 +243,7 @@ def test_sampled_loop_with_bias_matches_the_per_sample_reference():
 
 def test_sampled_bias_pattern_is_recorded_and_can_be_held_fixed():
     # the friction fit differentiates a sampled loop with its bias pattern sign(v̂ₙ) held fixed
-    # (phoid.friction: the model jumps where a reversal crosses a controller instant)
+    # (phoid.methods.friction: the model jumps where a reversal crosses a controller instant)
     kw = dict(duration=1.5, fs=1000.0, x0=X0, sample_time=0.002, delay_samples=3, bias=0.15)
     a = simulate(Plant(M, C, K, FC), [150.0, 200.0], [1.5, 2.0], **kw)
     assert a.bias_signs.shape == (2, 750) and set(np.unique(a.bias_signs)) <= {-1.0, 0.0, 1.0}
@@ -410,7 +410,8 @@ def test_acceptance_continuous_loop(tmp_path):
 
 def test_digital_loop_with_bias_is_refused_by_the_friction_fit(tmp_path):
     # A biased sampled loop's record jumps where a velocity reversal crosses a controller
-    # instant; the friction fit proved unreliable there (phoid.friction module docstring), so
+    # instant; the friction fit proved unreliable there (phoid.methods.friction module docstring),
+    # so
     # it refuses such a set with one line naming the run and the key, exit status 2
     loop = {"sample_time": 0.002, "delay_samples": 3}
     sim = simulate(Plant(M, C, K, FC), P8[:3], np.full(3, 1.5), duration=1.0, fs=1000.0,

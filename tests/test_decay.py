@@ -1,4 +1,4 @@
-"""Free-decay estimators (phoid.decay): exactness, Cramér–Rao calibration, the sample set.
+"""Free-decay estimators (phoid.fits.decay): exactness, Cramér–Rao calibration, the sample set.
 
 Where every expected value comes from:
 - noise-free records are exactly eq. (15) plus an offset, so (σ, ω_d) are known exactly;
@@ -18,8 +18,8 @@ import math
 import numpy as np
 import pytest
 
-from phoid import decay
-from phoid.decay import DecayFit, detect_release, fit_decay, logdec
+from phoid.fits import decay
+from phoid.fits.decay import DecayFit, detect_release, fit_decay, logdec
 
 SD = 1e-4  # m, white-noise sd of the sample set (truth.json)
 Q = 1e-6  # m, quantisation step of the sample set (truth.json)
@@ -697,10 +697,10 @@ def test_model_with_fast_modes_reproduces_the_fit_residual(sample_set_path):
     # window must be the fit's own (residual_rms, to rounding), and the dominant mode alone is
     # visibly worse right after the release (the fast loop modes are ~0.5 mm there).
     import phoid
-    from phoid.loop import _rightmost_roots
+    from phoid.dynamics.loop import rightmost_roots
 
     run = phoid.read_experiment(sample_set_path).runs[18]
-    roots = _rightmost_roots(2.0, 1.0, 64.0, run.P, run.D, 0.1, count=8)
+    roots = rightmost_roots(2.0, 1.0, 64.0, run.P, run.D, 0.1, count=8)
     fast = [complex(r) for r in roots[2:] if r.imag >= 0][:2]
     fit = phoid.fit_decay(run.t, run.x, release=0.2, fast_roots=fast)
     assert len(fit.fast_modes) == 2
@@ -718,11 +718,11 @@ def test_model_with_fast_modes_reproduces_the_fit_residual(sample_set_path):
 def test_fast_long_records_count_as_uniform():
     # 1 MHz time stamps near 10 s carry float rounding of ~2e-9 of a step (ulp(10) = 1.8e-15 s):
     # still uniform sampling (the tabulated evaluator), not a non-uniform record to interpolate
-    from phoid.decay import _uniform_step
+    from phoid.fits.decay import uniform_step
 
     t = 9.0 + np.arange(2_000_000) / 1e6
-    assert _uniform_step(t - t[0], float(t[0])) == pytest.approx(1e-6, rel=1e-12)
+    assert uniform_step(t - t[0], float(t[0])) == pytest.approx(1e-6, rel=1e-12)
     # a real irregularity (one sample 1e-4 of a step late) is still caught
     t2 = t.copy()
     t2[1000] += 1e-10
-    assert _uniform_step(t2 - t2[0], float(t2[0])) is None
+    assert uniform_step(t2 - t2[0], float(t2[0])) is None

@@ -1,6 +1,6 @@
-"""Batched decay fits and starts (phoid.decay_batch) against one-by-one ones (phoid.decay).
+"""Batched decay fits and starts (phoid.fits.batch) against one-by-one ones (phoid.fits.decay).
 
-Where every expected value comes from: ``phoid.decay.fit_decay`` of the same record with the
+Where every expected value comes from: ``phoid.fits.decay.fit_decay`` of the same record with the
 same options (the one-record path, itself checked against exact modes, the Cramér–Rao bound and
 the independent sample set in tests/test_decay.py). The batch does the same arithmetic in a
 different order (stacked sums, a stacked linear solve), so the two agree to rounding: the
@@ -17,11 +17,12 @@ import math
 import numpy as np
 import pytest
 
-from phoid import decay, decay_batch
-from phoid.decay import _check_record, fit_decay, start_decay
-from phoid.decay_batch import FitJob, fit_decays, start_decays
-from phoid.io import read_experiment
-from phoid.loop import _rightmost_roots
+from phoid.dynamics.loop import rightmost_roots
+from phoid.fits import batch as decay_batch
+from phoid.fits import decay
+from phoid.fits.batch import FitJob, fit_decays, start_decays
+from phoid.fits.decay import check_record, fit_decay, start_decay
+from phoid.io.experiment import read_experiment
 
 TOL_SE = 1e-6  # of a standard error: rounding passes, a different iteration does not
 
@@ -58,7 +59,7 @@ def _assert_same(batch, single):
 
 
 def _checked(t, x):
-    return _check_record(t, x)
+    return check_record(t, x)
 
 
 def test_sample_set_runs_batched_as_one_by_one(sample_set_path, truth):
@@ -69,7 +70,7 @@ def test_sample_set_runs_batched_as_one_by_one(sample_set_path, truth):
     jobs = []
     for r in exp.runs:
         t, x = _checked(r.t, r.x)
-        roots = _rightmost_roots(m, c, k, r.P, r.D, delay, count=6)
+        roots = rightmost_roots(m, c, k, r.P, r.D, delay, count=6)
         modes = [z for z in roots if z.imag >= 0]
         jobs.append(FitJob(t, x, None, 0.0, np.array(modes[1:3]), None))
     out = fit_decays(jobs)
@@ -183,7 +184,7 @@ def test_start_decays_equal_one_by_one_starts(sample_set_path):
 
 
 def test_fast_columns_many_equal_one_by_one():
-    # the stacked fast-mode columns are those of phoid.decay._fast_columns, element for element
+    # the stacked fast-mode columns are those of phoid.fits.decay._fast_columns, element for element
     # (the same exponentials and table products), zero beyond each record's nf. Bit for bit on
     # x86-64; numpy may evaluate exp of a strided (stacked) and a contiguous array by different
     # SIMD or libm paths on other machines (a few ulps each), and a column entry is a product of
@@ -209,7 +210,7 @@ def test_fast_columns_many_equal_one_by_one():
 
 
 def test_change_points_match_brute_force_least_squares():
-    # the reverse-cumulative-sum change point of phoid.decay._change_points against the
+    # the reverse-cumulative-sum change point of phoid.fits.decay._change_points against the
     # straightforward one: for every candidate j a least-squares fit of x = L + a (t − t_j)₊²
     # over the samples ≤ i1 (np.linalg.lstsq), the smallest residual. Same index expected (the
     # sums differ only by rounding, ~1e−16 relative, the residuals of neighbouring candidates

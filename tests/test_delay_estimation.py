@@ -18,8 +18,8 @@ import pytest
 
 from phoid import Plant, forward_map, simulate
 from phoid.errors import IdentificationError
-from phoid.identification import identify_data
-from phoid.pho import delay_profile, fit_modes
+from phoid.methods.identification import identify_data
+from phoid.methods.pho import delay_profile, fit_modes
 
 # the acceptance case: m 3, c 2, k 120, delay 40 ms, 12 runs, 50 µm noise. The gains
 # ring with closed-loop ζ 0.026–0.079 (checked in test_unknown_delay_acceptance).
@@ -147,7 +147,7 @@ def test_delay_beyond_the_searched_range_is_a_clear_error(tmp_path):
     from typer.testing import CliRunner
 
     from phoid.cli import app
-    from phoid.io import run_from_arrays, write_experiment
+    from phoid.io.experiment import run_from_arrays, write_experiment
 
     plant = Plant(2.0, 1.0, 64.0)
     P, D = np.linspace(0.25, 3.0, 6), np.linspace(0.1, 0.5, 6)

@@ -1,7 +1,8 @@
 """`phoid design`: exact root counts, the Cramér–Rao bound, designed schedules, the CLI.
 
 Expected values come from independent methods: the argument principle and the certified roots of
-phoid.loop (root counts, delay margins), direct sums over the samples (Fisher information), the
+phoid.dynamics.loop (root counts, delay margins), direct sums over the samples (Fisher
+information), the
 time-domain simulator (release amplitude, ringing, stability), the sample sets' truth.json bounds
 (bench/crb.py's direct sums; the shared set's as a cross-check where present),
 and Monte Carlo runs of the identification itself.
@@ -23,11 +24,17 @@ from typer.testing import CliRunner
 
 import phoid
 from phoid.cli import app
-from phoid.fisher import cramer_rao, mode_information, power_sums, release_amplitude
-from phoid.identification import identify_data
-from phoid.io import read_experiment
-from phoid.loop import DelayedPD, _rightmost_roots, characteristic_roots, count_roots_right_of
-from phoid.planning import (
+from phoid.dynamics.loop import (
+    DelayedPD,
+    characteristic_roots,
+    count_roots_right_of,
+    rightmost_roots,
+)
+from phoid.dynamics.plant import Plant
+from phoid.io.experiment import read_experiment
+from phoid.methods.identification import identify_data
+from phoid.planning.fisher import cramer_rao, mode_information, power_sums, release_amplitude
+from phoid.planning.sweep import (
     DesignError,
     check,
     check_experiment,
@@ -36,8 +43,7 @@ from phoid.planning import (
     design,
     read_schedule,
 )
-from phoid.plant import Plant
-from phoid.simulation import simulate
+from phoid.simulation.core import simulate
 
 runner = CliRunner()
 
@@ -62,7 +68,7 @@ def one_line_error(result, *needles):
 
 
 def test_count_roots_right_matches_argument_principle():
-    """The stability-switch count equals phoid.loop's argument-principle count (exact, ints)."""
+    """The stability-switch count equals dynamics.loop's argument-principle count (exact, ints)."""
     rng = np.random.default_rng(11)
     compared = 0
     for _ in range(40):
@@ -78,7 +84,7 @@ def test_count_roots_right_matches_argument_principle():
 
 def test_count_roots_right_is_vectorised_and_flags_a_root_on_the_line():
     # the paper loop of run 5 has its dominant pair at Re s = -0.51898… (certified roots)
-    r = _rightmost_roots(2.0, 1.0, 64.0, 5.75, 1.8, 0.1, count=2)[0]
+    r = rightmost_roots(2.0, 1.0, 64.0, 5.75, 1.8, 0.1, count=2)[0]
     a = np.array([r.real + 1e-6, r.real - 1e-6, 0.0])
     counts = count_roots_right(a, 2.0, 1.0, 64.0, 5.75, 1.8, 0.1)
     assert counts.tolist() == [0.0, 2.0, 0.0]
@@ -95,9 +101,9 @@ def test_delay_margin_is_where_the_certified_roots_cross(plant, P, D, delay):
     assert 0 < dm < math.inf
     # certified rightmost roots: stable just below Δt + margin, unstable just above, and on the
     # axis at it (to the precision of the crossing formula)
-    below = _rightmost_roots(*plant, P, D, delay + 0.99 * dm, count=2)[0]
-    above = _rightmost_roots(*plant, P, D, delay + 1.01 * dm, count=2)[0]
-    at = _rightmost_roots(*plant, P, D, delay + dm, count=2)[0]
+    below = rightmost_roots(*plant, P, D, delay + 0.99 * dm, count=2)[0]
+    above = rightmost_roots(*plant, P, D, delay + 1.01 * dm, count=2)[0]
+    at = rightmost_roots(*plant, P, D, delay + dm, count=2)[0]
     assert below.real < 0 < above.real
     assert abs(at.real) < 1e-8 * abs(at)
 
@@ -137,7 +143,7 @@ def test_mode_information_against_direct_sum():
 def test_release_amplitude_matches_the_simulated_decay():
     """x(τ) → Re[w e^{sτ}] once the fast modes have died (next root −38.5/s: e^{−38} at 1 s)."""
     m, c, k, P, D, delay = 2.0, 1.0, 64.0, 5.75, 1.8, 0.1
-    s = _rightmost_roots(m, c, k, P, D, delay, count=2)[0]
+    s = rightmost_roots(m, c, k, P, D, delay, count=2)[0]
     w = release_amplitude(s, m, c, k, P, D, delay, 0.01)
     sim = simulate(Plant(m, c, k), [P], [D], delay=delay, duration=3.0, fs=1000.0, x0=0.01,
                    hold=0.2)
@@ -334,7 +340,7 @@ def test_read_schedule_errors_name_file_run_and_key(tmp_path):
 
 def test_check_flags_an_unstable_run():
     d = check([0.25, 25.0, 200.0], [0.6, 6.0, 6.0], 2.0, 1.0, 64.0, delay=0.1)
-    # independent verdict: certified roots of phoid.loop
+    # independent verdict: certified roots of phoid.dynamics.loop
     assert not phoid.is_stable(Plant(2.0, 1.0, 64.0), DelayedPD(200.0, 6.0, 0.1))
     assert [r.safe for r in d.runs] == [True, True, False]
     assert "UNSTABLE" in d.runs[2].warnings[0]

@@ -1,11 +1,11 @@
-"""Tests of phoid.digital and the sampled-controller path of phoid.simulate.
+"""Tests of phoid.dynamics.digital and the sampled-controller path of phoid.simulate.
 
 Where every expected value comes from:
 - the z-roots: eigenvalues of an explicit augmented state matrix built here from
   scipy.signal.cont2discrete (an independent construction of the same hybrid loop);
 - the simulation: a plain per-sample Python loop on scipy's ZOH discretisation (and, with an
   external force or Coulomb friction, solve_ivp with events between the recorder's samples);
-- the T_s → 0 limit: the continuous delayed loop of phoid.loop (eq. 23), certified roots;
+- the T_s → 0 limit: the continuous delayed loop of phoid.dynamics.loop (eq. 23), certified roots;
 - the Jacobian: central finite differences of the roots;
 - the statistics: Monte Carlo of a Gauss–Newton fit written in this file.
 """
@@ -21,8 +21,7 @@ from scipy.integrate import solve_ivp
 from scipy.optimize import linear_sum_assignment
 from scipy.signal import cont2discrete
 
-from phoid.decay import fit_decay
-from phoid.digital import (
+from phoid.dynamics.digital import (
     DigitalPD,
     digital_characteristic,
     digital_coefficients,
@@ -33,10 +32,11 @@ from phoid.digital import (
     digital_roots,
     zoh_plant,
 )
-from phoid.loop import dominant_roots
-from phoid.pho import fit_modes
-from phoid.plant import Plant
-from phoid.simulation import simulate
+from phoid.dynamics.loop import dominant_roots
+from phoid.dynamics.plant import Plant
+from phoid.fits.decay import fit_decay
+from phoid.methods.pho import fit_modes
+from phoid.simulation.core import simulate
 
 # the issue's acceptance loop: T_s = 2 ms, backward difference, 3-sample delay
 M_, C_, K_ = 1.0, 2.0, 100.0
@@ -595,7 +595,7 @@ def acceptance_modes():
 def test_equivalent_continuous_delay_is_biased(acceptance_modes):
     """T_s = 2 ms, backward difference, d = 3 (m 1, c 2, k 100; P 20–200, D 0.5–5).
 
-    Measured on the exact digital modes (documented in phoid.digital):
+    Measured on the exact digital modes (documented in phoid.dynamics.digital):
       Δt = d·T_s = 6 ms:        m 0.9923, c 1.917, k 99.25, χ²/dof 2504
       Δt = (d + ½)·T_s = 7 ms:  m 0.9934, c 1.983, k 99.23, χ²/dof 23
     i.e. m and k off by 65–107 standard errors of the noise alone (before fit_modes inflates

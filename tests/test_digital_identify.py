@@ -22,9 +22,9 @@ from typer.testing import CliRunner
 
 from phoid import Plant, read_experiment, run_from_arrays, simulate, write_experiment
 from phoid.cli import app
-from phoid.digital import DigitalPD, digital_roots
+from phoid.dynamics.digital import DigitalPD, digital_roots
 from phoid.errors import IdentificationError
-from phoid.identification import identify, identify_data
+from phoid.methods.identification import identify, identify_data
 
 runner = CliRunner()
 

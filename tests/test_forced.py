@@ -17,15 +17,15 @@ from typer.testing import CliRunner
 
 from phoid import IdentificationError, Plant, run_from_arrays, write_experiment
 from phoid.cli import app
-from phoid.forced import (
+from phoid.dynamics.plant import free_response
+from phoid.io.experiment import read_experiment
+from phoid.methods.forced import (
     fit_response,
     identify_forced,
     identify_forced_data,
     simulate_forced,
     two_frequency,
 )
-from phoid.io import read_experiment
-from phoid.plant import free_response
 
 runner = CliRunner()
 PLANT = Plant(2.0, 1.0, 64.0)  # the seed paper's plant; the acceptance set

@@ -1,6 +1,7 @@
 """Free-decay identification (method = "free", seed eqs. 2-15): every damping, honest stderr.
 
-The records are the exact closed-form free response (phoid.plant.free_response, itself checked
+The records are the exact closed-form free response (phoid.dynamics.plant.free_response, itself
+checked
 against the ODE in test_plant.py) plus seeded white noise; the truths are the parameters the
 records were made from.
 """
@@ -14,9 +15,9 @@ from typer.testing import CliRunner
 
 from phoid import IdentificationError, run_from_arrays, write_experiment
 from phoid.cli import app
-from phoid.free import identify_free, identify_free_data
-from phoid.io import read_experiment
-from phoid.plant import free_response
+from phoid.dynamics.plant import free_response
+from phoid.io.experiment import read_experiment
+from phoid.methods.free import identify_free, identify_free_data
 
 runner = CliRunner()
 

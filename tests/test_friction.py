@@ -1,4 +1,4 @@
-"""phoid.friction: m, c, k and the Coulomb friction force f_c by the full-record fit (issue 6).
+"""friction: m, c, k and the Coulomb friction force f_c by the full-record fit (issue 6).
 
 Where the expected values come from
 -----------------------------------
@@ -7,7 +7,7 @@ Where the expected values come from
   test_simulate.py. Records carry seeded ``np.random.default_rng`` noise, quantisation and a
   sensor offset, as the issue asks.
 - Gains: D solved so that the loop's dominant root has a chosen decay rate σ
-  (``phoid.loop.dominant_roots``), then checked independently by the certified root finder
+  (``phoid.dynamics.loop.dominant_roots``), then checked independently by the certified root finder
   ``characteristic_roots``: the loop rings (complex dominant pair) and is stable (or, for the
   negative-damping runs, unstable with that σ < 0).
 - Bounded or growing: with negative viscous damping c_eff = 2mσ < 0, friction removes 4f_cA per
@@ -37,9 +37,9 @@ from phoid import (
     read_experiment,
     simulate,
 )
+from phoid.dynamics.loop import dominant_roots
 from phoid.errors import ExperimentError, IdentificationError
-from phoid.friction import FrictionFit, friction_evidence, identify_friction
-from phoid.loop import dominant_roots
+from phoid.methods.friction import FrictionFit, friction_evidence, identify_friction
 
 M, C, K, FC = 1.0, 2.0, 100.0, 0.05  # the issue's plant: kg, N s/m, N/m, N
 DELAY = 0.02  # s
@@ -463,7 +463,8 @@ def test_digital_loop_with_friction(tmp_path):
     # the issue's plant with friction under a sampled PD loop (T_s = 2 ms, backward-difference
     # velocity, 3-sample command delay: tests/test_digital_identify.py's controller), eight
     # runs with D chosen so that the sampled loop's dominant root decays at σ = 0.2 … 0.6 1/s
-    # (exact roots of phoid.digital, brentq). Expected: the simulation's plant and f_c within
+    # (exact roots of phoid.dynamics.digital, brentq). Expected: the simulation's plant and f_c
+    # within
     # 3 stderr (phoid's sampled-loop simulator with exact stick–slip, checked in
     # test_digital.py), through the manifest's [loop] keys and the CLI; the viscous fit of the
     # same records takes the friction for damping (measured: c 3.40 for 2)
@@ -471,8 +472,8 @@ def test_digital_loop_with_friction(tmp_path):
 
     from phoid import read_experiment, run_from_arrays, write_experiment
     from phoid.cli import app
-    from phoid.digital import DigitalPD, digital_roots
-    from phoid.identification import identify_data
+    from phoid.dynamics.digital import DigitalPD, digital_roots
+    from phoid.methods.identification import identify_data
 
     loop = DigitalPD(0.0, 0.0, sample_time=0.002, delay_samples=3)
 

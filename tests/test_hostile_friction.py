@@ -21,7 +21,7 @@ from typer.testing import CliRunner
 
 import phoid
 from phoid.cli import app
-from phoid.friction import identify_friction
+from phoid.methods.friction import identify_friction
 
 runner = CliRunner()
 

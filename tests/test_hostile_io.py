@@ -5,7 +5,8 @@ Each case runs ``python -m phoid.cli …`` in a subprocess, as a user would, und
 cap (RLIMIT_AS, where the platform has it) and a wall-clock timeout, and expects what
 DEVELOPERS.md promises for bad input: exit status 2 (never 1: that is phoid's own fault), exactly
 one line on standard error, printable, naming the file, the run and the key or limit at fault;
-never a traceback. Expected words come from the reader's documented limits (phoid.io.MAX_*,
+never a traceback. Expected words come from the reader's documented limits
+(phoid.io.experiment.MAX_*,
 docs/format-extensions.md "Limits") and from the input each case builds, not from a run of
 the code.
 """
@@ -24,7 +25,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import phoid.io as pio
+import phoid.io.experiment as pio
 
 # Address-space cap of each CLI run: the interpreter with numpy, scipy and matplotlib needs
 # about 1.0 GB of address space here (measured: identify of a 3-run set passes at 1.2e6 KB);
@@ -342,7 +343,7 @@ CASES: list[tuple[str, Callable[[Path], Path], str]] = [
 def test_read_schedule_shares_the_manifest_checks(tmp_path: Path, name: str,
                                                   build: Callable[[Path], Path],
                                                   word: str) -> None:
-    from phoid.planning import DesignError, read_schedule
+    from phoid.planning.sweep import DesignError, read_schedule
 
     folder = build(tmp_path)
     with pytest.raises(DesignError, match=word):

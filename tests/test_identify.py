@@ -15,8 +15,8 @@ import numpy as np
 import pytest
 
 from phoid import IdentificationError
-from phoid.identification import identify, identify_data
-from phoid.io import read_experiment
+from phoid.io.experiment import read_experiment
+from phoid.methods.identification import identify, identify_data
 
 
 @pytest.fixture(scope="module")
@@ -48,7 +48,8 @@ def test_sample_set_within_3_stderr_and_near_crb(gls, truth):
 
 
 def test_runs_modes_agree_with_exact_roots(gls, truth):
-    # each run's sigma, omega_d against the exact dominant root of the true loop (phoid.loop,
+    # each run's sigma, omega_d against the exact dominant root of the true loop
+    # (phoid.dynamics.loop,
     # itself checked by the argument principle): |z| < 4 for all 38 numbers
     from phoid import Plant, forward_map
 

@@ -5,15 +5,16 @@ import math
 import numpy as np
 import pytest
 
-from phoid import DelayedPD, Plant, alphas, characteristic_roots, forward_map, inverse_map, loop
-from phoid.loop import (
-    _rightmost_roots,
-    _rightmost_roots_many,
+from phoid import DelayedPD, Plant, alphas, characteristic_roots, forward_map, inverse_map
+from phoid.dynamics import loop
+from phoid.dynamics.loop import (
     characteristic,
     count_roots_right_of,
     count_roots_right_of_many,
     dominant_roots,
     is_stable,
+    rightmost_roots,
+    rightmost_roots_many,
 )
 
 # Table 1 of the seed paper, sweep per ERRATA 6
@@ -206,20 +207,20 @@ ROOT_SWEEPS = {
 @pytest.mark.parametrize("count", [8, 2])
 @pytest.mark.parametrize("name", list(ROOT_SWEEPS))
 def test_rightmost_roots_many_matches_per_run_roots(name, count, monkeypatch):
-    # _rightmost_roots_many (continuation across runs, batched and one at a time, certified)
+    # rightmost_roots_many (continuation across runs, batched and one at a time, certified)
     # must return, run by run, the roots that the certified per-run computation
-    # _rightmost_roots gives (the same number of roots, in the same order). Each root is
+    # rightmost_roots gives (the same number of roots, in the same order). Each root is
     # Newton-converged (|f| at rounding level) from a different start in the two, so they
     # agree to a few ulps; 1e-12 of max(|s|, 1) is far below any spacing between the roots
     # (> 1 1/s here) and 1000 times the differences seen (6e-16).
     plant, P, D, delay = ROOT_SWEEPS[name]
-    ref = [loop._rightmost_roots(plant.m, plant.c, plant.k, float(p), float(d), delay,
+    ref = [loop.rightmost_roots(plant.m, plant.c, plant.k, float(p), float(d), delay,
                                  count=count) for p, d in zip(P, D, strict=True)]
-    full = loop._rightmost_roots
+    full = loop.rightmost_roots
     calls = []
-    monkeypatch.setattr(loop, "_rightmost_roots",
+    monkeypatch.setattr(loop, "rightmost_roots",
                         lambda *a, **kw: calls.append(a) or full(*a, **kw))
-    got = loop._rightmost_roots_many(plant.m, plant.c, plant.k, P, D, delay, count=count)
+    got = loop.rightmost_roots_many(plant.m, plant.c, plant.k, P, D, delay, count=count)
     assert len(got) == P.size
     for r, g in zip(ref, got, strict=True):
         assert g.shape == r.shape
@@ -249,13 +250,13 @@ def test_continuation_crosses_d_zero_from_one_full_computation(monkeypatch):
     # near a root it missed that the count does not resolve.
     plant, P, D, delay = MASS_DAMPER
     m, c = plant.m, plant.c
-    ref = [loop._rightmost_roots(m, c, _MD_K, float(p), float(d), delay, count=12)
+    ref = [loop.rightmost_roots(m, c, _MD_K, float(p), float(d), delay, count=12)
            for p, d in zip(P, D, strict=True)]
-    full = loop._rightmost_roots
+    full = loop.rightmost_roots
     calls = []
-    monkeypatch.setattr(loop, "_rightmost_roots",
+    monkeypatch.setattr(loop, "rightmost_roots",
                         lambda *a, **kw: calls.append(a) or full(*a, **kw))
-    got = loop._rightmost_roots_many(m, c, _MD_K, P, D, delay, count=8)
+    got = loop.rightmost_roots_many(m, c, _MD_K, P, D, delay, count=8)
     assert len(calls) == 1
     for r, g in zip(loop._trim_pairs(ref, 8), got, strict=True):
         assert g.shape == r.shape
@@ -274,7 +275,7 @@ def test_chain_starts_lead_newton_to_the_chain_roots():
     starts = loop._chain_starts(plant.m, plant.c, _MD_K, P, D, delay, 8)
     z, res = loop._newton_rows(starts, plant.m, plant.c, _MD_K, P[:, None], D[:, None], delay)
     for i in range(2):
-        ref = loop._rightmost_roots(plant.m, plant.c, _MD_K, float(P[i]), float(D[i]), delay,
+        ref = loop.rightmost_roots(plant.m, plant.c, _MD_K, float(P[i]), float(D[i]), delay,
                                     count=12)
         chain = [r for r in ref[2:] if r.imag >= 0]
         zi = z[i][np.isfinite(res[i])]
@@ -304,15 +305,15 @@ DESIGNS = _designs(11, 6)
 
 @pytest.mark.parametrize("j", range(len(DESIGNS)))
 def test_quick_full_computation_and_its_fallback_agree(j, monkeypatch):
-    # _rightmost_roots first tries a coarse discretisation with a short Newton; forcing that
+    # rightmost_roots first tries a coarse discretisation with a short Newton; forcing that
     # attempt to find nothing (its Newton returns no converged root) exercises the fallback,
     # the full computation. Both are certified, so they are the same roots, to 1e-12 of
     # max(|s|, 1) (Newton-converged from different eigenvalues: a few ulps apart, far below
     # the roots' spacing); the same for the continuation over the design's runs.
     m, c, k, P, D, tau = DESIGNS[j]
-    quick = [loop._rightmost_roots(m, c, k, float(p), float(d), tau, count=8)
+    quick = [loop.rightmost_roots(m, c, k, float(p), float(d), tau, count=8)
              for p, d in zip(P, D, strict=True)]
-    many = loop._rightmost_roots_many(m, c, k, P, D, tau, count=8)
+    many = loop.rightmost_roots_many(m, c, k, P, D, tau, count=8)
     rows = loop._newton_rows
     calls = []
 
@@ -322,7 +323,7 @@ def test_quick_full_computation_and_its_fallback_agree(j, monkeypatch):
         return z, np.full(res.shape, np.inf)
 
     monkeypatch.setattr(loop, "_newton_rows", no_roots)
-    full = [loop._rightmost_roots(m, c, k, float(p), float(d), tau, count=8)
+    full = [loop.rightmost_roots(m, c, k, float(p), float(d), tau, count=8)
             for p, d in zip(P, D, strict=True)]
     assert len(calls) == P.size  # each run tried the quick attempt once, then fell back
     for q, f, g in zip(quick, full, many, strict=True):
@@ -339,7 +340,7 @@ def test_outer_edges_bound_gives_the_sampled_count(j, monkeypatch):
     # equality. Abscissae between consecutive roots (as the certificates place them) and just
     # left of the dominant pair (as pho._dominant_many does).
     m, c, k, P, D, tau = DESIGNS[j]
-    roots = loop._rightmost_roots_many(m, c, k, P, D, tau, count=8)
+    roots = loop.rightmost_roots_many(m, c, k, P, D, tau, count=8)
     for pick in (lambda r: 0.5 * (r[1].real + r[2].real),
                  lambda r: r[0].real - max(0.5, 0.5 * abs(r[0].real))):
         a = np.array([pick(r) for r in roots])
@@ -364,7 +365,7 @@ def test_left_ordinates_are_the_scalar_counts_samples():
     # (np.unique of the uniform and the local samples, descending), padded by repeats:
     # bit-for-bit, so the batched and the scalar count sum the same angles
     plant, P, D, delay = MASS_DAMPER
-    roots = loop._rightmost_roots_many(plant.m, plant.c, _MD_K, P, D, delay, count=8)
+    roots = loop.rightmost_roots_many(plant.m, plant.c, _MD_K, P, D, delay, count=8)
     a = np.array([0.5 * (r[1].real + r[2].real) - 0.3 for r in roots])
     R = 1.05 * np.array([loop._root_radius(plant.m, plant.c, _MD_K, p, d, delay, x)
                          for p, d, x in zip(P, D, a, strict=True)]) + 1.0
@@ -393,7 +394,7 @@ def test_left_ordinates_are_the_scalar_counts_samples():
 def test_real_roots_come_back_exactly_real(args):
     # expected: every root either exactly real (Im == 0, as Newton from a real start keeps it)
     # or clearly complex (|Im| > 1e−6 |s|: these loops' pairs are far from the axis)
-    roots = _rightmost_roots(*args, count=6)
+    roots = rightmost_roots(*args, count=6)
     assert roots.size >= 6
     for z in roots:
         assert z.imag == 0 or abs(z.imag) > 1e-6 * abs(z)
@@ -411,9 +412,9 @@ def test_continuation_across_d_zero_keeps_real_roots_exactly_real():
     D = np.array([-0.16536439438798123, -0.19422788153438936, 0.07155138843885685,
                   -0.1287967143580461, 0.19164243187796617, 0.027293359994510845,
                   0.032109535045036816])
-    many = _rightmost_roots_many(m, c, k, P, D, tau, count=8)
+    many = rightmost_roots_many(m, c, k, P, D, tau, count=8)
     for i, got in enumerate(many):
-        want = _rightmost_roots(m, c, k, P[i], D[i], tau, count=12)[: got.size]
+        want = rightmost_roots(m, c, k, P[i], D[i], tau, count=12)[: got.size]
         assert got.size >= 8
         np.testing.assert_allclose(got, want, rtol=1e-12, atol=0)
         assert [z.imag == 0 for z in got] == [z.imag == 0 for z in want]
@@ -429,7 +430,7 @@ def test_quick_attempt_never_returns_fewer_roots_than_asked(args, count):
     # the quick first attempt found too few roots for a real-part gap after `count` and cut at
     # all it had (13 of 14, 11 of 12); its certificate proved no root missed right of the last,
     # not that `count` were there. Expected: at least `count` roots (whole pairs)
-    assert _rightmost_roots(*args, count=count).size >= count
+    assert rightmost_roots(*args, count=count).size >= count
 
 
 @pytest.mark.parametrize("a, m, c, k, want", [

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from phoid import IdentificationError, Plant, forward_map
-from phoid.pho import fit_lines, fit_modes
+from phoid.methods.pho import fit_lines, fit_modes
 
 IDX = np.arange(19)
 P1, D1 = 0.25 + 1.375 * IDX, 0.6 + 0.3 * IDX  # Table 1 sweep (ERRATA 6)

@@ -1,6 +1,6 @@
 """The release refit's vectorised pieces against the plain computations they replace.
 
-identification._interp_uniform against np.interp; simulation._release_response against
+identification._interp_uniform against np.interp; simulation.release_response against
 simulate; identification._model_releases with the uniform-sampling shortcut (one g per run,
 simulated at the data's rate) against its general path (every candidate's own t − τ,
 interpolated on a grid 4 times finer).
@@ -11,10 +11,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-import phoid.identification as ident
+import phoid.methods.identification as ident
 from phoid import Plant, simulate
-from phoid.decay import start_decay
-from phoid.simulation import _release_response
+from phoid.fits.decay import start_decay
+from phoid.simulation.core import release_response
 
 EPS = np.finfo(float).eps
 
@@ -51,7 +51,7 @@ def test_interp_uniform_matches_np_interp():
 def test_release_response_matches_simulate(plant, D, delay, fs):
     P = np.linspace(50.0, 300.0, 6)
     D = np.linspace(*D, 6)
-    x = _release_response(plant, P, D, delay=delay, duration=0.25, fs=fs)
+    x = release_response(plant, P, D, delay=delay, duration=0.25, fs=fs)
     ref = simulate(plant, P, D, delay=delay, duration=0.25, fs=fs, x0=1.0).x_true
     assert x.shape == ref.shape
     # the same scheme and grid; the block products sum Φ^j w directly where simulate runs
@@ -59,7 +59,7 @@ def test_release_response_matches_simulate(plant, D, delay, fs):
     # simulate itself moves by ~1e−12 between grids 4× apart; 1e−12 of x₀ is that rounding
     assert np.max(np.abs(x - ref)) <= 1e-12
     with pytest.raises(ValueError, match="fs"):
-        _release_response(plant, P, D, delay=delay, duration=0.25, fs=5.0)
+        release_response(plant, P, D, delay=delay, duration=0.25, fs=5.0)
 
 
 def test_uniform_shortcut_matches_the_general_path(monkeypatch):
@@ -72,7 +72,7 @@ def test_uniform_shortcut_matches_the_general_path(monkeypatch):
     fits = [start_decay(t, x, skip=0.015, coarse_release=True) for t, x in data]
     args = (data, fits, (0.5, 40.0, 20.0), P, D, 0.005)
     fast = ident._model_releases(*args)
-    monkeypatch.setattr(ident, "_uniform_step", lambda *a: None)  # no span counts as uniform
+    monkeypatch.setattr(ident, "uniform_step", lambda *a: None)  # no span counts as uniform
     general = ident._model_releases(*args)
     assert all(f is not None for f in fast) and [f is None for f in general] == [False] * 8
     # the same fit; g on the data's grid or interpolated on one 4× finer differs by simulate's

@@ -20,8 +20,8 @@ import pytest
 from jitc_reference import jitcdde_reference
 from scipy.integrate import solve_ivp
 
-from phoid.plant import Plant
-from phoid.simulation import Simulation, simulate
+from phoid.dynamics.plant import Plant
+from phoid.simulation.core import Simulation, simulate
 
 # Table 1 of the seed paper (ERRATA 6): m = 2 kg, c = 1 N·s/m, k = 64 N/m, Δt = 0.1 s
 TABLE1 = Plant(2.0, 1.0, 64.0)
@@ -211,7 +211,8 @@ def test_forced_delayed_loop_reaches_the_frequency_response():
     )
     s = 1j * w
     H = 2.0 * s * s + 1.0 * s + 64.0 + (D * s + P) * np.exp(-s * 0.1)
-    # the dominant closed-loop root is −0.97 ± 7.57i 1/s (phoid.loop): by 30 s the transient
+    # the dominant closed-loop root is −0.97 ± 7.57i 1/s (phoid.dynamics.loop): by 30 s the
+    # transient
     # is down by e^{−29}
     late = sim.t > 30.0
     expected = np.imag(F0 * np.exp(1j * w * sim.t[late]) / H)

@@ -1,4 +1,4 @@
-"""The loop delay from the recorded feedback force u as well as from x (phoid.udelay).
+"""The loop delay from the recorded feedback force u as well as from x (phoid.methods.udelay).
 
 Expected values come from the data's own truth: the independent sample set's truth.json (made by
 jitcdde, not by phoid) and, for simulated sets, the parameters given to phoid's simulator
@@ -19,9 +19,9 @@ from typer.testing import CliRunner
 
 from phoid import Plant, simulate
 from phoid.cli import app
-from phoid.identification import identify, identify_data
-from phoid.io import read_experiment
-from phoid.udelay import combine, u_skip
+from phoid.io.experiment import read_experiment
+from phoid.methods.identification import identify, identify_data
+from phoid.methods.udelay import combine, u_skip
 
 # the issue's acceptance design (as in test_delay_estimation.py): m 3, c 2, k 120, delay 40 ms,
 # 12 runs, 50 µm noise; u recorded with 5 mN of white noise (0.2–2 % of its swing)
@@ -207,7 +207,7 @@ def test_all_u_unusable_falls_back_to_x(acceptance):
 def test_combination_failure_falls_back_to_x(acceptance, monkeypatch):
     # should the weighted fit with u fail (it raises IdentificationError), the x-only result
     # stands, with a warning saying why u did not serve
-    import phoid.udelay as ud
+    import phoid.methods.udelay as ud
     from phoid.errors import IdentificationError
 
     def fail(*args, **kwargs):

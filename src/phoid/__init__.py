@@ -10,11 +10,27 @@ function implements, and docs/equations.md for those equations and their correct
 >>> print(result.report())  # doctest: +SKIP
 """
 
-from phoid.decay import DecayFit, detect_release, fit_decay, logdec
-from phoid.digital import DigitalPD, DigitalRoots, digital_modes, digital_roots
+from phoid.dynamics.digital import DigitalPD, DigitalRoots, digital_modes, digital_roots
+from phoid.dynamics.loop import (
+    DelayedPD,
+    LoopModes,
+    alphas,
+    characteristic_roots,
+    forward_map,
+    inverse_map,
+    is_stable,
+)
+from phoid.dynamics.plant import Plant, free_response
 from phoid.errors import ExperimentError, IdentificationError, OutputError, PhoidError
-from phoid.fisher import CramerRao, cramer_rao
-from phoid.forced import (
+from phoid.fits.decay import DecayFit, detect_release, fit_decay, logdec
+from phoid.io.experiment import (
+    ExperimentSet,
+    Run,
+    read_experiment,
+    run_from_arrays,
+    write_experiment,
+)
+from phoid.methods.forced import (
     ForcedIdentification,
     ForcedRun,
     ResponseFit,
@@ -24,23 +40,13 @@ from phoid.forced import (
     simulate_forced,
     two_frequency,
 )
-from phoid.free import FreeIdentification, FreeRun, identify_free, identify_free_data
-from phoid.friction import FrictionFit, friction_evidence, identify_friction
-from phoid.identification import Identification, RunMode, identify, identify_data
-from phoid.io import ExperimentSet, Run, read_experiment, run_from_arrays, write_experiment
-from phoid.loop import (
-    DelayedPD,
-    LoopModes,
-    alphas,
-    characteristic_roots,
-    forward_map,
-    inverse_map,
-    is_stable,
-)
-from phoid.pho import Estimate, MCKFit, fit_lines, fit_modes
-from phoid.planning import Design, DesignError, PlannedRun, design
-from phoid.plant import Plant, free_response
-from phoid.simulation import Simulation, simulate
+from phoid.methods.free import FreeIdentification, FreeRun, identify_free, identify_free_data
+from phoid.methods.friction import FrictionFit, friction_evidence, identify_friction
+from phoid.methods.identification import Identification, RunMode, identify, identify_data
+from phoid.methods.pho import Estimate, MCKFit, fit_lines, fit_modes
+from phoid.planning.fisher import CramerRao, cramer_rao
+from phoid.planning.sweep import Design, DesignError, PlannedRun, design
+from phoid.simulation.core import Simulation, simulate
 
 __version__ = "0.1.0"
 

@@ -81,7 +81,7 @@ def paper(
     and 1(b) (k' against omega0^2) as PNG files into --out.
     """
     from phoid.paper import reproduce_table1
-    from phoid.report import figure1
+    from phoid.reports.text import figure1
 
     try:
         from phoid._output import OutputFolder
@@ -143,8 +143,8 @@ def identify(
     Prints the estimates with +- one standard error and units, the open-loop zeta and omega0,
     a per-run table and any warnings.
     """
-    from phoid.identification import identify as _identify
-    from phoid.io import read_experiment
+    from phoid.io.experiment import read_experiment
+    from phoid.methods.identification import identify as _identify
 
     try:
         if no_compensation and estimator != "ols":
@@ -155,14 +155,14 @@ def identify(
             raise ValueError("--friction applies to pho sets, without --estimator ols, "
                              "--no-compensation or --plots")
         if not friction:
-            from phoid.identification import _refuse_bias
+            from phoid.methods.identification import refuse_bias
 
-            _refuse_bias(exp, exp.method)  # a biased command: only the friction fit models it
+            refuse_bias(exp, exp.method)  # a biased command: only the friction fit models it
         if exp.method == "pho":
             if mass is not None:
                 raise ValueError("--mass applies to free-decay sets (method = \"free\") only")
             if friction:
-                from phoid.friction import identify_friction_set
+                from phoid.methods.friction import identify_friction_set
 
                 result = identify_friction_set(exp, delay=delay)
             else:
@@ -192,12 +192,12 @@ def _identify_other(exp, *, mass, delay, estimator, no_compensation):
             raise ValueError(f"{flag} applies to pho sets only; {exp.path} is a "
                              f"{exp.method} set")
     if exp.method == "forced":
-        from phoid.forced import identify_forced
+        from phoid.methods.forced import identify_forced
 
         if mass is not None:
             raise ValueError("--mass applies to free-decay sets only (a forced set gives m)")
         return identify_forced(exp)
-    from phoid.free import identify_free
+    from phoid.methods.free import identify_free
 
     return identify_free(exp, mass=mass)
 
@@ -313,9 +313,9 @@ def simulate(
     """
     import numpy as np
 
-    from phoid.io import run_from_arrays, write_experiment
-    from phoid.plant import Plant
-    from phoid.simulation import simulate as _simulate
+    from phoid.dynamics.plant import Plant
+    from phoid.io.experiment import run_from_arrays, write_experiment
+    from phoid.simulation.core import simulate as _simulate
 
     if not (math.isfinite(u_noise) and u_noise >= 0.0):
         _fail(f"--u-noise must be finite and ≥ 0 N; got {u_noise}")
@@ -335,7 +335,7 @@ def simulate(
                              "--method pho")
         names = None
         if schedule is not None:
-            from phoid.planning import read_schedule
+            from phoid.planning.sweep import read_schedule
 
             given = {n for n in ("P", "D", "delay", "fs", "duration", "noise", "x0")
                      if getattr(ctx.get_parameter_source(n), "name", "") != "DEFAULT"}
@@ -416,7 +416,7 @@ def simulate(
 
 def _check_simulation_size(runs: int, hold: float, duration: float, fs: float) -> None:
     """Refuse, in the command's words, a simulation above the simulator's sample limit."""
-    from phoid.simulation import MAX_SAMPLES
+    from phoid.simulation.core import MAX_SAMPLES
 
     for flag, val, unit in (("--duration", duration, "s"), ("--fs", fs, "Hz")):
         if not (math.isfinite(val) and val > 0):
@@ -437,8 +437,8 @@ def _simulate_other(ctx, out, *, method, m, c, k, fc, B, omega, duration, fs, x0
     """`phoid simulate --method forced|free`: a sine sweep or a free release, no loop."""
     import numpy as np
 
-    from phoid.io import write_experiment
-    from phoid.plant import Plant
+    from phoid.dynamics.plant import Plant
+    from phoid.io.experiment import write_experiment
 
     def given(name: str) -> bool:
         return getattr(ctx.get_parameter_source(name), "name", "") != "DEFAULT"
@@ -461,7 +461,7 @@ def _simulate_other(ctx, out, *, method, m, c, k, fc, B, omega, duration, fs, x0
             truth["seed"] = seed
         title = f"phoid simulate --method {method}: m={m:g} kg, c={c:g} N s/m, k={k:g} N/m"
         if method == "forced":
-            from phoid.forced import simulate_forced
+            from phoid.methods.forced import simulate_forced
 
             omegas = _numbers("omega", omega)
             _check_simulation_size(len(omegas), hold, duration, fs)
@@ -473,8 +473,8 @@ def _simulate_other(ctx, out, *, method, m, c, k, fc, B, omega, duration, fs, x0
             path = write_experiment(out, runs, method="forced", title=title,
                                     extra={"simulated": truth}, gzip=gzip, overwrite=overwrite)
         else:
-            from phoid.io import run_from_arrays
-            from phoid.simulation import simulate as _simulate
+            from phoid.io.experiment import run_from_arrays
+            from phoid.simulation.core import simulate as _simulate
 
             _check_simulation_size(1, hold, duration, fs)
             sim = _simulate(plant, 0.0, 0.0, duration=duration, fs=fs, x0=x0, v0=v0,
@@ -558,8 +558,8 @@ def design(
     skeleton; --check evaluates an existing set's gains the same way and exits with status 1
     when any run is unsafe on the prior.
     """
-    from phoid.planning import check_experiment
-    from phoid.planning import design as make_design
+    from phoid.planning.sweep import check_experiment
+    from phoid.planning.sweep import design as make_design
 
     try:
         settings = {key: val for key, val in {
@@ -572,7 +572,7 @@ def design(
                              "--check")
         if out is not None or plot is not None:  # files in the way: refused before the work
             from phoid._output import OutputFolder
-            from phoid.planning import schedule_target
+            from phoid.planning.sweep import schedule_target
 
             if out is not None:
                 schedule_target(out, overwrite=overwrite)
@@ -587,7 +587,7 @@ def design(
                                  "(a value or a range lo:hi each)")
             if delay is None:
                 raise ValueError("give the loop delay --delay (s)")
-            from phoid.planning import MAX_RUNS
+            from phoid.planning.sweep import MAX_RUNS
 
             if not 2 <= runs <= MAX_RUNS:
                 raise ValueError(f"--runs must be from 2 to {MAX_RUNS} (the design's work and "

@@ -21,11 +21,11 @@ from typing import Any
 import numpy as np
 
 from phoid._threads import single_blas_thread
-from phoid.identification import measure_modes
-from phoid.loop import forward_map
-from phoid.pho import MCKFit, fit_lines
-from phoid.plant import Plant
-from phoid.simulation import simulate
+from phoid.dynamics.loop import forward_map
+from phoid.dynamics.plant import Plant
+from phoid.methods.identification import measure_modes
+from phoid.methods.pho import MCKFit, fit_lines
+from phoid.simulation.core import simulate
 
 __all__ = [
     "PAPER_D",

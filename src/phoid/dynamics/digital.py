@@ -75,7 +75,7 @@ How wrong an "equivalent" continuous delay would be
 The issue's acceptance loop: T_s = 2 ms, backward-difference velocity, d = 3, plant m 1 kg,
 c 2 N·s/m, k 100 N/m, 10 runs P = 20 … 200 N/m, D = 0.5 … 5 N·s/m. The exact digital modes,
 weighted as the decay fits of 8 s records with 10 µm noise weight them, are fitted with the
-continuous delayed-loop model (``phoid.pho.fit_modes``):
+continuous delayed-loop model (``phoid.methods.pho.fit_modes``):
 
 ===============================  =======  ======  =======  ========
 continuous delay Δt              m (kg)   c       k (N/m)  χ²/dof
@@ -103,7 +103,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from phoid import _validate as v
-from phoid.plant import _quadratic_roots
+from phoid.dynamics.plant import quadratic_roots
 
 __all__ = [
     "VELOCITY_ESTIMATORS",
@@ -233,7 +233,7 @@ class DigitalPD:
 # zero-order-hold discretisation of the plant
 
 
-def _expm(M: np.ndarray) -> np.ndarray:
+def expm_stack(M: np.ndarray) -> np.ndarray:
     """e^M for a stack (G, n, n) of small matrices: scaling and squaring of a Taylor series.
 
     After scaling to ‖M/2^s‖₁ ≤ 1/2, 20 Taylor terms leave < 1e-25 of truncation, and the s
@@ -325,14 +325,14 @@ def zoh_plant(
         big[:, :3, :3] = X
         big[:, 3:, 3:] = X
         big[1:, :3, 3:] = E
-        ex = _expm(big)
+        ex = expm_stack(big)
         F = ex[0, :3, :3]
         dF = ex[1:, :3, 3:]  # (3, 3, 3): ∂ exp / ∂θ_j
     else:
-        F = _expm(X[None])[0]
+        F = expm_stack(X[None])[0]
     phi = F[:2, :2].copy()
     gamma = F[:2, 2].copy()
-    p = _quadratic_roots(m, c, k)
+    p = quadratic_roots(m, c, k)
     lam = np.exp(p * T)
     tau = float(phi[0, 0] + phi[1, 1])
     delta = float(phi[0, 0] * phi[1, 1] - phi[0, 1] * phi[1, 0])
@@ -358,7 +358,7 @@ def zoh_plant(
 
 def _check_loop(loop) -> DigitalPD:
     if not isinstance(loop, DigitalPD):
-        raise ValueError(f"`loop` must be a phoid.digital.DigitalPD; got {type(loop).__name__}")
+        raise ValueError(f"`loop` must be a phoid.DigitalPD; got {type(loop).__name__}")
     return loop
 
 
@@ -377,7 +377,7 @@ def _gains(P, D) -> tuple[np.ndarray, np.ndarray]:
     return P, D
 
 
-def _coefficients(zp: ZOHPlant, P, D, a: float, cf: float, d: int) -> np.ndarray:
+def characteristic_coefficients(zp: ZOHPlant, P, D, a: float, cf: float, d: int) -> np.ndarray:
     """Coefficients of χ (highest power first), shape (B, d + 4)."""
     B = P.size
     coef = np.zeros((B, d + 4))
@@ -418,7 +418,8 @@ def digital_coefficients(
     m = v.positive("m", m, "kg")
     P, D = _gains(P, D)
     zp = zoh_plant(m, c, k, loop.sample_time)
-    return _coefficients(zp, P, D, loop.filter_pole, loop.filter_gain, loop.delay_samples)
+    return characteristic_coefficients(zp, P, D, loop.filter_pole,
+                                       loop.filter_gain, loop.delay_samples)
 
 
 def _chi(z, zp: ZOHPlant, P, D, a, cf, d):
@@ -529,7 +530,7 @@ def _polish(z, zp, P, D, a, cf, d, iters=3):
 
 
 def _all_roots(zp: ZOHPlant, P, D, a, cf, d, T) -> DigitalRoots:
-    coef = _coefficients(zp, P, D, a, cf, d)
+    coef = characteristic_coefficients(zp, P, D, a, cf, d)
     B, n = P.size, d + 3
     comp = np.zeros((B, n, n))
     comp[:, 0, :] = -coef[:, 1:]
@@ -622,8 +623,9 @@ def digital_modes(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Each run's dominant root s_i(m, c, k) of the sampled loop and ∂s_i/∂(m, c, k).
 
-    The digital counterpart of ``phoid.loop.dominant_roots`` plus the implicit differentiation in
-    ``phoid.pho.fit_modes``: the model σᵢ = −Re sᵢ, ω_dᵢ = Im sᵢ for measured modes.
+    The digital counterpart of ``phoid.dynamics.loop.dominant_roots`` plus the implicit
+    differentiation in
+    ``phoid.methods.pho.fit_modes``: the model σᵢ = −Re sᵢ, ω_dᵢ = Im sᵢ for measured modes.
 
     Parameters
     ----------

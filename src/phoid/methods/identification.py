@@ -1,8 +1,8 @@
 """Identify m, c, k from a PHO experiment set: runs → decay fits → loop → m, c, k.
 
 The pipeline (ARCHITECTURE.md): each run's free decay is fitted for its dominant mode
-(:func:`phoid.decay.fit_decay`), the modes are mapped through the delayed loop (eqs. 28–32) and
-m, c, k follow from all runs together (:mod:`phoid.pho`).
+(:func:`phoid.fits.decay.fit_decay`), the modes are mapped through the delayed loop (eqs. 28–32) and
+m, c, k follow from all runs together (:mod:`phoid.methods.pho`).
 
 Right after the release the delayed loop also rings in its fast non-dominant modes, which would
 bias a single-mode fit. A first pass skips 3Δt and gives a rough plant; its exact loop roots give
@@ -27,11 +27,11 @@ import numpy as np
 from scipy.special import chdtri  # chi2 quantile: chdtri(dof, 1 - p) = chi2.ppf(p, dof)
 
 from phoid._threads import single_blas_thread
-from phoid.decay import DecayFit, _fit_checked, _uniform_step, detect_release, start_decay
-from phoid.decay_batch import FitJob, fit_decays, start_decays
+from phoid.dynamics.loop import characteristic, rightmost_roots_many
 from phoid.errors import IdentificationError
-from phoid.loop import _rightmost_roots_many, characteristic
-from phoid.pho import (
+from phoid.fits.batch import FitJob, fit_decays, start_decays
+from phoid.fits.decay import DecayFit, detect_release, fit_checked, start_decay, uniform_step
+from phoid.methods.pho import (
     Estimate,
     MCKFit,
     delay_profile,
@@ -42,8 +42,8 @@ from phoid.pho import (
 )
 
 if TYPE_CHECKING:
-    from phoid.forced import ForcedIdentification
-    from phoid.free import FreeIdentification
+    from phoid.methods.forced import ForcedIdentification
+    from phoid.methods.free import FreeIdentification
 
 __all__ = ["Identification", "RunMode", "identify", "measure_modes"]
 
@@ -85,7 +85,7 @@ class RunMode:
         The full decay fit (None when the run could not be fitted at all).
     added_mass : float
         Known mass added for this run, kg (0: none).
-    u_fit : phoid.udelay.URun or None
+    u_fit : phoid.methods.udelay.URun or None
         The joint fit of x and the recorded u (an estimated delay with u; None otherwise).
     """
 
@@ -145,11 +145,11 @@ class Identification:
         ``"given"`` (from the manifest or the caller) or ``"estimated"``.
     delay_stderr : float or None
         Standard error of an estimated delay, s.
-    digital : phoid.digital.DigitalPD or None
+    digital : phoid.dynamics.digital.DigitalPD or None
         The sampled loop the modes were modelled with (None: a continuous loop with a delay).
     delay_from : str or None
         What an estimated delay came from: ``"x"`` (the runs' modes only) or ``"x+u"`` (also
-        the recorded feedback force, :mod:`phoid.udelay`); None for a given delay.
+        the recorded feedback force, :mod:`phoid.methods.udelay`); None for a given delay.
     runs : tuple of RunMode
     fit : MCKFit
         The underlying fit (covariance, eq. 35 lines, χ²).
@@ -223,7 +223,7 @@ class Identification:
 
     def report(self) -> str:
         """A plain-text report: estimates with ± one stderr, per-run table, warnings."""
-        from phoid.report import identification_text
+        from phoid.reports.text import identification_text
 
         return identification_text(self)
 
@@ -231,9 +231,9 @@ class Identification:
         """Write per-run decay fits with residuals and the two eq. (35) lines as PNG files.
 
         Existing files are replaced only with ``overwrite``; links in ``out_dir`` are refused
-        (:func:`phoid.report.plot_identification`). Returns the list of paths written.
+        (:func:`phoid.reports.text.plot_identification`). Returns the list of paths written.
         """
-        from phoid.report import plot_identification
+        from phoid.reports.text import plot_identification
 
         return plot_identification(self, out_dir, overwrite=overwrite)
 
@@ -275,7 +275,7 @@ def _fit_run(t, x, skip, release, fast_roots=None, guess=None):
     try:
         # the record passed start_decay's checks in the first pass (identify_data made it a
         # float array), and identify_data already runs with one BLAS thread
-        fit = _fit_checked(t, x, release=release, skip=skip, fast_roots=fast_roots,
+        fit = fit_checked(t, x, release=release, skip=skip, fast_roots=fast_roots,
                            guess=guess)
         return fit, None
     except (ValueError, RuntimeError, np.linalg.LinAlgError) as exc:
@@ -314,7 +314,7 @@ def _model_releases(data, fits, rough, P, D, delay, dm=None, digital=None
                     ) -> list[float | None]:
     """Release times fitted with each loop's own response from rest (None where not done).
 
-    The data-only detection (:func:`phoid.decay.detect_release`: a quadratic, then an even
+    The data-only detection (:func:`phoid.fits.decay.detect_release`: a quadratic, then an even
     quartic departure from the held level) is off by a few samples — and, for stiff loops on
     heavily damped plants, whose departure from rest is not of that shape (strong damping; the
     delayed feedback changes it after Δt), sometimes by 15–20 samples, early. The second pass
@@ -324,7 +324,7 @@ def _model_releases(data, fits, rough, P, D, delay, dm=None, digital=None
 
     Here the record near the release is fitted by x = a + b·g(t − τ), with g the exact response
     of the rough plant's loop released from rest at 1 (g = 1 before the release; one batched
-    simulation per sample rate, :func:`phoid.simulation._release_response`). Where the span is
+    simulation per sample rate, :func:`phoid.simulation.core.release_response`). Where the span is
     sampled uniformly (to the rounding of its times), t − τ is a whole number of sample
     intervals, so g is simulated at the data's own rate (the same g, to simulate's rounding of
     ~1e−12, as on a finer grid) and is one vector per run for all its candidates; otherwise
@@ -346,15 +346,16 @@ def _model_releases(data, fits, rough, P, D, delay, dm=None, digital=None
     set (0.4 of the former per-run np.interp version's, timed paired in CPU time; 0.5–0.7 on
     the bench's overdamped and mass–damper sets, whose short delays mean many blocks).
 
-    A digital loop (``digital``, a :class:`phoid.digital.DigitalPD`) gets the response of its
+    A digital loop (``digital``, a :class:`phoid.dynamics.digital.DigitalPD`) gets the response of
+    its
     sampled controller instead, on a grid of a whole number of steps per controller sample (at
     least 4 per data sample), its clock started at the release. There the data-only detection
     is worse still — early by 1–6 ms (sd 5–10 ms) on tests/test_digital_identify.py's design at
     T_s = 2 ms — and the held samples it lets in bias σ by up to one stderr and make a third of
     the sets' runs disagree.
     """
-    from phoid.plant import Plant
-    from phoid.simulation import _release_response, simulate
+    from phoid.dynamics.plant import Plant
+    from phoid.simulation.core import release_response, simulate
 
     out: list[float | None] = [None] * len(data)
     m, c, k = rough
@@ -382,7 +383,7 @@ def _model_releases(data, fits, rough, P, D, delay, dm=None, digital=None
         # uniform sampling over the span (the decay fit's test: every time within 1e−9 of a
         # step of the grid, or the rounding of the times; g then errs by ≲ 1e−9 of its jump)
         tr = np.asarray(t[lo:hi], dtype=float)
-        uniform &= _uniform_step(tr - tr[0], float(tr[0])) is not None
+        uniform &= uniform_step(tr - tr[0], float(tr[0])) is not None
     # each simulated run: (run, span start, span end, detected release), grid rate, response
     runs: list[tuple[tuple[int, int, int, int], float, np.ndarray]] = []
     for (dt, added), items in jobs.items():
@@ -403,7 +404,7 @@ def _model_releases(data, fits, rough, P, D, delay, dm=None, digital=None
         for fs in rates:
             try:
                 if digital is None:
-                    x = _release_response(plant, P[idx], D[idx], delay=delay,
+                    x = release_response(plant, P[idx], D[idx], delay=delay,
                                           duration=span + 2 * dt, fs=fs)
                 else:
                     x = simulate(plant, P[idx], D[idx], duration=span + 2 * dt, fs=fs, x0=1.0,
@@ -604,9 +605,10 @@ def _start_run(t, x, skip, coarse_release=False):
 
 def _digital_modes_of(rough, P, D, digital, dm):
     """Per run: the sampled loop's finite roots (decreasing real part) and their amplitudes
-    for a unit release (phoid.digital.digital_residues), from the rough plant with each run's
+    for a unit release (phoid.dynamics.digital.digital_residues), from the rough plant with each
+    run's
     added mass ``dm`` (one call per distinct added mass)."""
-    from phoid.digital import digital_residues, digital_roots
+    from phoid.dynamics.digital import digital_residues, digital_roots
 
     m, c, k = rough
     roots: list[Any] = [None] * P.size
@@ -627,7 +629,8 @@ def _measure(data, P, D, delay, *, rough=None, first=None, noise=None, digital=N
     from it, and with ``first`` (the first pass's starts) that pass is not redone. ``noise``
     (m, per run) replaces the first pass's noise level.
 
-    The first pass is only the starting stage of the decay fit (:func:`phoid.decay.start_decay`:
+    The first pass is only the starting stage of the decay fit
+    (:func:`phoid.fits.decay.start_decay`:
     release, noise, window, and (σ, ω_d) from ESPRIT on the record after 3Δt): it is within
     about one standard error of a full fit, which is all the rough plant needs, at a third of
     the cost. Each run is then fitted once, in full: from the release with the loop's fast
@@ -679,13 +682,13 @@ def _measure(data, P, D, delay, *, rough=None, first=None, noise=None, digital=N
             for added in np.unique(dm[todo]):
                 grp = [i for i in todo if dm[i] == added]
                 rm, rc, rk = rough
-                for i, r in zip(grp, _rightmost_roots_many(rm + added, rc, rk, P[grp], D[grp],
+                for i, r in zip(grp, rightmost_roots_many(rm + added, rc, rk, P[grp], D[grp],
                                                            delay, count=2 * _N_FAST + 4),
                                 strict=True):
                     all_roots[i] = r
         except (RuntimeError, ValueError):
             pass
-    # every run's fit is planned first and made in one batch (phoid.decay_batch); a run whose
+    # every run's fit is planned first and made in one batch (phoid.fits.batch); a run whose
     # planned fit fails, or that has none, then gets the plain single-mode fit after 3Δt
     plans: dict[int, tuple[FitJob, bool]] = {}  # run: (fit, made with fast modes)
     rel_of: dict[int, float] = {}
@@ -770,9 +773,9 @@ def identify(
 
     Parameters
     ----------
-    experiment : phoid.io.ExperimentSet
+    experiment : phoid.io.experiment.ExperimentSet
         The runs (t, x, P, D) and the loop delay (``[loop] delay``), as read by
-        :func:`phoid.io.read_experiment`.
+        :func:`phoid.io.experiment.read_experiment`.
     delay : float, optional
         Loop delay Δt (s), overriding the manifest's.
     estimator : {"gls", "ols"}
@@ -786,8 +789,9 @@ def identify(
     -------
     Identification
         For ``method = "forced"`` or ``"free"`` sets the result of
-        :func:`phoid.forced.identify_forced` or :func:`phoid.free.identify_free` (a known mass
-        for a free set: :func:`phoid.free.identify_free` with ``mass=``).
+        :func:`phoid.methods.forced.identify_forced` or :func:`phoid.methods.free.identify_free` (a
+        known mass
+        for a free set: :func:`phoid.methods.free.identify_free` with ``mass=``).
 
     Raises
     ------
@@ -799,7 +803,7 @@ def identify(
     if estimator == "gls" and not compensate:
         raise ValueError("`compensate=False` is only available with estimator='ols'")
     method = getattr(experiment, "method", "pho")
-    _refuse_bias(experiment, method)
+    refuse_bias(experiment, method)
     if method in ("forced", "free"):
         # the other methods of the format, with their own estimators; PHO-only options refused
         if delay is not None or estimator != "gls" or not compensate:
@@ -808,10 +812,10 @@ def identify(
                 "`compensate` apply to PHO sets only"
             )
         if method == "forced":
-            from phoid.forced import identify_forced
+            from phoid.methods.forced import identify_forced
 
             return identify_forced(experiment)
-        from phoid.free import identify_free
+        from phoid.methods.free import identify_free
 
         return identify_free(experiment)
     if method != "pho":
@@ -820,7 +824,7 @@ def identify(
     if not runs:
         raise IdentificationError(f"{experiment.path}: no runs")
     added_mass = np.array([getattr(r, "added_mass", 0.0) for r in runs], dtype=float)
-    digital = _digital_loop(experiment)
+    digital = read_digital_loop(experiment)
     if digital is not None:
         _check_sample_time(experiment, digital, runs)
         if delay is not None or experiment.delay is not None:
@@ -858,14 +862,14 @@ def identify(
     )
 
 
-def _refuse_bias(experiment: Any, method: str) -> None:
+def refuse_bias(experiment: Any, method: str) -> None:
     """Refuse runs whose command carries a DC-offset bias (``[[run]] bias``): their decay is not
     a sum of the loop's modes, so the mode fit would return a wrong m, c, k without noticing;
-    the friction fit models it (``phoid identify --friction``, :mod:`phoid.friction`)."""
+    the friction fit models it (``phoid identify --friction``, :mod:`phoid.methods.friction`)."""
     for r in getattr(experiment, "runs", ()):
         if getattr(r, "bias", 0.0):
             hint = ("; fit it with the stick-slip model: phoid identify --friction "
-                    "(phoid.friction.identify_friction_set)" if method == "pho" else
+                    "(phoid.methods.friction.identify_friction_set)" if method == "pho" else
                     f"; a {method} set has no PD loop to carry it")
             raise IdentificationError(
                 f"{experiment.path}: {r.name}: bias = {r.bias:g} N: a biased PD command is not "
@@ -902,13 +906,14 @@ def identify_data(
 
     Parameters are as in :func:`identify`; ``files``/``names`` label the runs. ``delay=None``
     estimates the loop delay with m, c, k (see :func:`_estimate_delay`). ``digital``
-    (a :class:`phoid.digital.DigitalPD`; its gains are ignored) models a sampled loop exactly;
+    (a :class:`phoid.dynamics.digital.DigitalPD`; its gains are ignored) models a sampled loop
+    exactly;
     ``delay`` is then ignored (the loop's own d·T_s is used for the starting lines).
     ``added_mass`` (kg, per run) is a known mass added in each run (the paper's added-mass
     trick): run i's loop has mass m + Δmᵢ and the estimate is the mass without additions.
     ``u`` (N, per run, None where not recorded; same samples as x) is the feedback force
     applied: with ``delay=None`` the delay is then estimated from x and u together
-    (:func:`phoid.udelay.with_u`).
+    (:func:`phoid.methods.udelay.with_u`).
     """
     n = len(data)
     if n == 0:
@@ -935,7 +940,7 @@ def identify_data(
     if delay is None:
         if estimator != "gls":
             raise IdentificationError("estimating the loop delay needs estimator='gls'")
-        from phoid.udelay import check_u, with_u
+        from phoid.methods.udelay import check_u, with_u
 
         u = None if u is None else check_u(u, data)
         res = _estimate_delay(data, P, D, files=files, names=names, source=source,
@@ -953,7 +958,7 @@ def identify_data(
                          estimator=estimator, compensate=compensate, source=source,
                          added_mass=added_mass)
     if u is not None and any(ui is not None for ui in u):
-        from phoid.udelay import check_u
+        from phoid.methods.udelay import check_u
 
         wd = [r.omega_d for r in res.runs]
         note = _u_contradicts_gains(data, check_u(u, data), P, D, float(delay), names, wd)
@@ -1055,11 +1060,12 @@ def _estimate_delay(data, P, D, *, files, names, source, added_mass=None) -> Ide
 
     Only the right delay maps all runs' modes onto one plant (eq. 35's points collinear, with
     one slope), so with three or more distinct gain pairs Δt is identifiable. Start: each run's
-    mode from the release on (:func:`phoid.decay.start_decay`, no transient skipped: a slightly
-    biased but robust first look), then the profile of :func:`phoid.pho.delay_profile` over
+    mode from the release on (:func:`phoid.fits.decay.start_decay`, no transient skipped: a slightly
+    biased but robust first look), then the profile of :func:`phoid.methods.pho.delay_profile` over
     0 … π/max ω_d (a delay of half the fastest run's period; the loop's phase lag at that delay
     is already beyond what a PD loop rings with). Then the full pipeline at that delay with
-    Δt fitted alongside m, c, k through the exact roots (:func:`phoid.pho.fit_modes`), twice:
+    Δt fitted alongside m, c, k through the exact roots (:func:`phoid.methods.pho.fit_modes`),
+    twice:
     the second time with the transient skip and fast modes of the first estimate.
     """
     n = len(data)
@@ -1153,22 +1159,22 @@ def _check_sample_time(experiment: Any, digital: Any, runs: Sequence[Any]) -> No
             "[loop] delay instead of sample_time")
 
 
-_DIGITAL_KEYS = ("sample_time", "delay_samples", "velocity", "cutoff")
+DIGITAL_KEYS = ("sample_time", "delay_samples", "velocity", "cutoff")
 
 
-def _digital_loop(experiment: Any):
+def read_digital_loop(experiment: Any):
     """The manifest's digital loop ([loop] sample_time, …) as a DigitalPD, or None."""
-    from phoid.digital import DigitalPD
+    from phoid.dynamics.digital import DigitalPD
 
     loop = dict(getattr(experiment, "loop", {}) or {})
-    unknown = sorted(set(loop) - {"delay", *_DIGITAL_KEYS})
+    unknown = sorted(set(loop) - {"delay", *DIGITAL_KEYS})
     if unknown:
         raise IdentificationError(
             f"{experiment.path}: [loop] {unknown[0]}: unknown key (known: delay, "
-            + ", ".join(_DIGITAL_KEYS) + ")"
+            + ", ".join(DIGITAL_KEYS) + ")"
         )
     if "sample_time" not in loop:
-        extra = [key for key in _DIGITAL_KEYS if key in loop]
+        extra = [key for key in DIGITAL_KEYS if key in loop]
         if extra:
             raise IdentificationError(
                 f"{experiment.path}: [loop] {extra[0]}: needs [loop] sample_time (s), the "
@@ -1245,10 +1251,10 @@ def _cli_words(message: str) -> str:
 
 
 def _probable_cause(first, data, P, D, delay, names, dm, estimate_delay) -> str | None:
-    """:func:`phoid.diagnose.probable_cause` from the first pass's rough modes (``first``: each
+    """`diagnose.probable_cause` from the first pass's rough modes (``first``: each
     run's (start, error)); ``delay`` None (a digital loop, or a delay being estimated) skips
     the delay check."""
-    from phoid.diagnose import probable_cause
+    from phoid.methods.diagnose import probable_cause
 
     sig = np.full(len(data), np.nan)
     wd = np.full(len(data), np.nan)
@@ -1345,7 +1351,7 @@ def _identify_core(data, P, D, delay, *, files, names, estimator="gls", compensa
         warnings.append(
             f"{len(misfits)} of {len(used)} runs do not decay like a linear loop (residuals well "
             "above the noise): if the rig has Coulomb friction, identify with friction "
-            "(phoid identify --friction, phoid.friction.identify_friction), which fits f_c too"
+            "(phoid identify --friction, phoid.identify_friction), which fits f_c too"
         )
     if len(used) >= 3 and np.ptp(D[used]) == 0.0:
         # P-only loops (the seed's Discussion): damping varies between runs only through the

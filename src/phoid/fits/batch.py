@@ -1,4 +1,4 @@
-"""Many dominant-mode decay fits at once: :func:`phoid.decay.fit_decay` over a batch of records.
+"""Many dominant-mode decay fits at once: :func:`~phoid.fits.decay.fit_decay` on a batch of records.
 
 An identification fits one decay per run (19 for the seed paper's sweep). One fit of 15 000
 samples is a handful of Gauss–Newton evaluations, each a few dozen small numpy operations of
@@ -7,14 +7,14 @@ sampling step, a block size and a number of fast-mode columns are stacked (zero-
 longest) and every stage of the fit — the tabulated evaluator's sums, the linear solve, the
 Kaufman normal matrix, the step-halving Gauss–Newton, the exact-residual polish — runs on all of
 them in one set of array operations, each record keeping its own iteration, step length and
-stopping point. The arithmetic per record is that of :class:`phoid.decay._Table`,
-:func:`phoid.decay._gauss_newton` and :func:`phoid.decay._polish` (same sums, same
+stopping point. The arithmetic per record is that of :class:`phoid.fits.decay._Table`,
+:func:`phoid.fits.decay._gauss_newton` and :func:`phoid.fits.decay._polish` (same sums, same
 tests), so the results agree with fitting the records one by one to rounding (~1e−13 relative;
 tests/test_decay_batch.py). Records that do not fit the scheme (non-uniform sampling, fewer
 than 64 samples) and records whose start cannot be evaluated go through
-:func:`phoid.decay._fit_checked` one at a time.
+:func:`phoid.fits.decay.fit_checked` one at a time.
 
-The identification's first look at every run (:func:`phoid.decay.start_decay`) is batched the
+The identification's first look at every run (:func:`phoid.fits.decay.start_decay`) is batched the
 same way where it pays: the ESPRIT eigenproblems, shift-invariance solves and eigenvalues of all
 runs are stacked (the same LAPACK routine per matrix, so the same numbers bit for bit).
 """
@@ -27,16 +27,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from phoid import decay as _d
+from phoid.fits import decay as _d
 
 __all__ = ["FitJob", "fit_decays", "start_decays"]
 
 
 @dataclass(frozen=True)
 class FitJob:
-    """One record to fit: the arguments of :func:`phoid.decay.fit_decay` (``t`` s, ``x`` m,
+    """One record to fit: the arguments of :func:`phoid.fits.decay.fit_decay` (``t`` s, ``x`` m,
     ``release`` s, ``skip`` s, ``fast_roots`` 1/s, ``guess`` (σ 1/s, ω_d rad/s)). The record must
-    have passed :func:`phoid.decay._check_record` (float64, finite, t strictly increasing)."""
+    have passed :func:`phoid.fits.decay.check_record` (float64, finite, t strictly increasing)."""
 
     t: np.ndarray
     x: np.ndarray
@@ -47,12 +47,12 @@ class FitJob:
 
 
 def _block_size(n: int) -> int:
-    """The table block size :class:`phoid.decay._Table` uses for n samples."""
+    """The table block size :class:`phoid.fits.decay._Table` uses for n samples."""
     return int(min(512, max(16, 2 ** round(math.log2(math.sqrt(n))))))
 
 
 class _Batch:
-    """The tabulated evaluator of :class:`phoid.decay._Table` for R records at once.
+    """The tabulated evaluator of :class:`phoid.fits.decay._Table` for R records at once.
 
     All records share the step ``dt``, the block size ``B`` and the number ``kc`` of fast
     columns; record i has n_i samples in nb_i blocks, zero-padded to the longest. The tables of
@@ -239,7 +239,7 @@ class _Batch:
         return rs, Gr
 
     def normal(self, pt: dict, Gr: np.ndarray | None = None, minv: np.ndarray | None = None):
-        """(JᵀJ)⁻¹ and Jᵀr per record, as :meth:`phoid.decay._Point.normal` (parameters
+        """(JᵀJ)⁻¹ and Jᵀr per record, as :meth:`phoid.fits.decay._Point.normal` (parameters
         ordered linear …, σ, ω_d); ``minv`` given: only the new gradient ``Gr`` is rotated.
         Returns (Minv, g, ok)."""
         K, beta = pt["K"], pt["beta"]
@@ -279,7 +279,7 @@ class _Batch:
 
 def _fast_columns_many(taus: Sequence[np.ndarray], roots: Sequence[np.ndarray], dt: float
                        ) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`phoid.decay._fast_columns` of R records of uniform step ``dt`` (s) and the same
+    """:func:`phoid.fits.decay._fast_columns` of R records of uniform step ``dt`` (s) and the same
     number kc of columns, stacked with τ times them: (R, 2 kc, nf_max), zero beyond each
     record's own nf samples, and nf (R,). Every column is computed as there, element for
     element (the same exponentials, the same table products), so the columns are the same
@@ -376,7 +376,7 @@ def _step_se(Minv, g, sse, dof):
 
 
 def _gauss_newton(bt: _Batch, pt: dict, rtol_se: float = 0.05, maxit: int | None = None):
-    """:func:`phoid.decay._gauss_newton` for every record of ``pt`` (all evaluable), in lock
+    """:func:`phoid.fits.decay._gauss_newton` for every record of ``pt`` (all evaluable), in lock
     step: each record stops on its own test. Returns (point, Minv (NaN where none), converged,
     iterations)."""
     maxit = _d._MAXIT if maxit is None else maxit
@@ -426,7 +426,7 @@ def _gauss_newton(bt: _Batch, pt: dict, rtol_se: float = 0.05, maxit: int | None
 
 
 def _polish(bt: _Batch, pt: dict, Minv: np.ndarray, rtol_se: float = 0.05):
-    """:func:`phoid.decay._polish` for every record: the exact residual at the optimum and up to
+    """`decay._polish` on every record: the exact residual at the optimum and up to
     three more steps with the exact gradient. Returns (point, residuals, Minv)."""
     R = bt.R
     rows = np.arange(R)
@@ -470,7 +470,7 @@ def _group_key(prep: _d._Prepared) -> tuple | None:
 
 
 def fit_decays(jobs: Sequence[FitJob]) -> list[_d.DecayFit | str]:
-    """:func:`phoid.decay.fit_decay` of every job, the uniformly sampled ones batched.
+    """:func:`phoid.fits.decay.fit_decay` of every job, the uniformly sampled ones batched.
 
     Parameters
     ----------
@@ -480,7 +480,7 @@ def fit_decays(jobs: Sequence[FitJob]) -> list[_d.DecayFit | str]:
     Returns
     -------
     list of DecayFit or str
-        Per job its fit (``method == "mode-fit"``, as :func:`phoid.decay.fit_decay` returns
+        Per job its fit (``method == "mode-fit"``, as :func:`phoid.fits.decay.fit_decay` returns
         it), or the message of the ValueError, RuntimeError or LinAlgError that fitting it
         alone raises.
     """
@@ -507,7 +507,7 @@ def fit_decays(jobs: Sequence[FitJob]) -> list[_d.DecayFit | str]:
     for i in alone:
         job = jobs[i]
         try:
-            out[i] = _d._fit_checked(job.t, job.x, release=job.release, skip=job.skip,
+            out[i] = _d.fit_checked(job.t, job.x, release=job.release, skip=job.skip,
                                      fast_roots=job.fast_roots, guess=job.guess)
         except (ValueError, RuntimeError, np.linalg.LinAlgError) as exc:
             out[i] = str(exc)
@@ -569,18 +569,18 @@ def _minv_or_nan(M: np.ndarray) -> np.ndarray:
 def start_decays(records: Sequence[tuple[np.ndarray, np.ndarray]], *, skip: float = 0.0,
                  refine: bool | str = True, coarse_release: bool = False
                  ) -> list[_d.DecayStart | str]:
-    """:func:`phoid.decay.start_decay` of every record (t s, x m), the ESPRIT stage stacked.
+    """:func:`phoid.fits.decay.start_decay` of every record (t s, x m), the ESPRIT stage stacked.
 
     Returns per record its DecayStart, or the message of the ValueError, RuntimeError or
     LinAlgError that starting it alone raises. Identical to calling
-    :func:`phoid.decay.start_decay` per record.
+    :func:`phoid.fits.decay.start_decay` per record.
     """
     out: list[_d.DecayStart | str | None] = [None] * len(records)
     pres: dict[int, _d._StartInput] = {}
     checked: dict[int, tuple[np.ndarray, np.ndarray]] = {}
     for i, (t, x) in enumerate(records):
         try:
-            checked[i] = _d._check_record(t, x)
+            checked[i] = _d.check_record(t, x)
         except ValueError as exc:
             out[i] = str(exc)
     # the releases' change points in one batch, the spectral periods in one FFT
@@ -610,7 +610,7 @@ def start_decays(records: Sequence[tuple[np.ndarray, np.ndarray]], *, skip: floa
             for i in ids:
                 try:
                     pre = pres[i]
-                    roots[i] = _d._esprit(pre.y, pre.q * pre.dt, order)
+                    roots[i] = _d.esprit(pre.y, pre.q * pre.dt, order)
                 except (ValueError, RuntimeError, np.linalg.LinAlgError) as exc:
                     out[i] = str(exc)
             continue

@@ -11,16 +11,16 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
 from phoid._output import OutputFolder, png_writer
-from phoid.loop import inverse_map
+from phoid.dynamics.loop import inverse_map
 
 if TYPE_CHECKING:
-    from phoid.identification import Identification
+    from phoid.methods.identification import Identification
     from phoid.paper import PaperResult
 
 __all__ = ["figure1", "identification_text", "plot_identification"]
 
 
-def _fmt(value: float, se: float | None) -> str:
+def format_estimate(value: float, se: float | None) -> str:
     if se is None or not math.isfinite(se) or se <= 0:
         return f"{value:.6g}"
     digits = max(0, 1 - math.floor(math.log10(se)))
@@ -31,17 +31,17 @@ def identification_text(ident: Identification) -> str:
     """Plain-text report of an identification: estimates, derived ζ and ω₀, runs, warnings."""
     lines = [f"phoid identify: {ident.source}" if ident.source else "phoid identify"]
     delay = (f"{ident.delay:g} s" if ident.delay_stderr is None
-             else f"{_fmt(ident.delay, ident.delay_stderr)} s")
+             else f"{format_estimate(ident.delay, ident.delay_stderr)} s")
     origin = {"x": " from x", "x+u": " from x and u"}.get(getattr(ident, "delay_from", None), "")
     lines.append(f"  estimator {ident.fit.estimator}, delay {delay} ({ident.delay_source}"
                  f"{origin})")
     lines.extend(_digital_line(ident))
     lines.append("")
     for name, est in (("m", ident.m), ("c", ident.c), ("k", ident.k)):
-        lines.append(f"  {name} = {_fmt(est.value, est.stderr)} {est.unit}")
+        lines.append(f"  {name} = {format_estimate(est.value, est.stderr)} {est.unit}")
     w0, z = ident.omega0, ident.zeta
-    lines.append(f"  open-loop ω₀ = {_fmt(w0.value, w0.stderr)} rad/s,  "
-                 f"ζ = {_fmt(z.value, z.stderr) if math.isfinite(z.value) else 'inf (k = 0)'}")
+    zeta = format_estimate(z.value, z.stderr) if math.isfinite(z.value) else "inf (k = 0)"
+    lines.append(f"  open-loop ω₀ = {format_estimate(w0.value, w0.stderr)} rad/s,  ζ = {zeta}")
     lines.append("")
     # a space before each wide column: a long value (σ ± stderr) never runs into the one before
     head = (f"  {'run':<16}{'P N/m':>10}{'D N s/m':>10} {'σ 1/s':>19} {'ω_d rad/s':>19}"
@@ -50,8 +50,10 @@ def identification_text(ident: Identification) -> str:
     for r in ident.runs:
         mark = "" if r.used else "  (set aside)"
         lines.append(
-            f"  {r.file:<16}{r.P:>10.4g}{r.D:>10.4g} {_fmt(r.sigma, r.sigma_stderr):>19}"
-            f" {_fmt(r.omega_d, r.omega_d_stderr):>19}{r.c_prime:>11.5g}{r.k_prime:>11.5g}"
+            f"  {r.file:<16}{r.P:>10.4g}{r.D:>10.4g}"
+            f" {format_estimate(r.sigma, r.sigma_stderr):>19}"
+            f" {format_estimate(r.omega_d, r.omega_d_stderr):>19}"
+            f"{r.c_prime:>11.5g}{r.k_prime:>11.5g}"
             f"{r.cycles:>8.1f}{r.residual_rms:>10.2g}{mark}"
         )
     if ident.warnings:
@@ -61,7 +63,7 @@ def identification_text(ident: Identification) -> str:
     return "\n".join(lines)
 
 
-def _save(fig: Figure, out: OutputFolder, name: str) -> Path:
+def save_png(fig: Figure, out: OutputFolder, name: str) -> Path:
     """Render ``fig`` as PNG into ``out``/``name`` (atomic, no links followed)."""
     FigureCanvasAgg(fig)
     return out.write(name, png_writer(fig, 120))
@@ -114,7 +116,7 @@ def plot_identification(ident: Identification, out_dir: str | Path, *,
         axr.plot(t[sel], (x[sel] - model) * 1e3, lw=0.5, color="C1")
         axr.set_ylabel("residual (mm)")
         axr.set_xlabel("t (s)")
-        written.append(_save(fig, out, names[i]))
+        written.append(save_png(fig, out, names[i]))
     written.append(_lines_figure(ident, out, "eq35-lines.png"))
     return written
 
@@ -165,7 +167,7 @@ def _lines_figure(ident: Identification, out: OutputFolder, name: str) -> Path:
     b.set_ylabel("k′ᵢ (N/m)")
     b.legend(fontsize=8)
     fig.suptitle("eq. (35) lines, per-run error bars ±1 stderr")
-    return _save(fig, out, name)
+    return save_png(fig, out, name)
 
 
 def figure1(result: PaperResult, out_dir: str | Path, *,
@@ -219,7 +221,7 @@ def figure1(result: PaperResult, out_dir: str | Path, *,
         ax.set_title(title)
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
-        paths.append(_save(fig, out, f"figure1{tag}.png"))
+        paths.append(save_png(fig, out, f"figure1{tag}.png"))
     return paths[0], paths[1]
 
 
@@ -234,7 +236,7 @@ def _digital_line(result: Any) -> list[str]:
 
 
 def friction_text(fit: Any) -> str:
-    """Plain-text report of a friction fit (:class:`phoid.friction.FrictionFit`)."""
+    """Plain-text report of a friction fit (:class:`phoid.methods.friction.FrictionFit`)."""
     lines = ["phoid identify --friction (full-record fit through the stick–slip simulator)"]
     lines.append(f"  delay {fit.delay:g} s (given), χ²/dof {fit.chi2_red:.3g}, "
                  f"{'converged' if fit.converged else 'NOT converged'}")
@@ -244,7 +246,7 @@ def friction_text(fit: Any) -> str:
                      + ", ".join(f"{r.bias:g}" for r in fit.runs))
     lines.append("")
     for name, est in (("m", fit.m), ("c", fit.c), ("k", fit.k), ("fc", fit.fc)):
-        lines.append(f"  {name} = {_fmt(est.value, est.stderr)} {est.unit}")
+        lines.append(f"  {name} = {format_estimate(est.value, est.stderr)} {est.unit}")
     lines.append("")
     lines.append(f"  {'run':<16}{'P N/m':>10}{'D N s/m':>10}{'σ 1/s':>10}{'ω_d rad/s':>11}"
                  f"{'x0 m':>11}{'sticks at s':>13}{'resid m':>10}")

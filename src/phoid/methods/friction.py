@@ -23,7 +23,8 @@ the release time τᵢ. The model of run i is
     ŷᵢ(t) = bᵢ + X(t − τᵢ; θ, x₀ᵢ)     (t > τᵢ),
 
 X the closed loop's response released from rest at x₀ᵢ, computed by
-:func:`phoid.simulation.simulate` (exact plant propagation, exact stick–slip events; all runs in
+:func:`phoid.simulate` (exact plant propagation, exact stick–slip events; all runs
+in
 one batched call) on a grid of step h = 1/f_s aligned with the delay, and read at the sample
 times by the cubic Hermite interpolant of the simulated x and ẋ (error ≤ h⁴‖x⁗‖/384, about
 10⁻¹¹ m for the issue's set, and O(h²·2f_c/m) within a step that holds a velocity reversal,
@@ -38,10 +39,10 @@ update). The Jacobian columns are:
   (every term of the equation is linear in x except f_c sign(ẋ), which scales with f_c), so
   x₀ ∂X/∂x₀ + f_c ∂X/∂f_c = X.
 
-A sampled (digital) controller (``digital``, a :class:`phoid.digital.DigitalPD`, or the
+A sampled (digital) controller (``digital``, a :class:`phoid.DigitalPD`, or the
 manifest's ``[loop] sample_time`` …) replaces the delayed loop by the hybrid one — zero-order
 hold, d-sample command delay, the loop's velocity estimator — simulated exactly with stick–slip
-by the same :func:`phoid.simulation.simulate` (a whole number of steps per controller sample),
+by the same :func:`phoid.simulate` (a whole number of steps per controller sample),
 its clock started at each run's release.
 
 Runs recorded with a known added mass Δmᵢ (the paper's added-mass trick, ``added_mass``) are
@@ -93,7 +94,7 @@ Checks before fitting
   intervals up to 3Δt reconciles them — the delay u implies. When the viscous starting point
   then fails, the error carries that diagnosis.
 
-Starting point, and two stages. m, c, k come from :func:`phoid.identification.identify_data`
+Starting point, and two stages. m, c, k come from :func:`phoid.methods.identification.identify_data`
 (the viscous dominant-mode fit of the same runs), τᵢ from its model-fitted releases. The
 envelopes then give the rest: successive extrema pₙ of each record lie about bᵢ with a
 peak-to-peak height Hₙ that obeys Hₙ₊₁ = ρᵢHₙ − 2f_c(1 + ρᵢ)/(k + Pᵢ) (the half-cycle recursion
@@ -157,10 +158,10 @@ import numpy as np
 from scipy import signal, stats
 
 from phoid._threads import single_blas_thread
-from phoid.decay import detect_release
+from phoid.dynamics.loop import dominant_roots, inverse_map
 from phoid.errors import ExperimentError, IdentificationError, PhoidError
-from phoid.loop import dominant_roots, inverse_map
-from phoid.pho import Estimate, fit_lines
+from phoid.fits.decay import detect_release
+from phoid.methods.pho import Estimate, fit_lines
 
 __all__ = ["FrictionEvidence", "FrictionFit", "FrictionRun", "friction_evidence",
            "identify_friction", "identify_friction_set"]
@@ -294,7 +295,7 @@ class FrictionFit:
     start : tuple of float
         Starting (m, c, k, f_c).
     warnings : tuple of str
-    digital : phoid.digital.DigitalPD or None
+    digital : phoid.DigitalPD or None
         The sampled controller the records were simulated with (None: a continuous loop with
         delay Δt); ``delay`` is then its command delay d·T_s.
     """
@@ -371,7 +372,7 @@ class FrictionFit:
 
     def report(self) -> str:
         """A plain-text report: m, c, k, f_c with ± one stderr, the runs, warnings."""
-        from phoid.report import friction_text
+        from phoid.reports.text import friction_text
 
         return friction_text(self)
 
@@ -685,7 +686,7 @@ def _envelope_guess(surveys, P, D, delay, m, c, k, omegas, releases, dm=None, bi
     1. the given m, k with c the median of 2(m + Δmᵢ)σᵢ − c′ᵢ (eq. 35, c′ᵢ from eq. 32; Δmᵢ
        the known added masses);
     2. m, c, k from the paper's lines through (σᵢ, ω_dᵢ) (eqs. 32–35,
-       :func:`phoid.pho.fit_lines`), when three runs with two gain pairs have enough peaks.
+       :func:`phoid.methods.pho.fit_lines`), when three runs with two gain pairs have enough peaks.
 
     A run's known bias bᵢ cancels part of the friction while it slides, so its envelope gives
     f_c − bᵢ: bᵢ is added back. Without such runs, the given (m, c, k) with f_c = 0. The offset
@@ -740,7 +741,7 @@ def _envelope_guess(surveys, P, D, delay, m, c, k, omegas, releases, dm=None, bi
 
 @dataclass(frozen=True)
 class _PlantParams:
-    """Duck-typed plant for :func:`phoid.simulation.simulate` (c, k may go negative in a fit)."""
+    """Duck-typed plant for :func:`phoid.simulate` (c, k may go negative in a fit)."""
 
     m: float
     c: float
@@ -812,7 +813,7 @@ class _Problem:
 
         One batched simulation per distinct added mass (run i's plant is m + Δmᵢ); each run's
         command carries its bias bᵢ (times ``bias_scale``)."""
-        from phoid.simulation import simulate
+        from phoid.simulation.core import simulate
 
         m, c, k, fc = (float(a) for a in theta)
         if not (m > 0 and fc >= 0):
@@ -1189,7 +1190,7 @@ class _Setup:
     fs: float
     warnings: list[str]
     dm: np.ndarray  # known added mass per run, kg
-    digital: Any = None  # phoid.digital.DigitalPD of a sampled loop, else None
+    digital: Any = None  # phoid.DigitalPD of a sampled loop, else None
     bias: np.ndarray | None = None  # known DC offset of each run's command, N
 
 
@@ -1252,14 +1253,14 @@ def _dominant(m, c, k, P, D, delay, digital):
     """Dominant root of each run's loop: the continuous delayed loop, or the sampled one."""
     if digital is None:
         return dominant_roots(m, c, k, P, D, delay)
-    from phoid.digital import digital_roots
+    from phoid.dynamics.digital import digital_roots
 
     return digital_roots(m, c, k, P, D, digital).dominant
 
 
 def _prepare(data, P, D, delay, start, names, need_fc: bool, added_mass=None,
              digital=None, bias=None, u=None) -> _Setup:
-    from phoid.identification import identify_data
+    from phoid.methods.identification import identify_data
 
     n = len(data)
     if n == 0:
@@ -1278,10 +1279,10 @@ def _prepare(data, P, D, delay, start, names, need_fc: bool, added_mass=None,
         j = int(np.flatnonzero(bs < 0)[0])
         raise ExperimentError(f"{names[j]}: `bias` must be ≥ 0 N; got {bs[j]}")
     if digital is not None:
-        from phoid.digital import DigitalPD
+        from phoid.dynamics.digital import DigitalPD
 
         if not isinstance(digital, DigitalPD):
-            raise ExperimentError(f"`digital` must be a phoid.digital.DigitalPD; got {digital!r}")
+            raise ExperimentError(f"`digital` must be a phoid.DigitalPD; got {digital!r}")
         if delay is not None:
             raise ExperimentError(
                 "`delay` must be None with a digital loop: its command delay is "
@@ -1497,7 +1498,7 @@ def identify_friction(
     added_mass : array_like, shape (n,), optional
         Known mass added in each run, kg (≥ 0; the paper's added-mass trick): run i's plant is
         m + Δmᵢ, and m is the mass without additions.
-    digital : phoid.digital.DigitalPD, optional
+    digital : phoid.DigitalPD, optional
         A sampled controller (its gains are ignored): the records are then modelled by the
         sampled-loop simulator (zero-order hold, d-sample command delay, the loop's velocity
         estimator), its clock started at each run's release; ``delay`` must be None.
@@ -1769,7 +1770,7 @@ def identify_friction_set(experiment: Any, *, delay: float | None = None) -> Fri
 
     Parameters
     ----------
-    experiment : phoid.io.ExperimentSet
+    experiment : phoid.io.experiment.ExperimentSet
         A ``pho`` set with a known loop delay (``[loop] delay``), or a sampled controller
         (``[loop] sample_time``, ``delay_samples``, ``velocity``, ``cutoff``).
     delay : float, optional
@@ -1781,12 +1782,12 @@ def identify_friction_set(experiment: Any, *, delay: float | None = None) -> Fri
         A set the friction fit does not model (not ``pho``, no delay), conflicting loop keys,
         or no usable run; the message names the set.
     """
-    from phoid.identification import _digital_loop
+    from phoid.methods.identification import read_digital_loop
 
     where = str(getattr(experiment, "path", "experiment"))
     if getattr(experiment, "method", "pho") != "pho":
         raise IdentificationError(f"{where}: --friction applies to PHO sets (method = \"pho\")")
-    digital = _digital_loop(experiment)
+    digital = read_digital_loop(experiment)
     runs = list(experiment.runs)
     if digital is not None:
         if delay is not None or experiment.delay is not None:

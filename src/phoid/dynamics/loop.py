@@ -27,7 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from phoid import _validate as v
-from phoid.plant import Plant, _quadratic_roots
+from phoid.dynamics.plant import Plant, quadratic_roots
 
 __all__ = [
     "DelayedPD",
@@ -605,12 +605,12 @@ def characteristic_roots(
     gives starting points that Newton refines; the result is certified as described in the
     module docstring.
     """
-    return _rightmost_roots(
+    return rightmost_roots(
         plant.m, plant.c, plant.k, loop.P, loop.D, loop.delay, count=count, verify=verify
     )
 
 
-def _rightmost_roots(m, c, k, P, D, tau, *, count=6, verify=True):
+def rightmost_roots(m, c, k, P, D, tau, *, count=6, verify=True):
     """:func:`characteristic_roots` on raw numbers (m > 0; c, k of any sign).
 
     The first attempt is a quick one: a coarser discretisation (order 16, or 24 where more
@@ -624,7 +624,7 @@ def _rightmost_roots(m, c, k, P, D, tau, *, count=6, verify=True):
     until the certificate agrees.
     """
     if tau == 0.0:
-        return _quadratic_roots(m, c + D, k + P)
+        return quadratic_roots(m, c + D, k + P)
     n = 16 if count <= 3 else 32  # doubled until the certificate (argument principle) agrees
     for attempt in range(7 if verify else 6):
         quick = verify and attempt == 0
@@ -675,14 +675,14 @@ def _rightmost_roots(m, c, k, P, D, tau, *, count=6, verify=True):
     )
 
 
-def _rightmost_roots_many(m, c, k, P, D, tau, *, count=6):
-    """:func:`_rightmost_roots` for many runs of one plant, by continuation.
+def rightmost_roots_many(m, c, k, P, D, tau, *, count=6):
+    """:func:`rightmost_roots` for many runs of one plant, by continuation.
 
     The first run's roots are computed in full; each further run starts Newton from the roots
     of a run near it in (P, D) already done, and the result is accepted only if the argument
     principle certifies it (no other root right of an abscissa between the kept roots and the
     next one); otherwise that run's roots are computed in full. Same results as calling
-    :func:`_rightmost_roots` per run, at a fraction of the cost when the gains vary smoothly.
+    :func:`rightmost_roots` per run, at a fraction of the cost when the gains vary smoothly.
 
     The work is done in rounds, and each round in two passes, each pass certified by one
     batched count of all its runs (:func:`count_roots_right_of_many`):
@@ -709,13 +709,13 @@ def _rightmost_roots_many(m, c, k, P, D, tau, *, count=6):
     n = P.size
     out: list[np.ndarray | None] = [None] * n
     if tau == 0.0 or n == 0:
-        return [_quadratic_roots(m, c + D[i], k + P[i]) for i in range(n)]
+        return [quadratic_roots(m, c + D[i], k + P[i]) for i in range(n)]
     sp = max(float(np.ptp(P)), 1e-300)
     sd = max(float(np.ptp(D)), 1e-300)
 
     def full(i):
         # two pairs more than asked: seeds for the continuation and an abscissa beyond
-        out[i] = _rightmost_roots(m, c, k, float(P[i]), float(D[i]), tau, count=count + 4)
+        out[i] = rightmost_roots(m, c, k, float(P[i]), float(D[i]), tau, count=count + 4)
 
     def nearest(runs, seeds):
         # for each run, the nearest of the seed runs in the scaled (P, D) plane (first of ties)
@@ -927,7 +927,7 @@ def _continued_one(start, m, c, k, P, D, tau, count):
 
 def _trim_pairs(roots: list[np.ndarray], count: int) -> list[np.ndarray]:
     """Each root list (decreasing real part) cut at its first real-part gap at or after
-    ``count`` roots, so whole conjugate pairs are kept (as :func:`_rightmost_roots` does)."""
+    ``count`` roots, so whole conjugate pairs are kept (as :func:`rightmost_roots` does)."""
     size = np.array([r.size for r in roots])
     re = np.full((len(roots), int(size.max())), np.nan)
     for j, r in enumerate(roots):
@@ -999,7 +999,7 @@ def dominant_roots(
     if guess is None or certify:
         out = []
         for Pi, Di in zip(P, D, strict=True):
-            r = _rightmost_roots(m, c, k, float(Pi), float(Di), delay, count=2)
+            r = rightmost_roots(m, c, k, float(Pi), float(Di), delay, count=2)
             out.append(complex(r[0].real, abs(r[0].imag)))
         return np.array(out)
     s, _ = _newton(np.asarray(guess, dtype=complex), m, c, k, P, D, delay)

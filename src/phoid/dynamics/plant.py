@@ -98,7 +98,7 @@ def free_response(
     return x, xdot
 
 
-def _quadratic_roots(a2: float, a1: float, a0: float) -> np.ndarray:
+def quadratic_roots(a2: float, a1: float, a0: float) -> np.ndarray:
     """Roots of a2 s² + a1 s + a0 (a2 > 0), rightmost first, without cancellation.
 
     Real roots: the slow one is −ω₀²/(σ + w) (σ = a1/2a2, ω₀² = a0/a2, w = √(σ² − ω₀²)), so it
@@ -188,7 +188,7 @@ class Plant:
 
         Computed without cancellation: for real roots the slow one is −ω₀²/(σ + w).
         """
-        return _quadratic_roots(self.m, self.c, self.k)
+        return quadratic_roots(self.m, self.c, self.k)
 
     def free_response(
         self, t: np.ndarray | float, x0: float, v0: float = 0.0
@@ -196,7 +196,7 @@ class Plant:
         """Free response x(t), ẋ(t) from x₀ (m), ẋ₀ (m/s) at t = 0, eqs. (2)–(15).
 
         Valid for the linear plant (f_c = 0); with Coulomb friction the motion is piecewise
-        and is computed by :func:`phoid.simulation.simulate`.
+        and is computed by :func:`phoid.simulation.core.simulate`.
 
         Raises
         ------

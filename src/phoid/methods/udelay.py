@@ -16,7 +16,7 @@ e^{σΔt}, is confounded with the calibration of u and is not relied on, see bel
 Method (per run, then all runs together):
 
 1. **Joint fit of x and u per run** (:func:`fit_run`). The x model is the run's decay fit
-   (:class:`phoid.decay.DecayFit`: offset, dominant mode s = −σ + iω_d with complex amplitude
+   (:class:`phoid.fits.decay.DecayFit`: offset, dominant mode s = −σ + iω_d with complex amplitude
    C₀, the loop's fitted fast modes with free complex amplitudes and fixed rates), over the
    decay fit's own window. The u model is that same x model pushed through the loop,
    u = u_off + g Re Σⱼ −(P + D sⱼ) Cⱼ e^{sⱼ(t − Δt − t_ref)}, over the samples where the delayed
@@ -30,7 +30,7 @@ Method (per run, then all runs together):
 2. **Shared delay, all evidence** (:func:`combine`). m, c, k, Δt are the weighted least squares
    fit of every run's measured (σᵢ, ω_dᵢ) — and, where u was used, Δtᵢ — through the exact
    dominant root of m s² + c s + k + (Dᵢ s + Pᵢ) e^{−sΔt} = 0 (the estimator of
-   :func:`phoid.pho.fit_modes` with a third measured component). The x-only evidence on the
+   :func:`phoid.methods.pho.fit_modes` with a third measured component). The x-only evidence on the
    delay (only the right Δt maps all runs onto one plant) is kept, runs without u contribute
    through x only, and the (4, 4) covariance gives m, c, k stderr that include the delay's.
 
@@ -68,9 +68,9 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.special import chdtri  # chi2 quantile: chdtri(dof, 1 - p) = chi2.ppf(p, dof)
 
-from phoid.decay import DecayFit, _clipped, _diff_noise
+from phoid.dynamics.loop import characteristic, dominant_roots
 from phoid.errors import IdentificationError
-from phoid.loop import characteristic, dominant_roots
+from phoid.fits.decay import DecayFit, diff_noise, is_clipped
 
 __all__ = ["UDelayFit", "URun", "check_u", "combine", "fit_run", "u_skip", "with_u"]
 
@@ -220,7 +220,7 @@ def _u_noise(t: np.ndarray, u: np.ndarray, release: float) -> float:
     quantised in steps q (the smallest nonzero change between samples: an ADC's step, whose
     held segment may read one constant value)."""
     held = u[t < release]
-    sd = float(np.std(held, ddof=1)) if held.size >= 16 else _diff_noise(u[-4096:])
+    sd = float(np.std(held, ddof=1)) if held.size >= 16 else diff_noise(u[-4096:])
     du = np.abs(np.diff(u))
     du = du[du > 0]
     return max(sd, float(du.min()) / math.sqrt(12.0) if du.size else 0.0)
@@ -428,7 +428,7 @@ def fit_run(
     u_only = _Joint(t[:0], x[:0], tu, uu, fit.t_ref, roots[1:], cplx, float(P), float(D))
     _r, J0 = u_only.evaluate(th)
     pred = J0[:, -2]  # the force the gains imply, −(P x + D ẋ)(t − Δt), from the x fit (g = 1)
-    if _clipped(uu, uu - (pred + float(np.median(uu - pred))), noise_u0):
+    if is_clipped(uu, uu - (pred + float(np.median(uu - pred))), noise_u0):
         return URun(used=False, reason="clipped u: flat tops at its extreme value that the "
                                        "force −(P x + D ẋ)(t − Δt) exceeds (saturated "
                                        "amplifier?)")
@@ -529,7 +529,7 @@ def combine(
     IdentificationError
         When the fit does not converge, or a tracked root is not the dominant one.
     """
-    from phoid.pho import damped_gauss_newton, dominant_many
+    from phoid.methods.pho import damped_gauss_newton, dominant_many
 
     sigma = np.asarray(sigma, dtype=float)
     omega_d = np.asarray(omega_d, dtype=float)
@@ -540,7 +540,7 @@ def combine(
     dm = np.zeros(n) if added_mass is None else np.asarray(added_mass, dtype=float)
     cov = np.array(cov, dtype=float).reshape(n, 3, 3)
     has = np.isfinite(dmeas)
-    # numerical floor as in phoid.pho.fit_modes: 1e-9 of |sᵢ| (and of Δt's scale 1/|sᵢ|)
+    # numerical floor as in phoid.methods.pho.fit_modes: 1e-9 of |sᵢ| (and of Δt's scale 1/|sᵢ|)
     sabs = np.hypot(sigma, omega_d)
     cov[:, 0, 0] += (1e-9 * sabs) ** 2
     cov[:, 1, 1] += (1e-9 * sabs) ** 2
@@ -618,8 +618,8 @@ def check_u(u: Sequence[np.ndarray | None], data: Sequence[tuple[np.ndarray, np.
 def _omitted_modes(ident, P, D, dm, n_fast):
     """Per run: the first loop root left out of its x model and its amplitude in x (m), from the
     identified plant and delay (None where the roots are not available)."""
-    from phoid.identification import _modes, _residue
-    from phoid.loop import _rightmost_roots_many
+    from phoid.dynamics.loop import rightmost_roots_many
+    from phoid.methods.identification import _modes, _residue
 
     n = len(ident.runs)
     out: list[tuple[complex, float] | None] = [None] * n
@@ -628,7 +628,7 @@ def _omitted_modes(ident, P, D, dm, n_fast):
     for added in np.unique(dm[todo]) if todo else []:
         grp = [i for i in todo if dm[i] == added]
         try:
-            roots = _rightmost_roots_many(m + added, c, k, P[grp], D[grp], tau,
+            roots = rightmost_roots_many(m + added, c, k, P[grp], D[grp], tau,
                                           count=2 * n_fast + 4)
         except (RuntimeError, ValueError):
             continue
@@ -682,7 +682,7 @@ def with_u(ident, u, P, D, *, names, rerun, added_mass=None, n_fast=2):
 
     Parameters
     ----------
-    ident : phoid.identification.Identification
+    ident : phoid.methods.identification.Identification
         The x-only result (delay estimated with m, c, k).
     u : sequence of ndarray or None
         Each run's recorded feedback force, N (None: not recorded).
@@ -708,8 +708,8 @@ def with_u(ident, u, P, D, *, names, rerun, added_mass=None, n_fast=2):
     """
     from dataclasses import replace
 
-    from phoid.loop import inverse_map
-    from phoid.pho import Estimate
+    from phoid.dynamics.loop import inverse_map
+    from phoid.methods.pho import Estimate
 
     P = np.asarray(P, dtype=float)
     D = np.asarray(D, dtype=float)

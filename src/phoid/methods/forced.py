@@ -24,9 +24,10 @@ Per run (:func:`identify_forced_data`):
 2. **Response, with the transient modelled.** Over the same window
    x = x_off + a cos ω(t − t_ref) + b sin ω(t − t_ref) + x₀[C(τ) + σS(τ)] + v₀S(τ), τ = t − t_start:
    the steady state plus the free response of eq. (2) left by the start (C, S of
-   :func:`phoid.plant.modal_basis`, any damping). The transient's rates (σ, ω₀²) are those of
+   :func:`phoid.dynamics.plant.modal_basis`, any damping). The transient's rates (σ, ω₀²) are those
+   of
    the plant, shared by all runs, and are fitted jointly by variable projection
-   (:func:`phoid.free._fit_modal`) from a start given by a first pass on each run's second
+   (:func:`phoid.methods.free._fit_modal`) from a start given by a first pass on each run's second
    half. Skipping the transient instead would not do: a lightly damped plant forced near
    resonance (σ = 0.25 1/s, the acceptance set) still rings at 0.6 noise sd after 40 s, and
    its leakage into a sine fit biases R by ~10³ stderr; modelled, it costs nothing. The
@@ -53,9 +54,10 @@ from scipy import stats
 
 from phoid import _validate as v
 from phoid._threads import single_blas_thread
-from phoid.decay import _diff_noise
 from phoid.errors import IdentificationError
-from phoid.free import (
+from phoid.fits.decay import diff_noise
+from phoid.io.experiment import Run, run_from_arrays
+from phoid.methods.free import (
     _esprit_rates,
     _fit_modal,
     _pick_start,
@@ -64,8 +66,7 @@ from phoid.free import (
     _Segment,
     _State,
 )
-from phoid.io import Run, run_from_arrays
-from phoid.pho import Estimate, open_loop_omega0, open_loop_zeta
+from phoid.methods.pho import Estimate, open_loop_omega0, open_loop_zeta
 
 __all__ = [
     "ForcedIdentification",
@@ -365,7 +366,7 @@ def _onset(t: np.ndarray, F: np.ndarray, omega: float) -> int:
         return 0
     amp = np.hypot(coef[:, 1], coef[:, 2])
     ref = float(np.median(amp[nb // 2 :]))
-    tol = 0.02 * ref + 5.0 * _diff_noise(F) * math.sqrt(2.0 / L)
+    tol = 0.02 * ref + 5.0 * diff_noise(F) * math.sqrt(2.0 / L)
     bad = np.flatnonzero(np.abs(amp - ref) > tol)
     if bad.size == 0:
         return 0
@@ -409,7 +410,7 @@ def _fit_force(t: np.ndarray, F: np.ndarray, where: str) -> _Force:
     # a coarse start surely after the onset: F has left its initial level (a force switched
     # on after a rest) and every later one-period block has the final amplitude (a ramp)
     level = float(np.median(F[:8]))
-    moved = np.flatnonzero(np.abs(F - level) > 5 * _diff_noise(F) + 1e-3 * float(np.ptp(F)))
+    moved = np.flatnonzero(np.abs(F - level) > 5 * diff_noise(F) + 1e-3 * float(np.ptp(F)))
     coarse = max(int(moved[0]) if moved.size else 0, _onset(t, F, omega))
     if coarse > t.size - MIN_SAMPLES:
         coarse = 0
@@ -631,16 +632,16 @@ class ForcedIdentification:
 
     def report(self) -> str:
         """Plain-text report: m, c, k ± stderr, ω₀, ζ, per-run table, warnings."""
-        from phoid.report import _fmt
+        from phoid.reports.text import format_estimate
 
         lines = [f"phoid identify (forced): {self.source}" if self.source
                  else "phoid identify (forced)", ""]
         for name, est in (("m", self.m), ("c", self.c), ("k", self.k)):
-            lines.append(f"  {name} = {_fmt(est.value, est.stderr)} {est.unit}")
+            lines.append(f"  {name} = {format_estimate(est.value, est.stderr)} {est.unit}")
         w0, z = self.omega0, self.zeta
         if math.isfinite(w0.value):
-            lines.append(f"  ω₀ = {_fmt(w0.value, w0.stderr)} rad/s,  "
-                         f"ζ = {_fmt(z.value, z.stderr)}")
+            lines.append(f"  ω₀ = {format_estimate(w0.value, w0.stderr)} rad/s,  "
+                         f"ζ = {format_estimate(z.value, z.stderr)}")
         lines.append("")
         lines.append(f"  {'run':<16}{'ω rad/s':>12}{'B N':>10}{'C m':>11} {'R N/m':>22} "
                      f"{'ρ rad':>22}{'settled s':>11}")
@@ -648,7 +649,7 @@ class ForcedIdentification:
             mark = "" if r.used else "  (set aside)"
             lines.append(
                 f"  {r.file:<16}{r.omega:>12.6g}{r.B:>10.4g}{r.C:>11.4g} "
-                f"{_fmt(r.R, r.R_stderr):>22} {_fmt(r.rho, r.rho_stderr):>22}"
+                f"{format_estimate(r.R, r.R_stderr):>22} {format_estimate(r.rho, r.rho_stderr):>22}"
                 f"{r.settle_time - r.t_start:>11.3g}{mark}")
         if self.warnings:
             lines += ["", "warnings:"] + [f"  - {w}" for w in self.warnings]
@@ -664,7 +665,7 @@ class ForcedIdentification:
         from matplotlib.figure import Figure
 
         from phoid._output import OutputFolder
-        from phoid.report import _save
+        from phoid.reports.text import save_png
 
         plotted = [i for i, r in enumerate(self.runs) if r.used and i < len(self.data)]
         names = {i: f"forced-{i + 1:02d}-{Path(self.runs[i].file).name.split('.')[0]}.png"
@@ -691,14 +692,14 @@ class ForcedIdentification:
             axf.plot(t, F, lw=0.6, color="C2")
             axf.set_ylabel("F (N)")
             axf.set_xlabel("t (s)")
-            written.append(_save(fig, out, names[i]))
+            written.append(save_png(fig, out, names[i]))
         written.append(self._eq20_figure(out, "eq20-lines.png"))
         return written
 
     def _eq20_figure(self, out: Any, name: str) -> Path:
         from matplotlib.figure import Figure
 
-        from phoid.report import _save
+        from phoid.reports.text import save_png
 
         used = [r for r in self.runs if r.used]
         w = np.array([r.omega for r in used])
@@ -721,7 +722,7 @@ class ForcedIdentification:
         b.set_ylabel("R sin ρ (N/m)")
         b.legend(fontsize=8)
         fig.suptitle("eq. (20), per-run error bars ±1 stderr")
-        return _save(fig, out, name)
+        return save_png(fig, out, name)
 
 
 # --------------------------------------------------------------------------------------------
@@ -733,7 +734,7 @@ def identify_forced(experiment: Any) -> ForcedIdentification:
 
     Parameters
     ----------
-    experiment : phoid.io.ExperimentSet
+    experiment : phoid.io.experiment.ExperimentSet
         A set with ``method = "forced"``: each run one frequency, columns t, x and F.
 
     Returns
@@ -853,7 +854,7 @@ def identify_forced_data(
         forces.append(f)
         nw = t.size - f.start
         periods = f.omega * float(t[-1] - t[f.start]) / (2 * math.pi)
-        nsd = _diff_noise(x[f.start:])
+        nsd = diff_noise(x[f.start:])
         ptp = float(np.ptp(x[f.start:]))
         if nw < MIN_SAMPLES or periods < MIN_PERIODS:
             reasons.append(f"too short: {nw} samples, {periods:.2g} forcing periods after the "
@@ -902,7 +903,7 @@ def identify_forced_data(
         fixed = np.column_stack([np.ones_like(tw), np.cos(f.omega * tau),
                                  np.sin(f.omega * tau)])
         segs.append(_Segment(t=tw, x=x[f.start:], fixed=fixed, t0=float(tw[0])))
-    noise0 = [max(_diff_noise(s.x), 1e-13 * float(np.ptp(s.x))) for s in segs]
+    noise0 = [max(diff_noise(s.x), 1e-13 * float(np.ptp(s.x))) for s in segs]
     rates, fit_rates = _transient_start(segs, [forces[i] for i in used], noise0,  # type: ignore
                                         ma[used])
     modal = _fit_modal(segs, rates[0], rates[1], noise=noise0, fit_rates=fit_rates)
@@ -1116,7 +1117,7 @@ def simulate_forced(
     offset: float = 0.0,
     rng: np.random.Generator | None = None,
 ) -> list[Run]:
-    """Simulate a sine sweep: one run per frequency, as :class:`phoid.io.Run` with column F.
+    """Simulate a sine sweep: one run per frequency, as :class:`~phoid.io.Run` with column F.
 
     The plant (no feedback) rests at x₀ (held there during ``hold``), then the force
     F(t) = B sin(ω(t − hold) − θ) (eq. 16) is switched on; the record holds t, the measured
@@ -1148,10 +1149,10 @@ def simulate_forced(
 
     Returns
     -------
-    list of phoid.io.Run
+    list of phoid.io.experiment.Run
         One run per frequency, with ``B`` and ``omega`` set.
     """
-    from phoid.simulation import simulate
+    from phoid.simulation.core import simulate
 
     ws = np.atleast_1d(v.finite_array("omega", omega))
     fs = v.positive("fs", fs, "Hz")

@@ -7,7 +7,7 @@ run's gain mistyped. Each of these leaves a mark on the runs' rough modes (σᵢ
 decay fits' starting stage) that the straight lines of eq. (35) show cheaply:
 
 - the runs' points are collinear with one positive slope m on both lines only with the right
-  gains and delay (:func:`phoid.pho.delay_profile` measures the misfit);
+  gains and delay (:func:`phoid.methods.pho.delay_profile` measures the misfit);
 - a time column in ms makes one run's sample step 1000× the others'.
 
 :func:`probable_cause` tries the usual mistakes in turn and names the one that makes the runs
@@ -21,7 +21,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from phoid.pho import delay_profile, fit_lines
+from phoid.methods.pho import delay_profile, fit_lines
 
 __all__ = ["SIGN_CONVENTION", "probable_cause"]
 

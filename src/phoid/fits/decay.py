@@ -203,7 +203,7 @@ class DecayFit:
 # input checks and noise
 
 
-def _check_record(t, x) -> tuple[np.ndarray, np.ndarray]:
+def check_record(t, x) -> tuple[np.ndarray, np.ndarray]:
     t = v.finite_array("t", t, ndim=1)
     x = v.finite_array("x", x, ndim=1)
     if t.shape != x.shape:
@@ -237,7 +237,7 @@ def _med(a: np.ndarray) -> float:
     return float(np.partition(a, k)[k])
 
 
-def _diff_noise(x: np.ndarray) -> float:
+def diff_noise(x: np.ndarray) -> float:
     """Robust white-noise sd from second differences (MAD; var Δ²x = 6 sd² for white noise).
 
     A smooth signal sampled fast contributes ~A(ω dt)² per difference, negligible at ≥ ~20
@@ -266,7 +266,7 @@ def _hold_sd(x: np.ndarray, j: int) -> float | None:
     seg = x[: j + 1]
     d = seg - seg.sum() / seg.size  # np.std(seg, ddof=1), the same sums, fewer calls
     sd = math.sqrt(float(np.add.reduce(d * d)) / (seg.size - 1))
-    return sd if sd <= 1.5 * _diff_noise(seg) + 1e-300 else None
+    return sd if sd <= 1.5 * diff_noise(seg) + 1e-300 else None
 
 
 @dataclass(frozen=True)
@@ -285,7 +285,7 @@ def _departure(x: np.ndarray) -> _Departure:
     """The first sample from which x stays more than 8 noise sds from its held level for 3
     samples (a lone spike is no release), searched in growing prefixes."""
     n = x.size
-    sd = _diff_noise(x[:2048])
+    sd = diff_noise(x[:2048])
     n0 = max(3, min(20, n // 50))
     level = _med(x[:n0])
     thr = max(_RELEASE_NSD * sd, 1e-6 * (float(x.max()) - float(x.min())))
@@ -367,7 +367,7 @@ def _change_points(ts: Sequence[np.ndarray], xs: Sequence[np.ndarray], i1s: Sequ
 
 def _releases(ts: Sequence[np.ndarray], xs: Sequence[np.ndarray], refine: bool = True
               ) -> list[tuple[int, float | None]]:
-    """:func:`_release` of many records, the change points of all of them in one batch."""
+    """:func:`locate_release` of many records, the change points of all of them in one batch."""
     deps = [_departure(x) for x in xs]
     live = [i for i, d in enumerate(deps) if d.i1 is not None]
     j0s = dict(zip(live, _change_points([ts[i] for i in live], [xs[i] for i in live],
@@ -382,7 +382,7 @@ def _releases(ts: Sequence[np.ndarray], xs: Sequence[np.ndarray], refine: bool =
     return out
 
 
-def _release(t: np.ndarray, x: np.ndarray, refine: bool = True) -> tuple[int, float | None]:
+def locate_release(t: np.ndarray, x: np.ndarray, refine: bool = True) -> tuple[int, float | None]:
     """Index of the release sample and the sd of the held segment (None if too short).
 
     The departure from the held level (:func:`_departure`), its quadratic change point before
@@ -465,8 +465,8 @@ def detect_release(t, x) -> float:
     sample set (0.1 mm noise, 10 mm release, 1 kHz) the error has an sd of about 3 ms and no
     detectable mean; a held sample or two left in a fit, or a few lost, does not matter to it.
     """
-    t, x = _check_record(t, x)
-    j, _ = _release(t, x)
+    t, x = check_record(t, x)
+    j, _ = locate_release(t, x)
     return float(t[j])
 
 
@@ -478,7 +478,7 @@ def detect_release(t, x) -> float:
 # (linear parameters: rows 0, 1, 2, 5 …); ∂/∂σ = −(aτC + bτS), ∂/∂ω_d = bτC − aτS.
 
 
-def _uniform_step(tau: np.ndarray, origin: float = 0.0) -> float | None:
+def uniform_step(tau: np.ndarray, origin: float = 0.0) -> float | None:
     """The sampling interval if ``tau`` is uniform, else None.
 
     Uniform: every τ within 10⁻⁹ of a step of the grid τ₀ + n·dt, or within the rounding of the
@@ -1052,7 +1052,7 @@ def _uniform(
     its step, and the step if the sampling was uniform already (else None)."""
     n = tau.size
     dt = (tau[-1] - tau[0]) / (n - 1)
-    udt = _uniform_step(tau, origin) if n >= 64 else None
+    udt = uniform_step(tau, origin) if n >= 64 else None
     if udt is not None:
         return x, dt, udt
     tg = tau[0] + dt * np.arange(n)
@@ -1066,7 +1066,7 @@ def _blocks(xg: np.ndarray, q: int) -> np.ndarray:
     return xg[: m * q].reshape(m, q).mean(axis=1) if q > 1 else xg
 
 
-def _esprit(y: np.ndarray, dt: float, order: int = 3) -> tuple[np.ndarray, np.ndarray | None]:
+def esprit(y: np.ndarray, dt: float, order: int = 3) -> tuple[np.ndarray, np.ndarray | None]:
     """Roots s (1/s) of a sum of ``order`` damped exponentials fitted to y (ESPRIT), and their
     energies Σ|c zⁿ|² (None when there is exactly one complex pair: nothing to choose)."""
     _L, HH = _esprit_gram(y, order)
@@ -1096,7 +1096,7 @@ def _esprit_phi(Us: np.ndarray) -> np.ndarray:
 
 def _esprit_roots(y: np.ndarray, dt: float, Us: np.ndarray, z: np.ndarray | None = None
                   ) -> tuple[np.ndarray, np.ndarray | None]:
-    """:func:`_esprit` from the signal subspace ``Us`` (L × order) on, or from Φ's
+    """:func:`esprit` from the signal subspace ``Us`` (L × order) on, or from Φ's
     eigenvalues ``z`` when they are given."""
     order = Us.shape[1]
     if z is None:
@@ -1123,7 +1123,7 @@ def _initial_guess(xg: np.ndarray, dt: float, per: float, noise: float):
     complex pair); the complex root of largest energy.
     """
     y, q, n_act = _guess_input(xg, per, noise)
-    s, energy = _esprit(y, q * dt, order=3)
+    s, energy = esprit(y, q * dt, order=3)
     return _guess_pick(s, energy, q, dt, xg.size, n_act)
 
 
@@ -1251,7 +1251,7 @@ def start_decay(
     Raises ValueError as :func:`fit_decay` does for unusable input.
     """
     pre = _start_prepare(t, x, release=release, skip=skip, coarse_release=coarse_release)
-    s, energy = _esprit(pre.y, pre.q * pre.dt, order=3)
+    s, energy = esprit(pre.y, pre.q * pre.dt, order=3)
     return _start_finish(pre, s, energy, refine)
 
 
@@ -1285,7 +1285,7 @@ class _StartInput(_StartGrid):
 
 def _start_prepare(t, x, *, release=None, skip=0.0, coarse_release=False) -> _StartInput:
     """:func:`start_decay` up to its ESPRIT (checks, release, window, noise, period)."""
-    t, x = _check_record(t, x)
+    t, x = check_record(t, x)
     grid = _start_grid(t, x, release, skip, not coarse_release)
     return _start_input(grid, _dominant_period(grid.xg))
 
@@ -1295,7 +1295,7 @@ def _start_grid(t, x, release, skip, refine_release=True, detected=None) -> _Sta
     record; ``detected`` as for :func:`_window`."""
     release, hold_sd, tw, xw, ptp = _window(t, x, release, skip, None, refine_release, detected)
     tau = tw - tw[0]
-    noise = hold_sd if hold_sd else _diff_noise(xw[-4096:])
+    noise = hold_sd if hold_sd else diff_noise(xw[-4096:])
     noise = max(noise, 1e-15 * ptp)
     xg, dt, udt = _uniform(tau, xw, float(tw[0]))
     return _StartGrid(float(release), tw, xw, tau, float(noise), xg, float(dt), udt)
@@ -1372,7 +1372,7 @@ def _cycles(amplitude, sigma, omega, duration, noise) -> float:
     return max(omega * t_above / (2 * math.pi), 0.0)
 
 
-def _clipped(x: np.ndarray, resid: np.ndarray, noise: float) -> bool:
+def is_clipped(x: np.ndarray, resid: np.ndarray, noise: float) -> bool:
     """Flat tops: ≥ 5 samples at the record's extreme value that the fitted mode overshoots
     (``resid`` = x − the fitted model, m)."""
     for ext, sign in ((x.max(), 1.0), (x.min(), -1.0)):
@@ -1389,10 +1389,10 @@ def _window(t, x, release, skip, t_end, refine_release=True, detected=None):
     range of x over it (m).
 
     ``detected``: the release's sample and held sd when they were already detected (as
-    :func:`_release` gives them), for ``release=None``."""
+    :func:`locate_release` gives them), for ``release=None``."""
     skip = v.nonnegative("skip", skip, "s")
     if release is None:
-        j, hold_sd = _release(t, x, refine_release) if detected is None else detected
+        j, hold_sd = locate_release(t, x, refine_release) if detected is None else detected
         release = float(t[j])
     else:
         release = v.finite("release", release, "s")
@@ -1576,14 +1576,14 @@ def fit_decay(
     >>> abs(fit.sigma - 0.5) < 3 * fit.sigma_stderr
     True
     """
-    t, x = _check_record(t, x)
-    return _fit_checked(t, x, release=release, skip=skip, t_end=t_end, noise_sd=noise_sd,
+    t, x = check_record(t, x)
+    return fit_checked(t, x, release=release, skip=skip, t_end=t_end, noise_sd=noise_sd,
                         fast_roots=fast_roots, guess=guess)
 
 
-def _fit_checked(t, x, *, release=None, skip=0.0, t_end=None, noise_sd=None, fast_roots=None,
+def fit_checked(t, x, *, release=None, skip=0.0, t_end=None, noise_sd=None, fast_roots=None,
                  guess=None) -> DecayFit:
-    """:func:`fit_decay` on a record that has passed ``_check_record`` already (float64
+    """:func:`fit_decay` on a record that has passed ``check_record`` already (float64
     arrays, finite, t strictly increasing): the identification validates each run once, in its
     first pass (:func:`start_decay`), and fits it in full afterwards."""
     prep = _fit_prepare(t, x, release=release, skip=skip, t_end=t_end, noise_sd=noise_sd,
@@ -1638,7 +1638,7 @@ def _fit_prepare(t, x, *, release=None, skip=0.0, t_end=None, noise_sd=None, fas
     if noise_sd is not None:
         noise = noise_sd
     else:  # the tail, where the signal is least, is the best place for a difference estimate
-        noise = hold_sd if hold_sd else _diff_noise(xw[-4096:])
+        noise = hold_sd if hold_sd else diff_noise(xw[-4096:])
     noise = max(noise, 1e-15 * ptp)
 
     # start: FFT period, ESPRIT on the block-averaged active part (or the caller's guess)
@@ -1769,7 +1769,7 @@ def _common_warnings(sigma: float, sigma_stderr: float, cycles: float, xw, resid
             f"growing oscillation: sigma = {sigma:.4g} ± {sigma_stderr:.2g} 1/s < 0 "
             + ("(unstable loop)" if sure else "(within 2 stderr of 0: marginally stable loop?)")
         )
-    if _clipped(xw, resid, floor):
+    if is_clipped(xw, resid, floor):
         w.append(
             "clipped record: flat tops at the extreme value of x that the fitted mode exceeds "
             "(sensor saturation?); the estimate is biased"
@@ -1907,10 +1907,10 @@ def logdec(t, x, *, release=None, skip=0.0) -> DecayFit:
     >>> print(f"{dec.sigma:.6f} {dec.omega_d:.6f}")
     0.500000 6.200000
     """
-    t, x = _check_record(t, x)
+    t, x = check_record(t, x)
     release, hold_sd, tw, xw, _ptp = _window(t, x, release, skip, None)
     t_ref = float(tw[0])
-    noise = hold_sd if hold_sd else _diff_noise(xw)
+    noise = hold_sd if hold_sd else diff_noise(xw)
     noise = max(noise, 1e-15 * float(np.ptp(xw)))
     warnings: list[str] = []
 

@@ -28,16 +28,16 @@ import numpy as np
 from scipy.special import chdtri  # chi2 quantile: chdtri(dof, 1 - p) = chi2.ppf(p, dof)
 
 from phoid._threads import single_blas_thread
-from phoid.digital import digital_is_dominant, digital_modes
-from phoid.errors import IdentificationError
-from phoid.loop import (
-    _rightmost_roots,
+from phoid.dynamics.digital import digital_is_dominant, digital_modes
+from phoid.dynamics.loop import (
     characteristic,
     count_roots_right_of,
     count_roots_right_of_many,
     dominant_roots,
     inverse_map,
+    rightmost_roots,
 )
+from phoid.errors import IdentificationError
 
 __all__ = ["Estimate", "LineFit", "MCKFit", "delay_profile", "fit_lines", "fit_modes"]
 
@@ -208,7 +208,7 @@ def _mass_groups(dm: np.ndarray) -> list[np.ndarray]:
 
 
 def _digital_modes_by_mass(m, dm, c, k, P, D, digital, s_guess):
-    """:func:`phoid.digital.digital_modes` of runs whose masses are m + Δmᵢ, a call per Δm
+    """:func:`phoid.dynamics.digital.digital_modes` of runs whose masses are m + Δmᵢ, a call per Δm
     (the sampled plant depends on the mass); ∂s/∂m is the same as ∂s/∂(m + Δmᵢ)."""
     s = np.empty(P.size, dtype=complex)
     ds = np.empty((P.size, 3), dtype=complex)
@@ -295,7 +295,7 @@ def _is_dominant(s, m, c, k, P, D, delay) -> bool:
             return True
     except (RuntimeError, ValueError):
         pass
-    r0 = _rightmost_roots(m, c, k, P, D, delay, count=2)[0]
+    r0 = rightmost_roots(m, c, k, P, D, delay, count=2)[0]
     return abs(r0.real - s.real) <= 1e-6 * max(1.0, abs(r0))
 
 
@@ -411,9 +411,9 @@ def fit_modes(
         Fit Δt too (θ = m, c, k, Δt). Only the right delay makes all runs' modes consistent
         with one plant (eq. 35's points collinear), so with at least three distinct gain pairs
         it is identifiable; ∂s/∂Δt = s(Ds + P)e^{−sΔt}/f′(s) by the implicit function theorem.
-    digital : phoid.digital.DigitalPD, optional
+    digital : phoid.dynamics.digital.DigitalPD, optional
         A sampled (digital) loop: the modes are then the roots of its exact characteristic
-        polynomial (:func:`phoid.digital.digital_modes`) instead of the continuous delayed
+        polynomial (:func:`phoid.dynamics.digital.digital_modes`) instead of the continuous delayed
         loop's; ``delay`` only serves the starting eq. (35) lines (an equivalent continuous
         delay). Not with ``estimate_delay``.
     added_mass : array_like, optional

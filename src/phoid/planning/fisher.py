@@ -19,7 +19,7 @@ Re(u)Re(v) = ½ Re(uv + uv̄): the cost does not grow with the record length.
 
 The modes of all runs depend on θ = (m, c, k) through the characteristic equation of the delayed
 loop (seed eq. 23), f(s) = m s² + c s + k + (D s + P) e^{−sΔt} = 0, so by the implicit function
-theorem ∂s/∂θ = −(s², s, 1)/f′(s) (the Jacobian of :func:`phoid.pho.fit_modes`), and the
+theorem ∂s/∂θ = −(s², s, 1)/f′(s) (the Jacobian of :func:`phoid.methods.pho.fit_modes`), and the
 information of θ is Σᵢ Gᵢᵀ Iᵢ Gᵢ with Gᵢ = ∂(σᵢ, ω_dᵢ)/∂θ. Its inverse is the bound.
 
 The release amplitude of the dominant mode is not x₀: a run released from a held position x₀
@@ -28,7 +28,7 @@ N(s) = m s + c + D e^{−sΔt} − P (1 − e^{−sΔt})/s, so the mode e^{st} c
 x₀ N(s)/f′(s) and w = 2 x₀ N(s)/f′(s) (:func:`release_amplitude`; docs/architecture.md).
 
 Sensor noise is the only noise in this model: the feedback acts on the true position (as in
-:func:`phoid.simulation.simulate`). The non-dominant modes that ring right after the release
+:func:`phoid.simulation.core.simulate`). The non-dominant modes that ring right after the release
 are left out of the model, as in ``truth.json``; phoid's estimator fits them too and comes
 within a few per cent of this bound (docs/architecture.md).
 """
@@ -39,7 +39,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from phoid.loop import characteristic, dominant_roots
+from phoid.dynamics.loop import characteristic, dominant_roots
 
 __all__ = [
     "CramerRao",

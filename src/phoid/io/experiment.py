@@ -720,7 +720,7 @@ def read_manifest(where: str, manifest: Path) -> dict[str, Any]:
     """Read and parse a manifest: a regular file of at most MAX_MANIFEST_BYTES, UTF-8 TOML,
     nested at most MAX_NESTING levels deep (docs/limits.md).
 
-    The one manifest reader: :func:`read_experiment` and :func:`phoid.planning.read_schedule`
+    The one manifest reader: :func:`read_experiment` and :func:`phoid.planning.sweep.read_schedule`
     both read through it. ``where`` prefixes the one-line :class:`ExperimentError` it raises.
     """
     f, st = _open_regular(where, manifest, "manifest")

@@ -6,7 +6,7 @@ plants alike (ERRATA 4 in docs/equations.md):
 
     x(t) = x_off + x₀ [C(τ) + σ S(τ)] + v₀ S(τ),   τ = t − t₀ ≥ 0,
 
-with C, S the fundamental solutions of :func:`phoid.plant.modal_basis` (e^{−στ}cosh wτ and
+with C, S the fundamental solutions of :func:`phoid.dynamics.plant.modal_basis` (e^{−στ}cosh wτ and
 e^{−στ}sinh(wτ)/w for q = σ² − ω₀² ≥ 0, their trigonometric forms for q < 0, and the w → 0 limit
 of eq. (11) at critical damping), x₀ and v₀ the position (from the offset) and velocity at the
 release t₀. An overdamped release is a sum of two real exponentials, on which the logarithmic
@@ -18,7 +18,7 @@ segment (the mass at rest, then let go), the fit starts where the motion has sur
 samples in a row more than 8 noise sd off the held level): a held sample left in the window
 would bias the decay, while the few samples skipped, within a few noise sd of the held level,
 carry almost no information. The state (x₀, v₀) is fitted at the window's start and carried
-back to the detected release (:func:`phoid.decay.detect_release`'s rule) for the report.
+back to the detected release (:func:`phoid.fits.decay.detect_release`'s rule) for the report.
 (Fitting the release time as a parameter, with the record held before it, was tried and
 dropped: for a release from rest x leaves the held level quadratically, so t₀ trades off
 against v₀ far from linearly, and over Monte Carlo replicas of a critically damped release the
@@ -33,7 +33,7 @@ each run weighted by its own residual noise variance — the Cramér–Rao bound
 estimate — propagated to ω₀ = √(ω₀²), ζ = σ/ω₀ (eq. 10) and the roots
 s = −σ ± √(σ² − ω₀²) (eq. 4) by the delta method.
 
-The fitting engine (:func:`_fit_modal`) is shared with :mod:`phoid.forced`, whose start-up
+The fitting engine (:func:`_fit_modal`) is shared with :mod:`phoid.methods.forced`, whose start-up
 transient is the same free response added to the steady state.
 """
 
@@ -49,10 +49,10 @@ import numpy as np
 
 from phoid import _validate as v
 from phoid._threads import single_blas_thread
-from phoid.decay import _diff_noise, _esprit, _release
+from phoid.dynamics.plant import free_response, modal_basis
 from phoid.errors import IdentificationError
-from phoid.pho import Estimate
-from phoid.plant import free_response, modal_basis
+from phoid.fits.decay import diff_noise, esprit, locate_release
+from phoid.methods.pho import Estimate
 
 __all__ = ["FreeIdentification", "FreeRun", "identify_free", "identify_free_data"]
 
@@ -376,7 +376,7 @@ def _esprit_rates(t: np.ndarray, y: np.ndarray, noise: float, *,
         return []
     try:
         with np.errstate(all="ignore"):
-            s, _energy = _esprit(yb, q * dt, order=3)
+            s, _energy = esprit(yb, q * dt, order=3)
     except (np.linalg.LinAlgError, ValueError):
         return []
     out = []
@@ -570,24 +570,25 @@ class FreeIdentification:
 
     def report(self) -> str:
         """Plain-text report: σ, ω₀, ζ, roots, c/m, k/m (c, k with a known mass), runs."""
-        from phoid.report import _fmt
+        from phoid.reports.text import format_estimate
 
         lines = [f"phoid identify (free decay): {self.source}" if self.source
                  else "phoid identify (free decay)", ""]
         for name, est in (("σ", self.sigma), ("ω₀", self.omega0), ("ζ", self.zeta),
                           ("c/m", self.c_over_m), ("k/m", self.k_over_m)):
-            val = _fmt(est.value, est.stderr) if math.isfinite(est.value) else "undefined"
+            val = (format_estimate(est.value, est.stderr) if math.isfinite(est.value)
+                   else "undefined")
             lines.append(f"  {name:<4}= {val} {est.unit}".rstrip())
         lines.append(f"  regime: {self.regime}")
         for j, (s, se) in enumerate(zip(self.roots, self.roots_stderr, strict=True), 1):
-            re = _fmt(s.real, se[0])
-            im = _fmt(abs(s.imag), se[1])
+            re = format_estimate(s.real, se[0])
+            im = format_estimate(abs(s.imag), se[1])
             sign = "+" if s.imag >= 0 else "−"
             lines.append(f"  root {j}: {re} {sign} {im}i 1/s")
         if self.m is not None and self.c is not None and self.k is not None:
             lines.append(f"  with the known mass m = {self.m.value:g} kg:")
-            lines.append(f"  c = {_fmt(self.c.value, self.c.stderr)} {self.c.unit}")
-            lines.append(f"  k = {_fmt(self.k.value, self.k.stderr)} {self.k.unit}")
+            lines.append(f"  c = {format_estimate(self.c.value, self.c.stderr)} {self.c.unit}")
+            lines.append(f"  k = {format_estimate(self.k.value, self.k.stderr)} {self.k.unit}")
         else:
             lines.append("  (m, c, k are not separately identifiable from a free decay: "
                          "give the mass with --mass to get c and k)")
@@ -613,7 +614,7 @@ class FreeIdentification:
         from matplotlib.figure import Figure
 
         from phoid._output import OutputFolder
-        from phoid.report import _save
+        from phoid.reports.text import save_png
 
         plotted = [i for i, r in enumerate(self.runs) if r.used and i < len(self.data)]
         names = {i: f"free-{i + 1:02d}-{Path(self.runs[i].file).name.split('.')[0]}.png"
@@ -638,7 +639,7 @@ class FreeIdentification:
             axr.plot(t[sel], (x[sel] - model) * 1e3, lw=0.5, color="C1")
             axr.set_ylabel("residual (mm)")
             axr.set_xlabel("t (s)")
-            written.append(_save(fig, out, names[i]))
+            written.append(save_png(fig, out, names[i]))
         return written
 
 
@@ -698,9 +699,9 @@ def identify_free(experiment: Any, *, mass: float | None = None) -> FreeIdentifi
 
     Parameters
     ----------
-    experiment : phoid.io.ExperimentSet
+    experiment : phoid.io.experiment.ExperimentSet
         A set with ``method = "free"``: one or more releases (t, x) of the same plant without
-        feedback, as read by :func:`phoid.io.read_experiment`.
+        feedback, as read by :func:`phoid.io.experiment.read_experiment`.
     mass : float, optional
         Known mass, kg (> 0); overrides the manifest's ``mass``. With a mass, c and k are
         returned too.
@@ -786,7 +787,7 @@ def identify_free_data(
     Examples
     --------
     >>> import numpy as np
-    >>> from phoid.plant import free_response
+    >>> from phoid.dynamics.plant import free_response
     >>> t = np.arange(4000) / 1000.0                  # 4 s at 1 kHz
     >>> x, _ = free_response(t, 3.0, 100.0, 0.01, 0.0)  # σ = 3 1/s, ω₀ = 10 rad/s
     >>> res = identify_free_data([(t, x)])
@@ -797,7 +798,7 @@ def identify_free_data(
     -----
     Per run: the white-noise sd from second differences; a record whose peak-to-peak motion is
     within 12 noise sds never moved and is set aside, as is one with fewer than 16 samples after
-    its release. The release is found by :func:`phoid.decay.detect_release`'s rule; when a held
+    its release. The release is found by :func:`phoid.fits.decay.detect_release`'s rule; when a held
     segment precedes it, the release time joins the fit (within ±32 samples). Starting rates:
     ESPRIT (an offset and two modes) on each run's motion, every admissible pair of roots
     tried, the best by the residual sum of squares. Then :func:`_fit_modal`.
@@ -831,13 +832,13 @@ def identify_free_data(
         if t.size < MIN_SAMPLES:
             reasons.append(f"too short: {t.size} samples (at least {MIN_SAMPLES} are needed)")
             continue
-        nsd = _diff_noise(x)
+        nsd = diff_noise(x)
         ptp = float(np.ptp(x))
         if not ptp > _STILL_NSD * nsd or ptp == 0.0:
             reasons.append(f"x never moves: its peak-to-peak {ptp:.3g} m is within the noise "
                            f"(sd {nsd:.3g} m)")
             continue
-        j, hold_sd = _release(t, x)
+        j, hold_sd = locate_release(t, x)
         held = hold_sd is not None and j >= 10
         if held:
             # the window starts where the motion has surely begun: the first of 3 samples in

@@ -4,7 +4,7 @@
 the plant — each of m, c, k a value or a range — the loop delay and the rig's limits; ``check``
 evaluates given gains the same way. Both return a :class:`Design`: per-run predicted modes,
 cycles, stability margins and the **Cramér–Rao standard errors** of m, c, k
-(:mod:`phoid.fisher`) for the planned noise level and record length.
+(:mod:`phoid.planning.fisher`) for the planned noise level and record length.
 
 The prior
 ---------
@@ -35,13 +35,13 @@ What a run must satisfy (``design`` only proposes such runs; ``check`` reports w
   noise floor, damped enough to die out within the record);
 * at least ``min_cycles`` (default 5) oscillation cycles while the envelope |w|e^{−σt} is above
   the noise sd, within the record length (|w| the release amplitude of the dominant mode,
-  :func:`phoid.fisher.release_amplitude`);
+  :func:`phoid.planning.fisher.release_amplitude`);
 * every other root left of ``separation``·Re s (default 2: the other modes die at least twice
   as fast, so the record is a single-mode decay after a short transient).
 
 A prior so wide that no run meets the band while staying safe on all of it (e.g. c 20–60 with a
 5 ms delay: a run that rings lightly at c = 20 is heavily damped at c = 60) falls back to safe
-runs with at least 3 cycles (``phoid.decay.MIN_CYCLES``) at the nominal plant, with a warning:
+runs with at least 3 cycles (``phoid.fits.decay.MIN_CYCLES``) at the nominal plant, with a warning:
 such a schedule is a first experiment whose identification narrows the prior for a second
 design. With so few cycles the prediction is optimistic (bench/bench_design.py: the spread of
 ``identify`` at c = 60 is ≈ 1.3 × the bound).
@@ -53,7 +53,8 @@ coefficients), the number of roots with Re u > 0 at delay 0 follows from the qua
 P̃ + Q̃, and it changes only where a root pair crosses the imaginary axis at u = ±iω, i.e. at a
 positive root ω² of F(ω²) = |P̃(iω)|² − |Q̃(iω)|² (a quadratic in ω²), at the delays where
 e^{−iωτ} = −P̃(iω)/Q̃(iω); each crossing adds two roots when F′(ω²) > 0 and removes two when
-F′(ω²) < 0. The count is verified against :func:`phoid.loop.count_roots_right_of` in the tests.
+F′(ω²) < 0. The count is verified against :func:`phoid.dynamics.loop.count_roots_right_of` in the
+tests.
 The delay margin is the first crossing delay beyond Δt of the unshifted f.
 
 The schedule
@@ -74,7 +75,8 @@ the Cramér–Rao covariance: a unit-free criterion (it does not change when a p
 size changes, so a mass–damper's k ≈ 0 is handled like any other parameter) that balances the
 three relative precisions. Overdamped plants get negative D by the placement itself.
 
-Model assumptions of the prediction (:mod:`phoid.fisher`): white Gaussian sensor noise, feedback
+Model assumptions of the prediction (:mod:`phoid.planning.fisher`): white Gaussian sensor noise,
+feedback
 on the true position, a release from a held position x₀ = ``amplitude``, the record starting at
 the release, the delay known.
 """
@@ -94,11 +96,11 @@ import numpy as np
 
 from phoid import _validate as v
 from phoid._output import OutputFolder, png_writer
-from phoid.decay import MIN_CYCLES
+from phoid.dynamics.loop import characteristic, rightmost_roots
 from phoid.errors import PhoidError
-from phoid.fisher import _safe_inverse, mode_information, release_amplitude
-from phoid.loop import _rightmost_roots, characteristic
-from phoid.pho import Estimate
+from phoid.fits.decay import MIN_CYCLES
+from phoid.methods.pho import Estimate
+from phoid.planning.fisher import _safe_inverse, mode_information, release_amplitude
 
 __all__ = [
     "Design",
@@ -988,7 +990,7 @@ def _result(P, D, prior: _Prior, st: DesignSettings, kind: str,
         for i, g in zip(*np.nonzero(redo), strict=True):
             m, c, k = prior.plants[g]
             try:
-                r = _rightmost_roots(float(m), float(c), float(k), float(P[i]), float(D[i]),
+                r = rightmost_roots(float(m), float(c), float(k), float(P[i]), float(D[i]),
                                      st.delay, count=2)[0]
             except RuntimeError:  # pathological loop: leave the root unknown (unsafe)
                 continue
@@ -1149,7 +1151,7 @@ def _grouped(found: dict[str, list[tuple[int, float]]], st: DesignSettings, n: i
 
 def _nominal_root(m, c, k, P, D, delay) -> complex:
     """Certified rightmost root (Im ≥ 0) of one run at the nominal plant."""
-    r = _rightmost_roots(m, c, k, P, D, delay, count=2)[0]
+    r = rightmost_roots(m, c, k, P, D, delay, count=2)[0]
     return complex(r.real, abs(r.imag))
 
 
@@ -1494,7 +1496,7 @@ def check_experiment(
 
     Parameters
     ----------
-    experiment : phoid.io.ExperimentSet, str or Path
+    experiment : phoid.io.experiment.ExperimentSet, str or Path
         A set read by :func:`phoid.read_experiment`, or the path of a set or skeleton manifest
         (data files not needed).
     m, c, k : prior, optional
@@ -1510,7 +1512,7 @@ def check_experiment(
     -------
     Design
     """
-    from phoid.io import ExperimentSet, read_experiment
+    from phoid.io.experiment import ExperimentSet, read_experiment
 
     exp = experiment
     sched = None
@@ -1550,7 +1552,7 @@ def check_experiment(
         if exp is None:
             raise DesignError(f"cannot identify the set ({read_error}); to check its gains "
                               "alone give the prior plant --m, --c and --k")
-        from phoid.identification import identify
+        from phoid.methods.identification import identify
 
         ident = identify(exp, delay=settings["delay"])
         m = ident.m.value if m is None else m
@@ -1580,7 +1582,7 @@ def check_experiment(
     d = check(P, D, m, c, k, **settings)
     negative = [name for name, g in (("P", P), ("D", D)) if g.size and np.all(g < 0)]
     if negative:
-        from phoid.diagnose import SIGN_CONVENTION
+        from phoid.methods.diagnose import SIGN_CONVENTION
 
         what = " and ".join(negative)
         carried.insert(0, f"every run's {what} is negative: {SIGN_CONVENTION}; if the rig's "
@@ -1594,7 +1596,7 @@ def check_experiment(
 
 def _record_settings(exp) -> dict[str, float]:
     """Sample rate, record length after the release and release amplitude seen in a set."""
-    from phoid.decay import detect_release
+    from phoid.fits.decay import detect_release
 
     fs, dur, amp = [], [], []
     for r in exp.runs:
@@ -1640,7 +1642,7 @@ def read_schedule(path: str | Path) -> dict[str, Any]:
         One line naming the file, run and key for anything missing or malformed.
     """
     from phoid.errors import ExperimentError
-    from phoid.io import read_manifest  # regular files only, size and nesting limited
+    from phoid.io.experiment import read_manifest  # regular files only, size and nesting limited
 
     path = Path(path)
     if path.is_dir():

@@ -104,7 +104,8 @@ f_c = 0 that path simply locates the velocity reversals):
 
 Sampled (digital) controller
 ----------------------------
-With ``sample_time`` = T_s the loop is the hybrid one of :mod:`phoid.digital`: the controller
+With ``sample_time`` = T_s the loop is the hybrid one of :mod:`~phoid.dynamics.digital`: the
+controller
 samples x_n = x(nT_s) on its own clock (t_n = nT_s from t = 0), estimates the velocity by the
 backward difference or its first-order low pass, computes u_n = −(P x_n + D v̂_n) and holds
 u(t) = u_{n−d} on [nT_s, (n+1)T_s) (``delay_samples`` = d). While the mass is held the
@@ -115,7 +116,8 @@ partial). Scheme, for the linear plant (f_c = 0):
 
 1. **Controller instants.** From the first controller instant after the release, x_n obeys
    χ(q) x_n = [Q-terms of the release state] + [the external force], χ the exact characteristic
-   polynomial of :mod:`phoid.digital`: X(z) = [Q(z) + z^d(z − a)((z − Φ₂₂)F₁(z) + Φ₁₂F₂(z))]/χ(z)
+   polynomial of :mod:`~phoid.dynamics.digital`: X(z) = [Q(z) + z^d(z − a)((z − Φ₂₂)F₁(z) +
+   Φ₁₂F₂(z))]/χ(z)
    with F_n the plant state that the external force alone adds over period n. One IIR
    ``lfilter`` per run (order d + 3) gives every x_n at once.
 2. **One step of iterative refinement.** From x_n, the estimator state (a first-order
@@ -160,9 +162,15 @@ import numpy as np
 from scipy.signal import lfilter
 
 from phoid import _validate as v
-from phoid.digital import DigitalPD, ZOHPlant, _coefficients, _expm, digital_roots
+from phoid.dynamics.digital import (
+    DigitalPD,
+    ZOHPlant,
+    characteristic_coefficients,
+    digital_roots,
+    expm_stack,
+)
+from phoid.dynamics.plant import quadratic_roots
 from phoid.errors import PhoidError
-from phoid.plant import _quadratic_roots
 
 __all__ = ["Simulation", "simulate"]
 
@@ -251,7 +259,7 @@ class Simulation:
     bias_signs: np.ndarray | None = None
 
     def digital_loop(self, i: int) -> DigitalPD:
-        """Run i's sampled controller as a :class:`phoid.digital.DigitalPD`.
+        """Run i's sampled controller as a :class:`phoid.dynamics.digital.DigitalPD`.
 
         Raises
         ------
@@ -354,7 +362,7 @@ class _Engine:
         M[:, 1, 2] = h / m  # b = (0, 1/m) feeds the polynomial basis
         for i in range(_NQ - 1):
             M[:, 2 + i, 3 + i] = i + 1.0  # d/dsigma of sigma^(i+1)
-        E = _expm(M)
+        E = expm_stack(M)
         self.Phi = E[:, :2, :2].copy()
         self.K = E[:, :2, 2:].copy()  # (G, 2, 6)
         self.tr = self.Phi[:, 0, 0] + self.Phi[:, 1, 1]
@@ -974,7 +982,7 @@ def simulate(
     """Simulate B runs of the delayed PD loop of eq. (23), with Coulomb friction (eq. 1).
 
     m x'' + c x' + k x + f_c sign(x') = F(t) + u(t), u(t) = −[D x'(t − Δt) + P x(t − Δt)];
-    or, with ``sample_time``, the sampled controller of :mod:`phoid.digital`:
+    or, with ``sample_time``, the sampled controller of :mod:`~phoid.dynamics.digital`:
     u(t) = u_{n−d} on [nT_s, (n+1)T_s), u_n = −(P x(nT_s) + D v̂_n).
 
     Parameters
@@ -1018,7 +1026,8 @@ def simulate(
         ``fs`` must be a whole multiple M ≥ 1 of 1/T_s and ``hold`` a whole number of 1/fs.
         The four-samples-per-period rule of the continuous loop does not apply.
     velocity : {"backward-difference", "filtered"}
-        Velocity estimator of the sampled controller (see :class:`phoid.digital.DigitalPD`).
+        Velocity estimator of the sampled controller (see
+        :class:`phoid.dynamics.digital.DigitalPD`).
     cutoff : float, optional
         Cut-off ω_c of the filtered estimator, rad/s (required with ``velocity="filtered"``).
     delay_samples : int, default 0
@@ -1191,16 +1200,17 @@ def _run_continuous(m, c, k, fc, P, D, delay, x0a, v0a, hold, fs, N, force, bias
     return x_true, vel, u
 
 
-_TOEPLITZ_STEPS = 32  # _release_response: at most this many steps per delay by products
+_TOEPLITZ_STEPS = 32  # release_response: at most this many steps per delay by products
 
 
-def _release_response(plant: Any, P: np.ndarray, D: np.ndarray, *, delay: float,
+def release_response(plant: Any, P: np.ndarray, D: np.ndarray, *, delay: float,
                       duration: float, fs: float) -> np.ndarray:
     """``simulate(plant, P, D, delay=delay, duration=duration, fs=fs, x0=1.0).x_true``, cheaper
     where a delay spans few internal steps.
 
     The loop's response from rest at 1 (no hold, force, friction or bias), for the release fit
-    of :func:`phoid.identification._model_releases`. Same scheme and grid as :func:`simulate`;
+    of :func:`phoid.methods.identification._model_releases`. Same scheme and grid as
+    :func:`simulate`;
     where the grid is the sample grid and one delay is d ≤ 32 steps, each block of d steps is
     solved by one product instead of the Cayley–Hamilton ``lfilter``: Y_n = Φⁿ y₀ +
     Σ_{i<n} Φ^{n−1−i} w_i (n = 0 … d) is a fixed (2 + 2d) × 2(d + 1) matrix applied to
@@ -1592,7 +1602,7 @@ def _run_ode(m, c, k, fc, P, D, x0, v0, cF, grid, out, bias=None):
 
 def _run_sampled(m, c, k, fc, P, D, x0, v0, hold, fs, N, force, loop: DigitalPD, bias=None,
                  signs=None):
-    """The hybrid loop of :mod:`phoid.digital`: exact positions, velocities, applied commands."""
+    """The hybrid loop of :mod:`~phoid.dynamics.digital`: exact positions, velocities, commands."""
     B = P.size
     T = loop.sample_time
     d = loop.delay_samples
@@ -1627,7 +1637,7 @@ def _run_sampled(m, c, k, fc, P, D, x0, v0, hold, fs, N, force, loop: DigitalPD,
         if force is not None or fc > 0 or bias is not None:
             # sub-steps of the recorder interval: ρh ≤ 0.1 for the plant's and the loop's
             # dominant rates (force interpolation; Taylor series of the friction events)
-            rho = float(np.max(np.abs(_quadratic_roots(m, c, k))))
+            rho = float(np.max(np.abs(quadratic_roots(m, c, k))))
             dom = digital_roots(m, c, k, P, D, loop).dominant
             rho = max(rho, float(np.max(np.abs(dom[np.isfinite(dom)]), initial=0.0)))
             S = max(1, math.ceil(rho * h / _RHO_H - 1e-9))
@@ -1713,7 +1723,7 @@ def _sampled_linear(m, c, k, P, D, x0, v0, loop, geo: _SampledGeometry, cF, out)
     zp = ZOHPlant(Phi, Gam, np.zeros(2), float(Phi[0, 0] + Phi[1, 1]),
                   float(Phi[0, 0] * Phi[1, 1] - Phi[0, 1] * Phi[1, 0]), float(Gam[0]),
                   float(Phi[0, 1] * Gam[1] - Phi[1, 1] * Gam[0]))
-    chi = _coefficients(zp, P, D, a, cf, d)  # (B, d + 4)
+    chi = characteristic_coefficients(zp, P, D, a, cf, d)  # (B, d + 4)
     xi, eta = y[:, 0], y[:, 1]
     g1 = Phi[0, 1] * eta - Phi[1, 1] * xi
     Qc = np.zeros((B, d + 4))
@@ -1777,7 +1787,7 @@ def _sampled_linear(m, c, k, P, D, x0, v0, loop, geo: _SampledGeometry, cF, out)
     X[:, :2, :2] = A0
     X[:, 1, 2] = 1.0 / m
     X = X * (np.arange(Mr) * geo.h)[:, None, None]
-    E = _expm(X)  # Φ(ih), Γ(ih), i = 0 … M−1
+    E = expm_stack(X)  # Φ(ih), Γ(ih), i = 0 … M−1
     ys = np.einsum("irc,bcn->bnir", E[:, :2, :2], Y)
     ys += E[None, None, :, :2, 2] * uapp[:, :, None, None]
     if part is not None:

@@ -1,0 +1,63 @@
+"""phoid.dynamics."""
+
+from phoid.dynamics.digital import (
+    VELOCITY_ESTIMATORS,
+    DigitalPD,
+    DigitalRoots,
+    ZOHPlant,
+    digital_characteristic,
+    digital_coefficients,
+    digital_is_dominant,
+    digital_is_stable,
+    digital_modes,
+    digital_residues,
+    digital_roots,
+    zoh_plant,
+)
+from phoid.dynamics.loop import (
+    DelayedPD,
+    LoopModes,
+    alphas,
+    characteristic,
+    characteristic_roots,
+    count_roots_right_of,
+    count_roots_right_of_many,
+    dominant_roots,
+    forward_map,
+    inverse_map,
+    is_stable,
+)
+from phoid.dynamics.plant import (
+    Plant,
+    free_response,
+    modal_basis,
+)
+
+__all__ = [
+    "VELOCITY_ESTIMATORS",
+    "DelayedPD",
+    "DigitalPD",
+    "DigitalRoots",
+    "LoopModes",
+    "Plant",
+    "ZOHPlant",
+    "alphas",
+    "characteristic",
+    "characteristic_roots",
+    "count_roots_right_of",
+    "count_roots_right_of_many",
+    "digital_characteristic",
+    "digital_coefficients",
+    "digital_is_dominant",
+    "digital_is_stable",
+    "digital_modes",
+    "digital_residues",
+    "digital_roots",
+    "dominant_roots",
+    "forward_map",
+    "free_response",
+    "inverse_map",
+    "is_stable",
+    "modal_basis",
+    "zoh_plant",
+]

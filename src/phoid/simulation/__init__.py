@@ -1,0 +1,11 @@
+"""phoid.simulation."""
+
+from phoid.simulation.core import (
+    Simulation,
+    simulate,
+)
+
+__all__ = [
+    "Simulation",
+    "simulate",
+]
