@@ -26,7 +26,7 @@ import numpy as np
 from scipy.optimize import brentq
 
 from phoid import Plant, simulate
-from phoid.dynamics.loop import DelayedPD, characteristic_roots, dominant_roots
+from phoid.dynamics import DelayedPD, characteristic_roots, dominant_roots
 from phoid.methods.friction import identify_friction
 from phoid.methods.identification import identify_data
 

@@ -39,7 +39,7 @@ from __future__ import annotations
 import numpy as np
 from sets import SetSpec
 
-from phoid.dynamics.loop import characteristic, dominant_roots
+from phoid.dynamics import characteristic, dominant_roots
 
 
 def dominant_modes(spec: SetSpec) -> np.ndarray:

@@ -35,7 +35,7 @@ from typer.testing import CliRunner
 
 from phoid import Plant, read_experiment, run_from_arrays, simulate, write_experiment
 from phoid.cli import app
-from phoid.dynamics.loop import dominant_roots
+from phoid.dynamics.rightmost import dominant_roots
 from phoid.errors import ExperimentError, IdentificationError
 from phoid.methods.identification import identify
 

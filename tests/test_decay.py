@@ -697,7 +697,7 @@ def test_model_with_fast_modes_reproduces_the_fit_residual(sample_set_path):
     # window must be the fit's own (residual_rms, to rounding), and the dominant mode alone is
     # visibly worse right after the release (the fast loop modes are ~0.5 mm there).
     import phoid
-    from phoid.dynamics.loop import rightmost_roots
+    from phoid.dynamics.rightmost import rightmost_roots
 
     run = phoid.read_experiment(sample_set_path).runs[18]
     roots = rightmost_roots(2.0, 1.0, 64.0, run.P, run.D, 0.1, count=8)

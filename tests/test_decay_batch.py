@@ -17,7 +17,7 @@ import math
 import numpy as np
 import pytest
 
-from phoid.dynamics.loop import rightmost_roots
+from phoid.dynamics.rightmost import rightmost_roots
 from phoid.fits import batch as decay_batch
 from phoid.fits import decay
 from phoid.fits.batch import FitJob, fit_decays, start_decays

@@ -24,7 +24,7 @@ from typer.testing import CliRunner
 
 import phoid
 from phoid.cli import app
-from phoid.dynamics.loop import (
+from phoid.dynamics import (
     DelayedPD,
     characteristic_roots,
     count_roots_right_of,

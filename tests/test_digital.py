@@ -32,8 +32,8 @@ from phoid.dynamics.digital import (
     digital_roots,
     zoh_plant,
 )
-from phoid.dynamics.loop import dominant_roots
 from phoid.dynamics.plant import Plant
+from phoid.dynamics.rightmost import dominant_roots
 from phoid.fits.decay import fit_decay
 from phoid.methods.pho import fit_modes
 from phoid.simulation.core import simulate

@@ -37,7 +37,7 @@ from phoid import (
     read_experiment,
     simulate,
 )
-from phoid.dynamics.loop import dominant_roots
+from phoid.dynamics.rightmost import dominant_roots
 from phoid.errors import ExperimentError, IdentificationError
 from phoid.methods.friction import FrictionFit, friction_evidence, identify_friction
 

@@ -6,13 +6,14 @@ import numpy as np
 import pytest
 
 from phoid import DelayedPD, Plant, alphas, characteristic_roots, forward_map, inverse_map
-from phoid.dynamics import loop
-from phoid.dynamics.loop import (
+from phoid.dynamics import (
     characteristic,
     count_roots_right_of,
     count_roots_right_of_many,
+    counting,
     dominant_roots,
     is_stable,
+    rightmost,
     rightmost_roots,
     rightmost_roots_many,
 )
@@ -214,13 +215,13 @@ def test_rightmost_roots_many_matches_per_run_roots(name, count, monkeypatch):
     # agree to a few ulps; 1e-12 of max(|s|, 1) is far below any spacing between the roots
     # (> 1 1/s here) and 1000 times the differences seen (6e-16).
     plant, P, D, delay = ROOT_SWEEPS[name]
-    ref = [loop.rightmost_roots(plant.m, plant.c, plant.k, float(p), float(d), delay,
+    ref = [rightmost.rightmost_roots(plant.m, plant.c, plant.k, float(p), float(d), delay,
                                  count=count) for p, d in zip(P, D, strict=True)]
-    full = loop.rightmost_roots
+    full = rightmost.rightmost_roots
     calls = []
-    monkeypatch.setattr(loop, "rightmost_roots",
+    monkeypatch.setattr(rightmost, "rightmost_roots",
                         lambda *a, **kw: calls.append(a) or full(*a, **kw))
-    got = loop.rightmost_roots_many(plant.m, plant.c, plant.k, P, D, delay, count=count)
+    got = rightmost.rightmost_roots_many(plant.m, plant.c, plant.k, P, D, delay, count=count)
     assert len(got) == P.size
     for r, g in zip(ref, got, strict=True):
         assert g.shape == r.shape
@@ -250,15 +251,15 @@ def test_continuation_crosses_d_zero_from_one_full_computation(monkeypatch):
     # near a root it missed that the count does not resolve.
     plant, P, D, delay = MASS_DAMPER
     m, c = plant.m, plant.c
-    ref = [loop.rightmost_roots(m, c, _MD_K, float(p), float(d), delay, count=12)
+    ref = [rightmost.rightmost_roots(m, c, _MD_K, float(p), float(d), delay, count=12)
            for p, d in zip(P, D, strict=True)]
-    full = loop.rightmost_roots
+    full = rightmost.rightmost_roots
     calls = []
-    monkeypatch.setattr(loop, "rightmost_roots",
+    monkeypatch.setattr(rightmost, "rightmost_roots",
                         lambda *a, **kw: calls.append(a) or full(*a, **kw))
-    got = loop.rightmost_roots_many(m, c, _MD_K, P, D, delay, count=8)
+    got = rightmost.rightmost_roots_many(m, c, _MD_K, P, D, delay, count=8)
     assert len(calls) == 1
-    for r, g in zip(loop._trim_pairs(ref, 8), got, strict=True):
+    for r, g in zip(rightmost._trim_pairs(ref, 8), got, strict=True):
         assert g.shape == r.shape
         np.testing.assert_array_less(np.abs(g - r), 1e-12 * np.maximum(np.abs(r), 1.0))
         # a real root is exactly real in both (identification tells real modes by Im s == 0)
@@ -272,10 +273,10 @@ def test_chain_starts_lead_newton_to_the_chain_roots():
     # same 1e-12 of max(|s|, 1) as the per-run computation (both are Newton-converged)
     plant, P, D, delay = MASS_DAMPER
     P, D = P[[0, 6]], D[[0, 6]]
-    starts = loop._chain_starts(plant.m, plant.c, _MD_K, P, D, delay, 8)
-    z, res = loop._newton_rows(starts, plant.m, plant.c, _MD_K, P[:, None], D[:, None], delay)
+    starts = rightmost._chain_starts(plant.m, plant.c, _MD_K, P, D, delay, 8)
+    z, res = rightmost._newton_rows(starts, plant.m, plant.c, _MD_K, P[:, None], D[:, None], delay)
     for i in range(2):
-        ref = loop.rightmost_roots(plant.m, plant.c, _MD_K, float(P[i]), float(D[i]), delay,
+        ref = rightmost.rightmost_roots(plant.m, plant.c, _MD_K, float(P[i]), float(D[i]), delay,
                                     count=12)
         chain = [r for r in ref[2:] if r.imag >= 0]
         zi = z[i][np.isfinite(res[i])]
@@ -311,10 +312,10 @@ def test_quick_full_computation_and_its_fallback_agree(j, monkeypatch):
     # max(|s|, 1) (Newton-converged from different eigenvalues: a few ulps apart, far below
     # the roots' spacing); the same for the continuation over the design's runs.
     m, c, k, P, D, tau = DESIGNS[j]
-    quick = [loop.rightmost_roots(m, c, k, float(p), float(d), tau, count=8)
+    quick = [rightmost.rightmost_roots(m, c, k, float(p), float(d), tau, count=8)
              for p, d in zip(P, D, strict=True)]
-    many = loop.rightmost_roots_many(m, c, k, P, D, tau, count=8)
-    rows = loop._newton_rows
+    many = rightmost.rightmost_roots_many(m, c, k, P, D, tau, count=8)
+    rows = rightmost._newton_rows
     calls = []
 
     def no_roots(s, *a, **kw):
@@ -322,8 +323,8 @@ def test_quick_full_computation_and_its_fallback_agree(j, monkeypatch):
         z, res = rows(s, *a, **kw)
         return z, np.full(res.shape, np.inf)
 
-    monkeypatch.setattr(loop, "_newton_rows", no_roots)
-    full = [loop.rightmost_roots(m, c, k, float(p), float(d), tau, count=8)
+    monkeypatch.setattr(rightmost, "_newton_rows", no_roots)
+    full = [rightmost.rightmost_roots(m, c, k, float(p), float(d), tau, count=8)
             for p, d in zip(P, D, strict=True)]
     assert len(calls) == P.size  # each run tried the quick attempt once, then fell back
     for q, f, g in zip(quick, full, many, strict=True):
@@ -340,7 +341,7 @@ def test_outer_edges_bound_gives_the_sampled_count(j, monkeypatch):
     # equality. Abscissae between consecutive roots (as the certificates place them) and just
     # left of the dominant pair (as pho._dominant_many does).
     m, c, k, P, D, tau = DESIGNS[j]
-    roots = loop.rightmost_roots_many(m, c, k, P, D, tau, count=8)
+    roots = rightmost.rightmost_roots_many(m, c, k, P, D, tau, count=8)
     for pick in (lambda r: 0.5 * (r[1].real + r[2].real),
                  lambda r: r[0].real - max(0.5, 0.5 * abs(r[0].real))):
         a = np.array([pick(r) for r in roots])
@@ -349,7 +350,7 @@ def test_outer_edges_bound_gives_the_sampled_count(j, monkeypatch):
                   for i in range(P.size)]
         want = [int(np.count_nonzero(r.real > x)) for r, x in zip(roots, a, strict=True)]
         with monkeypatch.context() as mp:
-            mp.setattr(loop, "_outer_turn",
+            mp.setattr(counting, "_outer_turn",
                        lambda a_, *args: (np.zeros(np.size(a_)), np.zeros(np.size(a_), bool)))
             assert np.all(count_roots_right_of_many(a, m, c, k, P, D, tau, near=roots) == -1)
             sampled = [count_roots_right_of(a[i], m, c, k, P[i], D[i], tau, near=roots[i])
@@ -365,16 +366,16 @@ def test_left_ordinates_are_the_scalar_counts_samples():
     # (np.unique of the uniform and the local samples, descending), padded by repeats:
     # bit-for-bit, so the batched and the scalar count sum the same angles
     plant, P, D, delay = MASS_DAMPER
-    roots = loop.rightmost_roots_many(plant.m, plant.c, _MD_K, P, D, delay, count=8)
+    roots = rightmost.rightmost_roots_many(plant.m, plant.c, _MD_K, P, D, delay, count=8)
     a = np.array([0.5 * (r[1].real + r[2].real) - 0.3 for r in roots])
-    R = 1.05 * np.array([loop._root_radius(plant.m, plant.c, _MD_K, p, d, delay, x)
+    R = 1.05 * np.array([counting._root_radius(plant.m, plant.c, _MD_K, p, d, delay, x)
                          for p, d, x in zip(P, D, a, strict=True)]) + 1.0
     n = 160
-    Y = loop._left_ordinates(roots, a, R, n)
+    Y = counting._left_ordinates(roots, a, R, n)
     u = np.linspace(0.0, 1.0, n, endpoint=False)
     for i in range(P.size):
         y = np.unique(np.concatenate([R[i] * (1.0 - u),
-                                      loop._local_samples(roots[i], a[i], R[i], n)]))[::-1]
+                                      counting._local_samples(roots[i], a[i], R[i], n)]))[::-1]
         row = Y[i][np.concatenate([[True], Y[i][1:] != Y[i][:-1]])]
         assert np.array_equal(row, y)
 

@@ -110,6 +110,7 @@ __all__ = [
     "DigitalPD",
     "DigitalRoots",
     "ZOHPlant",
+    "characteristic_coefficients",
     "digital_characteristic",
     "digital_coefficients",
     "digital_is_dominant",
@@ -117,6 +118,7 @@ __all__ = [
     "digital_modes",
     "digital_residues",
     "digital_roots",
+    "expm_stack",
     "zoh_plant",
 ]
 

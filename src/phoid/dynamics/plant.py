@@ -23,7 +23,7 @@ import numpy as np
 
 from phoid import _validate as v
 
-__all__ = ["Plant", "free_response", "modal_basis"]
+__all__ = ["Plant", "free_response", "modal_basis", "quadratic_roots"]
 
 
 def modal_basis(

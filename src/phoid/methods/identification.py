@@ -27,7 +27,7 @@ import numpy as np
 from scipy.special import chdtri  # chi2 quantile: chdtri(dof, 1 - p) = chi2.ppf(p, dof)
 
 from phoid._threads import single_blas_thread
-from phoid.dynamics.loop import characteristic, rightmost_roots_many
+from phoid.dynamics import characteristic, rightmost_roots_many
 from phoid.errors import IdentificationError
 from phoid.fits.batch import FitJob, fit_decays, start_decays
 from phoid.fits.decay import DecayFit, detect_release, fit_checked, start_decay, uniform_step

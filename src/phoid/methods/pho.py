@@ -28,8 +28,7 @@ import numpy as np
 from scipy.special import chdtri  # chi2 quantile: chdtri(dof, 1 - p) = chi2.ppf(p, dof)
 
 from phoid._threads import single_blas_thread
-from phoid.dynamics.digital import digital_is_dominant, digital_modes
-from phoid.dynamics.loop import (
+from phoid.dynamics import (
     characteristic,
     count_roots_right_of,
     count_roots_right_of_many,
@@ -37,6 +36,7 @@ from phoid.dynamics.loop import (
     inverse_map,
     rightmost_roots,
 )
+from phoid.dynamics.digital import digital_is_dominant, digital_modes
 from phoid.errors import IdentificationError
 
 __all__ = ["Estimate", "LineFit", "MCKFit", "delay_profile", "fit_lines", "fit_modes"]

@@ -68,7 +68,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.special import chdtri  # chi2 quantile: chdtri(dof, 1 - p) = chi2.ppf(p, dof)
 
-from phoid.dynamics.loop import characteristic, dominant_roots
+from phoid.dynamics import characteristic, dominant_roots
 from phoid.errors import IdentificationError
 from phoid.fits.decay import DecayFit, diff_noise, is_clipped
 
@@ -618,7 +618,7 @@ def check_u(u: Sequence[np.ndarray | None], data: Sequence[tuple[np.ndarray, np.
 def _omitted_modes(ident, P, D, dm, n_fast):
     """Per run: the first loop root left out of its x model and its amplitude in x (m), from the
     identified plant and delay (None where the roots are not available)."""
-    from phoid.dynamics.loop import rightmost_roots_many
+    from phoid.dynamics import rightmost_roots_many
     from phoid.methods.identification import _modes, _residue
 
     n = len(ident.runs)

@@ -39,7 +39,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from phoid.dynamics.loop import characteristic, dominant_roots
+from phoid.dynamics import characteristic, dominant_roots
 
 __all__ = [
     "CramerRao",

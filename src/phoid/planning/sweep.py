@@ -96,7 +96,7 @@ import numpy as np
 
 from phoid import _validate as v
 from phoid._output import OutputFolder, png_writer
-from phoid.dynamics.loop import characteristic, rightmost_roots
+from phoid.dynamics import characteristic, rightmost_roots
 from phoid.errors import PhoidError
 from phoid.fits.decay import MIN_CYCLES
 from phoid.methods.pho import Estimate
