@@ -26,7 +26,7 @@ from phoid.dynamics.plant import Plant
 from phoid.methods.identification import identify_data
 from phoid.planning.fisher import cramer_rao
 from phoid.planning.sweep import design
-from phoid.simulation.core import simulate
+from phoid.simulation import simulate
 
 PAPER_P = 0.25 + 1.375 * np.arange(19)  # ERRATA 6
 PAPER_D = 0.6 + 0.3 * np.arange(19)

@@ -45,7 +45,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 import jitc_reference  # test-only helper, shared with tests/test_simulate.py
 
 from phoid.dynamics.plant import Plant
-from phoid.simulation.core import simulate
+from phoid.simulation import simulate
 
 M, C, K, DELAY, X0 = 2.0, 1.0, 64.0, 0.1, 0.01
 DURATION, FS = 15.0, 1000.0

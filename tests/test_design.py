@@ -43,7 +43,7 @@ from phoid.planning.sweep import (
     design,
     read_schedule,
 )
-from phoid.simulation.core import simulate
+from phoid.simulation import simulate
 
 runner = CliRunner()
 

@@ -36,7 +36,7 @@ from phoid.dynamics.plant import Plant
 from phoid.dynamics.rightmost import dominant_roots
 from phoid.fits.decay import fit_decay
 from phoid.methods.pho import fit_modes
-from phoid.simulation.core import simulate
+from phoid.simulation import simulate
 
 # the issue's acceptance loop: T_s = 2 ms, backward difference, 3-sample delay
 M_, C_, K_ = 1.0, 2.0, 100.0
@@ -595,7 +595,7 @@ def acceptance_modes():
 def test_equivalent_continuous_delay_is_biased(acceptance_modes):
     """T_s = 2 ms, backward difference, d = 3 (m 1, c 2, k 100; P 20–200, D 0.5–5).
 
-    Measured on the exact digital modes (documented in phoid.dynamics.digital):
+    Measured on the exact digital modes (docs/design-notes/dynamics.md):
       Δt = d·T_s = 6 ms:        m 0.9923, c 1.917, k 99.25, χ²/dof 2504
       Δt = (d + ½)·T_s = 7 ms:  m 0.9934, c 1.983, k 99.23, χ²/dof 23
     i.e. m and k off by 65–107 standard errors of the noise alone (before fit_modes inflates

@@ -7,7 +7,7 @@ Where the expected values come from
   test_simulate.py. Records carry seeded ``np.random.default_rng`` noise, quantisation and a
   sensor offset, as the issue asks.
 - Gains: D solved so that the loop's dominant root has a chosen decay rate σ
-  (``phoid.dynamics.loop.dominant_roots``), then checked independently by the certified root finder
+  (``phoid.dynamics.dominant_roots``), then checked independently by the certified root finder
   ``characteristic_roots``: the loop rings (complex dominant pair) and is stable (or, for the
   negative-damping runs, unstable with that σ < 0).
 - Bounded or growing: with negative viscous damping c_eff = 2mσ < 0, friction removes 4f_cA per

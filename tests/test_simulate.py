@@ -21,7 +21,7 @@ from jitc_reference import jitcdde_reference
 from scipy.integrate import solve_ivp
 
 from phoid.dynamics.plant import Plant
-from phoid.simulation.core import Simulation, simulate
+from phoid.simulation import Simulation, simulate
 
 # Table 1 of the seed paper (ERRATA 6): m = 2 kg, c = 1 N·s/m, k = 64 N/m, Δt = 0.1 s
 TABLE1 = Plant(2.0, 1.0, 64.0)

@@ -46,7 +46,7 @@ from phoid.methods.identification import Identification, RunMode, identify, iden
 from phoid.methods.pho import Estimate, MCKFit, fit_lines, fit_modes
 from phoid.planning.fisher import CramerRao, cramer_rao
 from phoid.planning.sweep import Design, DesignError, PlannedRun, design
-from phoid.simulation.core import Simulation, simulate
+from phoid.simulation import Simulation, simulate
 
 __version__ = "0.1.0"
 

@@ -315,7 +315,7 @@ def simulate(
 
     from phoid.dynamics.plant import Plant
     from phoid.io.experiment import run_from_arrays, write_experiment
-    from phoid.simulation.core import simulate as _simulate
+    from phoid.simulation import simulate as _simulate
 
     if not (math.isfinite(u_noise) and u_noise >= 0.0):
         _fail(f"--u-noise must be finite and ≥ 0 N; got {u_noise}")
@@ -416,7 +416,7 @@ def simulate(
 
 def _check_simulation_size(runs: int, hold: float, duration: float, fs: float) -> None:
     """Refuse, in the command's words, a simulation above the simulator's sample limit."""
-    from phoid.simulation.core import MAX_SAMPLES
+    from phoid.simulation import MAX_SAMPLES
 
     for flag, val, unit in (("--duration", duration, "s"), ("--fs", fs, "Hz")):
         if not (math.isfinite(val) and val > 0):
@@ -474,7 +474,7 @@ def _simulate_other(ctx, out, *, method, m, c, k, fc, B, omega, duration, fs, x0
                                     extra={"simulated": truth}, gzip=gzip, overwrite=overwrite)
         else:
             from phoid.io.experiment import run_from_arrays
-            from phoid.simulation.core import simulate as _simulate
+            from phoid.simulation import simulate as _simulate
 
             _check_simulation_size(1, hold, duration, fs)
             sim = _simulate(plant, 0.0, 0.0, duration=duration, fs=fs, x0=x0, v0=v0,

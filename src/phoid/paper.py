@@ -25,7 +25,7 @@ from phoid.dynamics.loop import forward_map
 from phoid.dynamics.plant import Plant
 from phoid.methods.identification import measure_modes
 from phoid.methods.pho import MCKFit, fit_lines
-from phoid.simulation.core import simulate
+from phoid.simulation import simulate
 
 __all__ = [
     "PAPER_D",

@@ -63,35 +63,16 @@ instants, where it moves under a constant command: x(nT_s + θ) = Σ_j a_j(θ) z
 Each mode is then e^{s_j t} times a T_s-periodic factor (Floquet form); the factor's mean is
 the mode itself, and its other Fourier components are the aliases s_j + 2πil/T_s, l ≠ 0, at
 least 2π/T_s − 2|ω_d| away in frequency. The dominant rate is the same s_j; a single-mode decay
-fit over many periods sees the ripple as a small, out-of-band, deterministic residual. On the
-loop m 1 kg, c 2 N·s/m, k 100 N/m, T_s 2 ms, d 3 with (P, D) = (50, 1) and (200, 5), a
-noise-free record 10× faster than the controller gives σ within 1.6e-9 and ω_d within 1e-10
-(relative) of the exact digital root, the ripple leaving a residual of 2e-10 m rms for a 10 mm
-release — far below any sensor's noise — against ~1e-13 at the controller rate
-(tests/test_digital.py::test_decay_fit_of_sampled_records_measures_the_digital_root).
+fit over many periods sees the ripple as a small, out-of-band, deterministic residual (its
+size on an example loop: docs/design-notes/dynamics.md).
 
-How wrong an "equivalent" continuous delay would be
----------------------------------------------------
-The issue's acceptance loop: T_s = 2 ms, backward-difference velocity, d = 3, plant m 1 kg,
-c 2 N·s/m, k 100 N/m, 10 runs P = 20 … 200 N/m, D = 0.5 … 5 N·s/m. The exact digital modes,
-weighted as the decay fits of 8 s records with 10 µm noise weight them, are fitted with the
-continuous delayed-loop model (``phoid.methods.pho.fit_modes``):
-
-===============================  =======  ======  =======  ========
-continuous delay Δt              m (kg)   c       k (N/m)  χ²/dof
-===============================  =======  ======  =======  ========
-d·T_s = 6 ms                     0.9923   1.917   99.25    2504
-(d + ½)·T_s = 7 ms               0.9934   1.983   99.23    23
-best single Δt = 7.05 ms         0.9935   1.986   99.23    17.3
-===============================  =======  ======  =======  ========
-
-No continuous delay fits (χ² far above its 17 degrees of freedom): the zero-order hold delays
-both paths by about T_s/2, but the backward difference delays the D path by another T_s/2, and
-both also change the gain with frequency. c is off by −4.2 % (6 ms) or −0.9 % (7 ms); m and k
-are 0.65–0.8 % low whichever delay is chosen: 65–107 standard errors of the 10 µm noise, and
-still 1.3–22 after ``fit_modes`` inflates its standard errors by √(χ²/dof). The digital model
-of this module returns the plant exactly, and within 3 standard errors from the noisy fits
-(tests/test_digital.py::test_equivalent_continuous_delay_is_biased).
+No "equivalent" continuous delay
+--------------------------------
+The zero-order hold delays both the P and the D path by about T_s/2, the backward difference
+delays the D path by another T_s/2, and both change the gain with frequency, so no single
+continuous delay Δt makes the delayed loop of :mod:`phoid.dynamics.loop` reproduce the sampled
+loop's modes; fitting them with it biases m, c and k (the measured bias:
+docs/design-notes/dynamics.md). The exact model of this module has no such bias.
 """
 
 from __future__ import annotations
@@ -625,9 +606,9 @@ def digital_modes(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Each run's dominant root s_i(m, c, k) of the sampled loop and ∂s_i/∂(m, c, k).
 
-    The digital counterpart of ``phoid.dynamics.loop.dominant_roots`` plus the implicit
-    differentiation in
-    ``phoid.methods.pho.fit_modes``: the model σᵢ = −Re sᵢ, ω_dᵢ = Im sᵢ for measured modes.
+    The digital counterpart of ``phoid.dynamics.rightmost.dominant_roots`` plus the implicit
+    differentiation in ``phoid.methods.pho.fit_modes``: the model σᵢ = −Re sᵢ, ω_dᵢ = Im sᵢ
+    for measured modes.
 
     Parameters
     ----------

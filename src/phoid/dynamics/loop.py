@@ -82,8 +82,8 @@ def characteristic_roots(
     -----
     Δt = 0: the quadratic m s² + (c + D)s + (k + P) = 0 is solved in closed form. Otherwise the
     spectral discretisation (order n, increased until the requested rightmost roots converge)
-    gives starting points that Newton refines; the result is certified as described in the
-    module docstring.
+    gives starting points that Newton refines; the result is certified as described in
+    :mod:`phoid.dynamics.rightmost`.
     """
     return rightmost_roots(
         plant.m, plant.c, plant.k, loop.P, loop.D, loop.delay, count=count, verify=verify

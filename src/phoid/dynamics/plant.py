@@ -196,7 +196,7 @@ class Plant:
         """Free response x(t), ẋ(t) from x₀ (m), ẋ₀ (m/s) at t = 0, eqs. (2)–(15).
 
         Valid for the linear plant (f_c = 0); with Coulomb friction the motion is piecewise
-        and is computed by :func:`phoid.simulation.core.simulate`.
+        and is computed by :func:`phoid.simulation.simulate`.
 
         Raises
         ------

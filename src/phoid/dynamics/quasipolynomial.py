@@ -55,9 +55,9 @@ def characteristic(
     return f, df
 
 
-# Newton steps a continued root may take: from a neighbouring run's root it converges in a
-# handful (at most 11 on the sample set's longest step); one that has not in 12 is rejected, and
-# its run continues from a nearer one or is computed in full, instead of wandering for 30 steps
+#: Newton steps a continued root may take: from a neighbouring run's root it converges in a
+#: handful; one that has not in 12 is rejected, and its run continues from a nearer one or is
+#: computed in full, instead of wandering for 30 steps (docs/design-notes/dynamics.md)
 _CONT_ITERS = 12
 
 
@@ -146,9 +146,9 @@ def _newton_few(s, m, c, k, P, D, delay, iters=_CONT_ITERS):
 
     Each start is iterated on its own until its step is below 1e-15 of its modulus (or of 1)
     or f′ vanishes or f is not finite there, for at most ``iters`` steps: the rule of
-    :func:`_newton_rows`. For a few starts a numpy call's overhead would dominate the work;
-    plain ``cmath`` is several times faster. Returns the refined points and |f| there, ∞ for a
-    start that ran off or has not converged in ``iters`` steps (rejected by the callers).
+    :func:`_newton_rows`, in plain ``cmath`` (for a few starts a numpy call's overhead would
+    dominate the work). Returns the refined points and |f| there, ∞ for a start that ran off
+    or has not converged in ``iters`` steps (rejected by the callers).
     """
     z, res = _newton_scalar(s, m, c, k, P, D, delay, iters)
     return _snap_real(z, res, m, c, k, P, D, delay)
@@ -200,7 +200,7 @@ def _newton_rows(s, m, c, k, P, D, delay, iters=_CONT_ITERS, tail=12):
         Each row's gains, N/m and N·s/m.
     delay : float
         Loop delay Δt, s.
-    iters : int, default 30
+    iters : int, default _CONT_ITERS (12)
         Most steps per start.
     tail : int, default 12
         The number of elements still iterating below which they are finished one by one.

@@ -53,8 +53,13 @@ def _generator_eigs(m, c, k, P, D, delay, n):
     return np.linalg.eigvals(M)
 
 
-def rightmost_roots(m, c, k, P, D, tau, *, count=6, verify=True):
-    """:func:`characteristic_roots` on raw numbers (m > 0; c, k of any sign).
+def rightmost_roots(
+    m: float, c: float, k: float, P: float, D: float, tau: float, *,
+    count: int = 6, verify: bool = True,
+) -> np.ndarray:
+    """The rightmost roots of f(s) = m s² + c s + k + (D s + P) e^{−sΔt}, certified.
+
+    :func:`phoid.dynamics.loop.characteristic_roots` on raw numbers (m > 0; c, k of any sign).
 
     The first attempt is a quick one: a coarser discretisation (order 16, or 24 where more
     than 3 roots are asked) and Newton of at most :data:`_CONT_ITERS` steps per start, each
@@ -65,6 +70,29 @@ def rightmost_roots(m, c, k, P, D, tau, *, count=6, verify=True):
     converged, or its abscissa so near a missed root that the count does not resolve), the
     full computation follows: order 16 or 32, Newton of up to 30 steps, the order doubled
     until the certificate agrees.
+
+    Parameters
+    ----------
+    m, c, k : float
+        Plant mass (kg, > 0), damping (N·s/m) and stiffness (N/m).
+    P, D : float
+        Gains, N/m and N·s/m.
+    tau : float
+        Loop delay Δt, s (≥ 0; Δt = 0 gives the two roots of the quadratic in closed form).
+    count : int, default 6
+        At least this many roots (conjugates counted), cut after whole conjugate pairs.
+    verify : bool, default True
+        Certify by the argument principle that no root right of the last one is missing.
+
+    Returns
+    -------
+    ndarray of complex
+        The roots, 1/s, by decreasing real part (for a pair, positive imaginary part first).
+
+    Raises
+    ------
+    RuntimeError
+        If the roots could not be certified (a pathological loop).
     """
     if tau == 0.0:
         return quadratic_roots(m, c + D, k + P)
@@ -118,14 +146,17 @@ def rightmost_roots(m, c, k, P, D, tau, *, count=6, verify=True):
     )
 
 
-def rightmost_roots_many(m, c, k, P, D, tau, *, count=6):
+def rightmost_roots_many(
+    m: float, c: float, k: float, P: np.ndarray, D: np.ndarray, tau: float, *, count: int = 6,
+) -> list[np.ndarray]:
     """:func:`rightmost_roots` for many runs of one plant, by continuation.
 
     The first run's roots are computed in full; each further run starts Newton from the roots
     of a run near it in (P, D) already done, and the result is accepted only if the argument
     principle certifies it (no other root right of an abscissa between the kept roots and the
     next one); otherwise that run's roots are computed in full. Same results as calling
-    :func:`rightmost_roots` per run, at a fraction of the cost when the gains vary smoothly.
+    :func:`rightmost_roots` per run, with far fewer full computations when the gains vary
+    smoothly.
 
     The work is done in rounds, and each round in two passes, each pass certified by one
     batched count of all its runs (:func:`count_roots_right_of_many`):
@@ -136,8 +167,8 @@ def rightmost_roots_many(m, c, k, P, D, tau, *, count=6):
        (:func:`_continued_roots`). The runs whose continuation lost roots (the gains crossed a
        change of the root structure: D through 0, where the delay chain moves by ln|D|/Δt and
        a real root enters) are continued once more, batched, with the chain's asymptotic
-       starts (:func:`_chain_starts`) added. Where the gains vary smoothly, or cross D = 0
-       (the bench's mass–damper set), this settles every run.
+       starts (:func:`_chain_starts`) added. Where the gains vary smoothly, or cross D = 0,
+       this settles every run.
     2. the runs pass 1 did not settle are continued one at a time, each from its nearest
        neighbour (settled, or continued in this pass, certified on its own all the same), so
        that the steps are short; a run whose continuation loses roots (the gains crossed a
@@ -146,6 +177,22 @@ def rightmost_roots_many(m, c, k, P, D, tau, *, count=6):
 
     After the count, the first run that failed its certificate is computed in full, and the
     next round continues the other failures, from it where it is nearest.
+
+    Parameters
+    ----------
+    m, c, k : float
+        Plant mass (kg, > 0), damping (N·s/m) and stiffness (N/m), shared by the runs.
+    P, D : array_like, shape (n,)
+        Each run's gains, N/m and N·s/m.
+    tau : float
+        Loop delay Δt, s (≥ 0).
+    count : int, default 6
+        Roots per run, as ``count`` of :func:`rightmost_roots`.
+
+    Returns
+    -------
+    list of ndarray of complex
+        Each run's roots, 1/s, as :func:`rightmost_roots` returns them.
     """
     P = np.asarray(P, dtype=float)
     D = np.asarray(D, dtype=float)
@@ -410,7 +457,7 @@ def dominant_roots(
         Loop delay, s.
     guess : array_like of complex, optional
         Starting points for Newton (e.g. the measured roots −σᵢ + iω_dᵢ). Without a guess, or with
-        ``certify=True``, each root is computed by :func:`characteristic_roots`.
+        ``certify=True``, each root is computed by :func:`rightmost_roots`.
     certify : bool, default False
         Compute each root with the certified method instead of Newton from the guess.
 

@@ -1152,7 +1152,7 @@ def simulate_forced(
     list of phoid.io.experiment.Run
         One run per frequency, with ``B`` and ``omega`` set.
     """
-    from phoid.simulation.core import simulate
+    from phoid.simulation import simulate
 
     ws = np.atleast_1d(v.finite_array("omega", omega))
     fs = v.positive("fs", fs, "Hz")

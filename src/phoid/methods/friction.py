@@ -813,7 +813,7 @@ class _Problem:
 
         One batched simulation per distinct added mass (run i's plant is m + Δmᵢ); each run's
         command carries its bias bᵢ (times ``bias_scale``)."""
-        from phoid.simulation.core import simulate
+        from phoid.simulation import simulate
 
         m, c, k, fc = (float(a) for a in theta)
         if not (m > 0 and fc >= 0):

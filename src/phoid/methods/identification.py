@@ -324,7 +324,7 @@ def _model_releases(data, fits, rough, P, D, delay, dm=None, digital=None
 
     Here the record near the release is fitted by x = a + b·g(t − τ), with g the exact response
     of the rough plant's loop released from rest at 1 (g = 1 before the release; one batched
-    simulation per sample rate, :func:`phoid.simulation.core.release_response`). Where the span is
+    simulation per sample rate, :func:`phoid.simulation.release_response`). Where the span is
     sampled uniformly (to the rounding of its times), t − τ is a whole number of sample
     intervals, so g is simulated at the data's own rate (the same g, to simulate's rounding of
     ~1e−12, as on a finer grid) and is one vector per run for all its candidates; otherwise
@@ -355,7 +355,7 @@ def _model_releases(data, fits, rough, P, D, delay, dm=None, digital=None
     the sets' runs disagree.
     """
     from phoid.dynamics.plant import Plant
-    from phoid.simulation.core import release_response, simulate
+    from phoid.simulation import release_response, simulate
 
     out: list[float | None] = [None] * len(data)
     m, c, k = rough

@@ -28,7 +28,7 @@ N(s) = m s + c + D e^{−sΔt} − P (1 − e^{−sΔt})/s, so the mode e^{st} c
 x₀ N(s)/f′(s) and w = 2 x₀ N(s)/f′(s) (:func:`release_amplitude`; docs/architecture.md).
 
 Sensor noise is the only noise in this model: the feedback acts on the true position (as in
-:func:`phoid.simulation.core.simulate`). The non-dominant modes that ring right after the release
+:func:`phoid.simulation.simulate`). The non-dominant modes that ring right after the release
 are left out of the model, as in ``truth.json``; phoid's estimator fits them too and comes
 within a few per cent of this bound (docs/architecture.md).
 """

@@ -1,11 +1,32 @@
-"""phoid.simulation."""
+"""phoid.simulation: the batched time-domain simulator of the PHO loop.
 
-from phoid.simulation.core import (
-    Simulation,
-    simulate,
-)
+Modules
+-------
+response
+    The public entry points :func:`simulate` (checks the inputs and dispatches) and
+    :func:`release_response`.
+result
+    The :class:`Simulation` result.
+_checks
+    Input checks and size limits (:data:`MAX_SAMPLES`, :data:`MAX_STEPS`).
+_propagation
+    The exact step propagator of the plant and the polynomial helpers.
+_continuous
+    The continuous delayed loop (Δt > 0 and Δt = 0): grid, blocks, drivers.
+_sampled
+    The sampled (digital) control loop.
+_stickslip
+    Coulomb friction (stick–slip) on the exact propagation.
+"""
+
+from phoid.simulation._checks import MAX_SAMPLES, MAX_STEPS
+from phoid.simulation.response import release_response, simulate
+from phoid.simulation.result import Simulation
 
 __all__ = [
+    "MAX_SAMPLES",
+    "MAX_STEPS",
     "Simulation",
+    "release_response",
     "simulate",
 ]

@@ -1,0 +1,329 @@
+r"""The sampled (digital) control loop of :mod:`phoid.dynamics.digital`, simulated exactly.
+
+With ``sample_time`` = T_s the controller samples x_n = x(nT_s) on its own clock (t_n = nT_s
+from t = 0), estimates the velocity by the backward difference or its first-order low pass,
+computes u_n = −(P x_n + D v̂_n) and holds u(t) = u_{n−d} on [nT_s, (n+1)T_s)
+(``delay_samples`` = d). While the mass is held the controller runs on x = x₀ (v̂ = 0,
+commands −P x₀), as in the continuous path. The recorder samples at f_s = M/T_s, M a whole
+number ≥ 1, and ``hold`` must be a whole number of recorder intervals (a release between two
+controller instants is allowed: the first period after it is partial). Scheme, for the linear
+plant (f_c = 0):
+
+1. **Controller instants.** From the first controller instant after the release, x_n obeys
+   χ(q) x_n = [Q-terms of the release state] + [the external force], χ the exact characteristic
+   polynomial of :mod:`~phoid.dynamics.digital`: X(z) = [Q(z) + z^d(z − a)((z − Φ₂₂)F₁(z) +
+   Φ₁₂F₂(z))]/χ(z)
+   with F_n the plant state that the external force alone adds over period n. One IIR
+   ``lfilter`` per run (order d + 3) gives every x_n at once.
+2. **One step of iterative refinement.** From x_n, the estimator state (a first-order
+   ``lfilter``), the commands and the held, delayed input follow; the plant's exact 2 × 2
+   recursion y_{n+1} = Φ y_n + Γ u_{n−d} + F_n driven by them (the Cayley–Hamilton filter with
+   its own refinement, :mod:`phoid.simulation._propagation`) gives x̃_n. The defect e = x̃ − x
+   is mapped back through the closed loop's sensitivity z^d(z − a)Δ(z)/χ(z) (one more
+   ``lfilter``) and added to x; the commands and the plant state are recomputed from the
+   corrected x. The recorded x, ẋ are the plant recursion's, so x, ẋ and u are consistent to
+   rounding (≈ N·ε).
+3. **Between controller instants** (M > 1): y(nT_s + ih) = Φ(ih) y_n + Γ(ih) u_{n−d} plus the
+   force's share, with Φ(ih), Γ(ih) exact exponentials (h = T_s/M), for all n at once.
+4. **External force.** Quintic interpolants on sub-steps of the recorder interval
+   (Chebyshev–Lobatto nodes, as for the continuous loop; sub-steps so that ρh ≤ 0.1 for the
+   plant's and the loop's dominant rates), propagated exactly; shared by all runs.
+
+Python thus loops over runs (one ``lfilter`` each) and over the sub-steps of one period, never
+over periods or samples. With Coulomb friction (f_c > 0) the plant is propagated by the
+stick–slip machinery of :mod:`phoid.simulation._stickslip` in blocks of d + 1 controller periods
+(within such a block every applied command is already known), and the commands are updated
+after each block: Python loops over blocks, i.e. ≈ N/(M(d + 1)) iterations.
+
+A DC-offset bias b adds one more term to the command, uₙ = −P xₙ − D v̂ₙ + b·sign(v̂ₙ), held by
+the zero-order hold; the loop is then nonlinear and takes the block-by-block path of the
+friction, exact like it (commands after each block).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.signal import lfilter
+
+from phoid.dynamics.digital import (
+    DigitalPD,
+    ZOHPlant,
+    characteristic_coefficients,
+    digital_roots,
+    expm_stack,
+)
+from phoid.dynamics.plant import quadratic_roots
+from phoid.simulation._propagation import _NQ, _RHO_H, _Engine, _force_coeffs
+from phoid.simulation._stickslip import _Friction
+
+
+def _run_sampled(m, c, k, fc, P, D, x0, v0, hold, fs, N, force, loop: DigitalPD, bias=None,
+                 signs=None):
+    """The hybrid loop of :mod:`~phoid.dynamics.digital`: exact positions, velocities, commands."""
+    B = P.size
+    T = loop.sample_time
+    d = loop.delay_samples
+    Mr = round(fs * T)
+    if Mr < 1 or abs(fs * T - Mr) > 1e-9 * max(1.0, fs * T):
+        raise ValueError(
+            f"`fs` must be a whole multiple of the controller rate 1/sample_time = {1.0 / T:g} "
+            f"Hz for a sampled controller; got {fs:g} Hz (fs·sample_time = {fs * T:.6g})"
+        )
+    j_rel = round(hold * fs)
+    if abs(hold * fs - j_rel) > 1e-9 * max(1.0, hold * fs):
+        raise ValueError(
+            f"`hold` must be a whole number of recorder intervals 1/fs = {1.0 / fs:g} s for a "
+            f"sampled controller; got {hold:g} s"
+        )
+    h = T / Mr
+    x_true = np.empty((B, N))
+    vel = np.empty((B, N))
+    jr = min(j_rel, N)
+    x_true[:, :jr] = x0[:, None]
+    vel[:, :jr] = 0.0
+    n1 = -(-j_rel // Mr)  # first controller instant at or after the release
+    r0 = n1 * Mr - j_rel  # recorder intervals from the release to it
+    n_last = (N - 1) // Mr  # last controller instant in the record
+    U = np.repeat((-P * x0)[:, None], n_last + 1, axis=1)  # commands u_n (held: −P x₀)
+    if bias is not None:  # sign(v̂_n) of each command: prescribed, or recorded here
+        S_out = np.zeros((B, n_last + 1))
+        if signs is not None:
+            S_out[:, : min(n_last + 1, signs.shape[1])] = signs[:, : n_last + 1]
+    if j_rel <= N - 1:
+        S = 1
+        if force is not None or fc > 0 or bias is not None:
+            # sub-steps of the recorder interval: ρh ≤ 0.1 for the plant's and the loop's
+            # dominant rates (force interpolation; Taylor series of the friction events)
+            rho = float(np.max(np.abs(quadratic_roots(m, c, k))))
+            dom = digital_roots(m, c, k, P, D, loop).dominant
+            rho = max(rho, float(np.max(np.abs(dom[np.isfinite(dom)]), initial=0.0)))
+            S = max(1, math.ceil(rho * h / _RHO_H - 1e-9))
+        k_total = (N - 1 - j_rel) * S  # sub-steps simulated after the release
+        cF = _force_coeffs(force, hold, h / S, k_total)
+        geo = _SampledGeometry(Mr, S, h, j_rel, n1, r0, n_last, k_total)
+        out = (x_true, vel, U)
+        if fc > 0 or bias is not None:  # the bias makes the loop nonlinear: block by block
+            _sampled_friction(m, c, k, fc, P, D, x0, v0, loop, geo, cF, out, bias,
+                              None if bias is None else (S_out, signs is not None))
+        else:
+            _sampled_linear(m, c, k, P, D, x0, v0, loop, geo, cF, out)
+    # the force applied at each sample: the command u_{n−d} of the period holding it
+    n_of = np.arange(N) // Mr - d
+    u = np.where(n_of[None, :] >= 0, U[:, np.maximum(n_of, 0)], (-P * x0)[:, None])
+    return x_true, vel, u, (S_out if bias is not None else None)
+
+
+@dataclass(frozen=True)
+class _SampledGeometry:
+    """Where the release, the controller instants and the recorder samples fall."""
+
+    Mr: int  # recorder samples per controller period
+    S: int  # sub-steps per recorder interval
+    h: float  # recorder interval, s
+    j_rel: int  # sample index of the release
+    n1: int  # first controller instant at or after the release
+    r0: int  # recorder intervals from the release to instant n1
+    n_last: int  # last controller instant in the record
+    k_total: int  # sub-steps after the release
+
+    def k_inst(self, n):
+        """Sub-step index (from the release) of controller instant n."""
+        return (n * self.Mr - self.j_rel) * self.S
+
+
+def _sampled_linear(m, c, k, P, D, x0, v0, loop, geo: _SampledGeometry, cF, out) -> None:
+    """f_c = 0: every controller instant at once (IIR filter of χ), refined once; then samples."""
+    x_true, vel, U = out
+    B = P.size
+    T, d = loop.sample_time, loop.delay_samples
+    a, cf = loop.filter_pole, loop.filter_gain
+    Mr, S, j_rel, n1, n_last = geo.Mr, geo.S, geo.j_rel, geo.n1, geo.n_last
+    A0 = np.array([[0.0, 1.0], [-k / m, -c / m]])
+    y = np.stack([x0, v0], axis=1)
+    x_true[:, j_rel] = x0
+    vel[:, j_rel] = v0
+    if cF is not None or geo.r0 > 0:
+        sub = _Engine(A0[None], m, geo.h / S, 1)
+        Phs, Ks = sub.Phi[0], sub.K[0]
+    # 1. from the release to the first controller instant: the held command −P x₀ (+ force)
+    up = -P * x0
+    for kk in range(min(geo.r0 * S, geo.k_total)):
+        y = y @ Phs.T + up[:, None] * Ks[:, 0]
+        if cF is not None:
+            y = y + Ks @ cF[kk]
+        if (kk + 1) % S == 0:
+            j = j_rel + (kk + 1) // S
+            x_true[:, j] = y[:, 0]
+            vel[:, j] = y[:, 1]
+    if n1 > n_last:
+        return
+    L = n_last - n1  # periods propagated by the closed loop
+    eng = _Engine(A0[None], m, T, max(L, 1))
+    Phi, Gam = eng.Phi[0], eng.K[0][:, 0]
+    # 2. the external force's share of the plant state, per period and inside each period
+    gF = part = None
+    if cF is not None:
+        MS = Mr * S
+        idx = geo.r0 * S + np.arange((L + 1) * MS)
+        cP = np.zeros((idx.size, _NQ))
+        ok = idx < geo.k_total
+        cP[ok] = cF[idx[ok]]
+        cP = cP.reshape(L + 1, MS, _NQ)
+        zF = np.zeros((L + 1, 2))
+        part = np.zeros((L + 1, Mr, 2))
+        for sl in range(MS):
+            zF = zF @ Phs.T + cP[:, sl] @ Ks.T
+            if (sl + 1) % S == 0 and (sl + 1) // S < Mr:
+                part[:, (sl + 1) // S] = zF
+        gF = zF[:L]
+    # 3. x at the controller instants n1 … n_last: X(z) = [Q(z) + force terms]/χ(z)
+    zp = ZOHPlant(Phi, Gam, np.zeros(2), float(Phi[0, 0] + Phi[1, 1]),
+                  float(Phi[0, 0] * Phi[1, 1] - Phi[0, 1] * Phi[1, 0]), float(Gam[0]),
+                  float(Phi[0, 1] * Gam[1] - Phi[1, 1] * Gam[0]))
+    chi = characteristic_coefficients(zp, P, D, a, cf, d)  # (B, d + 4)
+    xi, eta = y[:, 0], y[:, 1]
+    g1 = Phi[0, 1] * eta - Phi[1, 1] * xi
+    Qc = np.zeros((B, d + 4))
+    Qc[:, 0] += xi
+    Qc[:, 1] += g1 - a * xi
+    Qc[:, 2] += -a * g1
+    if d > 0:
+        c3 = np.array([zp.b1, zp.b0 - a * zp.b1, -a * zp.b0])
+        Qc[:, 1 : d + 3] -= (P * x0)[:, None] * np.convolve(c3, np.ones(d))[None, :]
+    Qc[:, d + 1] += D * cf * x0 * zp.b1
+    Qc[:, d + 2] += D * cf * x0 * zp.b0
+    inp = np.zeros((B, L + 1))
+    nq = min(d + 4, L + 1)
+    inp[:, :nq] = Qc[:, :nq]
+    if gF is not None and L > 0:
+        b1c = np.array([0.0, 1.0, -(a + Phi[1, 1]), a * Phi[1, 1]])
+        b2c = np.array([0.0, 0.0, Phi[0, 1], -a * Phi[0, 1]])
+        inp += (np.convolve(gF[:, 0], b1c) + np.convolve(gF[:, 1], b2c))[None, : L + 1]
+    x = np.empty((B, L + 1))
+    for b in range(B):
+        x[b] = lfilter([1.0], chi[b], inp[b])
+
+    def commands(x):
+        """Commands u_n and applied inputs u_{n−d} at n1 … n_last from the sampled x."""
+        w = np.empty_like(x)
+        w[:, 0] = -cf * x0
+        w[:, 1:] = (a - 1.0) * cf * x[:, :-1]
+        q = lfilter([1.0], [1.0, -a], w, axis=1) if a != 0.0 else w  # q_n = v̂_n − c_f x_n
+        Ucl = -(P + D * cf)[:, None] * x - D[:, None] * q
+        uapp = np.repeat((-P * x0)[:, None], L + 1, axis=1)  # held commands first
+        if d <= L:
+            uapp[:, d:] = Ucl[:, : L + 1 - d]
+        return Ucl, uapp
+
+    def plant(uapp):
+        if L == 0:  # the record ends at instant n1
+            return y[:, :, None].copy()
+        w = Gam[None, :, None] * uapp[:, None, :L]
+        if gF is not None:
+            w = w + gF.T[None]
+        return eng.recur(0, y, w)  # (B, 2, L + 1)
+
+    # 4. one step of iterative refinement through the loop's sensitivity z^d(z−a)Δ(z)/χ(z)
+    _, uapp = commands(x)
+    Y = plant(uapp)
+    sens = np.array([1.0, -(zp.tau + a), zp.delta + a * zp.tau, -a * zp.delta])
+    e = Y[:, 0] - x
+    for b in range(B):
+        x[b] += lfilter(sens, chi[b], e[b])
+    Ucl, uapp = commands(x)
+    Y = plant(uapp)
+    U[:, n1:] = Ucl
+    # 5. the recorder's samples
+    j0 = n1 * Mr
+    cnt = x_true.shape[1] - j0
+    if Mr == 1 and part is None:
+        x_true[:, j0:] = Y[:, 0, :cnt]
+        vel[:, j0:] = Y[:, 1, :cnt]
+        return
+    X = np.zeros((Mr, 3, 3))
+    X[:, :2, :2] = A0
+    X[:, 1, 2] = 1.0 / m
+    X = X * (np.arange(Mr) * geo.h)[:, None, None]
+    E = expm_stack(X)  # Φ(ih), Γ(ih), i = 0 … M−1
+    ys = np.einsum("irc,bcn->bnir", E[:, :2, :2], Y)
+    ys += E[None, None, :, :2, 2] * uapp[:, :, None, None]
+    if part is not None:
+        ys += part[None]
+    ys = ys.reshape(B, (L + 1) * Mr, 2)
+    x_true[:, j0:] = ys[:, :cnt, 0]
+    vel[:, j0:] = ys[:, :cnt, 1]
+
+
+def _sampled_friction(m, c, k, fc, P, D, x0, v0, loop, geo: _SampledGeometry, cF, out,
+                      bias=None, signs=None) -> None:
+    """f_c > 0 or a bias: stick–slip propagation in blocks of d + 1 periods, commands after
+    each block (u_n = −(P x_n + D v̂_n) + b sign(v̂_n)). ``signs`` = (S, prescribed): S (B, n)
+    receives sign(v̂_n), or, when prescribed, gives it (the switching pattern held fixed)."""
+    x_true, vel, U = out
+    B = P.size
+    d = loop.delay_samples
+    a, cf = loop.filter_pole, loop.filter_gain
+    Mr, S, j_rel, n1, n_last = geo.Mr, geo.S, geo.j_rel, geo.n1, geo.n_last
+    A0 = np.array([[0.0, 1.0], [-k / m, -c / m]])
+    eng = _Engine(A0[None], m, geo.h / S, geo.k_total)
+    fr = _Friction(eng, np.zeros(B, dtype=np.int64), fc)
+    y = np.stack([x0, v0], axis=1)
+    xs = x0.copy()
+    f0 = -P * x0 + (cF[0, 0] if cF is not None else 0.0)
+    mode = np.sign(v0).astype(np.int64)
+    still = np.flatnonzero(mode == 0)
+    if still.size:
+        mode[still] = fr.decide(still, f0[still, None], x0[still], np.zeros(still.size))
+    x_true[:, j_rel] = x0
+    vel[:, j_rel] = v0
+    Xc = np.empty((B, n_last + 1))  # x at the controller instants
+    state = {"done": n1 - 1, "x": x0.copy(), "ve": np.zeros(B)}
+
+    def commands(upto: int) -> None:
+        """u_n for the instants after the last one done, up to ``upto``."""
+        lo = state["done"] + 1
+        if upto < lo:
+            return
+        xseq = Xc[:, lo : upto + 1]
+        dx = np.diff(np.concatenate([state["x"][:, None], xseq], axis=1), axis=1)
+        ve, _ = lfilter([cf], [1.0, -a], dx, axis=1, zi=(a * state["ve"])[:, None])
+        U[:, lo : upto + 1] = -(P[:, None] * xseq + D[:, None] * ve)
+        if bias is not None:
+            S, given = signs
+            if not given:
+                S[:, lo : upto + 1] = np.sign(ve)
+            U[:, lo : upto + 1] += bias[:, None] * S[:, lo : upto + 1]
+        state.update(done=upto, x=xseq[:, -1].copy(), ve=ve[:, -1].copy())
+
+    kb = 0
+    while kb < geo.k_total:
+        nb = (j_rel + kb // S) // Mr  # period of the block's first step
+        if nb >= n1 and geo.k_inst(nb) == kb:
+            Xc[:, nb] = y[:, 0]
+            commands(nb)
+        ke = min(geo.k_total, geo.k_inst(nb + d + 1))
+        ks = np.arange(kb, ke)
+        n_step = (j_rel + ks // S) // Mr - d  # the command each step applies
+        uapp = np.where(n_step[None, :] >= 0, U[:, np.maximum(n_step, 0)], (-P * x0)[:, None])
+        cb = np.zeros((B, ke - kb, _NQ))
+        if cF is not None:
+            cb += cF[None, kb:ke]
+        cb[:, :, 0] += uapp
+        Y, _, _, mode, xs = fr.block(cb, y, mode, xs)
+        kk = np.arange(kb + 1, ke + 1)
+        on = kk % S == 0
+        j = j_rel + kk[on] // S
+        x_true[:, j] = Y[:, kk[on] - kb, 0]
+        vel[:, j] = Y[:, kk[on] - kb, 1]
+        n_in = np.arange(nb + 1, n_last + 1)
+        k_in = geo.k_inst(n_in)
+        inside = (k_in > kb) & (k_in <= ke)
+        Xc[:, n_in[inside]] = Y[:, k_in[inside] - kb, 0]
+        y = Y[:, -1]
+        kb = ke
+    if n1 == j_rel // Mr and n1 * Mr == j_rel and n1 <= n_last:
+        Xc[:, n1] = x0  # release on the last instant: nothing propagated
+    commands(n_last)
