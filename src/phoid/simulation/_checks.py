@@ -8,7 +8,7 @@ import numpy as np
 
 from phoid import _validate as v
 
-__all__ = ["MAX_SAMPLES", "MAX_STEPS"]
+__all__ = ["MAX_SAMPLES", "MAX_STEPS", "batch_array", "broadcast_batch", "plant_params"]
 
 #: most samples one simulation may hold, all runs together (runs × (hold + duration) × fs): each
 #: costs about 64 bytes (positions, velocities, forces, noise), so the limit is about 3 GB
@@ -18,14 +18,16 @@ MAX_SAMPLES = 50_000_000
 MAX_STEPS = 200_000_000
 
 
-def _batch_array(name: str, value: Any, unit: str) -> np.ndarray:
+def batch_array(name: str, value: Any, unit: str) -> np.ndarray:
+    """``value`` as a finite scalar or 1-D array (ValueError naming ``name`` and ``unit``)."""
     a = v.finite_array(name, value)
     if a.ndim > 1:
         raise ValueError(f"`{name}` must be a scalar or 1-D array ({unit}); got shape {a.shape}")
     return a
 
 
-def _broadcast_batch(**arrays: np.ndarray) -> tuple[int, dict[str, np.ndarray]]:
+def broadcast_batch(**arrays: np.ndarray) -> tuple[int, dict[str, np.ndarray]]:
+    """The batch size B and every array broadcast to (B,) floats (equal lengths, B ≥ 1)."""
     sizes = {name: a.size for name, a in arrays.items() if a.ndim == 1}
     distinct = set(sizes.values())
     if len(distinct) > 1:
@@ -37,7 +39,8 @@ def _broadcast_batch(**arrays: np.ndarray) -> tuple[int, dict[str, np.ndarray]]:
     return B, {n: np.broadcast_to(a, (B,)).astype(float) for n, a in arrays.items()}
 
 
-def _plant_params(plant: Any) -> tuple[float, float, float, float]:
+def plant_params(plant: Any) -> tuple[float, float, float, float]:
+    """m (kg, > 0), c (N·s/m), k (N/m) and f_c (N, ≥ 0) of ``plant``, checked."""
     try:
         m, c, k = plant.m, plant.c, plant.k
         fc = getattr(plant, "fc", 0.0)

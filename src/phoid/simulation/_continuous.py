@@ -94,14 +94,16 @@ from scipy.signal import lfilter
 from phoid.errors import PhoidError
 from phoid.simulation._checks import MAX_STEPS
 from phoid.simulation._propagation import (
-    _NQ,
-    _RHO_H,
-    _ch_input,
-    _Engine,
-    _force_coeffs,
-    _horner,
+    NQ,
+    RHO_H,
+    Engine,
+    ch_input,
+    force_coeffs,
+    horner,
 )
-from phoid.simulation._stickslip import _Friction, _friction_block, _initial_mode
+from phoid.simulation._stickslip import Friction, friction_block, initial_mode
+
+__all__ = ["continuous_grid", "feedback_maps", "history", "run_continuous", "run_delayed"]
 
 _SAMPLES_PER_PERIOD = 4.0  # the sample-rate rule: samples per period of the fastest mode
 # quintic Hermite: (r0, r1, r2) -> (c3, c4, c5), see _hermite_matrix
@@ -182,13 +184,13 @@ def _deriv_data_matrix(A: np.ndarray, m: float, h: float) -> np.ndarray:
     T[6:8, 2:4] = I2
     T[8:10, 2:4] = A
     T[10:12, 2:4] = A @ A
-    for j in range(_NQ):
+    for j in range(NQ):
         T[8:10, 4 + j] = b
         T[10:12, 4 + j] = A @ b + b * j / h
     return T
 
 
-def _feedback_maps(A, m, h, P, D) -> tuple[np.ndarray, np.ndarray]:
+def feedback_maps(A, m, h, P, D) -> tuple[np.ndarray, np.ndarray]:
     """Per-run maps to the delayed-input coefficients: L10 (B, 10, 6) and L12 (B, 12, 6).
 
     ``S10 @ L10`` and ``D12 @ L12`` give the coefficients (in σ) of u(t_n + σh) from step
@@ -215,6 +217,8 @@ def _feedback_maps(A, m, h, P, D) -> tuple[np.ndarray, np.ndarray]:
 
 @dataclass
 class _Grid:
+    """The internal grid of a continuous-loop simulation and where each sample falls on it."""
+
     h: float
     d: int  # steps per delay (0 when delay == 0)
     n_steps: int
@@ -226,7 +230,11 @@ class _Grid:
 
 
 def _make_grid(delay, fs, hold, N, rho, runs: int = 1) -> _Grid:
-    h_acc = _RHO_H / rho if rho > 0 else math.inf
+    """The step h = Δt/d (or 1/(M f_s) for Δt = 0) and the samples' places on it.
+
+    PhoidError where the steps of all runs would exceed :data:`MAX_STEPS`.
+    """
+    h_acc = RHO_H / rho if rho > 0 else math.inf
     if delay > 0:
         d_min = max(1, math.ceil(delay / h_acc - 1e-9), math.ceil(delay * fs - 1e-9))
         r = delay * fs
@@ -267,7 +275,7 @@ def _make_grid(delay, fs, hold, N, rho, runs: int = 1) -> _Grid:
 # the continuous loop: grid and dispatch to the drivers
 
 
-def _continuous_grid(m, c, k, P, D, delay, hold, fs, N) -> _Grid:
+def continuous_grid(m, c, k, P, D, delay, hold, fs, N) -> _Grid:
     """The internal grid of the continuous loop (sample-rate rule checked: ValueError)."""
     roots = _closed_loop_roots(m, c, k, P, D, delay)
     omega = float(np.max(np.abs(roots.imag))) if roots.size else 0.0
@@ -283,10 +291,10 @@ def _continuous_grid(m, c, k, P, D, delay, hold, fs, N) -> _Grid:
     return _make_grid(delay, fs, hold, N, rho, np.size(P))
 
 
-def _run_continuous(m, c, k, fc, P, D, delay, x0a, v0a, hold, fs, N, force, bias=None):
+def run_continuous(m, c, k, fc, P, D, delay, x0a, v0a, hold, fs, N, force, bias=None):
     """The continuous delayed loop (module docstring): exact positions, velocities, forces."""
     B = P.size
-    grid = _continuous_grid(m, c, k, P, D, delay, hold, fs, N)
+    grid = continuous_grid(m, c, k, P, D, delay, hold, fs, N)
     A0 = np.array([[0.0, 1.0], [-k / m, -c / m]])
 
     x_true = np.empty((B, N))
@@ -298,10 +306,10 @@ def _run_continuous(m, c, k, fc, P, D, delay, x0a, v0a, hold, fs, N, force, bias
     u[:, :j0] = (-P * x0a)[:, None]
 
     if grid.n_steps > 0:
-        cF = _force_coeffs(force, hold, grid.h, grid.n_steps)
+        cF = force_coeffs(force, hold, grid.h, grid.n_steps)
         out = (x_true, vel, u)
         if delay > 0:
-            _run_delayed(m, fc, A0, P, D, x0a, v0a, cF, grid, out, bias)
+            run_delayed(m, fc, A0, P, D, x0a, v0a, cF, grid, out, bias)
         else:
             _run_ode(m, c, k, fc, P, D, x0a, v0a, cF, grid, out, bias)
     return x_true, vel, u
@@ -325,12 +333,12 @@ class _Ctx:
     """What the drivers share: grid, propagators, gains and the output arrays."""
 
     grid: _Grid
-    eng: _Engine
+    eng: Engine
     grp: np.ndarray
     P: np.ndarray
     D: np.ndarray
     out: tuple[np.ndarray, np.ndarray, np.ndarray]
-    fr: _Friction | None
+    fr: Friction | None
     bias: np.ndarray | None = None  # (B,) bias magnitudes b, N (None: no bias)
 
 
@@ -359,7 +367,7 @@ def _emit(ctx: _Ctx, a, b, n0, Y, ce, cu, *, cb=None, splits=None) -> None:
         else:
             xs, vs = _dense(ctx, Y, ce, loc, th, cb, splits)
         if cu is not None:
-            u[:, j] = _horner(np.moveaxis(cu[:, :, loc], 1, 2), th[None, :])
+            u[:, j] = horner(np.moveaxis(cu[:, :, loc], 1, 2), th[None, :])
     x_true[:, j] = xs
     vel[:, j] = vs
     if cu is None:
@@ -388,8 +396,8 @@ def _dense(ctx: _Ctx, Y, ce, loc, th, cb, splits):
         res = np.empty((rr.size, 2))
         if ok.any():
             a = eng.taylor(eng.A[grp[rr[ok]]], Y[rr[ok], :, ll[ok]], cc[ok])
-            res[ok, 0] = _horner(a[:, :, 0], tt[ok])
-            res[ok, 1] = _horner(a[:, :, 1], tt[ok])
+            res[ok, 0] = horner(a[:, :, 0], tt[ok])
+            res[ok, 1] = horner(a[:, :, 1], tt[ok])
         for i in np.flatnonzero(~ok):  # samples inside steps that contain a friction event
             r, step = int(rr[i]), int(ll[i])
             pc = splits[(r, step)]
@@ -400,32 +408,32 @@ def _dense(ctx: _Ctx, Y, ce, loc, th, cb, splits):
     return xs, vs
 
 
-def _run_delayed(m, fc, A0, P, D, x0, v0, cF, grid, out, bias=None):
+def run_delayed(m, fc, A0, P, D, x0, v0, cF, grid, out, bias=None):
     """Δt > 0: blocks of d steps; each block's delayed input comes from the previous block.
 
     With a bias b (N, per run), the input gains b·sign(ẋ(t − Δt)): on each step of a block, the
     sign of the velocity on the same step of the previous block (one block is one delay). It is
     constant on a step without a velocity reversal, and switches at the reversals that the
     stick–slip bookkeeping located in the previous block (its pieces): such a step is cut at
-    those instants (:meth:`_Friction.resolve`), so the bias enters exactly.
+    those instants (:meth:`Friction.resolve`), so the bias enters exactly.
     """
     B = P.size
     d, h, Ns = grid.d, grid.h, grid.n_steps
-    eng = _Engine(A0[None], m, h, Ns)
+    eng = Engine(A0[None], m, h, Ns)
     grp = np.zeros(B, dtype=np.int64)
-    fr = _Friction(eng, grp, fc) if fc > 0 or bias is not None else None
+    fr = Friction(eng, grp, fc) if fc > 0 or bias is not None else None
     ctx = _Ctx(grid, eng, grp, P, D, out, fr)
-    L10, L12 = _feedback_maps(A0, m, h, P, D)
+    L10, L12 = feedback_maps(A0, m, h, P, D)
     L10T = np.ascontiguousarray(np.swapaxes(L10, 1, 2))  # (B, 6, 10)
     cFT = np.ascontiguousarray(cF.T) if cF is not None else None  # (6, Ns)
     y = np.stack([x0, v0], axis=1)
     if fr is None:
         _linear_blocks(ctx, L10T, cFT, y, x0)
         return
-    # friction: the same blocks, each advanced by the stick–slip bookkeeping of _Friction
+    # friction: the same blocks, each advanced by the stick–slip bookkeeping of Friction
     xs = x0.copy()
-    mode = _initial_mode(fr, y, -P * x0 + (cF[0, 0] if cF is not None else 0.0))
-    S_prev = _history(B, d, x0, m * -A0[1, 0])
+    mode = initial_mode(fr, y, -P * x0 + (cF[0, 0] if cF is not None else 0.0))
+    S_prev = history(B, d, x0, m * -A0[1, 0])
     split_prev: dict = {}
     cb_prev = None
     bias_prev = np.zeros((B, d))  # the held history: ẋ = 0, no bias
@@ -443,7 +451,7 @@ def _run_delayed(m, fc, A0, P, D, x0, v0, cF, grid, out, bias=None):
             cu[:, 0, :] += bias_prev[:, :L]  # the delayed bias where it is constant on a step
             cuts = {key: cut for key, cut in cuts.items() if key[1] < L}
         cb = cu + cFT[:, n0 : n0 + L] if cFT is not None else cu
-        Y, ce, splits, mode, xs = _friction_block(fr, cb, y, mode, xs, cuts)
+        Y, ce, splits, mode, xs = friction_block(fr, cb, y, mode, xs, cuts)
         a, b = _block_samples(grid, n0, L)
         _emit(ctx, a, b, n0, Y, ce, cu, cb=cb, splits=splits)
         if cuts:
@@ -500,9 +508,9 @@ def _cut_bias_samples(grid, a, b, n0, cuts, u) -> None:
             u[r, grid.j0 + a + hit] += vals[np.searchsorted(sig, th, side="right")]
 
 
-def _history(B: int, d: int, x0: np.ndarray, k: float) -> np.ndarray:
+def history(B: int, d: int, x0: np.ndarray, k: float) -> np.ndarray:
     """Step data (y_m, y_{m+1}, c_m) of the held history: y = (x₀, 0), force k x₀ (balance)."""
-    S = np.zeros((B, 4 + _NQ, d))
+    S = np.zeros((B, 4 + NQ, d))
     S[:, 0, :] = x0[:, None]
     S[:, 2, :] = x0[:, None]
     S[:, 4, :] = (k * x0)[:, None]
@@ -526,13 +534,13 @@ def _linear_blocks(ctx: _Ctx, L10T, cFT, y, x0) -> None:
     if cFT is not None:
         wF = K @ cFT
         mF = Mch @ wF
-    S = _history(B, d, x0, ctx.eng.m * -eng.A[0, 1, 0])
+    S = history(B, d, x0, ctx.eng.m * -eng.A[0, 1, 0])
     for n0 in range(0, Ns, d):
         L = min(d, Ns - n0)
         Z = np.matmul(G, S if L == d else S[:, :, :L])  # (B, 10, L)
-        cu = Z[:, :_NQ]
-        wk = Z[:, _NQ : _NQ + 2]
-        wm = Z[:, _NQ + 2 :]
+        cu = Z[:, :NQ]
+        wk = Z[:, NQ : NQ + 2]
+        wm = Z[:, NQ + 2 :]
         if cFT is not None:
             sl = slice(n0, n0 + L)
             c = cu + cFT[:, sl]
@@ -541,7 +549,7 @@ def _linear_blocks(ctx: _Ctx, L10T, cFT, y, x0) -> None:
         else:
             c = cu
         Y = lfilter(
-            b_ch, a_ch, _ch_input(y, wk[:, :, 0], wk[:, :, 1:], wm[:, :, :-1], Mch), axis=-1
+            b_ch, a_ch, ch_input(y, wk[:, :, 0], wk[:, :, 1:], wm[:, :, :-1], Mch), axis=-1
         )
         if refine:
             Y = eng.refine(0, Y, wk)
@@ -565,10 +573,10 @@ def _run_ode(m, c, k, fc, P, D, x0, v0, cF, grid, out, bias=None):
     A[:, 0, 1] = 1.0
     A[:, 1, 0] = -(k + keys[:, 0]) / m
     A[:, 1, 1] = -(c + keys[:, 1]) / m
-    eng = _Engine(A, m, h, Ns)
+    eng = Engine(A, m, h, Ns)
     fr = None
     if fc > 0 or bias is not None:
-        fr = _Friction(eng, grp, fc, None if bias is None else fc - bias)
+        fr = Friction(eng, grp, fc, None if bias is None else fc - bias)
     ctx = _Ctx(grid, eng, grp, P, D, out, fr, bias)
     y = np.stack([x0, v0], axis=1)
     cFT = np.ascontiguousarray(cF.T) if cF is not None else None  # (6, Ns)
@@ -581,18 +589,18 @@ def _run_ode(m, c, k, fc, P, D, x0, v0, cF, grid, out, bias=None):
             else:
                 w = np.broadcast_to((eng.K[gi] @ cFT)[None], (rows.size, 2, Ns))
             Y[rows] = eng.recur(gi, y[rows], w)
-        ce = np.zeros((1, _NQ, Ns)) if cFT is None else cFT[None]
-        _emit(ctx, 0, grid.step.size, 0, Y, np.broadcast_to(ce, (B, _NQ, Ns)), None)
+        ce = np.zeros((1, NQ, Ns)) if cFT is None else cFT[None]
+        _emit(ctx, 0, grid.step.size, 0, Y, np.broadcast_to(ce, (B, NQ, Ns)), None)
         return
     xs = x0.copy()
-    mode = _initial_mode(fr, y, np.full(B, cF[0, 0] if cF is not None else 0.0))
+    mode = initial_mode(fr, y, np.full(B, cF[0, 0] if cF is not None else 0.0))
     for n0 in range(0, Ns, _FRICTION_BLOCK):
         L = min(_FRICTION_BLOCK, Ns - n0)
         if cFT is None:
-            cb = np.zeros((B, _NQ, L))
+            cb = np.zeros((B, NQ, L))
         else:
             cb = np.repeat(cFT[None, :, n0 : n0 + L], B, axis=0)
-        Y, ce, splits, mode, xs = _friction_block(fr, cb, y, mode, xs)
+        Y, ce, splits, mode, xs = friction_block(fr, cb, y, mode, xs)
         a, b = _block_samples(grid, n0, L)
         _emit(ctx, a, b, n0, Y, ce, None, cb=cb, splits=splits)
         y = Y[:, :, -1]

@@ -56,11 +56,13 @@ from phoid.dynamics.digital import (
     expm_stack,
 )
 from phoid.dynamics.plant import quadratic_roots
-from phoid.simulation._propagation import _NQ, _RHO_H, _Engine, _force_coeffs
-from phoid.simulation._stickslip import _Friction
+from phoid.simulation._propagation import NQ, RHO_H, Engine, force_coeffs
+from phoid.simulation._stickslip import Friction
+
+__all__ = ["run_sampled"]
 
 
-def _run_sampled(m, c, k, fc, P, D, x0, v0, hold, fs, N, force, loop: DigitalPD, bias=None,
+def run_sampled(m, c, k, fc, P, D, x0, v0, hold, fs, N, force, loop: DigitalPD, bias=None,
                  signs=None):
     """The hybrid loop of :mod:`~phoid.dynamics.digital`: exact positions, velocities, commands."""
     B = P.size
@@ -100,9 +102,9 @@ def _run_sampled(m, c, k, fc, P, D, x0, v0, hold, fs, N, force, loop: DigitalPD,
             rho = float(np.max(np.abs(quadratic_roots(m, c, k))))
             dom = digital_roots(m, c, k, P, D, loop).dominant
             rho = max(rho, float(np.max(np.abs(dom[np.isfinite(dom)]), initial=0.0)))
-            S = max(1, math.ceil(rho * h / _RHO_H - 1e-9))
+            S = max(1, math.ceil(rho * h / RHO_H - 1e-9))
         k_total = (N - 1 - j_rel) * S  # sub-steps simulated after the release
-        cF = _force_coeffs(force, hold, h / S, k_total)
+        cF = force_coeffs(force, hold, h / S, k_total)
         geo = _SampledGeometry(Mr, S, h, j_rel, n1, r0, n_last, k_total)
         out = (x_true, vel, U)
         if fc > 0 or bias is not None:  # the bias makes the loop nonlinear: block by block
@@ -146,7 +148,7 @@ def _sampled_linear(m, c, k, P, D, x0, v0, loop, geo: _SampledGeometry, cF, out)
     x_true[:, j_rel] = x0
     vel[:, j_rel] = v0
     if cF is not None or geo.r0 > 0:
-        sub = _Engine(A0[None], m, geo.h / S, 1)
+        sub = Engine(A0[None], m, geo.h / S, 1)
         Phs, Ks = sub.Phi[0], sub.K[0]
     # 1. from the release to the first controller instant: the held command −P x₀ (+ force)
     up = -P * x0
@@ -161,17 +163,17 @@ def _sampled_linear(m, c, k, P, D, x0, v0, loop, geo: _SampledGeometry, cF, out)
     if n1 > n_last:
         return
     L = n_last - n1  # periods propagated by the closed loop
-    eng = _Engine(A0[None], m, T, max(L, 1))
+    eng = Engine(A0[None], m, T, max(L, 1))
     Phi, Gam = eng.Phi[0], eng.K[0][:, 0]
     # 2. the external force's share of the plant state, per period and inside each period
     gF = part = None
     if cF is not None:
         MS = Mr * S
         idx = geo.r0 * S + np.arange((L + 1) * MS)
-        cP = np.zeros((idx.size, _NQ))
+        cP = np.zeros((idx.size, NQ))
         ok = idx < geo.k_total
         cP[ok] = cF[idx[ok]]
-        cP = cP.reshape(L + 1, MS, _NQ)
+        cP = cP.reshape(L + 1, MS, NQ)
         zF = np.zeros((L + 1, 2))
         part = np.zeros((L + 1, Mr, 2))
         for sl in range(MS):
@@ -268,8 +270,8 @@ def _sampled_friction(m, c, k, fc, P, D, x0, v0, loop, geo: _SampledGeometry, cF
     a, cf = loop.filter_pole, loop.filter_gain
     Mr, S, j_rel, n1, n_last = geo.Mr, geo.S, geo.j_rel, geo.n1, geo.n_last
     A0 = np.array([[0.0, 1.0], [-k / m, -c / m]])
-    eng = _Engine(A0[None], m, geo.h / S, geo.k_total)
-    fr = _Friction(eng, np.zeros(B, dtype=np.int64), fc)
+    eng = Engine(A0[None], m, geo.h / S, geo.k_total)
+    fr = Friction(eng, np.zeros(B, dtype=np.int64), fc)
     y = np.stack([x0, v0], axis=1)
     xs = x0.copy()
     f0 = -P * x0 + (cF[0, 0] if cF is not None else 0.0)
@@ -308,7 +310,7 @@ def _sampled_friction(m, c, k, fc, P, D, x0, v0, loop, geo: _SampledGeometry, cF
         ks = np.arange(kb, ke)
         n_step = (j_rel + ks // S) // Mr - d  # the command each step applies
         uapp = np.where(n_step[None, :] >= 0, U[:, np.maximum(n_step, 0)], (-P * x0)[:, None])
-        cb = np.zeros((B, ke - kb, _NQ))
+        cb = np.zeros((B, ke - kb, NQ))
         if cF is not None:
             cb += cF[None, kb:ke]
         cb[:, :, 0] += uapp

@@ -24,15 +24,17 @@ from __future__ import annotations
 
 import numpy as np
 
-from phoid.simulation._propagation import _NQ, _Engine, _horner, _poly_deriv, _shift
+from phoid.simulation._propagation import NQ, Engine, horner, poly_deriv, shift
+
+__all__ = ["Friction", "friction_block", "initial_mode"]
 
 _N_PROBE = 8  # probes per step when looking for velocity sign changes / unsticking
 
 
-class _Friction:
+class Friction:
     """Stick–slip bookkeeping for one block of L steps (see the module docstring)."""
 
-    def __init__(self, eng: _Engine, grp: np.ndarray, fc: float,
+    def __init__(self, eng: Engine, grp: np.ndarray, fc: float,
                  fk: np.ndarray | None = None):
         self.eng = eng
         self.grp = grp
@@ -46,7 +48,7 @@ class _Friction:
     # ---- helpers -----------------------------------------------------------------------------
     def g_at(self, b, cb, xs, sig):
         """Sum of the non-friction forces at v = 0, x = xs: f(σ) − (k [+P]) xs."""
-        return _horner(cb, sig) + self.eng.m * self.A10[self.grp[b]] * xs
+        return horner(cb, sig) + self.eng.m * self.A10[self.grp[b]] * xs
 
     def decide(self, b, cb, xs, sig):
         """Mode after ẋ reaches 0 at σ: 0 (stick) or ±1 (slide in the direction of g)."""
@@ -54,7 +56,7 @@ class _Friction:
         return np.where(np.abs(g) <= self.fc, 0, np.sign(g)).astype(np.int64)
 
     def stuck_coeffs(self, b, xs):
-        c = np.zeros((b.size, _NQ))
+        c = np.zeros((b.size, NQ))
         c[:, 0] = -self.eng.m * self.A10[self.grp[b]] * xs
         return c
 
@@ -63,17 +65,17 @@ class _Friction:
     def _root(coef, lo, hi, target=0.0):
         """A root of p(δ) = target in [lo, hi] where p(lo) − target, p(hi) − target differ in sign
         (or p(hi) = target). Safeguarded Newton; vectorised; coef (n, K)."""
-        dcoef = _poly_deriv(coef)
-        flo = _horner(coef, lo) - target
+        dcoef = poly_deriv(coef)
+        flo = horner(coef, lo) - target
         x = 0.5 * (lo + hi)
         lo, hi = lo.copy(), hi.copy()
         for _ in range(100):
-            fx = _horner(coef, x) - target
+            fx = horner(coef, x) - target
             same = np.sign(fx) == np.sign(flo)
             lo = np.where(same, x, lo)
             flo = np.where(same, fx, flo)
             hi = np.where(same, hi, x)
-            dfx = _horner(dcoef, x)
+            dfx = horner(dcoef, x)
             with np.errstate(all="ignore"):
                 xn = x - fx / dfx
             bad = ~np.isfinite(xn) | (xn <= lo) | (xn >= hi)
@@ -158,17 +160,17 @@ class _Friction:
                 cbs[:, 0] += bz
                 cw = cbs.copy()
                 cw[:, 0] -= self.fk[b[sl]] * s
-                q = _shift(cw, sig[sl])
+                q = shift(cw, sig[sl])
                 a = eng.taylor(eng.A[self.grp[b[sl]]], y[sl], q)  # (n, nt, 2)
                 span = send - sig[sl]
                 dl = span[:, None] * self.probe[None, :]
-                vv = _horner(a[:, None, :, 1], dl)  # (n, probes)
+                vv = horner(a[:, None, :, 1], dl)  # (n, probes)
                 cross = s[:, None] * vv <= 0.0
                 anyc = cross.any(axis=1)
                 for i in np.flatnonzero(~anyc):
                     r = sl[i]
                     pieces[r].append((sig[r], send[i], int(mode[r]), y[r].copy(), xs[r], bz[i]))
-                    ye = [_horner(a[i, :, 0], span[i]), _horner(a[i, :, 1], span[i])]
+                    ye = [horner(a[i, :, 0], span[i]), horner(a[i, :, 1], span[i])]
                     if send[i] >= 1.0:
                         yend[r] = ye
                     else:  # on into the next segment, still sliding
@@ -183,7 +185,7 @@ class _Friction:
                     d_lo = np.where(qi > 0, dl[hit_i, np.maximum(qi - 1, 0)], 0.0)
                     dstar = self._root(a[hit_i, :, 1], d_lo, d_hi)
                     hit = sl[hit_i]
-                    xstar = _horner(a[hit_i, :, 0], dstar)
+                    xstar = horner(a[hit_i, :, 0], dstar)
                     s_new = sig[hit] + dstar
                     for i, r in enumerate(hit):
                         pieces[r].append((sig[r], s_new[i], int(mode[r]), y[r].copy(), xs[r],
@@ -225,7 +227,7 @@ class _Friction:
             forced[r, st] = True
         Y = np.empty((B, L + 1, 2))
         Y[:, 0] = y0
-        ce = np.empty((B, L, _NQ))
+        ce = np.empty((B, L, NQ))
         splits: dict[tuple[int, int], list] = {}
         pos = np.zeros(B, dtype=np.int64)
         mode = mode.copy()
@@ -244,7 +246,7 @@ class _Friction:
                 idc = np.minimum(idx, L - 1)
                 cw = cb[st[:, None], idc]  # (n, Lw, 6)
                 s_probe = np.concatenate([[0.0], self.probe])
-                g = _horner(cw[:, :, None, :], s_probe[None, None, :])
+                g = horner(cw[:, :, None, :], s_probe[None, None, :])
                 g = g + (eng.m * self.A10[self.grp[st]] * xs[st])[:, None, None]
                 over = ((np.abs(g) > self.fc).any(axis=2) | forced[st[:, None], idc]) & valid
                 anyo = over.any(axis=1)
@@ -329,10 +331,10 @@ class _Friction:
             return np.array([x_s, 0.0])
         cw = cb_step.copy()
         cw[0] += bz - self.fk[r] * md
-        q = _shift(cw[None, :], np.array([s0]))
+        q = shift(cw[None, :], np.array([s0]))
         a = self.eng.taylor(self.eng.A[self.grp[[r]]], y0[None, :], q)[0]
         dl = sig - s0
-        return np.array([_horner(a[:, 0], dl), _horner(a[:, 1], dl)])
+        return np.array([horner(a[:, 0], dl), horner(a[:, 1], dl)])
 
     def end_derivs(self, r, cb_step, piece, sig):
         """(y, y', y'') at σ inside ``piece`` (one-sided), flattened to 6 numbers."""
@@ -344,14 +346,14 @@ class _Friction:
         cw = cb_step.copy()
         cw[0] += bz - self.fk[r] * md
         y = self.piece_state(r, cb_step, piece, sig)
-        f = _horner(cw, sig)
-        fp = _horner(_poly_deriv(cw), sig) / self.eng.h
+        f = horner(cw, sig)
+        fp = horner(poly_deriv(cw), sig) / self.eng.h
         y1 = A @ y + bvec * f
         y2 = A @ y1 + bvec * fp
         return np.concatenate([y, y1, y2])
 
 
-def _initial_mode(fr: _Friction, y: np.ndarray, f0: np.ndarray) -> np.ndarray:
+def initial_mode(fr: Friction, y: np.ndarray, f0: np.ndarray) -> np.ndarray:
     """Friction mode at release: the sign of v₀, or the stick test at ẋ = 0 when v₀ = 0."""
     mode = np.sign(y[:, 1]).astype(np.int64)
     b = np.flatnonzero(mode == 0)
@@ -360,7 +362,7 @@ def _initial_mode(fr: _Friction, y: np.ndarray, f0: np.ndarray) -> np.ndarray:
     return mode
 
 
-def _friction_block(fr: _Friction, cb, y, mode, xs, cuts=None):
+def friction_block(fr: Friction, cb, y, mode, xs, cuts=None):
     """Friction block in the component-major layout of the drivers."""
     Y, ce, splits, mode, xs = fr.block(np.moveaxis(cb, 1, 2), y, mode, xs, cuts)
     return np.moveaxis(Y, 2, 1), np.moveaxis(ce, 2, 1), splits, mode, xs

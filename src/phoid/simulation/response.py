@@ -33,16 +33,16 @@ import numpy as np
 from phoid import _validate as v
 from phoid.dynamics.digital import DigitalPD
 from phoid.errors import PhoidError
-from phoid.simulation._checks import MAX_SAMPLES, _batch_array, _broadcast_batch, _plant_params
+from phoid.simulation._checks import MAX_SAMPLES, batch_array, broadcast_batch, plant_params
 from phoid.simulation._continuous import (
-    _continuous_grid,
-    _feedback_maps,
-    _history,
-    _run_continuous,
-    _run_delayed,
+    continuous_grid,
+    feedback_maps,
+    history,
+    run_continuous,
+    run_delayed,
 )
-from phoid.simulation._propagation import _NQ, _Engine
-from phoid.simulation._sampled import _run_sampled
+from phoid.simulation._propagation import NQ, Engine
+from phoid.simulation._sampled import run_sampled
 from phoid.simulation.result import Simulation
 
 __all__ = ["release_response", "simulate"]
@@ -164,7 +164,7 @@ def simulate(
     >>> sim.x.shape, float(sim.x_true[0, 0])
     ((2, 1000), 0.01)
     """
-    m, c, k, fc = _plant_params(plant)
+    m, c, k, fc = plant_params(plant)
     delay = v.nonnegative("delay", delay, "s")
     duration = v.positive("duration", duration, "s")
     fs = v.positive("fs", fs, "Hz")
@@ -176,12 +176,12 @@ def simulate(
         raise ValueError(f"`force` must be a callable F(t) or None; got {force!r}")
     if noise > 0 and not isinstance(rng, np.random.Generator):
         raise ValueError(f"`rng` must be a numpy.random.Generator when `noise` > 0; got {rng!r}")
-    B, arr = _broadcast_batch(
-        P=_batch_array("P", P, "N/m"),
-        D=_batch_array("D", D, "N·s/m"),
-        x0=_batch_array("x0", x0, "m"),
-        v0=_batch_array("v0", v0, "m/s"),
-        bias=_batch_array("bias", bias, "N"),
+    B, arr = broadcast_batch(
+        P=batch_array("P", P, "N/m"),
+        D=batch_array("D", D, "N·s/m"),
+        x0=batch_array("x0", x0, "m"),
+        v0=batch_array("v0", v0, "m/s"),
+        bias=batch_array("bias", bias, "N"),
     )
     P, D, x0a, v0a = arr["P"], arr["D"], arr["x0"], arr["v0"]
     if np.any(arr["bias"] < 0):
@@ -214,7 +214,7 @@ def simulate(
                     or not np.all(np.isin(bias_signs, (-1.0, 0.0, 1.0))):
                 raise ValueError("`bias_signs` must be an array (B, n) of −1, 0, 1; got shape "
                                  f"{bias_signs.shape}")
-        x_true, vel, u, signs = _run_sampled(m, c, k, fc, P, D, x0a, v0a, hold, fs, N, force,
+        x_true, vel, u, signs = run_sampled(m, c, k, fc, P, D, x0a, v0a, hold, fs, N, force,
                                              loop, biased, bias_signs)
     else:
         if delay_samples != 0 or velocity != "backward-difference" or cutoff is not None:
@@ -223,7 +223,7 @@ def simulate(
             raise ValueError(
                 f"`{name}` applies only to a sampled controller: give `sample_time` as well"
             )
-        x_true, vel, u = _run_continuous(
+        x_true, vel, u = run_continuous(
             m, c, k, fc, P, D, delay, x0a, v0a, hold, fs, N, force, biased
         )
         loop = None
@@ -296,23 +296,23 @@ def release_response(plant: Any, P: np.ndarray, D: np.ndarray, *, delay: float,
     ValueError
         As :func:`simulate` (e.g. ``fs`` below the sample-rate rule).
     """
-    m, c, k, fc = _plant_params(plant)
+    m, c, k, fc = plant_params(plant)
     P = np.asarray(P, dtype=float)
     D = np.asarray(D, dtype=float)
     N = round(duration * fs)
 
     if not (delay > 0 and fc == 0 and N >= 1 and P.ndim == 1 and P.shape == D.shape):
         return simulate(plant, P, D, delay=delay, duration=duration, fs=fs, x0=1.0).x_true
-    grid = _continuous_grid(m, c, k, P, D, delay, 0.0, fs, N)
+    grid = continuous_grid(m, c, k, P, D, delay, 0.0, fs, N)
     d = grid.d
     B = P.size
     A0 = np.array([[0.0, 1.0], [-k / m, -c / m]])
-    if not grid.unit or d > _TOEPLITZ_STEPS:  # simulate's own path (_run_continuous)
+    if not grid.unit or d > _TOEPLITZ_STEPS:  # simulate's own path (run_continuous)
         out = (np.empty((B, N)), np.empty((B, N)), np.empty((B, N)))
-        _run_delayed(m, fc, A0, P, D, np.ones(B), np.zeros(B), None, grid, out)
+        run_delayed(m, fc, A0, P, D, np.ones(B), np.zeros(B), None, grid, out)
         return out[0]
-    eng = _Engine(A0[None], m, grid.h, grid.n_steps)
-    L10, _ = _feedback_maps(A0, m, grid.h, P, D)
+    eng = Engine(A0[None], m, grid.h, grid.n_steps)
+    L10, _ = feedback_maps(A0, m, grid.h, P, D)
     L10T = np.swapaxes(L10, 1, 2)  # (B, 6, 10)
     G = np.concatenate([L10T, np.matmul(eng.K[0], L10T)], axis=1)  # -> (c^u, w = K c^u)
     # Φ^j, j = 0 … d, and the block map (y₀, w_0 … w_{d−1}) -> Y_0 … Y_d (component-major)
@@ -332,12 +332,12 @@ def release_response(plant: Any, P: np.ndarray, D: np.ndarray, *, delay: float,
     T = T.reshape(2 + 2 * d, 2 * (d + 1))
     nb = -(-grid.n_steps // d)
     x = np.empty((B, nb * d + 1))
-    S = _history(B, d, np.ones(B), m * -A0[1, 0])
+    S = history(B, d, np.ones(B), m * -A0[1, 0])
     y = np.stack([np.ones(B), np.zeros(B)], axis=1)
     for n0 in range(0, nb * d, d):  # the last block in full: the steps past the end unused
         Z = np.matmul(G, S)  # (B, 8, d)
-        Y = (np.concatenate([y, Z[:, _NQ:].reshape(B, 2 * d)], axis=1) @ T).reshape(B, 2, d + 1)
+        Y = (np.concatenate([y, Z[:, NQ:].reshape(B, 2 * d)], axis=1) @ T).reshape(B, 2, d + 1)
         x[:, n0 : n0 + d + 1] = Y[:, 0]
-        S = np.concatenate([Y[:, :, :-1], Y[:, :, 1:], Z[:, :_NQ]], axis=1)
+        S = np.concatenate([Y[:, :, :-1], Y[:, :, 1:], Z[:, :NQ]], axis=1)
         y = Y[:, :, -1]
     return x[:, :N]
