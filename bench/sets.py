@@ -20,7 +20,7 @@ Noise and quantisation scale with the release amplitude as in the Table 1 set: n
 length is about 5, so the slowest run decays into the noise (ln 100 ≈ 4.6) within the record, as
 the Table 1 set's does (0.38 × 15).
 
-:func:`check_rings` verifies, with phoid's certified root finder (:mod:`phoid.dynamics.loop`), that
+:func:`check_rings` verifies, with phoid's certified root finder (:mod:`phoid.dynamics`), that
 every
 run is stable and its dominant pair is complex (the loop rings) and well separated from the next
 mode.

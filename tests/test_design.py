@@ -1,7 +1,7 @@
 """`phoid design`: exact root counts, the Cramér–Rao bound, designed schedules, the CLI.
 
 Expected values come from independent methods: the argument principle and the certified roots of
-phoid.dynamics.loop (root counts, delay margins), direct sums over the samples (Fisher
+phoid.dynamics (root counts, delay margins), direct sums over the samples (Fisher
 information), the
 time-domain simulator (release amplitude, ringing, stability), the sample sets' truth.json bounds
 (bench/crb.py's direct sums; the shared set's as a cross-check where present),
@@ -68,7 +68,7 @@ def one_line_error(result, *needles):
 
 
 def test_count_roots_right_matches_argument_principle():
-    """The stability-switch count equals dynamics.loop's argument-principle count (exact, ints)."""
+    """The stability-switch count equals phoid.dynamics' argument-principle count (exact, ints)."""
     rng = np.random.default_rng(11)
     compared = 0
     for _ in range(40):
@@ -340,7 +340,7 @@ def test_read_schedule_errors_name_file_run_and_key(tmp_path):
 
 def test_check_flags_an_unstable_run():
     d = check([0.25, 25.0, 200.0], [0.6, 6.0, 6.0], 2.0, 1.0, 64.0, delay=0.1)
-    # independent verdict: certified roots of phoid.dynamics.loop
+    # independent verdict: certified roots of phoid.dynamics
     assert not phoid.is_stable(Plant(2.0, 1.0, 64.0), DelayedPD(200.0, 6.0, 0.1))
     assert [r.safe for r in d.runs] == [True, True, False]
     assert "UNSTABLE" in d.runs[2].warnings[0]

@@ -5,7 +5,7 @@ Where every expected value comes from:
   scipy.signal.cont2discrete (an independent construction of the same hybrid loop);
 - the simulation: a plain per-sample Python loop on scipy's ZOH discretisation (and, with an
   external force or Coulomb friction, solve_ivp with events between the recorder's samples);
-- the T_s → 0 limit: the continuous delayed loop of phoid.dynamics.loop (eq. 23), certified roots;
+- the T_s → 0 limit: the continuous delayed loop of phoid.dynamics (eq. 23), certified roots;
 - the Jacobian: central finite differences of the roots;
 - the statistics: Monte Carlo of a Gauss–Newton fit written in this file.
 """

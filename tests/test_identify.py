@@ -49,7 +49,7 @@ def test_sample_set_within_3_stderr_and_near_crb(gls, truth):
 
 def test_runs_modes_agree_with_exact_roots(gls, truth):
     # each run's sigma, omega_d against the exact dominant root of the true loop
-    # (phoid.dynamics.loop,
+    # (phoid.dynamics,
     # itself checked by the argument principle): |z| < 4 for all 38 numbers
     from phoid import Plant, forward_map
 

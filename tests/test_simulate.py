@@ -211,7 +211,7 @@ def test_forced_delayed_loop_reaches_the_frequency_response():
     )
     s = 1j * w
     H = 2.0 * s * s + 1.0 * s + 64.0 + (D * s + P) * np.exp(-s * 0.1)
-    # the dominant closed-loop root is −0.97 ± 7.57i 1/s (phoid.dynamics.loop): by 30 s the
+    # the dominant closed-loop root is −0.97 ± 7.57i 1/s (phoid.dynamics): by 30 s the
     # transient
     # is down by e^{−29}
     late = sim.t > 30.0
