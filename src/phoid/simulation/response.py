@@ -261,9 +261,8 @@ def release_response(plant: Any, P: np.ndarray, D: np.ndarray, *, delay: float,
     """``simulate(plant, P, D, delay=delay, duration=duration, fs=fs, x0=1.0).x_true``, cheaper
     where a delay spans few internal steps.
 
-    The loop's response from rest at 1 (no hold, force, friction or bias), for the release fit
-    of :func:`phoid.methods.identification._model_releases`. Same scheme and grid as
-    :func:`simulate`;
+    The loop's response from rest at 1 (no hold, force, friction or bias), for the
+    identification's model-fitted release. Same scheme and grid as :func:`simulate`;
     where the grid is the sample grid and one delay is d ≤ 32 steps, each block of d steps is
     solved by one product instead of the Cayley–Hamilton ``lfilter``: Y_n = Φⁿ y₀ +
     Σ_{i<n} Φ^{n−1−i} w_i (n = 0 … d) is a fixed (2 + 2d) × 2(d + 1) matrix applied to
