@@ -31,7 +31,7 @@ from phoid.dynamics.loop import (
     rightmost_roots,
 )
 from phoid.dynamics.plant import Plant
-from phoid.io.experiment import read_experiment
+from phoid.io import read_experiment
 from phoid.methods.identification import identify_data
 from phoid.planning.fisher import cramer_rao, mode_information, power_sums, release_amplitude
 from phoid.planning.sweep import (

@@ -143,7 +143,7 @@ def identify(
     Prints the estimates with +- one standard error and units, the open-loop zeta and omega0,
     a per-run table and any warnings.
     """
-    from phoid.io.experiment import read_experiment
+    from phoid.io import read_experiment
     from phoid.methods.identification import identify as _identify
 
     try:
@@ -314,7 +314,7 @@ def simulate(
     import numpy as np
 
     from phoid.dynamics.plant import Plant
-    from phoid.io.experiment import run_from_arrays, write_experiment
+    from phoid.io import run_from_arrays, write_experiment
     from phoid.simulation.core import simulate as _simulate
 
     if not (math.isfinite(u_noise) and u_noise >= 0.0):
@@ -438,7 +438,7 @@ def _simulate_other(ctx, out, *, method, m, c, k, fc, B, omega, duration, fs, x0
     import numpy as np
 
     from phoid.dynamics.plant import Plant
-    from phoid.io.experiment import write_experiment
+    from phoid.io import write_experiment
 
     def given(name: str) -> bool:
         return getattr(ctx.get_parameter_source(name), "name", "") != "DEFAULT"
@@ -473,7 +473,7 @@ def _simulate_other(ctx, out, *, method, m, c, k, fc, B, omega, duration, fs, x0
             path = write_experiment(out, runs, method="forced", title=title,
                                     extra={"simulated": truth}, gzip=gzip, overwrite=overwrite)
         else:
-            from phoid.io.experiment import run_from_arrays
+            from phoid.io import run_from_arrays
             from phoid.simulation.core import simulate as _simulate
 
             _check_simulation_size(1, hold, duration, fs)

@@ -1512,7 +1512,7 @@ def check_experiment(
     -------
     Design
     """
-    from phoid.io.experiment import ExperimentSet, read_experiment
+    from phoid.io import ExperimentSet, read_experiment
 
     exp = experiment
     sched = None
@@ -1642,7 +1642,7 @@ def read_schedule(path: str | Path) -> dict[str, Any]:
         One line naming the file, run and key for anything missing or malformed.
     """
     from phoid.errors import ExperimentError
-    from phoid.io.experiment import read_manifest  # regular files only, size and nesting limited
+    from phoid.io import read_manifest  # regular files only, size and nesting limited
 
     path = Path(path)
     if path.is_dir():
