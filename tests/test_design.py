@@ -33,8 +33,7 @@ from phoid.dynamics.loop import (
 from phoid.dynamics.plant import Plant
 from phoid.io import read_experiment
 from phoid.methods.identification import identify_data
-from phoid.planning.fisher import cramer_rao, mode_information, power_sums, release_amplitude
-from phoid.planning.sweep import (
+from phoid.planning import (
     DesignError,
     check,
     check_experiment,
@@ -43,6 +42,7 @@ from phoid.planning.sweep import (
     design,
     read_schedule,
 )
+from phoid.planning.fisher import cramer_rao, mode_information, power_sums, release_amplitude
 from phoid.simulation.core import simulate
 
 runner = CliRunner()

@@ -26,6 +26,7 @@ import numpy as np
 import pytest
 
 import phoid.io as pio
+import phoid.io.limits as io_limits
 from phoid.errors import ExperimentError
 
 # Address-space cap of each CLI run: the interpreter with numpy, scipy and matplotlib needs
@@ -248,7 +249,7 @@ def test_byte_and_row_caps(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, limi
                            setting: int, words: tuple[str, ...]) -> None:
     """The caps too large to reach in a test (4 GiB, 2e8 rows) enforced at a lowered value:
     the same code path, the limit read at call time. In-process (a CLI run cannot lower it)."""
-    monkeypatch.setattr(pio, limit, setting)
+    monkeypatch.setattr(io_limits, limit, setting)  # where the reader reads it
     big = gzip_of(csv_bytes(0.02, 2), b"0.5,1,2" + b" " * 120 + b"\n", 40_000)  # 16 MiB
     folder = make_set(tmp_path, run02_csv_gz=big)
     with pytest.raises(ExperimentError) as info:
@@ -344,7 +345,7 @@ CASES: list[tuple[str, Callable[[Path], Path], str]] = [
 def test_read_schedule_shares_the_manifest_checks(tmp_path: Path, name: str,
                                                   build: Callable[[Path], Path],
                                                   word: str) -> None:
-    from phoid.planning.sweep import DesignError, read_schedule
+    from phoid.planning import DesignError, read_schedule
 
     folder = build(tmp_path)
     with pytest.raises(DesignError, match=word):

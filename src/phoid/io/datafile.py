@@ -21,9 +21,9 @@ from typing import BinaryIO
 
 import numpy as np
 
+import phoid.io.limits as limits
 from phoid.io._files import open_regular
 from phoid.io._format import COLUMNS, fail, show
-from phoid.io.limits import BLOCK, MAX_DATA_BYTES, MAX_LINE_BYTES, MAX_LINES, MAX_SET_ROWS
 
 __all__ = ["read_csv"]
 
@@ -42,11 +42,11 @@ def _blocks(where: str, real: Path, file: str) -> Iterator[bytes]:
     decompresses more than one block past the limit.
     """
     f, st = open_regular(where, real, "data file")
-    too_big = (f"the data file is larger than {MAX_DATA_BYTES // 2**30} GiB (after "
+    too_big = (f"the data file is larger than {limits.MAX_DATA_BYTES // 2**30} GiB (after "
                "decompression), phoid's limit for one run (MAX_DATA_BYTES)")
     total = 0
     with f:
-        if st.st_size > MAX_DATA_BYTES:
+        if st.st_size > limits.MAX_DATA_BYTES:
             fail(where, too_big)
         try:
             head = f.peek(2)[:2]
@@ -63,7 +63,7 @@ def _blocks(where: str, real: Path, file: str) -> Iterator[bytes]:
             stream = _plain(where, f)
         for block in stream:
             total += len(block)
-            if total > MAX_DATA_BYTES:
+            if total > limits.MAX_DATA_BYTES:
                 fail(where, too_big)
             yield block
 
@@ -71,7 +71,7 @@ def _blocks(where: str, real: Path, file: str) -> Iterator[bytes]:
 def _plain(where: str, f: BinaryIO) -> Iterator[bytes]:
     while True:
         try:
-            block = f.read(BLOCK)
+            block = f.read(limits.BLOCK)
         except OSError as exc:
             fail(where, f"cannot read the data file: {exc.strerror or exc}")
         if not block:
@@ -92,13 +92,13 @@ def _gunzip(where: str, f: BinaryIO) -> Iterator[bytes]:
     while True:
         if not data:
             try:
-                data = f.read(BLOCK)
+                data = f.read(limits.BLOCK)
             except OSError as exc:
                 fail(where, f"cannot read the data file: {exc.strerror or exc}")
             if not data:
                 if fed and not d.eof:
                     try:
-                        tail = d.flush(BLOCK)
+                        tail = d.flush(limits.BLOCK)
                     except zlib.error as exc:
                         fail(where, f"{bad}: {exc}")
                     if tail:
@@ -110,7 +110,7 @@ def _gunzip(where: str, f: BinaryIO) -> Iterator[bytes]:
         if d.eof:  # the next member
             d = zlib.decompressobj(31)
         try:
-            out = d.decompress(data, BLOCK)
+            out = d.decompress(data, limits.BLOCK)
         except zlib.error as exc:
             fail(where, f"{bad}: {exc}")
         fed = True
@@ -150,10 +150,10 @@ def _line_chunks(where: str, blocks: Iterable[bytes]) -> Iterator[tuple[int, byt
             _check_lines(where, line + count - 1)
             yield line, chunk
             line += count
-        if len(carry) > MAX_LINE_BYTES:
-            fail(where, f"line {line} is longer than {MAX_LINE_BYTES // 2**20} MiB, phoid's "
-                         "limit for one line (MAX_LINE_BYTES): is this a CSV file with one row "
-                         "per line?")
+        if len(carry) > limits.MAX_LINE_BYTES:
+            fail(where, f"line {line} is longer than {limits.MAX_LINE_BYTES // 2**20} MiB, "
+                         "phoid's limit for one line (MAX_LINE_BYTES): is this a CSV file with "
+                         "one row per line?")
     if first and carry.startswith(codecs.BOM_UTF8):
         carry = carry[len(codecs.BOM_UTF8):]
     if carry:
@@ -165,8 +165,8 @@ def _line_chunks(where: str, blocks: Iterable[bytes]) -> Iterator[tuple[int, byt
 
 
 def _check_lines(where: str, last: int) -> None:
-    if last > MAX_LINES:
-        fail(where, f"the data file has more than {MAX_LINES:,} lines (blank lines "
+    if last > limits.MAX_LINES:
+        fail(where, f"the data file has more than {limits.MAX_LINES:,} lines (blank lines "
                      "included), phoid's limit for one run (MAX_LINES)")
 
 
@@ -178,7 +178,7 @@ def _clean_name(name: str) -> str:
 
 
 def read_csv(where: str, real: Path, file: str, *, need_F: bool = False,
-              max_rows: int = MAX_SET_ROWS) -> tuple[dict[str, np.ndarray], bytes]:
+              max_rows: int = limits.MAX_SET_ROWS) -> tuple[dict[str, np.ndarray], bytes]:
     """Read, decompress and parse one phoid/1 CSV data file, streaming.
 
     Returns the known columns it has (read-only float64 arrays) and a BLAKE2b digest of its
@@ -200,7 +200,7 @@ def read_csv(where: str, real: Path, file: str, *, need_F: bool = False,
 
 
 def _parse_csv(where: str, chunks: Iterator[tuple[int, bytes]], *, need_F: bool = False,
-               max_rows: int = MAX_SET_ROWS) -> dict[str, np.ndarray]:
+               max_rows: int = limits.MAX_SET_ROWS) -> dict[str, np.ndarray]:
     """Parse a phoid/1 CSV, given as chunks of whole LF-terminated lines, into the known
     columns it has."""
     first = next(chunks, None)
@@ -249,7 +249,7 @@ def _parse_csv(where: str, chunks: Iterator[tuple[int, bytes]], *, need_F: bool 
         if not table.shape[0]:
             continue
         if n + table.shape[0] > max_rows:
-            fail(where, f"the set's data files hold more than {MAX_SET_ROWS:,} data rows in "
+            fail(where, f"the set's data files hold more than {limits.MAX_SET_ROWS:,} data rows in "
                          "all (this one included), phoid's limit for one set (MAX_SET_ROWS)")
         where_rows.append((n, line0, lines))
         parts.append(table)

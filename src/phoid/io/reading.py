@@ -14,6 +14,7 @@ import os
 from pathlib import Path, PurePosixPath, PureWindowsPath
 from typing import Any
 
+import phoid.io.limits as limits
 from phoid.errors import ExperimentError
 from phoid.io._files import not_regular
 from phoid.io._format import (
@@ -33,7 +34,6 @@ from phoid.io._format import (
     unknown_hint,
 )
 from phoid.io.datafile import read_csv
-from phoid.io.limits import MAX_SET_ROWS
 from phoid.io.manifest import read_manifest
 from phoid.io.records import ExperimentSet, Run
 
@@ -131,7 +131,7 @@ def read_experiment(path: str | os.PathLike[str]) -> ExperimentSet:
 
     runs = []
     digests: dict[bytes, dict[str, Any]] = {}
-    budget = MAX_SET_ROWS
+    budget = limits.MAX_SET_ROWS
     for spec in specs:
         cols, digest = read_csv(spec["where"], spec["real"], spec["file"],
                                  need_F=(method == "forced"), max_rows=budget)
