@@ -98,6 +98,7 @@ def show(value: Any, limit: int = 60) -> str:
 
 
 def kind_of(value: Any) -> str:
+    """What a (TOML) value is, for messages: "a string", "a table", "an array", …"""
     if isinstance(value, bool):
         return "a boolean"
     if isinstance(value, str):
@@ -129,6 +130,7 @@ def checked_number(
 
 
 def optional_number(where: str, key: str, value: Any, **kw: Any) -> float | None:
+    """None for None, else :func:`checked_number` (same keywords)."""
     return None if value is None else checked_number(where, key, value, **kw)
 
 
@@ -154,6 +156,8 @@ def case_clash(where: str, keys: Iterable[str], known: Sequence[str], table: str
 
 
 def unknown_hint(keys: Iterable[str], known: Sequence[str]) -> str:
+    """A hint naming the keys not in ``known`` (`` (the table has unknown keys 'a', 'b')``),
+    or an empty string when there are none."""
     unknown = [k for k in keys if k not in known]
     return f" (the table has unknown keys {', '.join(map(repr, unknown))})" if unknown else ""
 
@@ -183,6 +187,7 @@ class FrozenMap(Mapping[str, Any]):
 
 
 def freeze(value: Any) -> Any:
+    """Tables as :class:`FrozenMap`, arrays as tuples, recursively; other values as they are."""
     if isinstance(value, Mapping):
         return value if isinstance(value, FrozenMap) else FrozenMap(value)
     if isinstance(value, list | tuple):

@@ -72,8 +72,24 @@ class Evaluation:
         return Evaluation(**{f: getattr(self, f)[sel] for f in self.__dataclass_fields__})
 
 
-def place(m: float, c: float, k: float, s: np.ndarray, delay: float):
-    """Gains that put a root at s: D s + P = −(m s² + c s + k) e^{sΔt} (f(s) = 0, eq. 23)."""
+def place(m: float, c: float, k: float, s: np.ndarray, delay: float
+          ) -> tuple[np.ndarray, np.ndarray]:
+    """Gains that put a root at s: D s + P = −(m s² + c s + k) e^{sΔt} (f(s) = 0, eq. 23).
+
+    Parameters
+    ----------
+    m, c, k : float
+        The plant, kg, N·s/m, N/m.
+    s : ndarray of complex
+        Target roots (1/s), Im s ≠ 0.
+    delay : float
+        Loop delay Δt, s.
+
+    Returns
+    -------
+    P, D : ndarray
+        Gains (N/m, N·s/m): the real and imaginary parts of the linear equation in (P, D).
+    """
     q = -(m * s * s + c * s + k) * np.exp(s * delay)
     D = q.imag / s.imag
     P = q.real - D * s.real
@@ -121,8 +137,29 @@ def _track(s0, plants, P, D, delay):
     return s.reshape(R, G)
 
 
-def evaluate(P, D, s0, prior: Prior, st: DesignSettings, *, s_grid=None) -> Evaluation:
-    """Check gains (P, D) with nominal dominant roots s0 on all plants of the prior grid."""
+def evaluate(P: np.ndarray, D: np.ndarray, s0: np.ndarray, prior: Prior, st: DesignSettings,
+             *, s_grid: np.ndarray | None = None) -> Evaluation:
+    """Check gains (P, D) with nominal dominant roots s0 on all plants of the prior grid.
+
+    Parameters
+    ----------
+    P, D : array_like, shape (R,)
+        Gains of the runs, N/m and N·s/m.
+    s0 : array_like of complex, shape (R,)
+        Each run's dominant root at the nominal plant, 1/s; continued to the other plants by
+        Newton homotopy.
+    prior : Prior
+        The prior grid (G plants, row 0 nominal).
+    st : DesignSettings
+        The requirements.
+    s_grid : ndarray of complex, shape (R, G), optional
+        The dominant roots on the whole grid, when already known (then ``s0`` is not used).
+
+    Returns
+    -------
+    Evaluation
+        The requirements of the module docstring, per run and plant.
+    """
     P = np.asarray(P, dtype=float)
     D = np.asarray(D, dtype=float)
     plants = prior.plants

@@ -29,8 +29,8 @@ x₀ N(s)/f′(s) and w = 2 x₀ N(s)/f′(s) (:func:`release_amplitude`; docs/a
 
 Sensor noise is the only noise in this model: the feedback acts on the true position (as in
 :func:`phoid.simulation.core.simulate`). The non-dominant modes that ring right after the release
-are left out of the model, as in ``truth.json``; phoid's estimator fits them too and comes
-within a few per cent of this bound (docs/architecture.md).
+are left out of the model, as in ``truth.json``; phoid's estimator fits them too (how close
+its spread comes to this bound: docs/design-notes/planning.md).
 """
 
 from __future__ import annotations

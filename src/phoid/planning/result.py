@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import functools
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -274,9 +274,27 @@ class Design:
 
 
 
-def assemble(P, D, prior: Prior, st: DesignSettings, kind: str,
-            extra_warnings: Sequence[str] = ()) -> Design:
-    """Evaluate gains exactly on the prior grid and assemble the :class:`Design`."""
+def assemble(P: np.ndarray, D: np.ndarray, prior: Prior, st: DesignSettings, kind: str,
+             extra_warnings: Sequence[str] = ()) -> Design:
+    """Evaluate gains exactly on the prior grid and assemble the :class:`Design`.
+
+    Parameters
+    ----------
+    P, D : array_like
+        Gains of the runs, N/m and N·s/m.
+    prior : Prior
+        The prior grid.
+    st : DesignSettings
+        The requirements.
+    kind : {"design", "check"}
+        Who asks, kept in :attr:`Design.kind`.
+    extra_warnings : sequence of str
+        Warnings put before those of the evaluation.
+
+    Returns
+    -------
+    Design
+    """
     P = np.asarray(P, dtype=float)
     D = np.asarray(D, dtype=float)
     m0, c0, k0 = prior.nominal
@@ -455,7 +473,7 @@ def _nominal_root(m, c, k, P, D, delay) -> complex:
     return complex(r.real, abs(r.imag))
 
 
-def roots_in_range(func):
+def roots_in_range(func: Callable[..., Design]) -> Callable[..., Design]:
     """:func:`design` and :func:`check` with the loop-root computation's failure (a prior so far
     from the gains' scale that the roots cannot be certified: a unit mistake) as a DesignError
     that says so, instead of a RuntimeError."""

@@ -81,8 +81,7 @@ def design(
     delay : float
         Loop delay Δt, s.
     runs : int, default 10
-        Number of runs N (2 ≤ N ≤ :data:`MAX_RUNS` = 1000: the work and memory grow with N, and
-        1000 runs take about 35 s and 0.2 GB).
+        Number of runs N (2 ≤ N ≤ :data:`MAX_RUNS` = 1000: the work and memory grow with N).
     pmax, dmax : float, optional
         Limits on |P| (N/m) and |D| (N·s/m).
     max_freq : float, optional
