@@ -1,4 +1,4 @@
-"""Checking given gains, or the gains of an experiment set, the way :func:`design` would.
+"""Checking given gains, or the gains of an experiment set, the way design does.
 
 :func:`check` evaluates gains on the prior grid with the requirements of
 :mod:`phoid.planning.evaluation` and reports which runs are unsafe or uninformative;
@@ -48,7 +48,8 @@ def check(
     separation: float = 2.0,
     tolerance: float = 0.1,
 ) -> Design:
-    """Evaluate given gains like :func:`design` does: which runs are unsafe or uninformative.
+    """Evaluate given gains like :func:`~phoid.planning.search.design`: which runs are unsafe or
+    uninformative.
 
     Parameters are those of :func:`design`, with the gains ``P`` (N/m) and ``D`` (N·s/m) of the
     runs instead of ``runs``.
