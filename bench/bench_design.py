@@ -24,8 +24,8 @@ import numpy as np
 
 from phoid.dynamics.plant import Plant
 from phoid.methods.identification import identify_data
+from phoid.planning import design
 from phoid.planning.fisher import cramer_rao
-from phoid.planning.sweep import design
 from phoid.simulation import simulate
 
 PAPER_P = 0.25 + 1.375 * np.arange(19)  # ERRATA 6

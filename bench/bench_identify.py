@@ -38,7 +38,7 @@ from sets import SETS, SetSpec, simulate_replicas
 
 from phoid.errors import PhoidError
 from phoid.fits.decay import logdec
-from phoid.io.experiment import read_experiment
+from phoid.io import read_experiment
 from phoid.methods.identification import identify_data
 from phoid.methods.pho import MCKFit, fit_lines
 

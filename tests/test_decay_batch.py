@@ -22,7 +22,7 @@ from phoid.fits import batch as decay_batch
 from phoid.fits import decay
 from phoid.fits.batch import FitJob, fit_decays, start_decays
 from phoid.fits.decay import check_record, fit_decay, start_decay
-from phoid.io.experiment import read_experiment
+from phoid.io import read_experiment
 
 TOL_SE = 1e-6  # of a standard error: rounding passes, a different iteration does not
 

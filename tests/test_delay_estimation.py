@@ -147,7 +147,7 @@ def test_delay_beyond_the_searched_range_is_a_clear_error(tmp_path):
     from typer.testing import CliRunner
 
     from phoid.cli import app
-    from phoid.io.experiment import run_from_arrays, write_experiment
+    from phoid.io import run_from_arrays, write_experiment
 
     plant = Plant(2.0, 1.0, 64.0)
     P, D = np.linspace(0.25, 3.0, 6), np.linspace(0.1, 0.5, 6)

@@ -31,10 +31,9 @@ from phoid.dynamics import (
     rightmost_roots,
 )
 from phoid.dynamics.plant import Plant
-from phoid.io.experiment import read_experiment
+from phoid.io import read_experiment
 from phoid.methods.identification import identify_data
-from phoid.planning.fisher import cramer_rao, mode_information, power_sums, release_amplitude
-from phoid.planning.sweep import (
+from phoid.planning import (
     DesignError,
     check,
     check_experiment,
@@ -43,6 +42,7 @@ from phoid.planning.sweep import (
     design,
     read_schedule,
 )
+from phoid.planning.fisher import cramer_rao, mode_information, power_sums, release_amplitude
 from phoid.simulation import simulate
 
 runner = CliRunner()

@@ -18,7 +18,7 @@ from typer.testing import CliRunner
 from phoid import IdentificationError, Plant, run_from_arrays, write_experiment
 from phoid.cli import app
 from phoid.dynamics.plant import free_response
-from phoid.io.experiment import read_experiment
+from phoid.io import read_experiment
 from phoid.methods.forced import (
     fit_response,
     identify_forced,

@@ -27,7 +27,8 @@ from typing import Any
 import pytest
 from typer.testing import CliRunner
 
-import phoid.io.experiment
+import phoid.io
+import phoid.io._format
 from phoid.cli import app
 from phoid.dynamics.digital import VELOCITY_ESTIMATORS
 from phoid.methods.identification import DIGITAL_KEYS
@@ -104,8 +105,8 @@ def sets(tmp_path_factory) -> dict[str, Path]:
     cli("simulate", s["pho"], *PLANT, "--P", "20:200:4", "--D", "0.5:3:4", "--delay", "0.02",
         *SMALL, "--u-noise", "1e-3", "--omit-delay", "--seed", "1")
     # the same runs without u: the delay is estimated from x only
-    exp = phoid.io.experiment.read_experiment(s["pho"])
-    phoid.io.experiment.write_experiment(
+    exp = phoid.io.read_experiment(s["pho"])
+    phoid.io.write_experiment(
         s["nou"], [dataclasses.replace(r, u=None) for r in exp.runs], method="pho")
     cli("simulate", s["dig"], *PLANT, "--P", "20:200:4", "--D", "0.5:5:4", "--sample-time",
         "0.002", "--delay-samples", "3", "--velocity", "filtered", "--cutoff", "300", *SMALL,
@@ -193,19 +194,19 @@ def test_the_json_example_shows_only_keys_that_identify_prints(outputs):
 
 def test_reader_keys_are_documented():
     manifest = section("## The manifest")
-    assert missing(phoid.io.experiment._TOP_KEYS, section("### Top-level keys")) == []
-    assert missing(phoid.io.experiment._RUN_KEYS, section("### `[[run]]` keys")) == []
+    assert missing(phoid.io._format.TOP_KEYS, section("### Top-level keys")) == []
+    assert missing(phoid.io._format.RUN_KEYS, section("### `[[run]]` keys")) == []
     assert missing(("delay", *DIGITAL_KEYS), section("### `[loop]` keys")) == []
-    assert missing(phoid.io.experiment.METHODS, manifest) == []
+    assert missing(phoid.io.METHODS, manifest) == []
     assert missing(VELOCITY_ESTIMATORS, section("### `[loop]` keys")) == []
-    assert missing(phoid.io.experiment._COLUMNS, section("## Data files")) == []
-    assert named(phoid.io.experiment.FORMAT, manifest) and named(phoid.io.experiment.MANIFEST, DOC)
+    assert missing(phoid.io._format.COLUMNS, section("## Data files")) == []
+    assert named(phoid.io.FORMAT, manifest) and named(phoid.io.MANIFEST, DOC)
 
 
 def test_reader_limits_are_documented():
-    # the reader's documented limits (constants MAX_… of phoid.io.experiment), each named in
+    # the reader's documented limits (constants MAX_… of phoid.io), each named in
     # "Limits"
-    limits = [name for name in vars(phoid.io.experiment) if name.startswith("MAX_")]
+    limits = [name for name in vars(phoid.io) if name.startswith("MAX_")]
     text = section("## Limits")
     assert missing(limits, text) == []
     # … with the value the code enforces (the table's last cell: "2 MiB", "5·10⁷", "20 000")
@@ -219,14 +220,14 @@ def test_reader_limits_are_documented():
         if num.group(2):
             value *= 10 ** int(num.group(2).translate(sup))
         value *= {"KiB": 2**10, "MiB": 2**20, "GiB": 2**30, None: 1}[num.group(3)]
-        assert value == getattr(phoid.io.experiment, name), (name, cell)
+        assert value == getattr(phoid.io, name), (name, cell)
 
 
 def test_keys_that_tools_write_are_documented(sets, outputs):
     # the manifests written by `phoid design --out` and `phoid simulate`: every key beyond the
     # reader's own is one of the tool keys the page lists
     tools = section("### Keys written by")
-    known = {*phoid.io.experiment._TOP_KEYS, *phoid.io.experiment._RUN_KEYS, "delay", *DIGITAL_KEYS}
+    known = {*phoid.io._format.TOP_KEYS, *phoid.io._format.RUN_KEYS, "delay", *DIGITAL_KEYS}
     written: set[str] = set()
     for name in ("sched", "pho", "dig", "forced", "free", "fr"):
         doc = tomllib.loads((sets[name] / "experiment.toml").read_text(encoding="utf-8"))
@@ -246,7 +247,7 @@ def test_the_minimal_example_is_a_valid_set(tmp_path):
     (tmp_path / "run02.csv").write_text(csv.replace("0.0099,", "0.0098,"), encoding="utf-8")
     (tmp_path / "run03.csv.gz").write_bytes(gzip.compress(csv.replace("0.0099,", "0.0097,")
                                                           .encode()))
-    exp = phoid.io.experiment.read_experiment(tmp_path)
+    exp = phoid.io.read_experiment(tmp_path)
     assert exp.method == "pho" and exp.delay == 0.02 and len(exp.runs) == 3
     assert [r.added_mass for r in exp.runs] == [0.0, 0.5, 0.0]
     assert all(r.u is not None and r.n == 3 for r in exp.runs)

@@ -16,7 +16,7 @@ from typer.testing import CliRunner
 from phoid import IdentificationError, run_from_arrays, write_experiment
 from phoid.cli import app
 from phoid.dynamics.plant import free_response
-from phoid.io.experiment import read_experiment
+from phoid.io import read_experiment
 from phoid.methods.free import identify_free, identify_free_data
 
 runner = CliRunner()

@@ -6,7 +6,7 @@ cap (RLIMIT_AS, where the platform has it) and a wall-clock timeout, and expects
 DEVELOPERS.md promises for bad input: exit status 2 (never 1: that is phoid's own fault), exactly
 one line on standard error, printable, naming the file, the run and the key or limit at fault;
 never a traceback. Expected words come from the reader's documented limits
-(phoid.io.experiment.MAX_*,
+(phoid.io.MAX_*,
 docs/format-extensions.md "Limits") and from the input each case builds, not from a run of
 the code.
 """
@@ -25,7 +25,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import phoid.io.experiment as pio
+import phoid.io as pio
+import phoid.io.limits as io_limits
+from phoid.errors import ExperimentError
 
 # Address-space cap of each CLI run: the interpreter with numpy, scipy and matplotlib needs
 # about 1.0 GB of address space here (measured: identify of a 3-run set passes at 1.2e6 KB);
@@ -247,10 +249,10 @@ def test_byte_and_row_caps(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, limi
                            setting: int, words: tuple[str, ...]) -> None:
     """The caps too large to reach in a test (4 GiB, 2e8 rows) enforced at a lowered value:
     the same code path, the limit read at call time. In-process (a CLI run cannot lower it)."""
-    monkeypatch.setattr(pio, limit, setting)
+    monkeypatch.setattr(io_limits, limit, setting)  # where the reader reads it
     big = gzip_of(csv_bytes(0.02, 2), b"0.5,1,2" + b" " * 120 + b"\n", 40_000)  # 16 MiB
     folder = make_set(tmp_path, run02_csv_gz=big)
-    with pytest.raises(pio.ExperimentError) as info:
+    with pytest.raises(ExperimentError) as info:
         pio.read_experiment(folder)
     msg = str(info.value)
     assert "run 2 (run02.csv.gz)" in msg and all(w in msg for w in words), msg
@@ -343,7 +345,7 @@ CASES: list[tuple[str, Callable[[Path], Path], str]] = [
 def test_read_schedule_shares_the_manifest_checks(tmp_path: Path, name: str,
                                                   build: Callable[[Path], Path],
                                                   word: str) -> None:
-    from phoid.planning.sweep import DesignError, read_schedule
+    from phoid.planning import DesignError, read_schedule
 
     folder = build(tmp_path)
     with pytest.raises(DesignError, match=word):
@@ -375,6 +377,6 @@ def test_gzip_members_and_a_long_header_name(tmp_path: Path) -> None:
     assert time.process_time() - start < 3.0
     assert exp.runs[1].n == 400
     (folder / "run02.csv.gz").write_bytes(members + b"trailing junk")
-    with pytest.raises(pio.ExperimentError, match=r"run 2 \(run02.csv.gz\): the data file is "
+    with pytest.raises(ExperimentError, match=r"run 2 \(run02.csv.gz\): the data file is "
                                                   "not a valid gzip file"):
         pio.read_experiment(folder)

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from phoid import IdentificationError
-from phoid.io.experiment import read_experiment
+from phoid.io import read_experiment
 from phoid.methods.identification import identify, identify_data
 
 

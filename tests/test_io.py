@@ -1,4 +1,4 @@
-"""phoid.io.experiment: the phoid/1 experiment-set format (docs/format.md).
+"""phoid.io: the phoid/1 experiment-set format (docs/format.md).
 
 Expected values come from the files themselves: the sample set's manifest is parsed here with
 tomllib independently of phoid, and its sampling (1 ms, 15 200 rows from t = 0) is what
@@ -22,7 +22,7 @@ import numpy as np
 import pytest
 
 from phoid.errors import ExperimentError
-from phoid.io.experiment import (
+from phoid.io import (
     ExperimentSet,
     Run,
     read_experiment,

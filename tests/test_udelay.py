@@ -19,7 +19,7 @@ from typer.testing import CliRunner
 
 from phoid import Plant, simulate
 from phoid.cli import app
-from phoid.io.experiment import read_experiment
+from phoid.io import read_experiment
 from phoid.methods.identification import identify, identify_data
 from phoid.methods.udelay import combine, u_skip
 

@@ -23,7 +23,7 @@ from phoid.dynamics.loop import (
 from phoid.dynamics.plant import Plant, free_response
 from phoid.errors import ExperimentError, IdentificationError, OutputError, PhoidError
 from phoid.fits.decay import DecayFit, detect_release, fit_decay, logdec
-from phoid.io.experiment import (
+from phoid.io import (
     ExperimentSet,
     Run,
     read_experiment,
@@ -44,8 +44,8 @@ from phoid.methods.free import FreeIdentification, FreeRun, identify_free, ident
 from phoid.methods.friction import FrictionFit, friction_evidence, identify_friction
 from phoid.methods.identification import Identification, RunMode, identify, identify_data
 from phoid.methods.pho import Estimate, MCKFit, fit_lines, fit_modes
+from phoid.planning import Design, DesignError, PlannedRun, design
 from phoid.planning.fisher import CramerRao, cramer_rao
-from phoid.planning.sweep import Design, DesignError, PlannedRun, design
 from phoid.simulation import Simulation, simulate
 
 __version__ = "0.1.0"

@@ -143,7 +143,7 @@ def identify(
     Prints the estimates with +- one standard error and units, the open-loop zeta and omega0,
     a per-run table and any warnings.
     """
-    from phoid.io.experiment import read_experiment
+    from phoid.io import read_experiment
     from phoid.methods.identification import identify as _identify
 
     try:
@@ -314,7 +314,7 @@ def simulate(
     import numpy as np
 
     from phoid.dynamics.plant import Plant
-    from phoid.io.experiment import run_from_arrays, write_experiment
+    from phoid.io import run_from_arrays, write_experiment
     from phoid.simulation import simulate as _simulate
 
     if not (math.isfinite(u_noise) and u_noise >= 0.0):
@@ -335,7 +335,7 @@ def simulate(
                              "--method pho")
         names = None
         if schedule is not None:
-            from phoid.planning.sweep import read_schedule
+            from phoid.planning import read_schedule
 
             given = {n for n in ("P", "D", "delay", "fs", "duration", "noise", "x0")
                      if getattr(ctx.get_parameter_source(n), "name", "") != "DEFAULT"}
@@ -438,7 +438,7 @@ def _simulate_other(ctx, out, *, method, m, c, k, fc, B, omega, duration, fs, x0
     import numpy as np
 
     from phoid.dynamics.plant import Plant
-    from phoid.io.experiment import write_experiment
+    from phoid.io import write_experiment
 
     def given(name: str) -> bool:
         return getattr(ctx.get_parameter_source(name), "name", "") != "DEFAULT"
@@ -473,7 +473,7 @@ def _simulate_other(ctx, out, *, method, m, c, k, fc, B, omega, duration, fs, x0
             path = write_experiment(out, runs, method="forced", title=title,
                                     extra={"simulated": truth}, gzip=gzip, overwrite=overwrite)
         else:
-            from phoid.io.experiment import run_from_arrays
+            from phoid.io import run_from_arrays
             from phoid.simulation import simulate as _simulate
 
             _check_simulation_size(1, hold, duration, fs)
@@ -558,8 +558,8 @@ def design(
     skeleton; --check evaluates an existing set's gains the same way and exits with status 1
     when any run is unsafe on the prior.
     """
-    from phoid.planning.sweep import check_experiment
-    from phoid.planning.sweep import design as make_design
+    from phoid.planning import check_experiment
+    from phoid.planning import design as make_design
 
     try:
         settings = {key: val for key, val in {
@@ -572,7 +572,7 @@ def design(
                              "--check")
         if out is not None or plot is not None:  # files in the way: refused before the work
             from phoid._output import OutputFolder
-            from phoid.planning.sweep import schedule_target
+            from phoid.planning import schedule_target
 
             if out is not None:
                 schedule_target(out, overwrite=overwrite)
@@ -587,7 +587,7 @@ def design(
                                  "(a value or a range lo:hi each)")
             if delay is None:
                 raise ValueError("give the loop delay --delay (s)")
-            from phoid.planning.sweep import MAX_RUNS
+            from phoid.planning import MAX_RUNS
 
             if not 2 <= runs <= MAX_RUNS:
                 raise ValueError(f"--runs must be from 2 to {MAX_RUNS} (the design's work and "

@@ -1,20 +1,76 @@
-"""phoid.io."""
+"""Experiment sets in the ``phoid/1`` format: read, validate and write.
 
-from phoid.io.experiment import (
-    FORMAT,
-    MANIFEST,
-    METHODS,
-    ExperimentSet,
-    Run,
-    read_experiment,
-    read_manifest,
-    run_from_arrays,
-    write_experiment,
+The format is defined in one place, ``docs/format.md`` in the repository: the manifest's keys
+(with the extensions ``added_mass``, ``bias``, ``mass`` and the digital ``[loop]`` keys), the
+data files, the rules this reader applies, and the JSON that ``phoid identify --json`` prints.
+In short: an experiment set is a folder holding one manifest, ``experiment.toml``, and one data
+file per run::
+
+    title  = "Linear stage, PHO sweep"   # optional
+    format = "phoid/1"                   # optional; when present it must be "phoid/1"
+    method = "pho"                       # "pho" (default) | "forced" | "free"
+
+    [loop]
+    delay = 0.1                          # s; omitted: to be estimated from the data
+
+    [[run]]
+    file = "run01.csv.gz"                # relative to the manifest; .csv or .csv.gz
+    P = 0.25                             # N/m
+    D = 0.6                              # N·s/m
+
+Each data file is comma-separated text whose first line names the columns: ``t`` (s, strictly
+increasing) and ``x`` (m) always, ``u`` (N, the feedback force actually applied) optionally,
+``F`` (N, the external force) for forced runs. Extra columns are ignored.
+
+The reader checks what can be checked without knowing the method's model: the keys, their
+types and ranges, their letter case (a key that differs from a known one only in letter case is
+an error), the data files' paths, compression, text and cells. It keeps the whole ``[loop]`` table
+(:attr:`ExperimentSet.loop`; only ``delay`` is checked here, the identification checks the
+rest) and every unknown key (:attr:`ExperimentSet.extra`, :attr:`Run.extra`), so that tools can
+store their own information in a set.
+
+Every problem raises :class:`phoid.errors.ExperimentError` (a ``ValueError``) with a one-line
+message naming the manifest, the run and the key, column or line, e.g.
+``paper-sample/experiment.toml: run 3 (run03.csv.gz): column 'x' has a non-numeric cell at
+line 57: 'abc'``.
+
+Numbers are parsed by :func:`numpy.loadtxt` (C-accelerated, correctly rounded) and written in
+the shortest form that reads back to the same double, so that :func:`write_experiment` followed
+by :func:`read_experiment` reproduces every array bit for bit. Every read is bounded by the
+limits ``MAX_*`` exported here (docs/limits.md).
+
+Modules: :mod:`phoid.io.records` (:class:`Run`, :class:`ExperimentSet`,
+:func:`run_from_arrays`), :mod:`phoid.io.reading` (:func:`read_experiment`),
+:mod:`phoid.io.manifest` (:func:`read_manifest`), :mod:`phoid.io.datafile` (the bounded CSV
+reader), :mod:`phoid.io.limits` (the limits), :mod:`phoid.io.writing`
+(:func:`write_experiment`); ``_format`` and ``_files`` hold what they share.
+"""
+
+from phoid.io._format import FORMAT, MANIFEST, METHODS
+from phoid.io.limits import (
+    MAX_DATA_BYTES,
+    MAX_LINE_BYTES,
+    MAX_LINES,
+    MAX_MANIFEST_BYTES,
+    MAX_NESTING,
+    MAX_RUNS,
+    MAX_SET_ROWS,
 )
+from phoid.io.manifest import read_manifest
+from phoid.io.reading import read_experiment
+from phoid.io.records import ExperimentSet, Run, run_from_arrays
+from phoid.io.writing import write_experiment
 
 __all__ = [
     "FORMAT",
     "MANIFEST",
+    "MAX_DATA_BYTES",
+    "MAX_LINES",
+    "MAX_LINE_BYTES",
+    "MAX_MANIFEST_BYTES",
+    "MAX_NESTING",
+    "MAX_RUNS",
+    "MAX_SET_ROWS",
     "METHODS",
     "ExperimentSet",
     "Run",

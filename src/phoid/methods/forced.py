@@ -56,7 +56,7 @@ from phoid import _validate as v
 from phoid._threads import single_blas_thread
 from phoid.errors import IdentificationError
 from phoid.fits.decay import diff_noise
-from phoid.io.experiment import Run, run_from_arrays
+from phoid.io import Run, run_from_arrays
 from phoid.methods.free import (
     _esprit_rates,
     _fit_modal,
@@ -734,7 +734,7 @@ def identify_forced(experiment: Any) -> ForcedIdentification:
 
     Parameters
     ----------
-    experiment : phoid.io.experiment.ExperimentSet
+    experiment : phoid.io.ExperimentSet
         A set with ``method = "forced"``: each run one frequency, columns t, x and F.
 
     Returns
@@ -1149,7 +1149,7 @@ def simulate_forced(
 
     Returns
     -------
-    list of phoid.io.experiment.Run
+    list of phoid.io.Run
         One run per frequency, with ``B`` and ``omega`` set.
     """
     from phoid.simulation import simulate

@@ -699,9 +699,9 @@ def identify_free(experiment: Any, *, mass: float | None = None) -> FreeIdentifi
 
     Parameters
     ----------
-    experiment : phoid.io.experiment.ExperimentSet
+    experiment : phoid.io.ExperimentSet
         A set with ``method = "free"``: one or more releases (t, x) of the same plant without
-        feedback, as read by :func:`phoid.io.experiment.read_experiment`.
+        feedback, as read by :func:`phoid.io.read_experiment`.
     mass : float, optional
         Known mass, kg (> 0); overrides the manifest's ``mass``. With a mass, c and k are
         returned too.

@@ -1770,7 +1770,7 @@ def identify_friction_set(experiment: Any, *, delay: float | None = None) -> Fri
 
     Parameters
     ----------
-    experiment : phoid.io.experiment.ExperimentSet
+    experiment : phoid.io.ExperimentSet
         A ``pho`` set with a known loop delay (``[loop] delay``), or a sampled controller
         (``[loop] sample_time``, ``delay_samples``, ``velocity``, ``cutoff``).
     delay : float, optional

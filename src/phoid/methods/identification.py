@@ -773,9 +773,9 @@ def identify(
 
     Parameters
     ----------
-    experiment : phoid.io.experiment.ExperimentSet
+    experiment : phoid.io.ExperimentSet
         The runs (t, x, P, D) and the loop delay (``[loop] delay``), as read by
-        :func:`phoid.io.experiment.read_experiment`.
+        :func:`phoid.io.read_experiment`.
     delay : float, optional
         Loop delay Δt (s), overriding the manifest's.
     estimator : {"gls", "ols"}

@@ -1,5 +1,22 @@
-"""phoid.planning."""
+"""Experiment design: gain schedules for a PHO experiment and the precision they promise.
 
+``design`` proposes the gains (Pᵢ, Dᵢ) of a PHO experiment (seed eq. 23) from a prior guess of
+the plant — each of m, c, k a value or a range — the loop delay and the rig's limits; ``check``
+evaluates given gains the same way. Both return a :class:`Design`: per-run predicted modes,
+cycles, stability margins and the **Cramér–Rao standard errors** of m, c, k
+(:mod:`phoid.planning.fisher`) for the planned noise level and record length.
+
+Modules, from the bottom up: :mod:`~phoid.planning.fisher` (the Cramér–Rao bound),
+:mod:`~phoid.planning.margins` (exact root counts and delay margins of the delayed loop),
+:mod:`~phoid.planning.settings` (the conditions and the prior plant),
+:mod:`~phoid.planning.evaluation` (the requirements on a run, evaluated over the prior grid),
+:mod:`~phoid.planning.render` (text report and figure), :mod:`~phoid.planning.schedule`
+(schedule files), :mod:`~phoid.planning.result` (:class:`Design`, :class:`PlannedRun`),
+:mod:`~phoid.planning.search` (:func:`design`) and :mod:`~phoid.planning.checking`
+(:func:`check`, :func:`check_experiment`).
+"""
+
+from phoid.planning.checking import check, check_experiment
 from phoid.planning.fisher import (
     CramerRao,
     cramer_rao,
@@ -8,20 +25,14 @@ from phoid.planning.fisher import (
     power_sums,
     release_amplitude,
 )
-from phoid.planning.sweep import (
-    Design,
-    DesignError,
-    DesignSettings,
-    PlannedRun,
-    check,
-    check_experiment,
-    count_roots_right,
-    delay_margin,
-    design,
-    read_schedule,
-)
+from phoid.planning.margins import count_roots_right, delay_margin
+from phoid.planning.result import Design, PlannedRun
+from phoid.planning.schedule import read_schedule, schedule_target
+from phoid.planning.search import MAX_RUNS, design
+from phoid.planning.settings import DesignError, DesignSettings
 
 __all__ = [
+    "MAX_RUNS",
     "CramerRao",
     "Design",
     "DesignError",
@@ -38,4 +49,5 @@ __all__ = [
     "power_sums",
     "read_schedule",
     "release_amplitude",
+    "schedule_target",
 ]

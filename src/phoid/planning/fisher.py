@@ -29,8 +29,8 @@ x₀ N(s)/f′(s) and w = 2 x₀ N(s)/f′(s) (:func:`release_amplitude`; docs/a
 
 Sensor noise is the only noise in this model: the feedback acts on the true position (as in
 :func:`phoid.simulation.simulate`). The non-dominant modes that ring right after the release
-are left out of the model, as in ``truth.json``; phoid's estimator fits them too and comes
-within a few per cent of this bound (docs/architecture.md).
+are left out of the model, as in ``truth.json``; phoid's estimator fits them too (how close
+its spread comes to this bound: docs/design-notes/planning.md).
 """
 
 from __future__ import annotations
@@ -48,6 +48,7 @@ __all__ = [
     "mode_jacobian",
     "power_sums",
     "release_amplitude",
+    "safe_inverse",
 ]
 
 
@@ -294,8 +295,23 @@ class CramerRao:
         return np.sqrt(self.mode_cov[:, 1, 1])
 
 
-def _safe_inverse(info: np.ndarray) -> np.ndarray:
-    """Inverse of a (3, 3) information matrix; ``inf`` variances for undetermined directions."""
+def safe_inverse(info: np.ndarray) -> np.ndarray:
+    """Inverse of a (3, 3) information matrix; ``inf`` variances for undetermined directions.
+
+    The matrix is scaled to unit diagonal (Z = S⁻¹ I S⁻¹, S = diag(√Iⱼⱼ)) and inverted when
+    cond(Z) < 10¹², so that the test does not depend on the units of m, c, k.
+
+    Parameters
+    ----------
+    info : ndarray, shape (3, 3)
+        Fisher information of (m, c, k).
+
+    Returns
+    -------
+    ndarray, shape (3, 3)
+        The covariance I⁻¹ (kg², (N·s/m)², (N/m)² and cross terms); when I is singular or
+        ill-conditioned, ``inf`` on the diagonal and NaN elsewhere.
+    """
     scale = np.sqrt(np.clip(np.diag(info), 0.0, None))
     if np.all(scale > 0):
         Z = info / np.outer(scale, scale)
@@ -382,7 +398,7 @@ def cramer_rao(
     run_info = np.einsum("nai,nab,nbj->nij", G, info, G)
     total = run_info.sum(axis=0)
     return CramerRao(
-        cov=_safe_inverse(total),
+        cov=safe_inverse(total),
         information=total,
         sigma=-s.real,
         omega_d=np.abs(s.imag),

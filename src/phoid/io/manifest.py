@@ -1,0 +1,83 @@
+"""The one manifest reader: a bounded, regular, UTF-8 TOML file (docs/limits.md)."""
+
+from __future__ import annotations
+
+import tomllib
+from pathlib import Path
+from typing import Any
+
+import phoid.io.limits as limits
+from phoid.io._files import open_regular
+from phoid.io._format import fail
+
+__all__ = ["read_manifest"]
+
+
+def read_manifest(where: str, manifest: Path) -> dict[str, Any]:
+    """Read and parse a manifest: a regular file of at most MAX_MANIFEST_BYTES, UTF-8 TOML,
+    nested at most MAX_NESTING levels deep, with at most MAX_RUNS ``[[run]]`` tables
+    (docs/limits.md).
+
+    The one manifest reader: :func:`~phoid.io.reading.read_experiment` and
+    :func:`phoid.planning.schedule.read_schedule` both read through it.
+
+    Parameters
+    ----------
+    where : str
+        Prefix of the one-line :class:`~phoid.errors.ExperimentError` it raises (the
+        manifest's path, as messages name it).
+    manifest : pathlib.Path
+        The manifest's path.
+
+    Returns
+    -------
+    dict
+        The parsed TOML document, unchecked beyond the limits.
+    """
+    f, st = open_regular(where, manifest, "manifest")
+    with f:
+        if st.st_size > limits.MAX_MANIFEST_BYTES:
+            raw = b""
+        else:
+            try:
+                raw = f.read(limits.MAX_MANIFEST_BYTES + 1)
+            except OSError as exc:
+                fail(where, f"cannot read the manifest: {exc.strerror or exc}")
+    if st.st_size > limits.MAX_MANIFEST_BYTES or len(raw) > limits.MAX_MANIFEST_BYTES:
+        fail(where, f"the manifest is larger than {limits.MAX_MANIFEST_BYTES // 2**20} MiB, "
+                     "phoid's limit for experiment.toml (MAX_MANIFEST_BYTES)")
+    try:
+        text = raw.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        line = raw[: exc.start].count(b"\n") + 1
+        fail(where, f"the manifest is not UTF-8 text (bad byte at line {line})")
+    too_deep = (f"the manifest nests tables or arrays more than {limits.MAX_NESTING} levels deep, "
+                "phoid's limit (MAX_NESTING)")
+    try:
+        doc = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        fail(where, f"not valid TOML, TOML syntax error: {exc}")
+    except RecursionError:  # tomllib parses nested arrays and inline tables recursively
+        fail(where, too_deep)
+    if _depth(doc) > limits.MAX_NESTING:
+        fail(where, too_deep)
+    tables = doc.get("run")
+    if isinstance(tables, list) and len(tables) > limits.MAX_RUNS:
+        fail(where, f"the manifest has {len(tables):,} [[run]] tables; phoid reads at most "
+                     f"{limits.MAX_RUNS:,} runs per set (MAX_RUNS)")
+    return doc
+
+
+def _depth(doc: Any) -> int:
+    """Nesting depth of tables and arrays (iterative: no recursion limit to hit)."""
+    deepest = 0
+    stack = [(doc, 1)]
+    while stack:
+        value, level = stack.pop()
+        if level > deepest:
+            deepest = level
+            if deepest > limits.MAX_NESTING:
+                break
+        children = value.values() if isinstance(value, dict) else value
+        stack.extend((v, level + 1) for v in children if isinstance(v, dict | list))
+    return deepest

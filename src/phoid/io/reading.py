@@ -1,0 +1,226 @@
+"""Reading an experiment set: the manifest checked key by key, then every data file.
+
+What is checked here is what can be checked without knowing the method's model: the keys,
+their types and ranges, their letter case (a key that differs from a known one only in letter
+case is an error), the data files' paths (inside the set's folder, regular files, each
+recording listed once), compression, text and cells. The whole ``[loop]`` table and every
+unknown key are kept (:attr:`ExperimentSet.loop`, :attr:`ExperimentSet.extra`,
+:attr:`Run.extra`).
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path, PurePosixPath, PureWindowsPath
+from typing import Any
+
+import phoid.io.limits as limits
+from phoid.errors import ExperimentError
+from phoid.io._files import not_regular
+from phoid.io._format import (
+    FORMAT,
+    LOOP_KEYS,
+    MANIFEST,
+    METHODS,
+    RUN_KEYS,
+    TOP_KEYS,
+    case_clash,
+    checked_number,
+    fail,
+    kind_of,
+    optional_number,
+    printable,
+    show,
+    unknown_hint,
+)
+from phoid.io.datafile import read_csv
+from phoid.io.manifest import read_manifest
+from phoid.io.records import ExperimentSet, Run
+
+__all__ = ["read_experiment"]
+
+
+def read_experiment(path: str | os.PathLike[str]) -> ExperimentSet:
+    """Read an experiment set in the ``phoid/1`` format.
+
+    Every file is read in blocks and checked against the reader's limits while it is read
+    (:data:`MAX_MANIFEST_BYTES`, :data:`MAX_NESTING`, :data:`MAX_RUNS`, :data:`MAX_LINES`,
+    :data:`MAX_LINE_BYTES`, :data:`MAX_DATA_BYTES`, :data:`MAX_SET_ROWS`): memory stays
+    proportional to the rows accepted, whatever the input. Only regular files are opened
+    (a named pipe or a device is refused before it is read).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The set's folder (holding ``experiment.toml``) or the manifest's path.
+
+    Returns
+    -------
+    ExperimentSet
+        The runs in manifest order; arrays in SI units (s, m, N), read-only.
+
+    Raises
+    ------
+    ExperimentError
+        For every problem with the manifest or a data file; the one-line message names the
+        manifest, the run (``run 3 (run03.csv.gz)``) and the key, column or line at fault.
+
+    Examples
+    --------
+    >>> exp = read_experiment("examples/paper-sample")  # the repository's example  # doctest: +SKIP
+    >>> exp.runs[2].name, exp.runs[2].P, exp.delay  # doctest: +SKIP
+    ('run 3 (run03.csv.gz)', 3.0, 0.1)
+    """
+    given = Path(path)
+    manifest = given / MANIFEST if given.is_dir() else given
+    where = str(manifest)
+    if not manifest.exists():
+        if given.is_dir():
+            fail(where, f"manifest not found: the folder has no {MANIFEST}")
+        fail(where, "no such file or folder")
+    if manifest.is_dir():
+        fail(where, "the manifest is a folder, not a file")
+    doc = read_manifest(where, manifest)
+
+    case_clash(where, doc, TOP_KEYS, "the manifest")
+    fmt = doc.get("format", FORMAT)
+    if fmt != FORMAT:
+        fail(where, f"key 'format' must be {FORMAT!r}; got {show(fmt)} "
+                     "(this phoid reads only phoid/1 sets)")
+    method = doc.get("method", "pho")
+    if method not in METHODS:
+        fail(where, f"key 'method' must be one of {', '.join(map(repr, METHODS))}; "
+                     f"got {show(method)}")
+    title = doc.get("title")
+    if title is not None and not isinstance(title, str):
+        fail(where, f"key 'title' must be a string; got {show(title)} ({kind_of(title)})")
+    mass = optional_number(where, "mass", doc.get("mass"), minimum=0.0, strict=True)
+    loop = doc.get("loop", {})
+    if not isinstance(loop, dict):
+        fail(where, f"'loop' must be a table ([loop]); got {kind_of(loop)}")
+    case_clash(f"{where}: [loop]", loop, LOOP_KEYS, "[loop]")
+    delay = optional_number(f"{where}: [loop]", "delay", loop.get("delay"), minimum=0.0)
+
+    tables = doc.get("run")
+    if tables is None:
+        hint = unknown_hint(doc, TOP_KEYS)
+        fail(where, f"no runs: the manifest has no [[run]] tables{hint}")
+    if not isinstance(tables, list) or not all(isinstance(r, dict) for r in tables):
+        fail(where, "'run' must be an array of tables ([[run]] … [[run]])")
+    if not tables:
+        fail(where, "no runs: 'run' is empty")
+
+    specs = [_run_spec(where, i, table, method) for i, table in enumerate(tables, start=1)]
+    folder = manifest.parent
+    root = _resolve(where, folder)
+    seen: dict[Path, str] = {}
+    inodes: dict[tuple[int, int], dict[str, Any]] = {}
+    for spec in specs:
+        rwhere = f"{where}: {spec['name']}"
+        real, st = _data_path(rwhere, folder, root, spec["file"])
+        if real in seen:
+            fail(rwhere, f"file {show(spec['file'], 100)} is already used by {seen[real]}")
+        other = inodes.get((st.st_dev, st.st_ino))
+        if other is not None:
+            fail(rwhere, f"file {show(spec['file'], 100)} is a hard link to "
+                          f"{show(other['file'], 100)} of {other['name']}: the same recording "
+                          "would be counted twice; list each recording once")
+        seen[real] = spec["name"]
+        inodes[(st.st_dev, st.st_ino)] = spec
+        spec["where"], spec["real"] = rwhere, real
+
+    runs = []
+    digests: dict[bytes, dict[str, Any]] = {}
+    budget = limits.MAX_SET_ROWS
+    for spec in specs:
+        cols, digest = read_csv(spec["where"], spec["real"], spec["file"],
+                                 need_F=(method == "forced"), max_rows=budget)
+        budget -= cols["t"].size
+        other = digests.get(digest)
+        if other is not None:
+            fail(spec["where"], f"the data file has the same content, byte for byte, as "
+                                 f"{other['name']}'s: a copy (or a noise-free repeat of a "
+                                 "simulated run) would be counted twice; list each recording "
+                                 "once")
+        digests[digest] = spec
+        try:
+            runs.append(Run(file=spec["file"], index=spec["index"], extra=spec["extra"],
+                            P=spec["P"], D=spec["D"], B=spec["B"], omega=spec["omega"],
+                            added_mass=spec["added_mass"], bias=spec["bias"], **cols))
+        except ExperimentError as exc:  # pragma: no cover - the reader checks first
+            fail(where, str(exc))
+    try:
+        return ExperimentSet(path=manifest, runs=tuple(runs), method=method, delay=delay,
+                             title=title, mass=mass, loop=loop,
+                             extra={k: v for k, v in doc.items() if k not in TOP_KEYS})
+    except ExperimentError as exc:  # pragma: no cover - the reader checks first
+        raise ExperimentError(str(exc)) from None
+
+def _run_spec(where: str, index: int, table: dict[str, Any], method: str) -> dict[str, Any]:
+    """Check one [[run]] table (before any data is read)."""
+    file = table.get("file")
+    name = f"run {index}" + (f" ({printable(file, 80)})" if isinstance(file, str) and file
+                             else "")
+    rwhere = f"{where}: {name}"
+    case_clash(rwhere, table, RUN_KEYS, "the run's table")
+    if file is None:
+        fail(rwhere, f"missing key 'file'{unknown_hint(table, RUN_KEYS)}")
+    if not isinstance(file, str):
+        fail(rwhere, f"key 'file' must be a string; got {show(file)} ({kind_of(file)})")
+    if not file.strip():
+        fail(rwhere, "key 'file' is empty")
+    if method == "pho":
+        for key in ("P", "D"):
+            if key not in table:
+                fail(rwhere, f"missing key '{key}': a pho run needs the gains P (N/m) and "
+                              f"D (N·s/m){unknown_hint(table, RUN_KEYS)}")
+    spec: dict[str, Any] = {"file": file, "index": index, "name": name}
+    for key in ("P", "D", "B"):
+        spec[key] = optional_number(rwhere, key, table.get(key))
+    spec["omega"] = optional_number(rwhere, "omega", table.get("omega"), minimum=0.0,
+                                     strict=True)
+    spec["added_mass"] = checked_number(rwhere, "added_mass", table.get("added_mass", 0.0),
+                                 minimum=0.0)
+    spec["bias"] = checked_number(rwhere, "bias", table.get("bias", 0.0), minimum=0.0)
+    spec["extra"] = {k: v for k, v in table.items() if k not in RUN_KEYS}
+    return spec
+
+
+def _resolve(where: str, path: Path) -> Path:
+    try:
+        return path.resolve()
+    except (OSError, RuntimeError, ValueError) as exc:
+        fail(where, f"cannot resolve {show(str(path), 200)}: {exc}")
+
+
+def _data_path(where: str, folder: Path, root: Path, file: str) -> tuple[Path, os.stat_result]:
+    """The data file's resolved path and status, after checking that it stays inside the set's
+    folder and is a regular file."""
+    shown = show(file, 100)
+    if "\x00" in file:
+        fail(where, "key 'file' contains a NUL character")
+    if "\\" in file:
+        fail(where, f"key 'file' must use '/' as the path separator; got {shown}")
+    posix = PurePosixPath(file)
+    if posix.is_absolute() or PureWindowsPath(file).drive:
+        fail(where, f"key 'file' must be a path relative to the manifest's folder; "
+                     f"got the absolute path {shown}")
+    if ".." in posix.parts:
+        fail(where, f"file {shown} escapes the set's folder ('..' is not allowed)")
+    if not file.lower().endswith((".csv", ".csv.gz")):
+        fail(where, f"file {shown} must end in .csv or .csv.gz")
+    real = _resolve(where, folder / file)
+    if not real.is_relative_to(root):
+        fail(where, f"file {shown} escapes the set's folder (it resolves to "
+                     f"{show(str(real), 200)})")
+    try:
+        st = os.stat(real)
+    except FileNotFoundError:
+        fail(where, f"data file not found: {show(str(folder / file), 200)}")
+    except OSError as exc:
+        fail(where, f"cannot read the data file: {exc.strerror or exc}")
+    kind = not_regular(st.st_mode)
+    if kind is not None:
+        fail(where, f"data file {shown} is {kind}, not a regular file; phoid reads only "
+                     "regular files")
+    return real, st

@@ -1,0 +1,302 @@
+"""The records of an experiment set: :class:`Run` and :class:`ExperimentSet`.
+
+Both are frozen and validate on construction everything that can be checked without knowing
+the method's model; :func:`run_from_arrays` makes a run from arrays in memory.
+"""
+
+from __future__ import annotations
+
+import numbers
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from phoid.errors import ExperimentError
+from phoid.io._format import (
+    METHODS,
+    RUN_KEYS,
+    TOP_KEYS,
+    FrozenMap,
+    checked_extra,
+    checked_number,
+    fail,
+    freeze,
+    frozen_array,
+    kind_of,
+    optional_number,
+    printable,
+    show,
+    unknown_hint,
+)
+
+__all__ = ["ExperimentSet", "Run", "run_from_arrays"]
+
+
+@dataclass(frozen=True, eq=False, repr=False)
+class Run:
+    """One recorded run: a free decay (``pho``, ``free``) or a forced response (``forced``).
+
+    Arrays are stored as read-only float64 copies (an array that already is read-only, 1-D,
+    C-contiguous float64 is kept as it is). Construction validates everything it can check
+    without knowing the set's method (see :func:`run_from_arrays`); raises
+    :class:`~phoid.errors.ExperimentError`.
+
+    Attributes
+    ----------
+    file : str
+        Path of the data file relative to the manifest, as written there ("" for a run made
+        in memory).
+    t : numpy.ndarray
+        Sample times (s), finite and strictly increasing; at least 2 samples.
+    x : numpy.ndarray
+        Position of the mass (m), same length as ``t``.
+    u : numpy.ndarray or None
+        Feedback force actually applied (N), optional column.
+    F : numpy.ndarray or None
+        External (forcing) force (N); required for forced runs.
+    P : float or None
+        Proportional gain of the run (N/m); required for ``pho`` runs.
+    D : float or None
+        Derivative gain of the run (N·s/m); required for ``pho`` runs.
+    B : float or None
+        Forcing amplitude (N), forced runs, optional (else taken from ``F``).
+    omega : float or None
+        Forcing angular frequency (rad/s, > 0), forced runs, optional.
+    added_mass : float
+        Known mass added for this run (kg, ≥ 0); format extension, default 0.
+    bias : float
+        Known DC offset b (N, ≥ 0) added to the run's command in the direction of the
+        controller's velocity, +b·sign(ẋ(t − Δt)); format extension, default 0.
+    index : int
+        1-based position of the run in the manifest (0: not from a manifest).
+    extra : Mapping[str, Any]
+        Keys of the run's table that phoid/1 does not define, kept as read.
+    """
+
+    file: str
+    t: np.ndarray
+    x: np.ndarray
+    u: np.ndarray | None = None
+    F: np.ndarray | None = None
+    P: float | None = None
+    D: float | None = None
+    B: float | None = None
+    omega: float | None = None
+    added_mass: float = 0.0
+    bias: float = 0.0
+    index: int = 0
+    extra: Mapping[str, Any] = field(default_factory=FrozenMap)
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.file, str):
+            raise ExperimentError(f"run: `file` must be a string; got {show(self.file)}")
+        if isinstance(self.index, bool) or not isinstance(self.index, numbers.Integral) \
+                or self.index < 0:
+            raise ExperimentError(f"run: `index` must be an integer ≥ 0; got {show(self.index)}")
+        object.__setattr__(self, "index", int(self.index))
+        where = self.name
+        t = frozen_array(where, "t", self.t, None)
+        if t.size < 2:
+            fail(where, f"column 't' has {t.size} sample(s); at least 2 are needed")
+        d = np.diff(t)
+        if not (d > 0).all():
+            i = int(np.flatnonzero(~(d > 0))[0])
+            fail(where, f"column 't' is not strictly increasing at index {i + 1}: "
+                         f"{float(t[i + 1])!r} s follows {float(t[i])!r} s")
+        set_ = object.__setattr__
+        set_(self, "t", t)
+        set_(self, "x", frozen_array(where, "x", self.x, t.size))
+        for name in ("u", "F"):
+            value = getattr(self, name)
+            if value is not None:
+                set_(self, name, frozen_array(where, name, value, t.size))
+        set_(self, "P", optional_number(where, "P", self.P))
+        set_(self, "D", optional_number(where, "D", self.D))
+        set_(self, "B", optional_number(where, "B", self.B))
+        set_(self, "omega", optional_number(where, "omega", self.omega, minimum=0.0,
+                                             strict=True))
+        set_(self, "added_mass", checked_number(where, "added_mass", self.added_mass, minimum=0.0))
+        set_(self, "bias", checked_number(where, "bias", self.bias, minimum=0.0))
+        set_(self, "extra", checked_extra(where, self.extra, RUN_KEYS, "the run's table"))
+
+    @property
+    def name(self) -> str:
+        """How messages name the run, e.g. ``"run 3 (run03.csv.gz)"``."""
+        text = "run" + (f" {self.index}" if self.index else "")
+        return text + (f" ({printable(self.file, 80)})" if self.file else "")
+
+    @property
+    def n(self) -> int:
+        """Number of samples."""
+        return int(self.t.size)
+
+    def __repr__(self) -> str:
+        gains = ", ".join(f"{k}={getattr(self, k)!r}" for k in ("P", "D", "B", "omega")
+                          if getattr(self, k) is not None)
+        cols = "t,x" + (",u" if self.u is not None else "") + (",F" if self.F is not None else "")
+        return (f"Run({self.name}: {self.n} samples of {cols}, t = {self.t[0]:g}…{self.t[-1]:g}"
+                f" s{', ' + gains if gains else ''})")
+
+
+@dataclass(frozen=True, eq=False, repr=False)
+class ExperimentSet:
+    """An experiment set: the manifest's settings and its runs, in manifest order.
+
+    Construction checks the settings and what the method requires of every run (``pho``:
+    ``P`` and ``D``; ``forced``: an ``F`` column); raises
+    :class:`~phoid.errors.ExperimentError`.
+
+    Attributes
+    ----------
+    path : pathlib.Path
+        The manifest's path (as given, not resolved).
+    runs : tuple of Run
+        The runs, at least one.
+    method : {"pho", "forced", "free"}
+        How the runs were excited.
+    delay : float or None
+        Feedback-loop delay Δt (s, ≥ 0) from ``[loop] delay``; None when omitted (to be
+        estimated). When ``loop`` holds ``delay`` too, the two must agree.
+    title : str or None
+        The set's title.
+    mass : float or None
+        Known mass (kg, > 0), top-level ``mass`` key (format extension, for free decays).
+    loop : Mapping[str, Any]
+        The whole ``[loop]`` table as read (future keys kept).
+    extra : Mapping[str, Any]
+        Unknown top-level keys of the manifest, kept as read.
+    """
+
+    path: Path
+    runs: tuple[Run, ...]
+    method: str = "pho"
+    delay: float | None = None
+    title: str | None = None
+    mass: float | None = None
+    loop: Mapping[str, Any] = field(default_factory=FrozenMap)
+    extra: Mapping[str, Any] = field(default_factory=FrozenMap)
+
+    def __post_init__(self) -> None:
+        set_ = object.__setattr__
+        set_(self, "path", Path(self.path))
+        where = str(self.path)
+        if self.method not in METHODS:
+            fail(where, f"key 'method' must be one of {', '.join(map(repr, METHODS))}; "
+                         f"got {show(self.method)}")
+        if self.title is not None and not isinstance(self.title, str):
+            fail(where, f"key 'title' must be a string; got {show(self.title)} "
+                         f"({kind_of(self.title)})")
+        loop = self.loop if self.loop is not None else {}
+        if not isinstance(loop, Mapping):
+            fail(where, f"'loop' must be a table ([loop]); got {kind_of(loop)}")
+        delay = optional_number(where, "delay", self.delay, minimum=0.0)
+        if "delay" in loop:
+            in_loop = checked_number(f"{where}: [loop]", "delay", loop["delay"], minimum=0.0)
+            if delay is None:
+                delay = in_loop
+            elif delay != in_loop:
+                fail(where, f"`delay` = {delay!r} s disagrees with [loop] delay = "
+                             f"{in_loop!r} s")
+        set_(self, "delay", delay)
+        set_(self, "mass", optional_number(where, "mass", self.mass, minimum=0.0,
+                                            strict=True))
+        set_(self, "loop", freeze(loop))
+        set_(self, "extra", checked_extra(where, self.extra, TOP_KEYS, "the manifest"))
+        runs = tuple(self.runs) if isinstance(self.runs, Iterable) else self.runs
+        if not isinstance(runs, tuple) or not runs:
+            fail(where, "no runs: the manifest needs at least one [[run]] table")
+        for r in runs:
+            if not isinstance(r, Run):
+                fail(where, f"`runs` must hold Run objects; got {kind_of(r)}")
+            _check_method_needs(f"{where}: {r.name}", r, self.method)
+        set_(self, "runs", runs)
+
+    @property
+    def folder(self) -> Path:
+        """The set's folder (the manifest's parent)."""
+        return self.path.parent
+
+    def __len__(self) -> int:
+        return len(self.runs)
+
+    def __repr__(self) -> str:
+        return (f"ExperimentSet({str(self.path)!r}, method={self.method!r}, "
+                f"delay={self.delay!r}, {len(self.runs)} runs"
+                f"{', title=' + repr(self.title) if self.title else ''})")
+
+
+def _check_method_needs(where: str, run: Run, method: str) -> None:
+    if method == "pho":
+        for key in ("P", "D"):
+            if getattr(run, key) is None:
+                hint = unknown_hint(run.extra, ())
+                fail(where, f"missing key '{key}': a pho run needs the gains P (N/m) and "
+                             f"D (N·s/m){hint}")
+    elif method == "forced" and run.F is None:
+        fail(where, "missing column 'F': a forced run needs the external force F (N)")
+
+
+def run_from_arrays(
+    t: Any,
+    x: Any,
+    *,
+    u: Any = None,
+    F: Any = None,
+    P: float | None = None,
+    D: float | None = None,
+    B: float | None = None,
+    omega: float | None = None,
+    added_mass: float = 0.0,
+    bias: float = 0.0,
+    file: str = "",
+    index: int = 0,
+    extra: Mapping[str, Any] | None = None,
+) -> Run:
+    """Make a :class:`Run` from arrays, checked as the reader checks a data file.
+
+    Parameters
+    ----------
+    t : array_like
+        Sample times (s), finite, strictly increasing, at least 2.
+    x : array_like
+        Position (m), same length as ``t``.
+    u, F : array_like, optional
+        Applied feedback force and external force (N), same length as ``t``.
+    P, D : float, optional
+        Gains (N/m, N·s/m); needed for a ``pho`` set.
+    B, omega : float, optional
+        Forcing amplitude (N) and angular frequency (rad/s, > 0).
+    added_mass : float, default 0
+        Known added mass (kg, ≥ 0).
+    bias : float, default 0
+        Known DC offset of the command in the direction of the velocity (N, ≥ 0).
+    file : str, default ""
+        Data-file name, used in messages (and kept by :func:`write_experiment` only when
+        passed as ``names``).
+    index : int, default 0
+        1-based position in a set, for messages.
+    extra : Mapping, optional
+        Unknown run keys to keep.
+
+    Returns
+    -------
+    Run
+
+    Raises
+    ------
+    ExperimentError
+        On NaN/inf, unequal lengths, non-increasing ``t``, bad gains.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> run = run_from_arrays(np.arange(3) * 1e-3, [0.0, 1e-3, 2e-3], P=1.0, D=0.5)
+    >>> run.x.dtype, run.x.flags.writeable
+    (dtype('float64'), False)
+    """
+    return Run(file=file, t=t, x=x, u=u, F=F, P=P, D=D, B=B, omega=omega,
+               added_mass=added_mass, bias=bias, index=index,
+               extra=FrozenMap() if extra is None else extra)

@@ -1,0 +1,201 @@
+"""Checking given gains, or the gains of an experiment set, the way design does.
+
+:func:`check` evaluates gains on the prior grid with the requirements of
+:mod:`phoid.planning.evaluation` and reports which runs are unsafe or uninformative;
+:func:`check_experiment` does so for a read set or a designed skeleton, taking the plant from
+the set's own identification and the recording settings from its records when not given.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+import phoid._validate as v
+from phoid.errors import PhoidError
+from phoid.fits.decay import detect_release
+from phoid.io import ExperimentSet, read_experiment
+from phoid.planning.result import Design, assemble, roots_in_range
+from phoid.planning.schedule import read_schedule
+from phoid.planning.settings import DesignError, DesignSettings, make_prior
+
+__all__ = ["check", "check_experiment"]
+
+
+@roots_in_range
+def check(
+    P: Sequence[float] | np.ndarray,
+    D: Sequence[float] | np.ndarray,
+    m: Any,
+    c: Any,
+    k: Any,
+    *,
+    delay: float,
+    fs: float = 1000.0,
+    duration: float = 10.0,
+    noise: float = 1e-5,
+    amplitude: float = 0.01,
+    zeta: tuple[float, float] = (0.03, 0.2),
+    pmax: float | None = None,
+    dmax: float | None = None,
+    max_freq: float | None = None,
+    min_cycles: float = 5.0,
+    delay_margin: float | None = None,
+    separation: float = 2.0,
+    tolerance: float = 0.1,
+) -> Design:
+    """Evaluate given gains like :func:`~phoid.planning.search.design`: which runs are unsafe or
+    uninformative.
+
+    Parameters are those of :func:`design`, with the gains ``P`` (N/m) and ``D`` (N·s/m) of the
+    runs instead of ``runs``.
+
+    Returns
+    -------
+    Design
+        ``kind = "check"``; each run's ``safe``/``informative`` flags and warnings say what is
+        wrong, and the predicted standard errors are those of the given set.
+    """
+    st = DesignSettings(delay=delay, fs=fs, duration=duration, noise=noise,
+                        amplitude=amplitude, zeta=zeta, pmax=pmax, dmax=dmax,
+                        max_freq=max_freq, min_cycles=min_cycles, delay_margin=delay_margin,
+                        separation=separation, tolerance=tolerance)
+    P = v.finite_array("P", P, ndim=1)
+    D = v.finite_array("D", D, ndim=1)
+    if P.size != D.size or P.size == 0:
+        raise ValueError(f"`P` and `D` must have one entry per run; got {P.size} and {D.size}")
+    prior = make_prior(m, c, k, st.tolerance)
+    return assemble(P, D, prior, st, "check")
+
+
+def check_experiment(
+    experiment: Any,
+    m: Any = None,
+    c: Any = None,
+    k: Any = None,
+    **settings: Any,
+) -> Design:
+    """:func:`check` the gains of an experiment set (a read set or a designed skeleton).
+
+    Parameters
+    ----------
+    experiment : phoid.io.ExperimentSet, str or Path
+        A set read by :func:`phoid.read_experiment`, or the path of a set or skeleton manifest
+        (data files not needed).
+    m, c, k : prior, optional
+        The plant to check against; when omitted, the set's data are identified
+        (:func:`phoid.identify`) and the estimate is used.
+    **settings
+        Further keywords of :func:`check`. ``delay`` defaults to the set's; for a set with data,
+        ``fs``, ``duration`` (from the release), ``amplitude`` and ``noise`` default to what
+        the records show (median over the runs) — the skeleton's ``[design]`` values for a
+        skeleton.
+
+    Returns
+    -------
+    Design
+    """
+    exp = experiment
+    sched = None
+    read_error = None
+    if not isinstance(exp, ExperimentSet):
+        try:
+            exp = read_experiment(experiment)
+        except (PhoidError, OSError) as exc:
+            try:
+                sched = read_schedule(experiment)
+            except DesignError:
+                raise exc from None
+            exp, read_error = None, " ".join(str(exc).split())
+    if exp is not None:
+        if exp.method != "pho":
+            raise DesignError(f"{exp.path}: method is {exp.method!r}; only pho sets have gains "
+                              "to check")
+        P = np.array([r.P for r in exp.runs], dtype=float)
+        D = np.array([r.D for r in exp.runs], dtype=float)
+        delay = exp.delay
+        from_data = _record_settings(exp)
+    else:
+        P, D, delay = sched["P"], sched["D"], sched["delay"]
+        from_data = {key: sched[key] for key in ("fs", "duration", "noise", "amplitude")
+                     if sched.get(key) is not None}
+    if settings.get("delay") is None:
+        settings.pop("delay", None)
+        if delay is None:
+            raise DesignError("the set has no [loop] delay: give --delay")
+        settings["delay"] = delay
+    notes: list[str] = []
+    carried: list[str] = []  # warnings of the identification the check relies on
+    if read_error is not None:
+        notes.append(f"the set's data were not used ({read_error}): gains checked against the "
+                     "prior only")
+    if m is None or c is None or k is None:
+        if exp is None:
+            raise DesignError(f"cannot identify the set ({read_error}); to check its gains "
+                              "alone give the prior plant --m, --c and --k")
+        from phoid.methods.identification import identify
+
+        ident = identify(exp, delay=settings["delay"])
+        m = ident.m.value if m is None else m
+        c = ident.c.value if c is None else c
+        k = ident.k.value if k is None else k
+        notes.append(
+            "plant from the set's own identification: "
+            + ", ".join(f"{n} = {e.value:.6g} ± {e.stderr:.3g} {e.unit}"
+                        for n, e in (("m", ident.m), ("c", ident.c), ("k", ident.k))))
+        if "noise" not in from_data:
+            sds = [r.fit.noise_sd for r in ident.runs if r.fit is not None
+                   and math.isfinite(r.fit.noise_sd)]
+            if sds:
+                from_data["noise"] = float(np.median(sds))
+        # the check relies on this estimate: what the identification warned of stays with it
+        carried.extend(f"identification of the set: {w}" for w in ident.warnings)
+        for name, val in (("c", c), ("k", k)):
+            if not isinstance(val, (str, Sequence)) and float(val) < 0.0:
+                carried.append(f"the set's identification gives {name} = {float(val):.4g} < 0: "
+                               f"the check uses {name} = 0; give the prior --{name}")
+        c = max(float(c), 0.0) if not isinstance(c, (str, Sequence)) else c
+        k = max(float(k), 0.0) if not isinstance(k, (str, Sequence)) else k
+    for key, val in from_data.items():
+        if settings.get(key) is None:
+            settings[key] = val
+    settings = {key: val for key, val in settings.items() if val is not None}
+    d = check(P, D, m, c, k, **settings)
+    negative = [name for name, g in (("P", P), ("D", D)) if g.size and np.all(g < 0)]
+    if negative:
+        from phoid.methods.diagnose import SIGN_CONVENTION
+
+        what = " and ".join(negative)
+        carried.insert(0, f"every run's {what} is negative: {SIGN_CONVENTION}; if the rig's "
+                          f"controller uses the other sign, give {what} with phoid's")
+    if notes:
+        d = dataclasses.replace(d, notes=tuple(notes))
+    if carried:
+        d = dataclasses.replace(d, warnings=tuple(carried) + tuple(d.warnings))
+    return d
+
+
+def _record_settings(exp) -> dict[str, float]:
+    """Sample rate, record length after the release and release amplitude seen in a set."""
+    fs, dur, amp = [], [], []
+    for r in exp.runs:
+        t, x = np.asarray(r.t), np.asarray(r.x)
+        dt = np.diff(t)
+        fs.append(1.0 / float(np.median(dt)))
+        try:
+            t0 = detect_release(t, x)
+        except (ValueError, RuntimeError):
+            t0 = float(t[0])
+        dur.append(float(t[-1] - t0))
+        j = int(np.searchsorted(t, t0))
+        tail = x[-max(10, x.size // 10):]
+        amp.append(abs(float(x[min(j, x.size - 1)]) - float(np.median(tail))))
+    out = {"fs": float(np.median(fs)), "duration": float(np.median(dur))}
+    a = float(np.median(amp))
+    if a > 0:
+        out["amplitude"] = a
+    return out

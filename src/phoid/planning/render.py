@@ -1,0 +1,116 @@
+"""The text report and the figure of a design (taken by duck typing: any object with the
+attributes of :class:`phoid.planning.result.Design`). matplotlib is imported only when
+plotting."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from phoid._output import OutputFolder, png_writer
+from phoid.planning.settings import UNITS, DesignError, fmt_range
+
+__all__ = ["design_report", "plot_design"]
+
+
+def design_report(d: Any) -> str:
+    """Human-readable schedule, margins and predicted uncertainties of a design ``d``."""
+    st = d.settings
+    lines = []
+    title = "Designed PHO schedule" if d.kind == "design" else "Checked PHO schedule"
+    pr = ", ".join(f"{n} = {fmt_range(d.prior[n])} {UNITS[n]}" for n in "mck")
+    lines.append(f"{title} for {pr}, delay {st.delay:g} s")
+    lines.append(f"record {st.duration:g} s at {st.fs:g} Hz, noise {st.noise:g} m, "
+                 f"release amplitude {st.amplitude:g} m; safety checked over "
+                 + ", ".join(f"{n} {fmt_range(r)}"
+                             for n, r in d.prior["checked_ranges"].items()))
+    lines.append("")
+    head = (f"{'run':>3} {'P (N/m)':>11} {'D (N s/m)':>11} {'sigma':>8} {'omega_d':>8} "
+            f"{'zeta':>6} {'cycles':>7} {'margin':>8} {'dmargin':>8} {'share':>6}  status")
+    lines.append(head)
+    for i, r in enumerate(d.runs, start=1):
+        status = "ok" if r.safe and r.informative else (
+            "UNSAFE" if not r.safe else "uninformative")
+        lines.append(
+            f"{i:>3} {r.P:>11.5g} {r.D:>11.5g} {r.sigma:>8.4g} {r.omega_d:>8.4g} "
+            f"{r.zeta:>6.3f} {r.cycles:>7.1f} {r.margin:>8.3g} {r.delay_margin:>8.3g} "
+            f"{r.share:>6.3f}  {status}")
+    lines.append("  sigma 1/s, omega_d rad/s (nominal plant); margin: smallest decay rate "
+                 "of the rightmost root (1/s) and dmargin: smallest extra delay before "
+                 "instability (s), both over the prior")
+    lines.append("")
+    lines.append("Predicted standard errors (Cramér–Rao bound at the nominal plant; worst "
+                 "over the prior in brackets):")
+    for j, name in enumerate(("m", "c", "k")):
+        e = getattr(d, name)
+        lines.append(f"  {name} = {e.value:.6g} {e.unit}  ± {_g(e.stderr)}  "
+                     f"[{_g(d.stderr_worst[j])}]")
+    if d.notes:
+        lines.append("")
+        lines.extend(f"Note: {n}" for n in d.notes)
+    if d.warnings:
+        lines.append("")
+        lines.append("Warnings:")
+        lines.extend(f"  - {w}" for w in d.warnings)
+    return "\n".join(lines)
+
+
+def plot_design(d: Any, path: str | Path | None = None, *, ax: Any = None,
+                overwrite: bool = False) -> Any:
+    """Root locus and predicted standard errors of a design ``d`` (see
+    :meth:`phoid.planning.result.Design.plot`); returns the matplotlib Figure."""
+    import matplotlib
+
+    if path is not None:  # refuse a file in the way before drawing
+        out = OutputFolder(Path(path).parent, overwrite=overwrite, error=DesignError)
+        out.check([Path(path).name])
+    if ax is None:
+        matplotlib.use("Agg", force=False)
+        import matplotlib.pyplot as plt
+        fig, axes = plt.subplots(1, 2, figsize=(10, 4.2),
+                                 gridspec_kw={"width_ratios": [1.6, 1]})
+    else:
+        axes = list(ax)
+        fig = axes[0].figure
+    a0, a1 = axes
+    cmap = matplotlib.colormaps["viridis"]
+    n = len(d.runs)
+    for i in range(n):
+        col = cmap(i / max(n - 1, 1))
+        r = d.roots[i]
+        r = r[np.isfinite(r)]
+        a0.plot(r.real, r.imag, ".", color=col, alpha=0.5, ms=4)
+        if np.isfinite(d.roots[i, 0]):
+            a0.plot(d.roots[i, 0].real, d.roots[i, 0].imag, "o", color=col, ms=6,
+                    mec="k", mew=0.5)
+    wmax = max([abs(x.imag) for x in d.roots.ravel() if np.isfinite(x)] or [1.0])
+    for j, z in enumerate(d.settings.zeta):
+        a0.plot([0, -z * wmax * 1.1 / math.sqrt(1 - z * z)], [0, wmax * 1.1], "k--", lw=0.7,
+                label="zeta band" if j == 0 else None)
+    a0.legend(fontsize=8, loc="lower left")
+    a0.axvline(0.0, color="r", lw=0.8)
+    a0.set_xlabel("Re s (1/s)")
+    a0.set_ylabel("Im s (rad/s)")
+    a0.set_title("dominant roots over the prior (o: nominal plant)")
+    names = ["m", "c", "k"]
+    vals = np.array([getattr(d, x).value for x in names], dtype=float)
+    scale = np.where(vals != 0, np.abs(vals), 1.0)
+    x = np.arange(3)
+    a1.bar(x - 0.2, d.stderr / scale, 0.4, label="nominal")
+    a1.bar(x + 0.2, d.stderr_worst / scale, 0.4, label="worst over prior")
+    a1.set_xticks(x, [f"{nm} ({'rel.' if vals[j] != 0 else UNITS[nm]})"
+                      for j, nm in enumerate(names)])
+    a1.set_yscale("log")
+    a1.set_title("predicted standard error")
+    a1.legend(fontsize=8)
+    fig.tight_layout()
+    if path is not None:
+        out.write(Path(path).name, png_writer(fig, 110))
+    return fig
+
+
+def _g(x: float) -> str:
+    return f"{x:.3g}" if math.isfinite(x) else "undetermined"
