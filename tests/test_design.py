@@ -23,6 +23,7 @@ import pytest
 from typer.testing import CliRunner
 
 import phoid
+from phoid.api import identify_data
 from phoid.cli import app
 from phoid.dynamics.loop import (
     DelayedPD,
@@ -32,7 +33,6 @@ from phoid.dynamics.loop import (
 )
 from phoid.dynamics.plant import Plant
 from phoid.io.experiment import read_experiment
-from phoid.methods.identification import identify_data
 from phoid.planning.fisher import cramer_rao, mode_information, power_sums, release_amplitude
 from phoid.planning.sweep import (
     DesignError,

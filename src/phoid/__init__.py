@@ -10,6 +10,7 @@ function implements, and docs/equations.md for those equations and their correct
 >>> print(result.report())  # doctest: +SKIP
 """
 
+from phoid.api import identify, identify_data
 from phoid.dynamics.digital import DigitalPD, DigitalRoots, digital_modes, digital_roots
 from phoid.dynamics.loop import (
     DelayedPD,
@@ -42,8 +43,8 @@ from phoid.methods.forced import (
 )
 from phoid.methods.free import FreeIdentification, FreeRun, identify_free, identify_free_data
 from phoid.methods.friction import FrictionFit, friction_evidence, identify_friction
-from phoid.methods.identification import Identification, RunMode, identify, identify_data
 from phoid.methods.pho import Estimate, MCKFit, fit_lines, fit_modes
+from phoid.methods.pho_result import Identification, RunMode
 from phoid.planning.fisher import CramerRao, cramer_rao
 from phoid.planning.sweep import Design, DesignError, PlannedRun, design
 from phoid.simulation.core import Simulation, simulate

@@ -23,8 +23,8 @@ import numpy as np
 from phoid._threads import single_blas_thread
 from phoid.dynamics.loop import forward_map
 from phoid.dynamics.plant import Plant
-from phoid.methods.identification import measure_modes
 from phoid.methods.pho import MCKFit, fit_lines
+from phoid.methods.pho_measure import measure_modes
 from phoid.simulation.core import simulate
 
 __all__ = [

@@ -71,6 +71,7 @@ from scipy.special import chdtri  # chi2 quantile: chdtri(dof, 1 - p) = chi2.ppf
 from phoid.dynamics.loop import characteristic, dominant_roots
 from phoid.errors import IdentificationError
 from phoid.fits.decay import DecayFit, diff_noise, is_clipped
+from phoid.methods.loop_modes import distinct_modes, mode_residue
 
 __all__ = ["UDelayFit", "URun", "check_u", "combine", "fit_run", "u_skip", "with_u"]
 
@@ -619,7 +620,6 @@ def _omitted_modes(ident, P, D, dm, n_fast):
     """Per run: the first loop root left out of its x model and its amplitude in x (m), from the
     identified plant and delay (None where the roots are not available)."""
     from phoid.dynamics.loop import rightmost_roots_many
-    from phoid.methods.identification import _modes, _residue
 
     n = len(ident.runs)
     out: list[tuple[complex, float] | None] = [None] * n
@@ -634,13 +634,13 @@ def _omitted_modes(ident, P, D, dm, n_fast):
             continue
         for i, r in zip(grp, roots, strict=True):
             fit = ident.runs[i].fit
-            modes = _modes(r)
+            modes = distinct_modes(r)
             j = 1 + len(fit.fast_modes)
             if j >= len(modes):
                 continue
             q = modes[j]
             x0 = float(np.max(np.abs(np.asarray(ident.data[i][1]) - fit.offset)))
-            a = 2.0 * abs(_residue(q, m + added, c, k, float(P[i]), float(D[i]), tau)) * x0
+            a = 2.0 * abs(mode_residue(q, m + added, c, k, float(P[i]), float(D[i]), tau)) * x0
             out[i] = (q, a)
     return out
 
@@ -682,7 +682,7 @@ def with_u(ident, u, P, D, *, names, rerun, added_mass=None, n_fast=2):
 
     Parameters
     ----------
-    ident : phoid.methods.identification.Identification
+    ident : phoid.methods.pho_result.Identification
         The x-only result (delay estimated with m, c, k).
     u : sequence of ndarray or None
         Each run's recorded feedback force, N (None: not recorded).

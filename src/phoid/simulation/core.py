@@ -1209,7 +1209,7 @@ def release_response(plant: Any, P: np.ndarray, D: np.ndarray, *, delay: float,
     where a delay spans few internal steps.
 
     The loop's response from rest at 1 (no hold, force, friction or bias), for the release fit
-    of :func:`phoid.methods.identification._model_releases`. Same scheme and grid as
+    of :func:`phoid.methods.pho_release.model_releases`. Same scheme and grid as
     :func:`simulate`;
     where the grid is the sample grid and one delay is d ≤ 32 steps, each block of d steps is
     solved by one product instead of the Cayley–Hamilton ``lfilter``: Y_n = Φⁿ y₀ +
