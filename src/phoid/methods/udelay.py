@@ -51,12 +51,9 @@ loop's faster modes, which the factor P + Ds magnifies in u; the samples there w
 of every mode. The timing over the whole decay carries the same Δt without that risk.
 
 What u adds: with g free, one run's Δtᵢ is limited by how well x fixes its own phase (u's
-timing is measured against it), so a run's u alone gives Δt to ~20–90 µs on the designs tested.
-But u is also a second, often less noisy, record of the same modes (scaled by |P + Ds|), so the
-runs' σᵢ, ω_dᵢ improve, and with them the x-only route to Δt: on the acceptance design the delay
-stderr drops from 3.6 µs (x) to 2.2 µs (x and u, 5 mN noise on u), and a noise-free u pins it
-to rounding. Over 100 replicas of that design the z-scores of Δt, m, c, k have sd 0.97–1.00
-(5 mN on u) and 1.04–1.13 (1 mN; Δt stderr 0.7 µs), all within ±3.
+timing is measured against it). But u is also a second, often less noisy, record of the same
+modes (scaled by |P + Ds|), so the runs' σᵢ, ω_dᵢ improve, and with them the x-only route to Δt
+(measurements: docs/design-notes/pho.md, "delay from the recorded force").
 """
 
 from __future__ import annotations
