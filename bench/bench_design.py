@@ -22,8 +22,8 @@ import time
 
 import numpy as np
 
+from phoid.api import identify_data
 from phoid.dynamics.plant import Plant
-from phoid.methods.identification import identify_data
 from phoid.planning import design
 from phoid.planning.fisher import cramer_rao
 from phoid.simulation import simulate

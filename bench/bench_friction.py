@@ -26,9 +26,9 @@ import numpy as np
 from scipy.optimize import brentq
 
 from phoid import Plant, simulate
+from phoid.api import identify_data
 from phoid.dynamics import DelayedPD, characteristic_roots, dominant_roots
 from phoid.methods.friction import identify_friction
-from phoid.methods.identification import identify_data
 
 TRUTH = {"m": 1.0, "c": 2.0, "k": 100.0, "fc": 0.05}
 DELAY = 0.02

@@ -36,10 +36,10 @@ import numpy as np
 from scipy.optimize import OptimizeWarning, curve_fit
 from sets import SETS, SetSpec, simulate_replicas
 
+from phoid.api import identify_data
 from phoid.errors import PhoidError
 from phoid.fits.decay import logdec
 from phoid.io import read_experiment
-from phoid.methods.identification import identify_data
 from phoid.methods.pho import MCKFit, fit_lines
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -54,7 +54,7 @@ def _gains(runs: int, axis: str) -> tuple[np.ndarray, np.ndarray]:
 def _measure(func: str, axis: str, size: int) -> dict:
     """One point, in this process: time and peak memory of ``func`` at ``size``."""
     from phoid import Plant, simulate
-    from phoid.methods.identification import identify_data
+    from phoid.api import identify_data
 
     plant = Plant(M, C, K)
     if axis == "length":

@@ -20,8 +20,8 @@ import pytest
 from typer.testing import CliRunner
 
 from phoid import Plant, forward_map, read_experiment, run_from_arrays, simulate, write_experiment
+from phoid.api import identify, identify_data
 from phoid.cli import app
-from phoid.methods.identification import identify, identify_data
 from phoid.methods.pho import fit_lines, fit_modes
 
 runner = CliRunner()

@@ -34,10 +34,10 @@ from scipy.optimize import brentq
 from typer.testing import CliRunner
 
 from phoid import Plant, read_experiment, run_from_arrays, simulate, write_experiment
+from phoid.api import identify
 from phoid.cli import app
 from phoid.dynamics.rightmost import dominant_roots
 from phoid.errors import ExperimentError, IdentificationError
-from phoid.methods.identification import identify
 
 M, C, K, FC = 1.0, 0.3, 100.0, 0.2  # kg, N s/m, N/m, N
 DELAY = 0.01  # s

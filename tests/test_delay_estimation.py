@@ -17,8 +17,8 @@ import numpy as np
 import pytest
 
 from phoid import Plant, forward_map, simulate
+from phoid.api import identify_data
 from phoid.errors import IdentificationError
-from phoid.methods.identification import identify_data
 from phoid.methods.pho import delay_profile, fit_modes
 
 # the acceptance case: m 3, c 2, k 120, delay 40 ms, 12 runs, 50 µm noise. The gains

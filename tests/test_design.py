@@ -23,6 +23,7 @@ import pytest
 from typer.testing import CliRunner
 
 import phoid
+from phoid.api import identify_data
 from phoid.cli import app
 from phoid.dynamics import (
     DelayedPD,
@@ -32,7 +33,6 @@ from phoid.dynamics import (
 )
 from phoid.dynamics.plant import Plant
 from phoid.io import read_experiment
-from phoid.methods.identification import identify_data
 from phoid.planning import (
     DesignError,
     check,

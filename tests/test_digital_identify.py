@@ -21,10 +21,10 @@ import pytest
 from typer.testing import CliRunner
 
 from phoid import Plant, read_experiment, run_from_arrays, simulate, write_experiment
+from phoid.api import identify, identify_data
 from phoid.cli import app
 from phoid.dynamics.digital import DigitalPD, digital_roots
 from phoid.errors import IdentificationError
-from phoid.methods.identification import identify, identify_data
 
 runner = CliRunner()
 

@@ -31,7 +31,7 @@ import phoid.io
 import phoid.io._format
 from phoid.cli import app
 from phoid.dynamics.digital import VELOCITY_ESTIMATORS
-from phoid.methods.identification import DIGITAL_KEYS
+from phoid.methods.pho_checks import DIGITAL_KEYS
 from phoid.paper import reproduce_table1
 
 DOC_PATH = Path(__file__).resolve().parents[1] / "docs" / "format.md"

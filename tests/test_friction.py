@@ -471,9 +471,9 @@ def test_digital_loop_with_friction(tmp_path):
     from typer.testing import CliRunner
 
     from phoid import read_experiment, run_from_arrays, write_experiment
+    from phoid.api import identify_data
     from phoid.cli import app
     from phoid.dynamics.digital import DigitalPD, digital_roots
-    from phoid.methods.identification import identify_data
 
     loop = DigitalPD(0.0, 0.0, sample_time=0.002, delay_samples=3)
 

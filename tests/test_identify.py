@@ -15,8 +15,8 @@ import numpy as np
 import pytest
 
 from phoid import IdentificationError
+from phoid.api import identify, identify_data
 from phoid.io import read_experiment
-from phoid.methods.identification import identify, identify_data
 
 
 @pytest.fixture(scope="module")

@@ -52,7 +52,7 @@ from phoid import (
     write_experiment,
 )
 from phoid.cli import app
-from phoid.methods.identification import measure_modes
+from phoid.methods.pho_measure import measure_modes
 
 runner = CliRunner()
 

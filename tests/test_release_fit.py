@@ -1,7 +1,7 @@
 """The release refit's vectorised pieces against the plain computations they replace.
 
-identification._interp_uniform against np.interp; simulation.release_response against
-simulate; identification._model_releases with the uniform-sampling shortcut (one g per run,
+pho_release.interp_uniform against np.interp; simulation.release_response against
+simulate; pho_release.model_releases with the uniform-sampling shortcut (one g per run,
 simulated at the data's rate) against its general path (every candidate's own t − τ,
 interpolated on a grid 4 times finer).
 """
@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-import phoid.methods.identification as ident
+import phoid.methods.pho_release as ident
 from phoid import Plant, simulate
 from phoid.fits.decay import start_decay
 from phoid.simulation import release_response
@@ -30,7 +30,7 @@ def test_interp_uniform_matches_np_interp():
     x[:, 0, :5] = (np.arange(5) * 37)[None, :] / rate[:, None]
     x[:, 0, 5] = span
     x[:, 0, 6] = 2 * span
-    got = ident._interp_uniform(x, rate, fp)
+    got = ident.interp_uniform(x, rate, fp)
     ref = np.stack([np.interp(x[r], np.arange(ng) / rate[r], fp[r]) for r in range(n)])
     # both interpolate linearly between the same nodes; they differ only in the rounding of
     # the position inside the interval (x·rate carries ≤ ~ng·ε of a node spacing, the
@@ -71,9 +71,9 @@ def test_uniform_shortcut_matches_the_general_path(monkeypatch):
     data = [(sim.t, sim.x[i]) for i in range(P.size)]
     fits = [start_decay(t, x, skip=0.015, coarse_release=True) for t, x in data]
     args = (data, fits, (0.5, 40.0, 20.0), P, D, 0.005)
-    fast = ident._model_releases(*args)
+    fast = ident.model_releases(*args)
     monkeypatch.setattr(ident, "uniform_step", lambda *a: None)  # no span counts as uniform
-    general = ident._model_releases(*args)
+    general = ident.model_releases(*args)
     assert all(f is not None for f in fast) and [f is None for f in general] == [False] * 8
     # the same fit; g on the data's grid or interpolated on one 4× finer differs by simulate's
     # rounding (~1e−12 of x₀), which moves the parabola's vertex by far less than 1 ns

@@ -18,9 +18,9 @@ import pytest
 from typer.testing import CliRunner
 
 from phoid import Plant, simulate
+from phoid.api import identify, identify_data
 from phoid.cli import app
 from phoid.io import read_experiment
-from phoid.methods.identification import identify, identify_data
 from phoid.methods.udelay import combine, u_skip
 
 # the acceptance design (as in test_delay_estimation.py): m 3, c 2, k 120, delay 40 ms,

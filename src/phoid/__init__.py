@@ -10,8 +10,8 @@ function implements, and docs/equations.md for those equations and their correct
 >>> print(result.report())  # doctest: +SKIP
 """
 
-from phoid.dynamics.digital import DigitalPD, DigitalRoots, digital_modes, digital_roots
-from phoid.dynamics.loop import (
+from phoid.api import identify, identify_data
+from phoid.dynamics import (
     DelayedPD,
     LoopModes,
     alphas,
@@ -20,6 +20,7 @@ from phoid.dynamics.loop import (
     inverse_map,
     is_stable,
 )
+from phoid.dynamics.digital import DigitalPD, DigitalRoots, digital_modes, digital_roots
 from phoid.dynamics.plant import Plant, free_response
 from phoid.errors import ExperimentError, IdentificationError, OutputError, PhoidError
 from phoid.fits.decay import DecayFit, detect_release, fit_decay, logdec
@@ -42,8 +43,8 @@ from phoid.methods.forced import (
 )
 from phoid.methods.free import FreeIdentification, FreeRun, identify_free, identify_free_data
 from phoid.methods.friction import FrictionFit, friction_evidence, identify_friction
-from phoid.methods.identification import Identification, RunMode, identify, identify_data
 from phoid.methods.pho import Estimate, MCKFit, fit_lines, fit_modes
+from phoid.methods.pho_result import Identification, RunMode
 from phoid.planning import Design, DesignError, PlannedRun, design
 from phoid.planning.fisher import CramerRao, cramer_rao
 from phoid.simulation import Simulation, simulate

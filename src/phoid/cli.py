@@ -143,8 +143,8 @@ def identify(
     Prints the estimates with +- one standard error and units, the open-loop zeta and omega0,
     a per-run table and any warnings.
     """
+    from phoid.api import identify as _identify
     from phoid.io import read_experiment
-    from phoid.methods.identification import identify as _identify
 
     try:
         if no_compensation and estimator != "ols":
@@ -155,7 +155,7 @@ def identify(
             raise ValueError("--friction applies to pho sets, without --estimator ols, "
                              "--no-compensation or --plots")
         if not friction:
-            from phoid.methods.identification import refuse_bias
+            from phoid.methods.pho_checks import refuse_bias
 
             refuse_bias(exp, exp.method)  # a biased command: only the friction fit models it
         if exp.method == "pho":

@@ -21,10 +21,10 @@ from typing import Any
 import numpy as np
 
 from phoid._threads import single_blas_thread
-from phoid.dynamics.loop import forward_map
+from phoid.dynamics import forward_map
 from phoid.dynamics.plant import Plant
-from phoid.methods.identification import measure_modes
 from phoid.methods.pho import MCKFit, fit_lines
+from phoid.methods.pho_measure import measure_modes
 from phoid.simulation import simulate
 
 __all__ = [

@@ -28,12 +28,7 @@ from phoid.methods.friction import (
     identify_friction,
     identify_friction_set,
 )
-from phoid.methods.identification import (
-    Identification,
-    RunMode,
-    identify,
-    measure_modes,
-)
+from phoid.methods.identification import identify_pho, identify_pho_data
 from phoid.methods.pho import (
     Estimate,
     LineFit,
@@ -42,6 +37,9 @@ from phoid.methods.pho import (
     fit_lines,
     fit_modes,
 )
+from phoid.methods.pho_checks import DIGITAL_KEYS, read_digital_loop, refuse_bias
+from phoid.methods.pho_measure import measure_modes
+from phoid.methods.pho_result import Identification, RunMode
 from phoid.methods.udelay import (
     UDelayFit,
     URun,
@@ -53,6 +51,7 @@ from phoid.methods.udelay import (
 )
 
 __all__ = [
+    "DIGITAL_KEYS",
     "SIGN_CONVENTION",
     "Estimate",
     "ForcedIdentification",
@@ -77,15 +76,18 @@ __all__ = [
     "fit_response",
     "fit_run",
     "friction_evidence",
-    "identify",
     "identify_forced",
     "identify_forced_data",
     "identify_free",
     "identify_free_data",
     "identify_friction",
     "identify_friction_set",
+    "identify_pho",
+    "identify_pho_data",
     "measure_modes",
     "probable_cause",
+    "read_digital_loop",
+    "refuse_bias",
     "simulate_forced",
     "two_frequency",
     "u_skip",

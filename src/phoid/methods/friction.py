@@ -94,7 +94,7 @@ Checks before fitting
   intervals up to 3Δt reconciles them — the delay u implies. When the viscous starting point
   then fails, the error carries that diagnosis.
 
-Starting point, and two stages. m, c, k come from :func:`phoid.methods.identification.identify_data`
+Starting point, and two stages. m, c, k come from :func:`phoid.identify_data`
 (the viscous dominant-mode fit of the same runs), τᵢ from its model-fitted releases. The
 envelopes then give the rest: successive extrema pₙ of each record lie about bᵢ with a
 peak-to-peak height Hₙ that obeys Hₙ₊₁ = ρᵢHₙ − 2f_c(1 + ρᵢ)/(k + Pᵢ) (the half-cycle recursion
@@ -1260,7 +1260,7 @@ def _dominant(m, c, k, P, D, delay, digital):
 
 def _prepare(data, P, D, delay, start, names, need_fc: bool, added_mass=None,
              digital=None, bias=None, u=None) -> _Setup:
-    from phoid.methods.identification import identify_data
+    from phoid.methods.identification import identify_pho_data as identify_data
 
     n = len(data)
     if n == 0:
@@ -1782,7 +1782,7 @@ def identify_friction_set(experiment: Any, *, delay: float | None = None) -> Fri
         A set the friction fit does not model (not ``pho``, no delay), conflicting loop keys,
         or no usable run; the message names the set.
     """
-    from phoid.methods.identification import read_digital_loop
+    from phoid.methods.pho_checks import read_digital_loop
 
     where = str(getattr(experiment, "path", "experiment"))
     if getattr(experiment, "method", "pho") != "pho":

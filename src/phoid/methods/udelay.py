@@ -51,12 +51,9 @@ loop's faster modes, which the factor P + Ds magnifies in u; the samples there w
 of every mode. The timing over the whole decay carries the same Δt without that risk.
 
 What u adds: with g free, one run's Δtᵢ is limited by how well x fixes its own phase (u's
-timing is measured against it), so a run's u alone gives Δt to ~20–90 µs on the designs tested.
-But u is also a second, often less noisy, record of the same modes (scaled by |P + Ds|), so the
-runs' σᵢ, ω_dᵢ improve, and with them the x-only route to Δt: on the acceptance design the delay
-stderr drops from 3.6 µs (x) to 2.2 µs (x and u, 5 mN noise on u), and a noise-free u pins it
-to rounding. Over 100 replicas of that design the z-scores of Δt, m, c, k have sd 0.97–1.00
-(5 mN on u) and 1.04–1.13 (1 mN; Δt stderr 0.7 µs), all within ±3.
+timing is measured against it). But u is also a second, often less noisy, record of the same
+modes (scaled by |P + Ds|), so the runs' σᵢ, ω_dᵢ improve, and with them the x-only route to Δt
+(measurements: docs/design-notes/pho.md, "delay from the recorded force").
 """
 
 from __future__ import annotations
@@ -71,6 +68,7 @@ from scipy.special import chdtri  # chi2 quantile: chdtri(dof, 1 - p) = chi2.ppf
 from phoid.dynamics import characteristic, dominant_roots
 from phoid.errors import IdentificationError
 from phoid.fits.decay import DecayFit, diff_noise, is_clipped
+from phoid.methods.loop_modes import distinct_modes, mode_residue
 
 __all__ = ["UDelayFit", "URun", "check_u", "combine", "fit_run", "u_skip", "with_u"]
 
@@ -619,7 +617,6 @@ def _omitted_modes(ident, P, D, dm, n_fast):
     """Per run: the first loop root left out of its x model and its amplitude in x (m), from the
     identified plant and delay (None where the roots are not available)."""
     from phoid.dynamics import rightmost_roots_many
-    from phoid.methods.identification import _modes, _residue
 
     n = len(ident.runs)
     out: list[tuple[complex, float] | None] = [None] * n
@@ -634,13 +631,13 @@ def _omitted_modes(ident, P, D, dm, n_fast):
             continue
         for i, r in zip(grp, roots, strict=True):
             fit = ident.runs[i].fit
-            modes = _modes(r)
+            modes = distinct_modes(r)
             j = 1 + len(fit.fast_modes)
             if j >= len(modes):
                 continue
             q = modes[j]
             x0 = float(np.max(np.abs(np.asarray(ident.data[i][1]) - fit.offset)))
-            a = 2.0 * abs(_residue(q, m + added, c, k, float(P[i]), float(D[i]), tau)) * x0
+            a = 2.0 * abs(mode_residue(q, m + added, c, k, float(P[i]), float(D[i]), tau)) * x0
             out[i] = (q, a)
     return out
 
@@ -682,7 +679,7 @@ def with_u(ident, u, P, D, *, names, rerun, added_mass=None, n_fast=2):
 
     Parameters
     ----------
-    ident : phoid.methods.identification.Identification
+    ident : phoid.methods.pho_result.Identification
         The x-only result (delay estimated with m, c, k).
     u : sequence of ndarray or None
         Each run's recorded feedback force, N (None: not recorded).
@@ -708,7 +705,7 @@ def with_u(ident, u, P, D, *, names, rerun, added_mass=None, n_fast=2):
     """
     from dataclasses import replace
 
-    from phoid.dynamics.loop import inverse_map
+    from phoid.dynamics import inverse_map
     from phoid.methods.pho import Estimate
 
     P = np.asarray(P, dtype=float)

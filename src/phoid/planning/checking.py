@@ -137,7 +137,7 @@ def check_experiment(
         if exp is None:
             raise DesignError(f"cannot identify the set ({read_error}); to check its gains "
                               "alone give the prior plant --m, --c and --k")
-        from phoid.methods.identification import identify
+        from phoid.methods.identification import identify_pho as identify
 
         ident = identify(exp, delay=settings["delay"])
         m = ident.m.value if m is None else m

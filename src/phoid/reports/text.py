@@ -11,7 +11,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
 from phoid._output import OutputFolder, png_writer
-from phoid.dynamics.loop import inverse_map
+from phoid.dynamics import inverse_map
 
 if TYPE_CHECKING:
     from phoid.methods.identification import Identification

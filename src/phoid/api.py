@@ -1,0 +1,115 @@
+"""The identification's entry points: one call for every method of the format.
+
+:func:`identify` reads a set's ``method`` and hands it to the method's own pipeline: PHO sets
+to :func:`phoid.methods.identification.identify_pho`, forced and free sets to
+:func:`phoid.methods.forced.identify_forced` and :func:`phoid.methods.free.identify_free`.
+:func:`identify_data` is the PHO pipeline on plain arrays.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from phoid.errors import IdentificationError
+from phoid.methods.identification import check_estimator, identify_pho, identify_pho_data
+from phoid.methods.pho_checks import refuse_bias
+from phoid.methods.pho_result import Identification
+
+if TYPE_CHECKING:
+    from phoid.methods.forced import ForcedIdentification
+    from phoid.methods.free import FreeIdentification
+
+__all__ = ["identify", "identify_data"]
+
+
+def identify(
+    experiment: Any,
+    *,
+    delay: float | None = None,
+    estimator: str = "gls",
+    compensate: bool = True,
+) -> Identification | ForcedIdentification | FreeIdentification:
+    """Identify m, c, k from a PHO experiment set.
+
+    Parameters
+    ----------
+    experiment : phoid.io.ExperimentSet
+        The runs (t, x, P, D) and the loop delay (``[loop] delay``), as read by
+        :func:`phoid.io.read_experiment`.
+    delay : float, optional
+        Loop delay Δt (s), overriding the manifest's.
+    estimator : {"gls", "ols"}
+        ``"gls"``: the efficient weighted fit through the exact loop roots (default).
+        ``"ols"``: the paper's eq. (35) lines by ordinary least squares.
+    compensate : bool, default True
+        Correct for the delay (eqs. 28–32). False reproduces the paper's uncompensated column
+        (only with ``estimator="ols"``).
+
+    Returns
+    -------
+    Identification
+        For ``method = "forced"`` or ``"free"`` sets the result of
+        :func:`phoid.methods.forced.identify_forced` or :func:`phoid.methods.free.identify_free`
+        (a known mass for a free set: :func:`phoid.methods.free.identify_free` with ``mass=``).
+
+    Raises
+    ------
+    IdentificationError
+        When the data cannot determine m, c, k (no usable runs, all gains equal, …).
+    """
+    check_estimator(estimator, compensate)
+    method = getattr(experiment, "method", "pho")
+    refuse_bias(experiment, method)
+    if method in ("forced", "free"):
+        # the other methods of the format, with their own estimators; PHO-only options refused
+        if delay is not None or estimator != "gls" or not compensate:
+            raise IdentificationError(
+                f"{experiment.path}: method = {method!r}: `delay`, `estimator` and "
+                "`compensate` apply to PHO sets only"
+            )
+        if method == "forced":
+            from phoid.methods.forced import identify_forced
+
+            return identify_forced(experiment)
+        from phoid.methods.free import identify_free
+
+        return identify_free(experiment)
+    if method != "pho":
+        raise IdentificationError(f"{experiment.path}: method = {method!r} is not known")
+    return identify_pho(experiment, delay=delay, estimator=estimator, compensate=compensate)
+
+
+def identify_data(
+    data: Sequence[tuple[np.ndarray, np.ndarray]],
+    P: np.ndarray,
+    D: np.ndarray,
+    delay: float | None,
+    *,
+    files: Sequence[str] | None = None,
+    names: Sequence[str] | None = None,
+    estimator: str = "gls",
+    compensate: bool = True,
+    source: str = "",
+    digital: Any = None,
+    added_mass: np.ndarray | None = None,
+    u: Sequence[np.ndarray | None] | None = None,
+) -> Identification:
+    """:func:`identify` on plain arrays: ``data`` is a sequence of (t, x) per run.
+
+    Parameters are as in :func:`identify`; ``files``/``names`` label the runs. ``delay=None``
+    estimates the loop delay with m, c, k. ``digital`` (a
+    :class:`phoid.dynamics.digital.DigitalPD`; its gains are ignored) models a sampled loop
+    exactly; ``delay`` is then ignored (the loop's own d·T_s is used for the starting lines).
+    ``added_mass`` (kg, per run) is a known mass added in each run (the paper's added-mass
+    trick): run i's loop has mass m + Δmᵢ and the estimate is the mass without additions.
+    ``u`` (N, per run, None where not recorded; same samples as x) is the feedback force
+    applied: with ``delay=None`` the delay is then estimated from x and u together
+    (:func:`phoid.methods.udelay.with_u`). This is the PHO pipeline,
+    :func:`phoid.methods.identification.identify_pho_data`.
+    """
+    return identify_pho_data(data, P, D, delay, files=files, names=names, estimator=estimator,
+                             compensate=compensate, source=source, digital=digital,
+                             added_mass=added_mass, u=u)

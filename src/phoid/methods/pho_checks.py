@@ -1,0 +1,248 @@
+"""The PHO set's checks of its input, made before (or beside) the identification.
+
+Each refuses, or warns of, a set that cannot be what it says: a biased command, a loop delay or
+controller sample time far from the records' own time scale (a unit mistake), an added mass far
+beyond the plant's, a recorded force that contradicts the gains, records sampled too coarsely
+for the release's timing; and the manifest's digital loop ([loop] sample_time, …) read and
+checked.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from phoid.errors import IdentificationError
+from phoid.methods.pho import fit_lines
+
+__all__ = [
+    "DIGITAL_KEYS",
+    "check_added_mass",
+    "check_delay",
+    "check_sample_time",
+    "coarse_sampling",
+    "read_digital_loop",
+    "refuse_bias",
+    "u_contradicts_gains",
+]
+
+
+def refuse_bias(experiment: Any, method: str) -> None:
+    """Refuse runs whose command carries a DC-offset bias (``[[run]] bias``): their decay is not
+    a sum of the loop's modes, so the mode fit would return a wrong m, c, k without noticing;
+    the friction fit models it (``phoid identify --friction``, :mod:`phoid.methods.friction`)."""
+    for r in getattr(experiment, "runs", ()):
+        if getattr(r, "bias", 0.0):
+            hint = ("; fit it with the stick-slip model: phoid identify --friction "
+                    "(phoid.methods.friction.identify_friction_set)" if method == "pho" else
+                    f"; a {method} set has no PD loop to carry it")
+            raise IdentificationError(
+                f"{experiment.path}: {r.name}: bias = {r.bias:g} N: a biased PD command is not "
+                f"a linear loop, so the mode fit does not apply{hint}")
+
+
+# a given delay shorter than this fraction of the records' sample step is no delay the data can
+# tell from 0 (and the release model would step through it in 1e300 steps): a unit mistake
+_MIN_DELAY_PER_STEP = 1e-6
+
+
+def check_delay(delay: float, data: Sequence[tuple[np.ndarray, np.ndarray]], source: str
+                ) -> None:
+    """Refuse a given loop delay that cannot be right: not finite or negative, far below the
+    records' sample step, or so long that the fit's start (3 delays after the release) lies
+    beyond every record's end."""
+    where = f"{source}: " if source else ""
+    what = "the loop delay ([loop] delay, or --delay)"
+    if not (math.isfinite(delay) and delay >= 0.0):
+        raise IdentificationError(f"{where}{what} must be a finite number ≥ 0 s; got {delay:g}")
+    spans, steps = [], []
+    for t, _x in data:
+        try:
+            t = np.asarray(t, dtype=float)
+            if t.size >= 2 and np.all(np.isfinite(t[[0, -1]])):
+                spans.append(float(t[-1] - t[0]))
+                steps.append(float(np.median(np.diff(t[: min(t.size, 64)]))))
+        except (TypeError, ValueError):
+            continue
+    if not spans:
+        return
+    h = float(np.median(steps))
+    if 0.0 < delay < _MIN_DELAY_PER_STEP * h:
+        raise IdentificationError(
+            f"{where}{what} = {delay:.3g} s is {h / delay:.3g} times shorter than the records' "
+            f"sample step ({h:.3g} s): is it in seconds? Give 0 for a loop without delay")
+    if 3.0 * delay >= max(spans):
+        raise IdentificationError(
+            f"{where}{what} = {delay:.4g} s is too long for the records: the fit starts 3 "
+            f"delays ({3 * delay:.4g} s) after the release, beyond the longest record "
+            f"({max(spans):.4g} s); is it in seconds?")
+
+
+
+# is 1; a smoothed derivative of noisy x biases it low by a few per cent and a force sensor's
+# calibration is rarely better than a few per cent, so only a scale outside 0.8 … 1.25 (a gain
+# or unit mistake, e.g. gains off by 2×: scale 0.5) is reported
+_U_SCALE_OK = (0.8, 1.25)
+
+
+def u_contradicts_gains(data: Sequence[tuple[np.ndarray, np.ndarray]],
+                        u: Sequence[np.ndarray | None], P: np.ndarray, D: np.ndarray,
+                        delay: float, names: Sequence[str], omega_d: Sequence[float]
+                        ) -> str | None:
+    """A warning naming the runs whose recorded u contradicts the given gains and delay
+    (u ≠ −[P x(t − Δt) + D ẋ(t − Δt)] by more than a calibration could explain), or None."""
+    from scipy.signal import savgol_filter
+
+    bad = []
+    for i, ((t, x), ui) in enumerate(zip(data, u, strict=True)):
+        if ui is None or t.size < 32 or not (P[i] or D[i]) or not math.isfinite(omega_d[i]):
+            continue
+        h = float(np.median(np.diff(t)))
+        period = 2 * math.pi / omega_d[i]
+        # a dense record is averaged in blocks of k samples down to ~200 per period (noise
+        # down by √k; the block mean attenuates the mode by < 1e-4), then ẋ comes from a
+        # quadratic Savitzky–Golay fit over 11 samples; with fewer than 10 such windows per
+        # period the derivative is not accurate to the band's few per cent: no check
+        win = 11
+        kb = max(1, int(period / (200 * h)))
+        nb = t.size // kb
+        if nb < 2 * win or period / (kb * h) < 10 * win:
+            continue
+        uu = np.asarray(ui, dtype=float)
+        t, x, uu = (a[: nb * kb].reshape(nb, kb).mean(axis=1) for a in (t, x, uu))
+        with np.errstate(all="ignore"):
+            xs = savgol_filter(x, win, 2)
+            vs = savgol_filter(x, win, 2, deriv=1, delta=kb * h)
+            sel = t - delay >= t[0]
+            pred = -(P[i] * np.interp(t[sel] - delay, t, xs)
+                     + D[i] * np.interp(t[sel] - delay, t, vs))
+            uu = uu[sel]
+            pc, uc = pred - pred.mean(), uu - uu.mean()
+            den = float(pc @ pc)
+            g = float(pc @ uc) / den if den > 0 else math.nan
+        if math.isfinite(g) and not _U_SCALE_OK[0] <= g <= _U_SCALE_OK[1]:
+            bad.append((names[i], g))
+    if not bad:
+        return None
+    listed = ", ".join(f"{n} ({g:.2g})" for n, g in bad[:5]) + (" …" if len(bad) > 5 else "")
+    return (f"the recorded u contradicts the given gains and delay in {len(bad)} run(s): u is "
+            f"not -(P x + D x') at t - delay but that times {listed}: check P, D, the units "
+            "of x (m) and u (N), or the delay; m, c, k assume the gains are right")
+
+
+# a controller sampling more than this many times per recorded sample is no sampled loop phoid
+# can model (its z-domain model degenerates as T_s |s| -> 0: JᵀJ singular at 1e-300 s), and no
+# rig records that much slower than it controls; such a loop is a continuous one
+_MAX_CONTROL_PER_RECORD = 1e4
+
+
+def check_sample_time(experiment: Any, digital: Any, runs: Sequence[Any]) -> None:
+    """Refuse a ``[loop] sample_time`` far below the records' own sample step (a unit mistake,
+    or a controller so fast it is a continuous loop)."""
+    steps = []
+    for r in runs:
+        try:
+            t = np.asarray(r.t, dtype=float)
+            if t.size >= 2:
+                steps.append(float(np.median(np.diff(t[: min(t.size, 64)]))))
+        except (TypeError, ValueError):
+            continue
+    steps = [h for h in steps if math.isfinite(h) and h > 0]
+    if not steps:
+        return
+    h = float(np.median(steps))
+    if digital.sample_time * _MAX_CONTROL_PER_RECORD < h:
+        raise IdentificationError(
+            f"{experiment.path}: [loop] sample_time = {digital.sample_time:.3g} s is "
+            f"{h / digital.sample_time:.3g} times shorter than the records' sample step "
+            f"({h:.3g} s): is it in seconds? A controller that fast is a continuous loop: give "
+            "[loop] delay instead of sample_time")
+
+
+DIGITAL_KEYS = ("sample_time", "delay_samples", "velocity", "cutoff")
+
+
+def read_digital_loop(experiment: Any) -> Any:
+    """The manifest's digital loop ([loop] sample_time, …) as a DigitalPD, or None."""
+    from phoid.dynamics.digital import DigitalPD
+
+    loop = dict(getattr(experiment, "loop", {}) or {})
+    unknown = sorted(set(loop) - {"delay", *DIGITAL_KEYS})
+    if unknown:
+        raise IdentificationError(
+            f"{experiment.path}: [loop] {unknown[0]}: unknown key (known: delay, "
+            + ", ".join(DIGITAL_KEYS) + ")"
+        )
+    if "sample_time" not in loop:
+        extra = [key for key in DIGITAL_KEYS if key in loop]
+        if extra:
+            raise IdentificationError(
+                f"{experiment.path}: [loop] {extra[0]}: needs [loop] sample_time (s), the "
+                "controller's sampling period"
+            )
+        return None
+    try:
+        return DigitalPD(
+            P=0.0, D=0.0, sample_time=loop["sample_time"],
+            delay_samples=loop.get("delay_samples", 0),
+            velocity=loop.get("velocity", "backward-difference"), cutoff=loop.get("cutoff"),
+        )
+    except (ValueError, TypeError) as exc:
+        raise IdentificationError(f"{experiment.path}: [loop]: {exc}") from None
+
+
+
+
+_MAX_ADDED_RATIO = 1e6
+
+
+def check_added_mass(first: Sequence[tuple[Any, str | None]], P: np.ndarray, D: np.ndarray,
+                     delay: float, dm: np.ndarray, names: Sequence[str], source: str) -> None:
+    """Refuse an added mass far beyond the plant's own mass, as the runs without added mass
+    give it roughly (the eq. (35) lines of their first-pass modes); no check when fewer than
+    two of them, with distinct gains, oscillate."""
+    free = [i for i, (st, _e) in enumerate(first)
+            if dm[i] == 0 and st is not None and st.oscillating]
+    if len({(float(P[i]), float(D[i])) for i in free}) < 2:
+        return
+    try:
+        with np.errstate(all="ignore"):
+            m0 = fit_lines([first[i][0].sigma for i in free], [first[i][0].omega_d for i in free],
+                           P[free], D[free], delay).m
+    except (ValueError, np.linalg.LinAlgError):
+        return
+    if not (math.isfinite(m0) and m0 > 0):
+        return
+    i = int(np.argmax(dm))
+    if dm[i] > _MAX_ADDED_RATIO * m0:
+        where = f"{source}: " if source else ""
+        raise IdentificationError(
+            f"{where}{names[i]}: added_mass = {float(dm[i]):.3g} kg is {float(dm[i]) / m0:.3g} "
+            f"times the mass the runs without added mass give ({m0:.3g} kg): check its value "
+            "(kg)")
+
+
+# ω_d·h above this (fewer than ~30 samples per period) leaves the release's sub-sample timing
+# unresolved: a release between two samples biases c by several stderr (measured: fs 12 Hz,
+# ω_d ≈ 6–9 rad/s, ω_d·h ≈ 0.5–0.75; exact when the release falls on a sample)
+_COARSE_WD_H = 0.2
+
+
+def coarse_sampling(data: Sequence[tuple[np.ndarray, np.ndarray]], fits: Sequence[Any]
+                    ) -> str | None:
+    """A warning when the runs are sampled too coarsely for the release's timing, or None."""
+    worst, wmax = 0.0, 0.0
+    for (t, _x), f in zip(data, fits, strict=False):
+        if f is None or not math.isfinite(f.omega_d) or np.size(t) < 2:
+            continue
+        h = float(np.median(np.diff(np.asarray(t[: min(np.size(t), 64)], dtype=float))))
+        worst, wmax = max(worst, f.omega_d * h), max(wmax, f.omega_d)
+    if worst <= _COARSE_WD_H:
+        return None
+    return (f"the records are sampled coarsely ({2 * math.pi / worst:.3g} samples per period of "
+            "the fastest run): a release that falls between two samples is not resolved, which "
+            "can bias c (and k) by several standard errors; record at "
+            f"{wmax / _COARSE_WD_H:.3g} Hz or more")

@@ -1,0 +1,201 @@
+"""The PHO identification's result: m, c, k with uncertainties and each run's measured mode.
+
+:class:`Identification` carries its own statistics (covariance, derived ω₀ and ζ) and its JSON
+summary; its text report and figures are rendered by :mod:`phoid.reports`, which takes the
+result by duck typing.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from phoid.fits.decay import DecayFit
+from phoid.methods.pho import Estimate, MCKFit, open_loop_omega0, open_loop_zeta
+
+__all__ = ["Identification", "RunMode"]
+
+
+@dataclass(frozen=True)
+class RunMode:
+    """One run's measured dominant mode and its place in eq. (35).
+
+    Attributes
+    ----------
+    file : str
+        Data file of the run (as named in the manifest).
+    P, D : float
+        Gains, N/m and N·s/m.
+    sigma, omega_d : float
+        Decay rate (1/s) and damped frequency (rad/s) of the dominant mode.
+    sigma_stderr, omega_d_stderr : float
+        Their standard errors.
+    c_prime, k_prime : float
+        Equivalent feedback damping (N·s/m) and stiffness (N/m), eq. (32); for a run with an
+        added mass Δm the known part is taken off (c′ − 2Δmσ, k′ − Δmω₀²), so that every run's
+        point lies on the lines of the mass without additions.
+    cycles : float
+        Oscillation cycles used (above the noise floor).
+    residual_rms : float
+        RMS of the decay fit's residual, m.
+    used : bool
+        False when the run was set aside (see ``warnings``).
+    warnings : tuple of str
+    fit : DecayFit or None
+        The full decay fit (None when the run could not be fitted at all).
+    added_mass : float
+        Known mass added for this run, kg (0: none).
+    u_fit : phoid.methods.udelay.URun or None
+        The joint fit of x and the recorded u (an estimated delay with u; None otherwise).
+    """
+
+    file: str
+    P: float
+    D: float
+    sigma: float
+    omega_d: float
+    sigma_stderr: float
+    omega_d_stderr: float
+    c_prime: float
+    k_prime: float
+    cycles: float
+    residual_rms: float
+    used: bool
+    warnings: tuple[str, ...] = ()
+    fit: DecayFit | None = None
+    added_mass: float = 0.0
+    u_fit: Any = None
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready dict with the spec's keys (file, P, D, sigma, omega_d, c_prime, k_prime,
+        cycles) and extra diagnostics."""
+
+        def num(x):
+            return None if x is None or not math.isfinite(x) else float(x)
+
+        return {
+            "file": self.file,
+            "P": float(self.P),
+            "D": float(self.D),
+            "sigma": num(self.sigma),
+            "omega_d": num(self.omega_d),
+            "c_prime": num(self.c_prime),
+            "k_prime": num(self.k_prime),
+            "cycles": num(self.cycles),
+            "sigma_stderr": num(self.sigma_stderr),
+            "omega_d_stderr": num(self.omega_d_stderr),
+            "residual_rms": num(self.residual_rms),
+            "used": self.used,
+            "warnings": list(self.warnings),
+        } | ({"added_mass": float(self.added_mass)} if self.added_mass else {}) | (
+            {"u": self.u_fit.to_dict()} if self.u_fit is not None else {})
+
+
+@dataclass(frozen=True)
+class Identification:
+    """Result of :func:`phoid.identify`: m, c, k with uncertainties, per-run modes, warnings.
+
+    Attributes
+    ----------
+    m, c, k : Estimate
+        Mass (kg), viscous damping (N s/m), stiffness (N/m).
+    delay : float
+        Loop delay used (given) or estimated, s.
+    delay_source : str
+        ``"given"`` (from the manifest or the caller) or ``"estimated"``.
+    delay_stderr : float or None
+        Standard error of an estimated delay, s.
+    digital : phoid.dynamics.digital.DigitalPD or None
+        The sampled loop the modes were modelled with (None: a continuous loop with a delay).
+    delay_from : str or None
+        What an estimated delay came from: ``"x"`` (the runs' modes only) or ``"x+u"`` (also
+        the recorded feedback force, :mod:`phoid.methods.udelay`); None for a given delay.
+    runs : tuple of RunMode
+    fit : MCKFit
+        The underlying fit (covariance, eq. 35 lines, χ²).
+    warnings : tuple of str
+    source : str
+        Where the data came from (a path or a description).
+    """
+
+    m: Estimate
+    c: Estimate
+    k: Estimate
+    delay: float
+    delay_source: str
+    runs: tuple[RunMode, ...]
+    fit: MCKFit
+    warnings: tuple[str, ...] = ()
+    source: str = ""
+    delay_stderr: float | None = None
+    digital: Any = None
+    data: tuple[tuple[np.ndarray, np.ndarray], ...] = field(default=(), repr=False)
+    delay_from: str | None = None
+
+    @property
+    def cov(self) -> np.ndarray:
+        """(3, 3) covariance of (m, c, k)."""
+        return self.fit.cov
+
+    @property
+    def omega0(self) -> Estimate:
+        """Open-loop natural frequency ω₀ = √(k/m), rad/s (eq. 5), delta-method stderr."""
+        return open_loop_omega0(self.m.value, self.k.value, self.cov)
+
+    @property
+    def zeta(self) -> Estimate:
+        """Open-loop damping ratio ζ = c/(2√(mk)) (eq. 10), delta-method stderr."""
+        return open_loop_zeta(self.m.value, self.c.value, self.k.value, self.cov)
+
+    def summary(self) -> dict[str, Any]:
+        """The JSON object of ``phoid identify --json`` (docs/format.md).
+
+        Top-level keys are the spec's (method, m, c, k, delay, runs, warnings) plus the optional
+        ``omega0`` and ``zeta`` in the same {value, stderr, unit} shape; each run carries the
+        spec's keys plus sigma_stderr, omega_d_stderr, residual_rms, used and its warnings. The
+        full covariance of (m, c, k) is :attr:`cov` (not in the JSON).
+        """
+        out: dict[str, Any] = {
+            "method": "pho",
+            "m": self.m.to_dict(),
+            "c": self.c.to_dict(),
+            "k": self.k.to_dict(),
+            "delay": {"value": float(self.delay),
+                      "stderr": None if self.delay_stderr is None else float(self.delay_stderr),
+                      "unit": "s", "source": self.delay_source}
+            | ({"from": self.delay_from} if self.delay_from else {}),
+            "runs": [r.to_dict() for r in self.runs],
+            "warnings": list(self.warnings),
+        }
+        if self.digital is not None:
+            # a format extension, only for sampled loops: which model the modes went through
+            g = self.digital
+            out["loop"] = {"model": "digital", "sample_time": g.sample_time,
+                           "delay_samples": g.delay_samples, "velocity": g.velocity,
+                           "cutoff": g.cutoff}
+        w0 = self.omega0
+        if math.isfinite(w0.value):
+            out["omega0"] = w0.to_dict()
+        z = self.zeta
+        if math.isfinite(z.value):
+            out["zeta"] = z.to_dict()
+        return out
+
+    def report(self) -> str:
+        """A plain-text report: estimates with ± one stderr, per-run table, warnings."""
+        from phoid.reports.text import identification_text
+
+        return identification_text(self)
+
+    def plot(self, out_dir: str | Any, *, overwrite: bool = False) -> list:
+        """Write per-run decay fits with residuals and the two eq. (35) lines as PNG files.
+
+        Existing files are replaced only with ``overwrite``; links in ``out_dir`` are refused
+        (:func:`phoid.reports.text.plot_identification`). Returns the list of paths written.
+        """
+        from phoid.reports.text import plot_identification
+
+        return plot_identification(self, out_dir, overwrite=overwrite)
