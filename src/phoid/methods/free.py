@@ -202,7 +202,7 @@ class FreeIdentification:
         """Fitted position of run ``i`` (0-based) at times ``t`` (s), m."""
         r = self.runs[i]
         B1, B2 = release_basis(np.asarray(t, dtype=float) - r.release, self.sigma.value,
-                                self.k_over_m.value)
+                               self.k_over_m.value)
         return r.offset + r.x0 * B1 + r.v0 * B2
 
     def summary(self) -> dict[str, Any]:

@@ -220,5 +220,5 @@ def fit_force(t: np.ndarray, F: np.ndarray, where: str) -> Force:
             f"amplitude {amp:.4g} N) leaves {distortion:.0%} rms unexplained (at most "
             f"{F_REJECT:.0%} allowed)")
     return Force(start=start, omega=float(omega), omega_var=float(omega_var),
-                  t_ref=float(t_ref), coef=coef, cov_ab=cov[1:, 1:], noise=nsd,
-                  distortion=float(distortion))
+                 t_ref=float(t_ref), coef=coef, cov_ab=cov[1:, 1:], noise=nsd,
+                 distortion=float(distortion))
