@@ -410,8 +410,7 @@ def test_acceptance_continuous_loop(tmp_path):
 
 def test_digital_loop_with_bias_is_refused_by_the_friction_fit(tmp_path):
     # A biased sampled loop's record jumps where a velocity reversal crosses a controller
-    # instant; the friction fit proved unreliable there (phoid.methods.friction module docstring),
-    # so
+    # instant; the friction fit proved unreliable there (docs/design-notes/friction.md), so
     # it refuses such a set with one line naming the run and the key, exit status 2
     loop = {"sample_time": 0.002, "delay_samples": 3}
     sim = simulate(Plant(M, C, K, FC), P8[:3], np.full(3, 1.5), duration=1.0, fs=1000.0,

@@ -315,7 +315,7 @@ def test_stderr_calibration_small_monte_carlo():
     [0.48, 1.6] (the χ²₂₀ interval holding it with probability 1 − 2.5e−4, Bonferroni over the
     four: 1e−3 in all). This catches a stderr off by a factor 1.6 or more; the finer check is
     bench/bench_friction.py. Replica 1 is the set that ends in a false optimum without stage 1
-    (module docstring): there z_c was −29."""
+    (docs/design-notes/friction.md): there z_c was −29."""
     P = np.array([0.0, 100.0, 200.0])
     D = gains_for(P, [0.2, 0.4, 0.6])
     zs = []

@@ -4,7 +4,7 @@ A free release of the plant m x'' + c x' + k x = 0 (no feedback) follows the uni
 the seed's eq. (2) with eqs. (3)–(8), valid for underdamped, critically damped and overdamped
 plants alike (ERRATA 4 in docs/equations.md):
 
-    x(t) = x_off + x₀ [C(τ) + σ S(τ)] + v₀ S(τ),   τ = t − t₀ ≥ 0,
+    x(t) = x_off + x₀ [C(τ) + σS(τ)] + v₀ S(τ),   τ = t − t₀ ≥ 0,
 
 with C, S the fundamental solutions of :func:`phoid.dynamics.plant.modal_basis` (e^{−στ}cosh wτ and
 e^{−στ}sinh(wτ)/w for q = σ² − ω₀² ≥ 0, their trigonometric forms for q < 0, and the w → 0 limit
@@ -12,17 +12,15 @@ of eq. (11) at critical damping), x₀ and v₀ the position (from the offset) a
 release t₀. An overdamped release is a sum of two real exponentials, on which the logarithmic
 decrement has nothing to measure; this module never assumes an oscillation. It fits the two rates
 (σ, ω₀²) — shared by all releases of a set — by variable-projection Gauss–Newton (Levenberg–
-Marquardt safeguarded): for each trial (σ, ω₀²) the offsets, x₀ and v₀ of every release follow by
-linear least squares, and Kaufman's step updates the rates. When a release starts from a held
-segment (the mass at rest, then let go), the fit starts where the motion has surely begun (3
-samples in a row more than 8 noise sd off the held level): a held sample left in the window
-would bias the decay, while the few samples skipped, within a few noise sd of the held level,
-carry almost no information. The state (x₀, v₀) is fitted at the window's start and carried
-back to the detected release (:func:`phoid.fits.decay.detect_release`'s rule) for the report.
-(Fitting the release time as a parameter, with the record held before it, was tried and
-dropped: for a release from rest x leaves the held level quadratically, so t₀ trades off
-against v₀ far from linearly, and over Monte Carlo replicas of a critically damped release the
-linearised stderr of ζ was too small — sd of the standardised error 1.3, |z| up to 6.)
+Marquardt safeguarded, :func:`phoid.methods._modal.fit_modal`): for each trial (σ, ω₀²) the
+offsets, x₀ and v₀ of every release follow by linear least squares, and Kaufman's step updates
+the rates. When a release starts from a held segment (the mass at rest, then let go), the fit
+starts where the motion has surely begun (3 samples in a row more than 8 noise sd off the held
+level): a held sample left in the window would bias the decay, while the few samples skipped,
+within a few noise sd of the held level, carry almost no information. The state (x₀, v₀) is
+fitted at the window's start and carried back to the detected release
+(:func:`phoid.fits.decay.detect_release`'s rule) for the report. The release time is not a
+fitted parameter (docs/design-notes/classical.md says why).
 
 Only ratios are identifiable from a free decay: c/m = 2σ (eq. 3) and k/m = ω₀² (eq. 5). With a
 known mass m (``--mass``, or ``mass`` in the manifest) c = 2σm and k = ω₀²m follow, with the
@@ -33,10 +31,9 @@ each run weighted by its own residual noise variance — the Cramér–Rao bound
 estimate — propagated to ω₀ = √(ω₀²), ζ = σ/ω₀ (eq. 10) and the roots
 s = −σ ± √(σ² − ω₀²) (eq. 4) by the delta method.
 
-The fitting engine (:func:`_fit_modal`) is shared with :mod:`phoid.methods.forced`, whose start-up
-transient is the same free response added to the steady state.
+The fitting engine (:mod:`phoid.methods._modal`) is shared with :mod:`phoid.methods.forced`,
+whose start-up transient is the same free response added to the steady state.
 """
-
 from __future__ import annotations
 
 import math
@@ -49,9 +46,17 @@ import numpy as np
 
 from phoid import _validate as v
 from phoid._threads import single_blas_thread
-from phoid.dynamics.plant import free_response, modal_basis
+from phoid.dynamics.plant import free_response
 from phoid.errors import IdentificationError
-from phoid.fits.decay import diff_noise, esprit, locate_release
+from phoid.fits.decay import diff_noise, locate_release
+from phoid.methods._modal import (
+    ModalFit,
+    Segment,
+    esprit_rates,
+    fit_modal,
+    pick_start,
+    release_basis,
+)
 from phoid.methods.pho import Estimate
 
 __all__ = ["FreeIdentification", "FreeRun", "identify_free", "identify_free_data"]
@@ -64,339 +69,6 @@ _STILL_NSD = 12.0
 _POOR = 0.1
 #: the roots are "critical within uncertainty" when |σ² − ω₀²| is below this many stderr
 _CRITICAL_NSE = 2.0
-
-
-# --------------------------------------------------------------------------------------------
-# the engine: shared modal rates, per-run linear coefficients (variable projection)
-
-
-@dataclass(frozen=True)
-class _Segment:
-    """One run's window for :func:`_fit_modal`.
-
-    ``fixed`` holds the columns that do not depend on the rates (offset; for forced runs the
-    steady-state cosine and sine); the free-response columns B₁ = C + σS and B₂ = S at
-    τ = t − t₀ are appended (their coefficients are x₀ and v₀ at t₀, eq. 8).
-    """
-
-    t: np.ndarray
-    x: np.ndarray
-    fixed: np.ndarray
-    t0: float
-
-
-@dataclass(frozen=True)
-class _ModalFit:
-    """Result of :func:`_fit_modal`.
-
-    The rates (σ, ω₀²) and their covariance ``cov`` (zero when they were held fixed); per run:
-    the linear coefficients (``fixed`` columns, then x₀, v₀), their covariance including the
-    rates' uncertainty, their sensitivity ``K`` (n_coef × 2) to the rates (so that
-    cov(cᵢ, cⱼ) = Kᵢ cov Kⱼᵀ for i ≠ j), residual and residual noise sd.
-    """
-
-    sigma: float
-    w0sq: float
-    cov: np.ndarray
-    coef: tuple[np.ndarray, ...]
-    coef_cov: tuple[np.ndarray, ...]
-    K: tuple[np.ndarray, ...]
-    noise: tuple[float, ...]
-    resid: tuple[np.ndarray, ...]
-    fit_rates: bool
-    converged: bool
-    iterations: int
-
-
-def _release_basis(tau: np.ndarray, sigma: float, w0sq: float) -> tuple[np.ndarray, np.ndarray]:
-    """B₁ = C + σS (x₀ = 1, v₀ = 0) and B₂ = S (x₀ = 0, v₀ = 1) at τ, eqs. (2)–(8)."""
-    C, S = modal_basis(tau, sigma, w0sq)
-    return C + sigma * S, S
-
-
-class _Prep:
-    """Per-run constants of the projection: the fixed columns' orthonormal basis Qf (n × p),
-    their triangular factor, the record with its fixed part removed, and τ = t − t₀."""
-
-    def __init__(self, seg: _Segment) -> None:
-        self.seg = seg
-        self.tau = seg.t - seg.t0
-        self.Qf, self.Rf = np.linalg.qr(seg.fixed)
-        self.xt = seg.x - self.Qf @ (self.Qf.T @ seg.x)
-        self.n = seg.t.size
-
-
-class _State:
-    """Linear least squares of every run at the rates (σ, ω₀²), by Frisch–Waugh: the two
-    free-response columns B = (B₁, B₂) are projected off the fixed columns, B̃ = B − QfQfᵀB, and
-    their coefficients β = (x₀, v₀) solve B̃ᵀB̃β = B̃ᵀx̃ (2 × 2, eigen-decomposed: a direction
-    whose singular value is below 10⁻¹⁰ of the columns' scale is dropped, e.g. B₁ ∝ the offset
-    when ω₀² = 0). Per run: (Qb, β, residual, B)."""
-
-    def __init__(self, preps: Sequence[_Prep], sigma: float, w0sq: float,
-                 weights: np.ndarray) -> None:
-        self.sigma, self.w0sq = float(sigma), float(w0sq)
-        self.sse_w = math.inf
-        self.items: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []
-        for p in preps:
-            with np.errstate(over="ignore", invalid="ignore"):
-                B = np.column_stack(_release_basis(p.tau, self.sigma, self.w0sq))
-            # trial rates whose response grows beyond any record's scale: reject them
-            if not np.abs(B).max() < 1e100:
-                return
-            Bt = B - p.Qf @ (p.Qf.T @ B)
-            ev, V = np.linalg.eigh(Bt.T @ Bt)
-            scale = max(float(np.max(np.einsum("ij,ij->j", B, B))), 1e-300)
-            keep = ev > 1e-20 * scale
-            sv = np.sqrt(ev[keep])
-            Qb = (Bt @ V[:, keep]) / sv
-            proj = Qb.T @ p.xt
-            beta = V[:, keep] @ (proj / sv)
-            r = p.xt - Qb @ proj
-            self.items.append((Qb, beta, r, B))
-        self.rss = np.array([float(item[2] @ item[2]) for item in self.items])
-        self.sse_w = float(weights @ self.rss)
-
-
-def _jacobian(preps: Sequence[_Prep], st: _State, weights: np.ndarray):
-    """Kaufman's normal matrix M and gradient g of the weighted SSE in (σ, ω₀²), and each
-    run's raw model derivative (n × 2).
-
-    With C = e^{−στ}ch(q, τ), S = e^{−στ}sh(q, τ), q = σ² − ω₀², the derivative in σ at fixed
-    q is exact and free: ∂B₁/∂σ = −τB₁ + B₂, ∂B₂/∂σ = −τB₂. The one in ω₀² at fixed σ (that is,
-    −∂/∂q) is a forward difference of :func:`_release_basis` with a step of 10⁻⁷ of the rate
-    scale squared (relative error ~10⁻⁷, far below what matters for a Gauss–Newton step or a
-    standard error); then ∂/∂σ at fixed ω₀² = ∂/∂σ|_q − 2σ ∂/∂ω₀²|_σ.
-    """
-    sigma, w0sq = st.sigma, st.w0sq
-    span = max(float(p.tau[-1]) for p in preps)
-    scale = max(abs(sigma) + math.sqrt(abs(w0sq)), 1.0 / span)
-    hw = 1e-7 * scale * scale
-    M = np.zeros((2, 2))
-    g = np.zeros(2)
-    raws = []
-    for i, p in enumerate(preps):
-        Qb, beta, r, B = st.items[i]
-        a, b = beta
-        base = B @ beta
-        with np.errstate(over="ignore", invalid="ignore"):
-            p1, p2 = _release_basis(p.tau, sigma, w0sq + hw)
-        d_w = (a * p1 + b * p2 - base) / hw
-        d_s = a * B[:, 1] - p.tau * base - 2.0 * sigma * d_w
-        J = np.column_stack([d_s, d_w])
-        Jt = J - p.Qf @ (p.Qf.T @ J)
-        Jt -= Qb @ (Qb.T @ Jt)
-        M += weights[i] * (Jt.T @ Jt)
-        g += weights[i] * (Jt.T @ r)
-        raws.append(J)
-    return M, g, raws
-
-
-def _noise_from(preps: Sequence[_Prep], st: _State, fit_rates: bool) -> np.ndarray:
-    """Each run's white-noise sd from its residual, √(RSS/dof) (a floor of 10⁻¹³ of its range
-    keeps noise-free records finite)."""
-    total = sum(p.n for p in preps)
-    out = []
-    for p, rss in zip(preps, st.rss, strict=True):
-        k = p.seg.fixed.shape[1] + 2 + (2 * p.n / total if fit_rates else 0.0)
-        dof = max(p.n - k, 1.0)
-        out.append(max(math.sqrt(rss / dof), 1e-13 * float(np.ptp(p.seg.x)), 1e-300))
-    return np.array(out)
-
-
-def _pick_start(segs: Sequence[_Segment], cands: Sequence[tuple[float, float]],
-                weights: np.ndarray) -> tuple[float, float]:
-    """Starting rates (σ, ω₀²) for :func:`_fit_modal`: the best of the candidates after a
-    short refinement.
-
-    Every candidate is scored by the weighted residual sum of squares on the runs thinned to
-    ~4096 samples (the first 2048 kept, where a fast mode lives, every d-th of the rest); the
-    four best distinct ones are refined there by :func:`_fit_modal` (at most 15 steps) and the
-    lowest refined score wins. A single score ranks starts poorly when the SSE surface has
-    more than one valley (a weakly excited fast mode: a critically damped pair at the slow
-    root is a local minimum), hence the refinement.
-    """
-    thin = []
-    for s in segs:
-        d = max(1, (s.t.size - 2048) // 2048)
-        keep = np.r_[np.arange(min(2048, s.t.size)), np.arange(2048, s.t.size, d)]
-        thin.append(_Segment(t=s.t[keep], x=s.x[keep], fixed=s.fixed[keep], t0=s.t0))
-    preps = [_Prep(s) for s in thin]
-
-    def score(sg: float, wq: float) -> float:
-        if not (math.isfinite(sg) and math.isfinite(wq)):
-            return math.inf
-        st = _State(preps, sg, wq, weights)
-        return st.sse_w if math.isfinite(st.sse_w) else math.inf
-
-    scored = sorted((score(sg, wq), sg, wq) for sg, wq in cands)
-    top: list[tuple[float, float]] = []
-    for sse, sg, wq in scored:
-        if not math.isfinite(sse):
-            break
-        if all(abs(sg - a) > 1e-3 * (abs(a) + 1e-12) or abs(wq - b) > 1e-3 * (abs(b) + 1e-12)
-               for a, b in top):
-            top.append((sg, wq))
-        if len(top) == 4:
-            break
-    if not top:
-        return cands[-1]
-    best, best_sse = top[0], math.inf
-    for sg, wq in top:
-        try:
-            fit = _fit_modal(thin, sg, wq, noise=1.0 / np.sqrt(weights), maxit=15)
-        except (IdentificationError, np.linalg.LinAlgError):
-            continue
-        sse = score(fit.sigma, fit.w0sq)
-        if sse < best_sse:
-            best, best_sse = (fit.sigma, fit.w0sq), sse
-    return best
-
-
-def _fit_modal(
-    segs: Sequence[_Segment],
-    sigma: float,
-    w0sq: float,
-    *,
-    noise: Sequence[float],
-    fit_rates: bool = True,
-    maxit: int = 60,
-) -> _ModalFit:
-    """Fit the shared rates (σ, ω₀²) and every run's linear coefficients.
-
-    Levenberg–Marquardt on the variable projection (Kaufman's Jacobian), each run weighted by
-    1/noiseᵢ², the noise re-estimated from that run's residual after every accepted step
-    (``noise`` only weighs the starting point). Stops when the step is below 10⁻³ stderr. With
-    ``fit_rates`` False the rates stay at the values given (no rate uncertainty is
-    propagated).
-
-    Covariance: the Gauss–Newton inverse of the full weighted normal matrix (rates and all
-    linear coefficients), taken block-wise: cov(rates) = M⁻¹ (M the Schur complement, i.e.
-    Kaufman's normal matrix), cov(cᵢ) = (GᵢᵀWᵢGᵢ)⁻¹ + Kᵢ M⁻¹ Kᵢᵀ, Kᵢ = −Gᵢ⁺Jᵢ.
-    """
-    preps = [_Prep(s) for s in segs]
-    weights = 1.0 / np.square(np.asarray(noise, dtype=float))
-    st = _State(preps, sigma, w0sq, weights)
-    if not math.isfinite(st.sse_w):
-        raise IdentificationError("the free-response model overflows at the starting rates")
-
-    def reweight(state: _State) -> np.ndarray:
-        # each run's weight from its own residual (the relative weights are what matter)
-        w = 1.0 / np.square(_noise_from(preps, state, fit_rates))
-        state.sse_w = float(w @ state.rss)
-        return w
-
-    weights = reweight(st)
-    converged = not fit_rates
-    iterations = 0
-    lam = 1e-4
-    for _ in range(maxit if fit_rates else 0):
-        iterations += 1
-        M, g, _raws = _jacobian(preps, st, weights)
-        dg = np.maximum(np.diag(M), 1e-300)
-        new = None
-        while lam < 1e10:
-            try:
-                delta = np.linalg.solve(M + lam * np.diag(dg), g)
-            except np.linalg.LinAlgError:
-                lam *= 10
-                continue
-            trial = _State(preps, st.sigma + delta[0], st.w0sq + delta[1], weights)
-            if math.isfinite(trial.sse_w) and trial.sse_w <= st.sse_w:
-                new = trial
-                break
-            lam *= 10
-        if new is None:
-            converged = True  # no descent left: at the minimum to rounding
-            break
-        try:
-            se = np.sqrt(np.abs(np.diag(np.linalg.inv(M))))
-        except np.linalg.LinAlgError:
-            se = np.full(2, np.inf)
-        gain = st.sse_w - new.sse_w
-        st = new
-        weights = reweight(st)
-        lam = max(lam / 10, 1e-12)
-        if np.all(np.abs(delta) <= 1e-3 * se) or gain <= 1e-13 * max(st.sse_w, 1e-300):
-            converged = True
-            break
-    M, _g, raws = _jacobian(preps, st, weights)
-    cov = np.zeros((2, 2))
-    if fit_rates:
-        try:
-            cov = np.linalg.inv(M)
-        except np.linalg.LinAlgError:
-            cov = np.linalg.pinv(M)
-    coefs, ccovs, Ks, resids = [], [], [], []
-    for i, p in enumerate(preps):
-        # the full design at the solution, once: coefficients, (GᵀG)⁻¹ and G⁺J (SVD)
-        G = np.column_stack([p.seg.fixed, *_release_basis(p.tau, st.sigma, st.w0sq)])
-        U, sv, Vt = np.linalg.svd(G, full_matrices=False)
-        keep = sv > sv[0] * 1e-12
-        U, sv, Vt = U[:, keep], sv[keep], Vt[keep]
-        coef = Vt.T @ ((U.T @ p.seg.x) / sv)
-        K = -(Vt.T @ ((U.T @ raws[i]) / sv[:, None])) if fit_rates else np.zeros((coef.size, 2))
-        coefs.append(coef)
-        ccovs.append((Vt.T / sv**2) @ Vt / weights[i] + K @ cov @ K.T)
-        Ks.append(K)
-        resids.append(st.items[i][2])
-    return _ModalFit(
-        sigma=st.sigma, w0sq=st.w0sq, cov=cov, coef=tuple(coefs), coef_cov=tuple(ccovs),
-        K=tuple(Ks), noise=tuple(float(1 / math.sqrt(w)) for w in weights),
-        resid=tuple(resids), fit_rates=fit_rates, converged=converged, iterations=iterations,
-    )
-
-
-def _esprit_rates(t: np.ndarray, y: np.ndarray, noise: float, *,
-                  grid: bool = False) -> list[tuple[float, float]]:
-    """Starting (σ, ω₀²) from ESPRIT (order 3: an offset and two modes) on the active part of
-    ``y`` (until it stays within 5 noise sd of its final level), block-averaged to ≤ ~1024
-    points; one candidate per pair of roots that can be a real plant's (a conjugate pair or
-    two real roots).
-
-    With ``grid``, each real decaying root r found is also paired with a second real root at
-    r (critical damping) and at 12 log-spaced multiples of r up to half the sampling rate: in a
-    release from rest the fast exponential of an overdamped plant is weak and mostly gone
-    before the fit window starts, and ESPRIT then places it poorly, while r — the slow root —
-    is well found."""
-    n = y.size
-    if n < 8:
-        return []
-    tail = y[-max(n // 10, 1):]
-    level = float(np.median(tail))
-    far = np.flatnonzero(np.abs(y - level) > 5.0 * noise)
-    n_act = min(n, max(int(far[-1]) + 1 if far.size else n, 64))
-    tt, yy = t[:n_act], y[:n_act]
-    dt = (tt[-1] - tt[0]) / (n_act - 1)
-    yg = np.interp(tt[0] + dt * np.arange(n_act), tt, yy)
-    q = max(1, n_act // 1024)
-    m = n_act // q
-    yb = yg[: m * q].reshape(m, q).mean(axis=1)
-    if yb.size < 8:
-        return []
-    try:
-        with np.errstate(all="ignore"):
-            s, _energy = esprit(yb, q * dt, order=3)
-    except (np.linalg.LinAlgError, ValueError):
-        return []
-    out = []
-    s = s[np.isfinite(s)]
-    for i in range(s.size):
-        for j in range(i + 1, s.size):
-            a, b = s[i], s[j]
-            tol = 1e-6 * max(abs(a), abs(b), 1.0)
-            real_pair = abs(a.imag) <= tol and abs(b.imag) <= tol
-            conj_pair = abs(a - b.conjugate()) <= 1e-6 * max(abs(a), 1.0) and abs(a.imag) > tol
-            if real_pair or conj_pair:
-                out.append((float(-(a + b).real / 2), float((a * b).real)))
-    if grid:
-        fastest = 0.5 / float(np.median(np.diff(t)))
-        for r in s:
-            if abs(r.imag) <= 1e-6 * max(abs(r), 1.0) and 0 < -r.real < fastest / 1.5:
-                slow = float(r.real)
-                for f in np.r_[slow, slow * np.geomspace(1.5, fastest / -slow, 12)]:
-                    out.append((-(slow + f) / 2, slow * f))
-    return out
 
 
 # --------------------------------------------------------------------------------------------
@@ -529,8 +201,8 @@ class FreeIdentification:
     def model(self, i: int, t: np.ndarray | float) -> np.ndarray:
         """Fitted position of run ``i`` (0-based) at times ``t`` (s), m."""
         r = self.runs[i]
-        B1, B2 = _release_basis(np.asarray(t, dtype=float) - r.release, self.sigma.value,
-                                self.k_over_m.value)
+        B1, B2 = release_basis(np.asarray(t, dtype=float) - r.release, self.sigma.value,
+                               self.k_over_m.value)
         return r.offset + r.x0 * B1 + r.v0 * B2
 
     def summary(self) -> dict[str, Any]:
@@ -798,10 +470,11 @@ def identify_free_data(
     -----
     Per run: the white-noise sd from second differences; a record whose peak-to-peak motion is
     within 12 noise sds never moved and is set aside, as is one with fewer than 16 samples after
-    its release. The release is found by :func:`phoid.fits.decay.detect_release`'s rule; when a held
-    segment precedes it, the release time joins the fit (within ±32 samples). Starting rates:
-    ESPRIT (an offset and two modes) on each run's motion, every admissible pair of roots
-    tried, the best by the residual sum of squares. Then :func:`_fit_modal`.
+    its release. The release is found by :func:`phoid.fits.decay.detect_release`'s rule; when
+    a held segment precedes it, the window starts where the motion has surely begun (module
+    docstring). Starting rates: ESPRIT (an offset and two modes) on each run's motion, every
+    admissible pair of roots tried, the best by the residual sum of squares
+    (:func:`phoid.methods._modal.pick_start`). Then :func:`phoid.methods._modal.fit_modal`.
     """
     n = len(data)
     if n == 0:
@@ -811,7 +484,7 @@ def identify_free_data(
     files = list(files) if files is not None else [f"run{i + 1}" for i in range(n)]
     names = list(names) if names is not None else files
     arrays: list[tuple[np.ndarray, np.ndarray]] = []
-    segs: list[_Segment] = []
+    segs: list[Segment] = []
     seg_of: list[int | None] = []
     reasons: list[str | None] = []
     noise0: list[float] = []
@@ -857,7 +530,7 @@ def identify_free_data(
             reasons.append(f"too short: {after} samples after the release (at least "
                            f"{MIN_SAMPLES} are needed)")
             continue
-        seg = _Segment(t=t[start:], x=x[start:], fixed=np.ones((after, 1)), t0=float(t[start]))
+        seg = Segment(t=t[start:], x=x[start:], fixed=np.ones((after, 1)), t0=float(t[start]))
         releases[i] = (float(t[j]) if held else float(t[start]), held)
         reasons.append(None)
         seg_of[i] = len(segs)
@@ -944,18 +617,18 @@ def identify_free_data(
     )
 
 
-def _best_fit(segs: list[_Segment], noise: list[float]) -> _ModalFit:
+def _best_fit(segs: list[Segment], noise: list[float]) -> ModalFit:
     """Starting rates from the three runs with the largest motion (ESPRIT root pairs, each run
     started 0, 2 and 8 samples into its window: a kink or a stray sample at the start can throw
     ESPRIT off) and a slow fallback; the start with the lowest weighted SSE is refined by
-    :func:`_fit_modal`."""
+    :func:`fit_modal`."""
     cands: list[tuple[float, float]] = []
     order = np.argsort([-float(np.ptp(s.x)) / nz for s, nz in zip(segs, noise, strict=True)])
     for k in order[:3]:
         s = segs[int(k)]
         for lag in (0, 2, 8):
-            cands += _esprit_rates(s.t[lag:], s.x[lag:], noise[int(k)], grid=lag == 0)
+            cands += esprit_rates(s.t[lag:], s.x[lag:], noise[int(k)], grid=lag == 0)
     span = max(float(s.t[-1] - s.t0) for s in segs)
     cands.append((2.0 / span, (2 * math.pi / span) ** 2))
-    start = _pick_start(segs, cands, 1.0 / np.square(noise))
-    return _fit_modal(segs, start[0], start[1], noise=noise)
+    start = pick_start(segs, cands, 1.0 / np.square(noise))
+    return fit_modal(segs, start[0], start[1], noise=noise)

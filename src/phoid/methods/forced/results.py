@@ -1,0 +1,285 @@
+"""Results of the forced identification: per-run R, ρ and the plant's m, c, k."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from phoid.methods._modal import release_basis
+from phoid.methods.forced.stiffness import ResponseFit
+from phoid.methods.pho import Estimate, open_loop_omega0, open_loop_zeta
+
+__all__ = ["ForcedIdentification", "ForcedRun"]
+
+
+def _num(x: float | None) -> float | None:
+    return None if x is None or not math.isfinite(x) else float(x)
+
+
+@dataclass(frozen=True)
+class ForcedRun:
+    """One forced run: frequency, amplitudes, R and ρ (eq. 21) with their uncertainties.
+
+    Attributes
+    ----------
+    file : str
+        Data file (as named in the manifest).
+    omega, omega_stderr : float
+        Forcing frequency from F, rad/s.
+    B, B_stderr : float
+        Force amplitude from F, N (eq. 16).
+    C, C_stderr : float
+        Steady-state displacement amplitude, m (eq. 17; ERRATA 3).
+    R, R_stderr : float
+        Relative stiffness B/C, N/m (eq. 21).
+    rho, rho_stderr : float
+        Phase lag of x behind F, rad, in (−π, π] (eq. 21).
+    Z : complex
+        R e^{iρ} = k − mω² + icω (eq. 20), N/m.
+    Z_cov : ndarray, shape (2, 2)
+        Covariance of (Re Z, Im Z), (N/m)².
+    t_start, t_end : float
+        Analysed window (from the force's constant-amplitude onset to the end), s.
+    t_ref : float
+        Time origin of the phasors, s.
+    settle_time : float
+        Time after which the fitted start-up transient stays below the noise sd, s
+        (``t_start`` if it never exceeds it).
+    settled : bool
+        False when the transient is still above 3 noise sd at the end of the record.
+    periods : float
+        Forcing periods in the window.
+    noise_sd, residual_rms : float
+        White-noise sd and RMS residual of x, m.
+    F_distortion : float
+        RMS of F not explained by the sine, relative to the sine's rms.
+    used : bool
+        False when the run was set aside (see ``warnings``).
+    warnings : tuple of str
+    coef : ndarray
+        Fitted (x_off, a, b, x₀, v₀) of the response model (see :meth:`model`).
+    transient_rates : (float, float)
+        (σ, ω₀²) of the transient model, 1/s and 1/s².
+    """
+
+    file: str
+    omega: float
+    omega_stderr: float
+    B: float
+    B_stderr: float
+    C: float
+    C_stderr: float
+    R: float
+    R_stderr: float
+    rho: float
+    rho_stderr: float
+    Z: complex
+    Z_cov: np.ndarray = field(repr=False)
+    t_start: float = math.nan
+    t_end: float = math.nan
+    t_ref: float = math.nan
+    settle_time: float = math.nan
+    settled: bool = True
+    periods: float = math.nan
+    noise_sd: float = math.nan
+    residual_rms: float = math.nan
+    F_distortion: float = math.nan
+    used: bool = True
+    warnings: tuple[str, ...] = ()
+    coef: np.ndarray = field(default_factory=lambda: np.full(5, np.nan), repr=False)
+    transient_rates: tuple[float, float] = (math.nan, math.nan)
+
+    def model(self, t: np.ndarray | float, *, transient: bool = True) -> np.ndarray:
+        """Fitted x at times ``t`` (s), m: offset, steady state and (optionally) transient."""
+        t = np.asarray(t, dtype=float)
+        d, a, b, x0, v0 = self.coef
+        tau = t - self.t_ref
+        out = d + a * np.cos(self.omega * tau) + b * np.sin(self.omega * tau)
+        if transient:
+            B1, B2 = release_basis(np.maximum(t - self.t_start, 0.0), *self.transient_rates)
+            out = out + np.where(t >= self.t_start, x0 * B1 + v0 * B2, 0.0)
+        return out
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready dict (the keys of ``phoid identify --json``'s ``runs``)."""
+        return {
+            "file": self.file,
+            "omega": _num(self.omega), "omega_stderr": _num(self.omega_stderr),
+            "R": _num(self.R), "R_stderr": _num(self.R_stderr),
+            "rho": _num(self.rho), "rho_stderr": _num(self.rho_stderr),
+            "B": _num(self.B), "B_stderr": _num(self.B_stderr),
+            "C": _num(self.C), "C_stderr": _num(self.C_stderr),
+            "t_start": _num(self.t_start), "t_end": _num(self.t_end),
+            "settle_time": _num(self.settle_time), "settled": self.settled,
+            "periods": _num(self.periods),
+            "noise_sd": _num(self.noise_sd), "residual_rms": _num(self.residual_rms),
+            "F_distortion": _num(self.F_distortion),
+            "used": self.used,
+            "warnings": list(self.warnings),
+        }
+
+
+@dataclass(frozen=True)
+class ForcedIdentification:
+    """Result of :func:`identify_forced`: m, c, k with uncertainties, per-run R and ρ.
+
+    Attributes
+    ----------
+    m, c, k : Estimate
+        Mass (kg), viscous damping (N s/m), stiffness (N/m).
+    fit : ResponseFit
+        The eq. (20) fit (covariance, χ², dof).
+    runs : tuple of ForcedRun
+    transient : (float, float)
+        (σ, ω₀²) of the start-up transient model, 1/s and 1/s².
+    transient_fitted : bool
+        Whether those rates were fitted (False: the transient was too weak to determine them).
+    warnings : tuple of str
+    source : str
+    """
+
+    m: Estimate
+    c: Estimate
+    k: Estimate
+    fit: ResponseFit
+    runs: tuple[ForcedRun, ...]
+    transient: tuple[float, float] = (math.nan, math.nan)
+    transient_fitted: bool = False
+    warnings: tuple[str, ...] = ()
+    source: str = ""
+    data: tuple[tuple[np.ndarray, np.ndarray, np.ndarray], ...] = field(default=(), repr=False)
+
+    @property
+    def cov(self) -> np.ndarray:
+        """(3, 3) covariance of (m, c, k)."""
+        return self.fit.cov
+
+    @property
+    def omega0(self) -> Estimate:
+        """ω₀ = √(k/m), rad/s (eq. 5), delta-method stderr."""
+        return open_loop_omega0(self.m.value, self.k.value, self.cov)
+
+    @property
+    def zeta(self) -> Estimate:
+        """ζ = c/(2√(mk)) (eq. 10), delta-method stderr."""
+        return open_loop_zeta(self.m.value, self.c.value, self.k.value, self.cov)
+
+    def summary(self) -> dict[str, Any]:
+        """The JSON object of ``phoid identify --json`` for a forced set.
+
+        Keys: ``method`` ("forced"), ``m``, ``c``, ``k`` (``{"value", "stderr", "unit"}``),
+        ``omega0`` and ``zeta`` when defined, ``runs`` (per run ``file``, ``omega``, ``R``
+        (N/m), ``rho`` (rad), each with ``*_stderr``, plus ``B``, ``C``, the window, settling
+        and diagnostics), ``warnings``.
+        """
+        out: dict[str, Any] = {
+            "method": "forced",
+            "m": self.m.to_dict(),
+            "c": self.c.to_dict(),
+            "k": self.k.to_dict(),
+        }
+        for key in ("omega0", "zeta"):
+            est = getattr(self, key)
+            if math.isfinite(est.value):
+                out[key] = est.to_dict()
+        out["runs"] = [r.to_dict() for r in self.runs]
+        out["warnings"] = list(self.warnings)
+        return out
+
+    def report(self) -> str:
+        """Plain-text report: m, c, k ± stderr, ω₀, ζ, per-run table, warnings."""
+        from phoid.reports.text import format_estimate
+
+        lines = [f"phoid identify (forced): {self.source}" if self.source
+                 else "phoid identify (forced)", ""]
+        for name, est in (("m", self.m), ("c", self.c), ("k", self.k)):
+            lines.append(f"  {name} = {format_estimate(est.value, est.stderr)} {est.unit}")
+        w0, z = self.omega0, self.zeta
+        if math.isfinite(w0.value):
+            lines.append(f"  ω₀ = {format_estimate(w0.value, w0.stderr)} rad/s,  "
+                         f"ζ = {format_estimate(z.value, z.stderr)}")
+        lines.append("")
+        lines.append(f"  {'run':<16}{'ω rad/s':>12}{'B N':>10}{'C m':>11} {'R N/m':>22} "
+                     f"{'ρ rad':>22}{'settled s':>11}")
+        for r in self.runs:
+            mark = "" if r.used else "  (set aside)"
+            lines.append(
+                f"  {r.file:<16}{r.omega:>12.6g}{r.B:>10.4g}{r.C:>11.4g} "
+                f"{format_estimate(r.R, r.R_stderr):>22} {format_estimate(r.rho, r.rho_stderr):>22}"
+                f"{r.settle_time - r.t_start:>11.3g}{mark}")
+        if self.warnings:
+            lines += ["", "warnings:"] + [f"  - {w}" for w in self.warnings]
+        return "\n".join(lines)
+
+    def plot(self, out_dir: str | Path, *, overwrite: bool = False) -> list[Path]:
+        """Write per-run fits (x, model, residual; F) and the eq. (20) lines as PNG files.
+
+        ``out_dir`` is created if needed; existing files are replaced only with ``overwrite``
+        and links in it are refused (:mod:`phoid._output`; all names checked before the first
+        figure is written). Returns the list of paths written.
+        """
+        from matplotlib.figure import Figure
+
+        from phoid._output import OutputFolder
+        from phoid.reports.text import save_png
+
+        plotted = [i for i, r in enumerate(self.runs) if r.used and i < len(self.data)]
+        names = {i: f"forced-{i + 1:02d}-{Path(self.runs[i].file).name.split('.')[0]}.png"
+                 for i in plotted}
+        out = OutputFolder(out_dir, overwrite=overwrite)
+        out.check([*names.values(), "eq20-lines.png"])
+        written: list[Path] = []
+        for i in plotted:
+            r = self.runs[i]
+            t, x, F = self.data[i]
+            sel = t >= r.t_start
+            model = r.model(t[sel])
+            fig = Figure(figsize=(8, 6.5), layout="constrained")
+            ax, axr, axf = fig.subplots(3, 1, sharex=True, height_ratios=[3, 1, 1.2])
+            ax.plot(t, x * 1e3, lw=0.6, color="0.5", label="record")
+            ax.plot(t[sel], model * 1e3, lw=0.9, color="C0", label="steady state + transient")
+            ax.axvline(r.settle_time, color="C3", ls=":", lw=1, label="transient < noise")
+            ax.set_ylabel("x (mm)")
+            ax.set_title(f"{r.file}: ω = {r.omega:.5g} rad/s, R = {r.R:.5g} N/m, "
+                         f"ρ = {r.rho:.4g} rad")
+            ax.legend(loc="upper right", fontsize=8)
+            axr.plot(t[sel], (x[sel] - model) * 1e3, lw=0.5, color="C1")
+            axr.set_ylabel("residual (mm)")
+            axf.plot(t, F, lw=0.6, color="C2")
+            axf.set_ylabel("F (N)")
+            axf.set_xlabel("t (s)")
+            written.append(save_png(fig, out, names[i]))
+        written.append(self._eq20_figure(out, "eq20-lines.png"))
+        return written
+
+    def _eq20_figure(self, out: Any, name: str) -> Path:
+        from matplotlib.figure import Figure
+
+        from phoid.reports.text import save_png
+
+        used = [r for r in self.runs if r.used]
+        w = np.array([r.omega for r in used])
+        Z = np.array([r.Z for r in used])
+        se = np.array([np.sqrt(np.clip(np.diag(r.Z_cov), 0, None)) for r in used])
+        m, c, k = self.m.value, self.c.value, self.k.value
+        fig = Figure(figsize=(11, 4.5), layout="constrained")
+        a, b = fig.subplots(1, 2)
+        a.errorbar(w**2, Z.real, yerr=se[:, 0], fmt="o", ms=4, capsize=2)
+        xx = np.linspace(0, (w**2).max() * 1.05, 50)
+        a.plot(xx, k - m * xx, "-", label=f"k − mω²: m = {m:.5g} kg, k = {k:.5g} N/m")
+        a.axhline(0, color="0.7", lw=0.5)
+        a.set_xlabel("ω² (rad²/s²)")
+        a.set_ylabel("R cos ρ (N/m)")
+        a.legend(fontsize=8)
+        b.errorbar(w, Z.imag, yerr=se[:, 1], fmt="o", ms=4, capsize=2)
+        xx = np.linspace(0, w.max() * 1.05, 50)
+        b.plot(xx, c * xx, "-", label=f"cω: c = {c:.5g} N s/m")
+        b.set_xlabel("ω (rad/s)")
+        b.set_ylabel("R sin ρ (N/m)")
+        b.legend(fontsize=8)
+        fig.suptitle("eq. (20), per-run error bars ±1 stderr")
+        return save_png(fig, out, name)

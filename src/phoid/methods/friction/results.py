@@ -1,0 +1,240 @@
+"""Results of the friction fit and of the score test for friction."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from phoid.dynamics import inverse_map
+from phoid.methods.pho import Estimate
+
+__all__ = ["FrictionEvidence", "FrictionFit", "FrictionRun"]
+
+
+@dataclass(frozen=True)
+class FrictionRun:
+    """One run of a friction fit.
+
+    Attributes
+    ----------
+    name : str
+        Run name (as given, or ``run1`` …).
+    P, D : float
+        Gains, N/m and N·s/m.
+    used : bool
+        False when the run was set aside (see ``warnings``).
+    release : float
+        Fitted release time τᵢ, s (the detected one when the run was set aside).
+    x0 : float
+        Fitted release position x₀ᵢ (sensor offset removed), m.
+    offset : float
+        Fitted sensor offset bᵢ, m.
+    sigma, omega_d : float
+        Decay rate (1/s) and damped frequency (rad/s) of the fitted loop's dominant mode
+        (the viscous part of the motion; σᵢ < 0 is a negatively damped loop that friction
+        bounds). nan when not computed.
+    stick_time : float or None
+        Time at which the fitted motion stops for good, s on the record's clock; None when it
+        is still moving at the end of the fitted window.
+    reversals : int
+        Velocity reversals of the fitted motion before it sticks (−1 when not computed).
+    t_end : float
+        End of the fitted window, s.
+    n_samples : int
+        Samples fitted (held segment included).
+    noise_sd : float
+        Noise sd used to weight the run, m (held segment, or third differences).
+    residual_rms : float
+        RMS residual of the fit over the window, m (nan when set aside).
+    warnings : tuple of str
+    added_mass : float
+        Known mass added for this run, kg (its plant is m + added_mass; default 0).
+    bias : float
+        Known DC offset of the run's command in the direction of the velocity, N (default 0).
+    """
+
+    name: str
+    P: float
+    D: float
+    used: bool
+    release: float
+    x0: float
+    offset: float
+    sigma: float
+    omega_d: float
+    stick_time: float | None
+    reversals: int
+    t_end: float
+    n_samples: int
+    noise_sd: float
+    residual_rms: float
+    warnings: tuple[str, ...] = ()
+    added_mass: float = 0.0
+    bias: float = 0.0
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready dict (nan as None)."""
+
+        def num(x):
+            return None if x is None or not math.isfinite(x) else float(x)
+
+        out = {
+            "name": self.name, "P": float(self.P), "D": float(self.D), "used": self.used,
+            "release": num(self.release), "x0": num(self.x0), "offset": num(self.offset),
+            "sigma": num(self.sigma), "omega_d": num(self.omega_d),
+            "stick_time": num(self.stick_time), "reversals": int(self.reversals),
+            "t_end": num(self.t_end), "n_samples": int(self.n_samples),
+            "noise_sd": num(self.noise_sd), "residual_rms": num(self.residual_rms),
+            "warnings": list(self.warnings),
+        }
+        if self.added_mass:
+            out["added_mass"] = float(self.added_mass)
+        if self.bias:
+            out["bias"] = float(self.bias)
+        return out
+
+
+@dataclass(frozen=True)
+class FrictionFit:
+    """Result of :func:`identify_friction`.
+
+    Attributes
+    ----------
+    m, c, k, fc : Estimate
+        Mass (kg), viscous damping (N s/m), stiffness (N/m) and kinetic friction force (N), each
+        with its standard error.
+    cov : ndarray, shape (4, 4)
+        Covariance of (m, c, k, f_c), nuisance parameters profiled out.
+    delay : float
+        Loop delay Δt used, s.
+    runs : tuple of FrictionRun
+    chi2 : float
+        Weighted residual sum of squares Σ (y − ŷ)²/sᵢ² at the optimum.
+    dof : int
+        Samples fitted minus parameters.
+    residual_rms : float
+        RMS residual over all fitted samples, m.
+    converged : bool
+        Whether Levenberg–Marquardt met its step criterion (< 1 % of every stderr).
+    iterations : int
+        Levenberg–Marquardt iterations (accepted and rejected steps), all fits together.
+    start : tuple of float
+        Starting (m, c, k, f_c).
+    warnings : tuple of str
+    digital : phoid.DigitalPD or None
+        The sampled controller the records were simulated with (None: a continuous loop with
+        delay Δt); ``delay`` is then its command delay d·T_s.
+    """
+
+    m: Estimate
+    c: Estimate
+    k: Estimate
+    fc: Estimate
+    cov: np.ndarray
+    delay: float
+    runs: tuple[FrictionRun, ...]
+    chi2: float
+    dof: int
+    residual_rms: float
+    converged: bool
+    iterations: int
+    start: tuple[float, float, float, float]
+    warnings: tuple[str, ...] = ()
+    digital: Any = None
+
+    @property
+    def chi2_red(self) -> float:
+        """χ²/dof (≈ 1 when the model and the noise estimates fit the data)."""
+        return self.chi2 / self.dof if self.dof > 0 else math.nan
+
+    @property
+    def stick_times(self) -> tuple[float | None, ...]:
+        """Per-run stick times, s (None where the fitted motion does not stop in its window)."""
+        return tuple(r.stick_time for r in self.runs)
+
+    def summary(self) -> dict[str, Any]:
+        """The JSON of ``phoid identify --friction --json``: the spec's keys (method, m, c, k,
+        delay, runs, warnings) plus ``fc`` in the same {value, stderr, unit} shape.
+
+        Each run carries the spec's keys — ``file``, ``P``, ``D``, ``sigma``, ``omega_d`` (the
+        fitted loop's dominant mode), ``c_prime``, ``k_prime`` (eq. 32 at that mode) and
+        ``cycles`` (velocity reversals / 2) — and the friction fit's own (release, x0, offset,
+        stick_time, …). χ²/dof and convergence are in :attr:`chi2_red` and :attr:`converged`
+        (a fit that did not converge, or misfits, says so in the warnings).
+        """
+        runs = []
+        for r in self.runs:
+            d = r.to_dict()
+            if math.isfinite(r.sigma) and math.isfinite(r.omega_d):
+                # a sampled loop: eq. (32) at its equivalent continuous delay, as identify does
+                dly = self.delay if self.digital is None else (
+                    self.digital.delay + 0.5 * self.digital.sample_time)
+                cp, kp = inverse_map(r.sigma, r.omega_d, r.P, r.D, dly)
+                # an added mass's known part taken off, as phoid identify does (all runs then
+                # lie on the same eq. 35 lines)
+                cp = float(cp) - 2.0 * r.added_mass * r.sigma
+                kp = float(kp) - r.added_mass * (r.sigma**2 + r.omega_d**2)
+            else:
+                cp = kp = None
+            runs.append({"file": d.pop("name"), "P": d.pop("P"), "D": d.pop("D"),
+                         "sigma": d.pop("sigma"), "omega_d": d.pop("omega_d"),
+                         "c_prime": cp, "k_prime": kp,
+                         "cycles": r.reversals / 2 if r.reversals >= 0 else None, **d})
+        return {
+            "method": "pho",
+            "m": self.m.to_dict(),
+            "c": self.c.to_dict(),
+            "k": self.k.to_dict(),
+            "fc": self.fc.to_dict(),
+            "delay": {"value": float(self.delay), "stderr": None, "unit": "s",
+                      "source": "given"},
+            "runs": runs,
+            "warnings": list(self.warnings),
+            **({"loop": {"model": "digital", "sample_time": self.digital.sample_time,
+                         "delay_samples": self.digital.delay_samples,
+                         "velocity": self.digital.velocity, "cutoff": self.digital.cutoff}}
+               if self.digital is not None else {}),
+        }
+
+    def report(self) -> str:
+        """A plain-text report: m, c, k, f_c with ± one stderr, the runs, warnings."""
+        from phoid.reports.text import friction_text
+
+        return friction_text(self)
+
+
+@dataclass(frozen=True)
+class FrictionEvidence:
+    """Result of :func:`friction_evidence`: a score test of f_c = 0.
+
+    Attributes
+    ----------
+    z : float
+        Score statistic; standard normal when the plant has no friction, large and positive
+        when it has.
+    p_value : float
+        One-sided p-value P(Z ≥ z).
+    detected : bool
+        ``p_value < alpha``.
+    fc : Estimate
+        One Gauss–Newton step from f_c = 0 along the profiled score: a first estimate of f_c (N)
+        and its stderr (biased low when friction is strong: use :func:`identify_friction`).
+    m, c, k : Estimate
+        The viscous (f_c = 0) full-record maximum-likelihood estimates.
+    chi2_red : float
+        χ²/dof of the viscous full-record fit (≫ 1 when friction or another effect is missing).
+    warnings : tuple of str
+    """
+
+    z: float
+    p_value: float
+    detected: bool
+    fc: Estimate
+    m: Estimate
+    c: Estimate
+    k: Estimate
+    chi2_red: float
+    warnings: tuple[str, ...] = ()
