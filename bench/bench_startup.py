@@ -2,13 +2,15 @@
 
 Each figure is the wall time of a fresh interpreter (``subprocess`` timed with
 ``time.perf_counter``), median (min–max) over the repeats, measured in turn round by round so
-that a busy spell of the machine falls on every command alike. ``python -c pass`` and
+that a busy spell of the machine falls on every command alike; the child's CPU time (user +
+system, from ``getrusage``) is recorded beside the wall time. ``python -c pass`` and
 ``python -c "import numpy"`` are measured in the same rounds, for scale.
 """
 
 from __future__ import annotations
 
 import os
+import resource
 import shutil
 import statistics
 import subprocess
@@ -49,6 +51,8 @@ def run(repeats: int = 20) -> dict:
 
     Returns a dict: ``phoid_command`` (how phoid was started), ``wall`` (label -> median_s,
     min_s, max_s, n) for python -c pass, import numpy, phoid --help and phoid identify;
+    ``cpu`` (the same for the child's user + system CPU time: less sensitive to a busy
+    machine than the wall time);
     ``import`` (label -> the same, in-process time of ``import phoid`` and of every public
     name); ``targets`` (the issue's limits, s); ``load_average`` (1, 5, 15 min, after the runs).
     """
@@ -63,16 +67,20 @@ def run(repeats: int = 20) -> dict:
     imports = {"import phoid": [*py, "-c", _IMPORT],
                "import phoid + every public name": [*py, "-c", _IMPORT_ALL]}
     wall: dict[str, list[float]] = {k: [] for k in commands}
+    cpu: dict[str, list[float]] = {k: [] for k in commands}
     imp: dict[str, list[float]] = {k: [] for k in imports}
     for rnd in range(repeats + 1):
         for label, cmd in commands.items():
+            u0 = resource.getrusage(resource.RUSAGE_CHILDREN)
             t = time.perf_counter()
             r = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT)
             dt = time.perf_counter() - t
+            u1 = resource.getrusage(resource.RUSAGE_CHILDREN)
             if r.returncode != 0:
                 raise RuntimeError(f"{label} failed ({r.returncode}): {r.stderr[-500:]}")
             if rnd:
                 wall[label].append(dt)
+                cpu[label].append(u1.ru_utime - u0.ru_utime + u1.ru_stime - u0.ru_stime)
         for label, cmd in imports.items():
             r = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, check=True)
             if rnd:
@@ -80,6 +88,7 @@ def run(repeats: int = 20) -> dict:
     return {
         "phoid_command": " ".join(phoid),
         "wall": {k: _stats(v) for k, v in wall.items()},
+        "cpu": {k: _stats(v) for k, v in cpu.items()},
         "import": {k: _stats(v) for k, v in imp.items()},
         "targets": {"phoid --help": HELP_TARGET,
                     "phoid identify examples/paper-sample": IDENTIFY_TARGET},

@@ -332,20 +332,22 @@ def _startup_section(res: dict) -> list[str]:
         "",
         f"Wall time of a fresh process (`{st['phoid_command']}`), median (min–max) over {n} "
         "rounds after one untimed round; each round runs every command in turn, so the "
-        "machine's busy spells fall on all alike. `python -c pass` and `import numpy` are the "
+        "machine's busy spells fall on all alike; the CPU column (the child's user + system "
+        "time) is less sensitive to a busy machine. `python -c pass` and `import numpy` are the "
         "scale: what any Python tool, and any numpy tool, pays before it starts. The import "
         "rows are the time of the import statement inside the process (no interpreter start): "
         "`import phoid` is lazy (PEP 562), the public names load their subpackages on first "
         "use.",
         "",
-        "| command | wall, median (min–max) | target |",
-        "|---|---|---|",
+        "| command | wall, median (min–max) | CPU (user + system) | target (wall) |",
+        "|---|---|---|---|",
     ]
     for label, s in st["wall"].items():
         target = st["targets"].get(label)
-        lines.append(f"| `{label}` | {_ms(s)} | {f'≤ {target:g} s' if target else ''} |")
+        cpu = _ms(st["cpu"][label]) if "cpu" in st else ""
+        lines.append(f"| `{label}` | {_ms(s)} | {cpu} | {f'≤ {target:g} s' if target else ''} |")
     for label, s in st["import"].items():
-        lines.append(f"| `{label}` (in-process) | {_ms(s)} | |")
+        lines.append(f"| `{label}` (in-process) | {_ms(s)} | | |")
     if st.get("load_average"):
         lines += ["", "Load average at the end (1, 5, 15 min): "
                   + ", ".join(f"{v:.2f}" for v in st["load_average"]) + "."]
