@@ -10,10 +10,8 @@ function implements, and docs/equations.md for those equations and their correct
 >>> print(result.report())  # doctest: +SKIP
 """
 
-from __future__ import annotations
-
-import importlib
-from typing import TYPE_CHECKING, Any
+import importlib as _importlib
+from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:  # the real imports, for type checkers and IDEs; at run time see __getattr__
     from phoid.dynamics import (
@@ -194,15 +192,19 @@ __all__ = [
 ]
 
 
-def __getattr__(name: str) -> Any:
+def __getattr__(name: str) -> object:
     """Import a public name's module on first access and cache the name here."""
     module = _LAZY.get(name)
     if module is None:
         raise AttributeError(f"module 'phoid' has no attribute {name!r}")
-    value = getattr(importlib.import_module(module), name)
+    value = getattr(_importlib.import_module(module), name)
     globals()[name] = value
     return value
 
 
 def __dir__() -> list[str]:
+    """The module's names, with the public ones not yet imported."""
     return sorted(set(globals()) | set(__all__))
+
+
+del TYPE_CHECKING
