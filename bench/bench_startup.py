@@ -15,6 +15,7 @@ import shutil
 import statistics
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -66,6 +67,17 @@ def run(repeats: int = 20) -> dict:
     }
     imports = {"import phoid": [*py, "-c", _IMPORT],
                "import phoid + every public name": [*py, "-c", _IMPORT_ALL]}
+    with tempfile.TemporaryDirectory(prefix="phoid-pycache-") as cache:
+        env = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
+        env["PYTHONPYCACHEPREFIX"] = cache
+        res = _rounds(commands, imports, repeats, env)
+    return {"phoid_command": " ".join(phoid), **res,
+            "targets": {"phoid --help": HELP_TARGET,
+                        "phoid identify examples/paper-sample": IDENTIFY_TARGET},
+            "load_average": list(os.getloadavg()) if hasattr(os, "getloadavg") else None}
+
+
+def _rounds(commands: dict, imports: dict, repeats: int, env: dict) -> dict:
     wall: dict[str, list[float]] = {k: [] for k in commands}
     cpu: dict[str, list[float]] = {k: [] for k in commands}
     imp: dict[str, list[float]] = {k: [] for k in imports}
@@ -73,7 +85,7 @@ def run(repeats: int = 20) -> dict:
         for label, cmd in commands.items():
             u0 = resource.getrusage(resource.RUSAGE_CHILDREN)
             t = time.perf_counter()
-            r = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT)
+            r = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, env=env)
             dt = time.perf_counter() - t
             u1 = resource.getrusage(resource.RUSAGE_CHILDREN)
             if r.returncode != 0:
@@ -82,18 +94,13 @@ def run(repeats: int = 20) -> dict:
                 wall[label].append(dt)
                 cpu[label].append(u1.ru_utime - u0.ru_utime + u1.ru_stime - u0.ru_stime)
         for label, cmd in imports.items():
-            r = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, check=True)
+            r = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, env=env,
+                               check=True)
             if rnd:
                 imp[label].append(float(r.stdout.strip().splitlines()[-1]))
-    return {
-        "phoid_command": " ".join(phoid),
-        "wall": {k: _stats(v) for k, v in wall.items()},
-        "cpu": {k: _stats(v) for k, v in cpu.items()},
-        "import": {k: _stats(v) for k, v in imp.items()},
-        "targets": {"phoid --help": HELP_TARGET,
-                    "phoid identify examples/paper-sample": IDENTIFY_TARGET},
-        "load_average": list(os.getloadavg()) if hasattr(os, "getloadavg") else None,
-    }
+    return {"wall": {k: _stats(v) for k, v in wall.items()},
+            "cpu": {k: _stats(v) for k, v in cpu.items()},
+            "import": {k: _stats(v) for k, v in imp.items()}}
 
 
 if __name__ == "__main__":

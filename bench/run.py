@@ -333,11 +333,12 @@ def _startup_section(res: dict) -> list[str]:
         f"Wall time of a fresh process (`{st['phoid_command']}`), median (min–max) over {n} "
         "rounds after one untimed round; each round runs every command in turn, so the "
         "machine's busy spells fall on all alike; the CPU column (the child's user + system "
-        "time) is less sensitive to a busy machine. `python -c pass` and `import numpy` are the "
-        "scale: what any Python tool, and any numpy tool, pays before it starts. The import "
-        "rows are the time of the import statement inside the process (no interpreter start): "
-        "`import phoid` is lazy (PEP 562), the public names load their subpackages on first "
-        "use.",
+        "time) is less sensitive to a busy machine. Byte code is cached (a temporary "
+        "`PYTHONPYCACHEPREFIX`, filled by the untimed round), as in an installed phoid. "
+        "`python -c pass` and `import numpy` are the scale: what any Python tool, and any "
+        "numpy tool, pays before it starts. The import rows are the time of the import "
+        "statement inside the process (no interpreter start): `import phoid` is lazy "
+        "(PEP 562), the public names load their subpackages on first use.",
         "",
         "| command | wall, median (min–max) | CPU (user + system) | target (wall) |",
         "|---|---|---|---|",
