@@ -9,7 +9,9 @@
 6. heavy imports stay where they are used: ``import phoid`` imports neither matplotlib nor
    scipy.stats nor typer, and the command line's module and ``phoid --help`` do not import
    numpy;
-7. the lazy top-level namespace gives every name of ``phoid.__all__``.
+7. the lazy top-level namespace gives every name of ``phoid.__all__``;
+8. the subpackages import each other only along the layering of docs/architecture.md (reports
+   never import methods, planning, paper or simulation; nothing imports the top level).
 """
 
 from __future__ import annotations
@@ -161,6 +163,41 @@ def test_no_import_cycle():
         edges = [f"{m} -> {t}" for m in comp for t in sorted(graph[m] & inside)]
         msgs.append(f"cycle of {len(comp)} modules: " + "; ".join(edges))
     assert not cycles, "\n".join(msgs)
+
+
+BASE = {"phoid.errors", "phoid._validate", "phoid._threads", "phoid._output"}
+# what each subpackage may import (docs/architecture.md, "The layout"); the top-level modules
+# (phoid, phoid.api, phoid.cli, phoid.paper) may import everything and nothing imports them
+LAYERS: dict[str, set[str]] = {
+    **{b: BASE for b in BASE},
+    "phoid.dynamics": BASE,
+    "phoid.simulation": BASE | {"phoid.dynamics"},
+    "phoid.fits": BASE | {"phoid.dynamics"},
+    "phoid.io": BASE,
+    "phoid.reports": BASE | {"phoid.dynamics"},
+    "phoid.methods": BASE | {"phoid.fits", "phoid.dynamics", "phoid.simulation", "phoid.io",
+                             "phoid.reports"},
+    "phoid.planning": BASE | {"phoid.methods", "phoid.fits", "phoid.dynamics", "phoid.io",
+                              "phoid.reports"},
+}
+
+
+def test_imports_follow_the_layers():
+    subpackages = {_group(m) for m, p in MODULES.items() if p.name == "__init__.py"} - {"phoid"}
+    undeclared = sorted(subpackages - set(LAYERS))
+    assert not undeclared, (f"subpackages missing from LAYERS (and from docs/architecture.md): "
+                            f"{undeclared}")
+    bad = []
+    for module in MODULES:
+        group = _group(module)
+        if group not in LAYERS:
+            continue  # a top-level module: may import everything
+        for line, target, _ in _imports(module):
+            other = _group(target)
+            if other != group and other not in LAYERS[group]:
+                bad.append(f"{MODULES[module].relative_to(ROOT)}:{line}: {group} imports "
+                           f"{target}")
+    assert not bad, "imports against the layering:\n" + "\n".join(bad)
 
 
 def test_no_private_names_across_subpackages():
