@@ -2,7 +2,8 @@
 
 The public API is re-exported here; see the module docstrings for the seed-paper equations each
 function implements, and docs/equations.md for those equations and their corrections (ERRATA
-1–6) explained.
+1–6) explained. The names are imported on first use (PEP 562), so ``import phoid`` is cheap and
+loads numpy, scipy or matplotlib only when a function needs them.
 
 >>> import phoid
 >>> # from the repository's root: the example set in examples/ (examples/README.md)
