@@ -197,6 +197,13 @@ def test_imports_follow_the_layers():
             if other != group and other not in LAYERS[group]:
                 bad.append(f"{MODULES[module].relative_to(ROOT)}:{line}: {group} imports "
                            f"{target}")
+        # `from phoid import name` (a name of the lazy namespace, not a module) is an import
+        # of the top level, which _imports leaves out of the graph
+        for node in ast.walk(TREES[module]):
+            if isinstance(node, ast.ImportFrom) and node.level == 0 and node.module == "phoid":
+                bad += [f"{MODULES[module].relative_to(ROOT)}:{node.lineno}: {group} imports "
+                        f"phoid.{a.name} from the top level" for a in node.names
+                        if f"phoid.{a.name}" not in MODULES]
     assert not bad, "imports against the layering:\n" + "\n".join(bad)
 
 
