@@ -36,6 +36,7 @@ sys.path.insert(0, str(HERE))
 import bench_identify  # noqa: E402
 import bench_scaling  # noqa: E402
 import bench_simulate  # noqa: E402
+import bench_startup  # noqa: E402
 import numpy as np  # noqa: E402
 import scipy  # noqa: E402
 from crb import crb_sd  # noqa: E402
@@ -321,6 +322,39 @@ def _scaling_section(res: dict) -> list[str]:
 # targets
 
 
+def _startup_section(res: dict) -> list[str]:
+    st = res.get("startup")
+    if not st:
+        return []
+    n = next(iter(st["wall"].values()))["n"]
+    lines = [
+        "## Start-up",
+        "",
+        f"Wall time of a fresh process (`{st['phoid_command']}`), median (min–max) over {n} "
+        "rounds after one untimed round; each round runs every command in turn, so the "
+        "machine's busy spells fall on all alike; the CPU column (the child's user + system "
+        "time) is less sensitive to a busy machine. Byte code is cached (a temporary "
+        "`PYTHONPYCACHEPREFIX`, filled by the untimed round), as in an installed phoid. "
+        "`python -c pass` and `import numpy` are the scale: what any Python tool, and any "
+        "numpy tool, pays before it starts. The import rows are the time of the import "
+        "statement inside the process (no interpreter start): `import phoid` is lazy "
+        "(PEP 562), the public names load their subpackages on first use.",
+        "",
+        "| command | wall, median (min–max) | CPU (user + system) | target (wall) |",
+        "|---|---|---|---|",
+    ]
+    for label, s in st["wall"].items():
+        target = st["targets"].get(label)
+        cpu = _ms(st["cpu"][label]) if "cpu" in st else ""
+        lines.append(f"| `{label}` | {_ms(s)} | {cpu} | {f'≤ {target:g} s' if target else ''} |")
+    for label, s in st["import"].items():
+        lines.append(f"| `{label}` (in-process) | {_ms(s)} | | |")
+    if st.get("load_average"):
+        lines += ["", "Load average at the end (1, 5, 15 min): "
+                  + ", ".join(f"{v:.2f}" for v in st["load_average"]) + "."]
+    return lines
+
+
 def _targets(res: dict) -> tuple[list[str], list[str]]:
     """(lines of the Targets section, accuracy failures)."""
     acc: list[tuple[str, bool, str]] = []
@@ -391,6 +425,11 @@ def _targets(res: dict) -> tuple[list[str], list[str]]:
                     continue
                 x = bench_scaling.times_record(p)
                 rep.append((name, x <= FEW_TIMES, f"{x:.1f}×"))
+    st = res.get("startup")
+    if st:
+        for label, limit in st["targets"].items():
+            t = st["wall"][label]["median_s"]
+            rep.append((f"`{label}` in ≤ {limit:g} s wall", t <= limit, f"{t:.2f} s"))
     failures = [f"{n}: {got}" for n, ok, got in acc if not ok]
     lines = ["## Targets", "",
              "Accuracy targets (`make bench` exits non-zero when one is missed):", ""]
@@ -515,7 +554,7 @@ def main() -> int:
                     help="Monte Carlo replicas for phoid (1000; --quick: 100)")
     ap.add_argument("--repeats", type=int, default=None, help="timing repeats (9)")
     ap.add_argument("--workers", type=int, default=2, help="Monte Carlo worker processes (2)")
-    ap.add_argument("--only", default="sets,mc,speed,sim,scaling",
+    ap.add_argument("--only", default="sets,mc,speed,sim,scaling,startup",
                     help="comma-separated sections to run (for development; the default runs "
                          "all and is what BENCHMARKS.md must come from)")
     ap.add_argument("--write", action="store_true",
@@ -553,7 +592,7 @@ def main() -> int:
                     "numpy": np.__version__, "scipy": scipy.__version__,
                     "blas_threads": os.environ.get("OPENBLAS_NUM_THREADS")},
         "sets": {}, "monte_carlo": {}, "identification_speed": {}, "simulation": {},
-        "scaling": {},
+        "scaling": {}, "startup": {},
     }
 
     def log(msg: str) -> None:
@@ -591,6 +630,9 @@ def main() -> int:
             max_length=1_000_000 if args.quick else 10_000_000,
             max_runs=100 if args.quick else 1000)
         log("scaling")
+    if "startup" in only:
+        res["startup"] = bench_startup.run(5 if args.quick else max(repeats, 20))
+        log("start-up")
     res["wall_s"] = time.perf_counter() - t_start
     write = args.write or (not opts and not args.quick)
     if write:
@@ -610,7 +652,8 @@ def main() -> int:
         "",
     ]
     lines += [*target_lines, ""]
-    for sec in (_sets_section, _mc_section, _speed_section, _sim_section, _scaling_section):
+    for sec in (_sets_section, _mc_section, _speed_section, _sim_section, _scaling_section,
+                _startup_section):
         part = sec(res)
         if part:
             lines += [*part, ""]

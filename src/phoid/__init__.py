@@ -2,7 +2,8 @@
 
 The public API is re-exported here; see the module docstrings for the seed-paper equations each
 function implements, and docs/equations.md for those equations and their corrections (ERRATA
-1–6) explained.
+1–6) explained. The names are imported on first use (PEP 562), so ``import phoid`` is cheap and
+loads numpy, scipy or matplotlib only when a function needs them.
 
 >>> import phoid
 >>> # from the repository's root: the example set in examples/ (examples/README.md)
@@ -10,46 +11,124 @@ function implements, and docs/equations.md for those equations and their correct
 >>> print(result.report())  # doctest: +SKIP
 """
 
-from phoid.api import identify, identify_data
-from phoid.dynamics import (
-    DelayedPD,
-    LoopModes,
-    alphas,
-    characteristic_roots,
-    forward_map,
-    inverse_map,
-    is_stable,
-)
-from phoid.dynamics.digital import DigitalPD, DigitalRoots, digital_modes, digital_roots
-from phoid.dynamics.plant import Plant, free_response
-from phoid.errors import ExperimentError, IdentificationError, OutputError, PhoidError
-from phoid.fits.decay import DecayFit, detect_release, fit_decay, logdec
-from phoid.io import (
-    ExperimentSet,
-    Run,
-    read_experiment,
-    run_from_arrays,
-    write_experiment,
-)
-from phoid.methods.forced import (
-    ForcedIdentification,
-    ForcedRun,
-    ResponseFit,
-    fit_response,
-    identify_forced,
-    identify_forced_data,
-    simulate_forced,
-    two_frequency,
-)
-from phoid.methods.free import FreeIdentification, FreeRun, identify_free, identify_free_data
-from phoid.methods.friction import FrictionFit, friction_evidence, identify_friction
-from phoid.methods.pho import Estimate, MCKFit, fit_lines, fit_modes
-from phoid.methods.pho_result import Identification, RunMode
-from phoid.planning import Design, DesignError, PlannedRun, design
-from phoid.planning.fisher import CramerRao, cramer_rao
-from phoid.simulation import Simulation, simulate
+import importlib as _importlib
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:  # the real imports, for type checkers and IDEs; at run time see __getattr__
+    from phoid.api import identify, identify_data
+    from phoid.dynamics import (
+        DelayedPD,
+        DigitalPD,
+        DigitalRoots,
+        LoopModes,
+        Plant,
+        alphas,
+        characteristic_roots,
+        digital_modes,
+        digital_roots,
+        forward_map,
+        free_response,
+        inverse_map,
+        is_stable,
+    )
+    from phoid.errors import ExperimentError, IdentificationError, OutputError, PhoidError
+    from phoid.fits import DecayFit, detect_release, fit_decay, logdec
+    from phoid.io import (
+        ExperimentSet,
+        Run,
+        read_experiment,
+        run_from_arrays,
+        write_experiment,
+    )
+    from phoid.methods import (
+        Estimate,
+        ForcedIdentification,
+        ForcedRun,
+        FreeIdentification,
+        FreeRun,
+        FrictionFit,
+        Identification,
+        MCKFit,
+        ResponseFit,
+        RunMode,
+        fit_lines,
+        fit_modes,
+        fit_response,
+        friction_evidence,
+        identify_forced,
+        identify_forced_data,
+        identify_free,
+        identify_free_data,
+        identify_friction,
+        simulate_forced,
+        two_frequency,
+    )
+    from phoid.planning import CramerRao, Design, DesignError, PlannedRun, cramer_rao, design
+    from phoid.simulation import Simulation, simulate
 
 __version__ = "0.1.0"
+
+# each public name -> the (sub)package that exports it; imported on first use (PEP 562), so that
+# `import phoid` stays cheap and `phoid --help` does not pay for numpy, scipy or matplotlib
+_LAZY: dict[str, str] = {
+    "DigitalPD": "phoid.dynamics",
+    "DigitalRoots": "phoid.dynamics",
+    "digital_modes": "phoid.dynamics",
+    "digital_roots": "phoid.dynamics",
+    "DelayedPD": "phoid.dynamics",
+    "LoopModes": "phoid.dynamics",
+    "alphas": "phoid.dynamics",
+    "characteristic_roots": "phoid.dynamics",
+    "forward_map": "phoid.dynamics",
+    "inverse_map": "phoid.dynamics",
+    "is_stable": "phoid.dynamics",
+    "Plant": "phoid.dynamics",
+    "free_response": "phoid.dynamics",
+    "ExperimentError": "phoid.errors",
+    "IdentificationError": "phoid.errors",
+    "OutputError": "phoid.errors",
+    "PhoidError": "phoid.errors",
+    "DecayFit": "phoid.fits",
+    "detect_release": "phoid.fits",
+    "fit_decay": "phoid.fits",
+    "logdec": "phoid.fits",
+    "ExperimentSet": "phoid.io",
+    "Run": "phoid.io",
+    "read_experiment": "phoid.io",
+    "run_from_arrays": "phoid.io",
+    "write_experiment": "phoid.io",
+    "ForcedIdentification": "phoid.methods",
+    "ForcedRun": "phoid.methods",
+    "ResponseFit": "phoid.methods",
+    "fit_response": "phoid.methods",
+    "identify_forced": "phoid.methods",
+    "identify_forced_data": "phoid.methods",
+    "simulate_forced": "phoid.methods",
+    "two_frequency": "phoid.methods",
+    "FreeIdentification": "phoid.methods",
+    "FreeRun": "phoid.methods",
+    "identify_free": "phoid.methods",
+    "identify_free_data": "phoid.methods",
+    "FrictionFit": "phoid.methods",
+    "friction_evidence": "phoid.methods",
+    "identify_friction": "phoid.methods",
+    "Identification": "phoid.methods",
+    "RunMode": "phoid.methods",
+    "identify": "phoid.api",
+    "identify_data": "phoid.api",
+    "Estimate": "phoid.methods",
+    "MCKFit": "phoid.methods",
+    "fit_lines": "phoid.methods",
+    "fit_modes": "phoid.methods",
+    "CramerRao": "phoid.planning",
+    "cramer_rao": "phoid.planning",
+    "Design": "phoid.planning",
+    "DesignError": "phoid.planning",
+    "PlannedRun": "phoid.planning",
+    "design": "phoid.planning",
+    "Simulation": "phoid.simulation",
+    "simulate": "phoid.simulation",
+}
 
 __all__ = [
     "CramerRao",
@@ -111,3 +190,21 @@ __all__ = [
     "two_frequency",
     "write_experiment",
 ]
+
+
+def __getattr__(name: str) -> object:
+    """Import a public name's module on first access and cache the name here."""
+    module = _LAZY.get(name)
+    if module is None:
+        raise AttributeError(f"module 'phoid' has no attribute {name!r}")
+    value = getattr(_importlib.import_module(module), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    """The module's names, with the public ones not yet imported."""
+    return sorted(set(globals()) | set(__all__))
+
+
+del TYPE_CHECKING

@@ -81,7 +81,7 @@ def paper(
     and 1(b) (k' against omega0^2) as PNG files into --out.
     """
     from phoid.paper import reproduce_table1
-    from phoid.reports.text import figure1
+    from phoid.reports.figures import figure1
 
     try:
         from phoid._output import OutputFolder

@@ -286,7 +286,7 @@ class FreeIdentification:
         from matplotlib.figure import Figure
 
         from phoid._output import OutputFolder
-        from phoid.reports.text import save_png
+        from phoid.reports.figures import save_png
 
         plotted = [i for i, r in enumerate(self.runs) if r.used and i < len(self.data)]
         names = {i: f"free-{i + 1:02d}-{Path(self.runs[i].file).name.split('.')[0]}.png"

@@ -196,6 +196,6 @@ class Identification:
         Existing files are replaced only with ``overwrite``; links in ``out_dir`` are refused
         (:func:`phoid.reports.text.plot_identification`). Returns the list of paths written.
         """
-        from phoid.reports.text import plot_identification
+        from phoid.reports.figures import plot_identification
 
         return plot_identification(self, out_dir, overwrite=overwrite)

@@ -225,7 +225,7 @@ class ForcedIdentification:
         from matplotlib.figure import Figure
 
         from phoid._output import OutputFolder
-        from phoid.reports.text import save_png
+        from phoid.reports.figures import save_png
 
         plotted = [i for i, r in enumerate(self.runs) if r.used and i < len(self.data)]
         names = {i: f"forced-{i + 1:02d}-{Path(self.runs[i].file).name.split('.')[0]}.png"
@@ -259,7 +259,7 @@ class ForcedIdentification:
     def _eq20_figure(self, out: Any, name: str) -> Path:
         from matplotlib.figure import Figure
 
-        from phoid.reports.text import save_png
+        from phoid.reports.figures import save_png
 
         used = [r for r in self.runs if r.used]
         w = np.array([r.omega for r in used])
