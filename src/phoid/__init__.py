@@ -22,7 +22,7 @@ from phoid.dynamics.loop import (
 )
 from phoid.dynamics.plant import Plant, free_response
 from phoid.errors import ExperimentError, IdentificationError, OutputError, PhoidError
-from phoid.fits.decay import DecayFit, detect_release, fit_decay, logdec
+from phoid.fits import DecayFit, detect_release, fit_decay, logdec
 from phoid.io.experiment import (
     ExperimentSet,
     Run,

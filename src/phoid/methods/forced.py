@@ -55,7 +55,7 @@ from scipy import stats
 from phoid import _validate as v
 from phoid._threads import single_blas_thread
 from phoid.errors import IdentificationError
-from phoid.fits.decay import diff_noise
+from phoid.fits import diff_noise
 from phoid.io.experiment import Run, run_from_arrays
 from phoid.methods.free import (
     _esprit_rates,

@@ -18,7 +18,7 @@ segment (the mass at rest, then let go), the fit starts where the motion has sur
 samples in a row more than 8 noise sd off the held level): a held sample left in the window
 would bias the decay, while the few samples skipped, within a few noise sd of the held level,
 carry almost no information. The state (x₀, v₀) is fitted at the window's start and carried
-back to the detected release (:func:`phoid.fits.decay.detect_release`'s rule) for the report.
+back to the detected release (:func:`phoid.fits.detect_release`'s rule) for the report.
 (Fitting the release time as a parameter, with the record held before it, was tried and
 dropped: for a release from rest x leaves the held level quadratically, so t₀ trades off
 against v₀ far from linearly, and over Monte Carlo replicas of a critically damped release the
@@ -51,7 +51,7 @@ from phoid import _validate as v
 from phoid._threads import single_blas_thread
 from phoid.dynamics.plant import free_response, modal_basis
 from phoid.errors import IdentificationError
-from phoid.fits.decay import diff_noise, esprit, locate_release
+from phoid.fits import diff_noise, esprit, locate_release
 from phoid.methods.pho import Estimate
 
 __all__ = ["FreeIdentification", "FreeRun", "identify_free", "identify_free_data"]
@@ -798,7 +798,7 @@ def identify_free_data(
     -----
     Per run: the white-noise sd from second differences; a record whose peak-to-peak motion is
     within 12 noise sds never moved and is set aside, as is one with fewer than 16 samples after
-    its release. The release is found by :func:`phoid.fits.decay.detect_release`'s rule; when a held
+    its release. The release is found by :func:`phoid.fits.detect_release`'s rule; when a held
     segment precedes it, the release time joins the fit (within ±32 samples). Starting rates:
     ESPRIT (an offset and two modes) on each run's motion, every admissible pair of roots
     tried, the best by the residual sum of squares. Then :func:`_fit_modal`.

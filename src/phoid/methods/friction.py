@@ -160,7 +160,7 @@ from scipy import signal, stats
 from phoid._threads import single_blas_thread
 from phoid.dynamics.loop import dominant_roots, inverse_map
 from phoid.errors import ExperimentError, IdentificationError, PhoidError
-from phoid.fits.decay import detect_release
+from phoid.fits import detect_release
 from phoid.methods.pho import Estimate, fit_lines
 
 __all__ = ["FrictionEvidence", "FrictionFit", "FrictionRun", "friction_evidence",

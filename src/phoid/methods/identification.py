@@ -1,7 +1,7 @@
 """Identify m, c, k from a PHO experiment set: runs → decay fits → loop → m, c, k.
 
 The pipeline (ARCHITECTURE.md): each run's free decay is fitted for its dominant mode
-(:func:`phoid.fits.decay.fit_decay`), the modes are mapped through the delayed loop (eqs. 28–32) and
+(:func:`phoid.fits.fit_decay`), the modes are mapped through the delayed loop (eqs. 28–32) and
 m, c, k follow from all runs together (:mod:`phoid.methods.pho`).
 
 Right after the release the delayed loop also rings in its fast non-dominant modes, which would
@@ -29,8 +29,16 @@ from scipy.special import chdtri  # chi2 quantile: chdtri(dof, 1 - p) = chi2.ppf
 from phoid._threads import single_blas_thread
 from phoid.dynamics.loop import characteristic, rightmost_roots_many
 from phoid.errors import IdentificationError
-from phoid.fits.batch import FitJob, fit_decays, start_decays
-from phoid.fits.decay import DecayFit, detect_release, fit_checked, start_decay, uniform_step
+from phoid.fits import (
+    DecayFit,
+    FitJob,
+    detect_release,
+    fit_checked,
+    fit_decays,
+    start_decay,
+    start_decays,
+    uniform_step,
+)
 from phoid.methods.pho import (
     Estimate,
     MCKFit,
@@ -314,7 +322,7 @@ def _model_releases(data, fits, rough, P, D, delay, dm=None, digital=None
                     ) -> list[float | None]:
     """Release times fitted with each loop's own response from rest (None where not done).
 
-    The data-only detection (:func:`phoid.fits.decay.detect_release`: a quadratic, then an even
+    The data-only detection (:func:`phoid.fits.detect_release`: a quadratic, then an even
     quartic departure from the held level) is off by a few samples — and, for stiff loops on
     heavily damped plants, whose departure from rest is not of that shape (strong damping; the
     delayed feedback changes it after Δt), sometimes by 15–20 samples, early. The second pass
@@ -630,7 +638,7 @@ def _measure(data, P, D, delay, *, rough=None, first=None, noise=None, digital=N
     (m, per run) replaces the first pass's noise level.
 
     The first pass is only the starting stage of the decay fit
-    (:func:`phoid.fits.decay.start_decay`:
+    (:func:`phoid.fits.start_decay`:
     release, noise, window, and (σ, ω_d) from ESPRIT on the record after 3Δt): it is within
     about one standard error of a full fit, which is all the rough plant needs, at a third of
     the cost. Each run is then fitted once, in full: from the release with the loop's fast
@@ -688,7 +696,7 @@ def _measure(data, P, D, delay, *, rough=None, first=None, noise=None, digital=N
                     all_roots[i] = r
         except (RuntimeError, ValueError):
             pass
-    # every run's fit is planned first and made in one batch (phoid.fits.batch); a run whose
+    # every run's fit is planned first and made in one batch (phoid.fits.modal); a run whose
     # planned fit fails, or that has none, then gets the plain single-mode fit after 3Δt
     plans: dict[int, tuple[FitJob, bool]] = {}  # run: (fit, made with fast modes)
     rel_of: dict[int, float] = {}
@@ -1060,7 +1068,7 @@ def _estimate_delay(data, P, D, *, files, names, source, added_mass=None) -> Ide
 
     Only the right delay maps all runs' modes onto one plant (eq. 35's points collinear, with
     one slope), so with three or more distinct gain pairs Δt is identifiable. Start: each run's
-    mode from the release on (:func:`phoid.fits.decay.start_decay`, no transient skipped: a slightly
+    mode from the release on (:func:`phoid.fits.start_decay`, no transient skipped: a slightly
     biased but robust first look), then the profile of :func:`phoid.methods.pho.delay_profile` over
     0 … π/max ω_d (a delay of half the fastest run's period; the loop's phase lag at that delay
     is already beyond what a PD loop rings with). Then the full pipeline at that delay with

@@ -41,7 +41,7 @@ What a run must satisfy (``design`` only proposes such runs; ``check`` reports w
 
 A prior so wide that no run meets the band while staying safe on all of it (e.g. c 20–60 with a
 5 ms delay: a run that rings lightly at c = 20 is heavily damped at c = 60) falls back to safe
-runs with at least 3 cycles (``phoid.fits.decay.MIN_CYCLES``) at the nominal plant, with a warning:
+runs with at least 3 cycles (``phoid.fits.MIN_CYCLES``) at the nominal plant, with a warning:
 such a schedule is a first experiment whose identification narrows the prior for a second
 design. With so few cycles the prediction is optimistic (bench/bench_design.py: the spread of
 ``identify`` at c = 60 is ≈ 1.3 × the bound).
@@ -98,7 +98,7 @@ from phoid import _validate as v
 from phoid._output import OutputFolder, png_writer
 from phoid.dynamics.loop import characteristic, rightmost_roots
 from phoid.errors import PhoidError
-from phoid.fits.decay import MIN_CYCLES
+from phoid.fits import MIN_CYCLES
 from phoid.methods.pho import Estimate
 from phoid.planning.fisher import _safe_inverse, mode_information, release_amplitude
 
@@ -1596,7 +1596,7 @@ def check_experiment(
 
 def _record_settings(exp) -> dict[str, float]:
     """Sample rate, record length after the release and release amplitude seen in a set."""
-    from phoid.fits.decay import detect_release
+    from phoid.fits import detect_release
 
     fs, dur, amp = [], [], []
     for r in exp.runs:
