@@ -10,9 +10,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from phoid.fits._stack import Stack
+from phoid.fits._stack import Stack, every
 
-__all__ = ["MAXIT", "descend", "gauss_newton", "polish", "put", "take"]
+__all__ = ["MAXIT", "descend", "gauss_newton", "polish", "put", "small_step", "take"]
 
 #: most Gauss–Newton iterations of one fit
 MAXIT = 50
@@ -31,13 +31,15 @@ def put(pt: dict, sel, new: dict) -> None:
         pt[k][sel] = v
 
 
-def step_se(Minv, g, sse, dof):
-    """Gauss–Newton step (σ, ω_d) and its standard errors at residual variance sse/dof."""
-    step = np.einsum("rij,rj->ri", Minv[:, -2:], g)
-    var = sse / dof
-    se0 = np.sqrt(np.maximum(Minv[:, -2, -2] * var, 0.0))
-    se1 = np.sqrt(np.maximum(Minv[:, -1, -1] * var, 0.0))
-    return step, se0, se1
+def small_step(Minv: np.ndarray, g: np.ndarray, sse: np.ndarray, dof: np.ndarray,
+               rtol_se: float, floor: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The Gauss–Newton step (σ, ω_d) per record, (JᵀJ)⁻¹ Jᵀr's last two rows, and whether
+    both of its components are at most max(``rtol_se`` standard errors, ``floor``), the
+    standard errors at the residual variance sse/dof."""
+    step = (Minv[:, -2:] @ g[:, :, None])[:, :, 0]
+    dg = Minv.diagonal(axis1=1, axis2=2)[:, -2:]
+    se = np.sqrt(np.maximum(dg * (sse / dof)[:, None], 0.0))
+    return step, (np.abs(step) <= np.maximum(rtol_se * se, floor[:, None])).all(axis=1)
 
 
 def gauss_newton(bt: Stack, pt: dict, rtol_se: float = 0.05, maxit: int | None = None):
@@ -58,20 +60,22 @@ def gauss_newton(bt: Stack, pt: dict, rtol_se: float = 0.05, maxit: int | None =
     iters = np.zeros(R, int)
     act = np.arange(R)
     for it in range(maxit + 1):
-        sub = take(pt, act)
+        sub = pt if act.size == R else take(pt, act)
         Mi, g, ok = bt.normal(sub)
         Minv[act] = Mi
         iters[act] = it
-        act, Mi, g, sub = act[ok], Mi[ok], g[ok], take(sub, ok)
-        if act.size == 0:
-            break
-        step, se0, se1 = step_se(Mi, g, sub["sse"], bt.dof[act])
-        scale = np.abs(sub["sig"]) + np.abs(sub["om"])
-        done = (np.abs(step[:, 0]) <= np.maximum(rtol_se * se0, 1e-10 * scale)) & (
-            np.abs(step[:, 1]) <= np.maximum(rtol_se * se1, 1e-10 * scale))
-        converged[act[done]] = True
-        keep = ~done
-        act, step, scale, sub = act[keep], step[keep], scale[keep], take(sub, keep)
+        sig, om, sse = sub["sig"], sub["om"], sub["sse"]
+        if not every(ok):
+            act, Mi, g, sig, om, sse = act[ok], Mi[ok], g[ok], sig[ok], om[ok], sse[ok]
+            if act.size == 0:
+                break
+        scale = np.abs(sig) + np.abs(om)
+        step, done = small_step(Mi, g, sse, bt.dof[act], rtol_se, 1e-10 * scale)
+        if np.count_nonzero(done):
+            converged[act[done]] = True
+            keep = ~done
+            act, step, scale = act[keep], step[keep], scale[keep]
+            sig, om, sse = sig[keep], om[keep], sse[keep]
         if act.size == 0 or it == maxit:
             break
         # step halving per record, all records still searching evaluated together
@@ -80,20 +84,29 @@ def gauss_newton(bt: Stack, pt: dict, rtol_se: float = 0.05, maxit: int | None =
         search = np.arange(act.size)
         while search.size:
             rows = act[search]
-            cand = bt.evaluate(rows, sub["sig"][search] + lam[search] * step[search, 0],
-                               np.abs(sub["om"][search] + lam[search] * step[search, 1]))
-            good = cand["ok"] & (cand["sse"] <= sub["sse"][search] + bt.floor[rows])
+            cand = bt.evaluate(rows, sig[search] + lam[search] * step[search, 0],
+                               np.abs(om[search] + lam[search] * step[search, 1]))
+            good = cand["ok"] & (cand["sse"] <= sse[search] + bt.floor[rows])
+            if every(good):
+                if rows.size == R:
+                    pt = cand  # every record moved: the new point whole
+                else:
+                    put(pt, rows, cand)
+                moved[search] = True
+                break
+            # (pt's rows still searched, read through sig, om, sse, are not written here)
             put(pt, rows[good], take(cand, good))
             moved[search[good]] = True
             lam[search[~good]] *= 0.5
             search = search[~good & (lam[search] >= 2.0**-12)]
         # no descent: at the rounding floor if the step is tiny, else stuck
-        stuck = ~moved
-        tiny = (np.abs(step[:, 0]) <= 1e-6 * scale) & (np.abs(step[:, 1]) <= 1e-6 * scale)
-        converged[act[stuck & tiny]] = True
-        act = act[moved]
-        if act.size == 0:
-            break
+        if not every(moved):
+            stuck = ~moved
+            tiny = (np.abs(step[:, 0]) <= 1e-6 * scale) & (np.abs(step[:, 1]) <= 1e-6 * scale)
+            converged[act[stuck & tiny]] = True
+            act = act[moved]
+            if act.size == 0:
+                break
     return pt, Minv, converged, iters
 
 
@@ -107,20 +120,20 @@ def polish(bt: Stack, pt: dict, Minv: np.ndarray, rtol_se: float = 0.05):
     r, Gr = bt.residual(rows, pt)
     has = np.isfinite(Minv).all(axis=(1, 2))
     _m, g_all, _ok = bt.normal(pt, Gr, minv=Minv)
-    act = rows[has]
+    act = rows if every(has) else rows[has]
+    dof = np.maximum(bt.n - bt.m, 1)
     for _ in range(3):
         if act.size == 0:
             break
-        sub = take(pt, act)
+        sig, om = pt["sig"][act], pt["om"][act]
         sse = np.array([float(r[i] @ r[i]) for i in act.tolist()])
-        step, se0, se1 = step_se(Minv[act], g_all[act], sse, np.maximum(bt.n[act] - bt.m, 1))
-        tiny = 1e-15 * (np.abs(sub["sig"]) + np.abs(sub["om"]))
-        small = (np.abs(step[:, 0]) <= np.maximum(rtol_se * se0, tiny)) & (
-            np.abs(step[:, 1]) <= np.maximum(rtol_se * se1, tiny))
-        act, step, sse, sub = act[~small], step[~small], sse[~small], take(sub, ~small)
-        if act.size == 0:
+        step, small = small_step(Minv[act], g_all[act], sse, dof[act], rtol_se,
+                                 1e-15 * (np.abs(sig) + np.abs(om)))
+        if every(small):
             break
-        q = bt.evaluate(act, sub["sig"] + step[:, 0], np.abs(sub["om"] + step[:, 1]))
+        big = ~small
+        act, step, sse, sig, om = act[big], step[big], sse[big], sig[big], om[big]
+        q = bt.evaluate(act, sig + step[:, 0], np.abs(om + step[:, 1]))
         ok = q["ok"]
         r2, Gr2 = bt.residual(act, q)
         ok &= np.array([float(x @ x) for x in r2]) <= sse
@@ -147,10 +160,10 @@ def descend(st: Stack, sig: np.ndarray, om: np.ndarray, rtol_se: float = 0.05,
     """
     pt = st.evaluate(np.arange(st.R), sig, om)
     ok = pt["ok"]
-    if not ok.any():
+    if not np.count_nonzero(ok):
         return None
     rows = np.flatnonzero(ok)
-    if not ok.all():
+    if not every(ok):
         st = st.subset(rows)
         pt = st.evaluate(np.arange(rows.size), sig[rows], om[rows])
     pt, Minv, converged, iters = gauss_newton(st, pt, rtol_se, maxit)

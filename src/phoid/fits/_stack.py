@@ -39,6 +39,7 @@ __all__ = [
     "Stack",
     "TableStack",
     "block_size",
+    "every",
     "fast_columns",
     "inv_each",
     "lin_index",
@@ -85,9 +86,20 @@ def make_stack(taus: Sequence[np.ndarray], xs: Sequence[np.ndarray], udt: float 
     return DirectStack(taus, xs, roots)
 
 
+def every(a: np.ndarray) -> bool:
+    """Whether every element of the boolean array ``a`` is True (cheaper than ``a.all()``
+    on the few elements of a stack's per-record flags)."""
+    return np.count_nonzero(a) == a.size
+
+
 def n_columns(roots: np.ndarray) -> int:
     """Fast-mode columns of the roots: one per real root, two per complex one."""
     return int(roots.size + np.count_nonzero(roots.imag))
+
+
+#: R = [[−a, −b], [b, −a]] from the linear parameters (x_off, a, b, …): their indices, signs
+_ROT = np.array([1, 2, 2, 1])
+_ROT_SIGN = np.array([-1.0, -1.0, 1.0, -1.0])
 
 
 class Stack:
@@ -198,20 +210,21 @@ class Stack:
             else:
                 K, Gx = K5, Gx5
                 Kl, Gl = K[:, :3, :3], Gx[:, :3]
-            dg = np.diagonal(Kl, axis1=1, axis2=2)
+            dg = Kl.diagonal(axis1=1, axis2=2)
             ok = np.isfinite(K).all(axis=(1, 2)) & np.isfinite(Gx).all(axis=1) & (dg > 0).all(
                 axis=1)
-        if ok.all():
+        if every(ok):
             d = np.sqrt(dg)
             beta = solve_each(Kl / (d[:, :, None] * d[:, None, :]), Gl / d) / d
         else:
             beta = np.full((r, Gl.shape[1]), np.nan)
-            if ok.any():
+            if np.count_nonzero(ok):
                 d = np.sqrt(dg[ok])
                 beta[ok] = solve_each(Kl[ok] / (d[:, :, None] * d[:, None, :]), Gl[ok] / d) / d
         ok &= np.isfinite(beta).all(axis=1)
-        bz = np.where(ok[:, None], beta, 0.0)
-        sse = np.maximum(self.xx[idx] - np.einsum("rk,rk->r", bz, Gl), 0.0)
+        bz = beta if every(ok) else np.where(ok[:, None], beta, 0.0)
+        xx = self.xx if r == self.R else self.xx[idx]
+        sse = np.maximum(xx - (bz[:, None, :] @ Gl[:, :, None])[:, 0, 0], 0.0)
         pt = {"sig": sig, "om": om, "K": K, "Gx": Gx, "beta": beta, "sse": sse, "ok": ok}
         pt.update(keep)
         return pt
@@ -225,41 +238,31 @@ class Stack:
         new gradient is rotated. Returns (Minv, g, ok), Minv NaN where the normal matrix is
         singular."""
         K, beta = pt["K"], pt["beta"]
-        a, b = beta[:, 1], beta[:, 2]
-        m, kc = self.m, self.kc
+        r, m, kc = K.shape[0], self.m, self.kc
         if Gr is None:
             Kb = K[:, :, self.lin] if kc else K[:, :, :3]
-            G = pt["Gx"] - np.einsum("rij,rj->ri", Kb, beta)
-        else:
-            G = Gr
-        g = G[:, self.perm] if kc else G.copy()
-        g3, g4 = g[:, -2].copy(), g[:, -1].copy()
-        g[:, -2] = -a * g3 - b * g4
-        g[:, -1] = b * g3 - a * g4
+            Gr = pt["Gx"] - (Kb @ beta[:, :, None])[:, :, 0]
+        # T: the identity but for the rows τC, τS (3, 4), rotated by R
+        T = np.zeros((r, m, m))
+        T.reshape(r, m * m)[:, :: m + 1] = 1.0
+        T[:, 3:5, 3:5] = (beta[:, _ROT] * _ROT_SIGN).reshape(r, 2, 2)  # [[−a, −b], [b, −a]]
+        g = (T @ Gr[:, :, None])[:, :, 0]
+        if kc:
+            g = g[:, self.perm]
         if minv is not None:
             return minv, g, np.isfinite(minv).all(axis=(1, 2))
-        M = K[:, self.perm][:, :, self.perm] if kc else K.copy()
-        i, j = m - 2, m - 1
-        ci, cj = M[:, :, i].copy(), M[:, :, j].copy()
-        c3 = -a[:, None] * ci - b[:, None] * cj
-        c4 = b[:, None] * ci - a[:, None] * cj
-        M[:, :, i] = c3
-        M[:, :, j] = c4
-        M[:, i, :] = c3
-        M[:, j, :] = c4
-        k33, k34, k44 = ci[:, i], ci[:, j], cj[:, j]
-        M[:, i, i] = a * a * k33 + 2 * a * b * k34 + b * b * k44
-        M[:, j, j] = b * b * k33 - 2 * a * b * k34 + a * a * k44
-        M[:, i, j] = M[:, j, i] = a * b * (k44 - k33) + (a * a - b * b) * k34
-        diag = np.diagonal(M, axis1=1, axis2=2)
+        M = T @ K @ T.transpose(0, 2, 1)
+        if kc:
+            M = M[:, self.perm][:, :, self.perm]
+        diag = M.diagonal(axis1=1, axis2=2)
         ok = np.isfinite(M).all(axis=(1, 2)) & (diag > 0).all(axis=1)
-        if ok.all():
+        if every(ok):
             d = np.sqrt(diag)
             dd = d[:, :, None] * d[:, None, :]
             Minv = inv_each(M / dd) / dd
         else:
             Minv = np.full_like(M, np.nan)
-            if ok.any():
+            if np.count_nonzero(ok):
                 d = np.sqrt(diag[ok])
                 dd = d[:, :, None] * d[:, None, :]
                 Minv[ok] = inv_each(M[ok] / dd) / dd
@@ -294,27 +297,19 @@ class TableStack(Stack):
         consts = table_constants(B, nbmax, float(dt))
         self.j, self.b, self.jb = consts[2], consts[3], consts[4]
         self.Pw, self.Cm, self.Amap = consts[5], consts[6], consts[8]
-        self.bvalid = self.b[None, :] < nb[:, None]
-        self.last = nb - 1
-        j0 = n - (nb - 1) * B  # first padding index of each record's last block
-        self.padmask = (self.j[None, :] >= j0[:, None]).astype(float)
-        bB = ((nb - 1) * B).astype(float)
-        Cpad = np.zeros((R, 3, 3), complex)
-        Cpad[:, 0, 0] = Cpad[:, 1, 1] = Cpad[:, 2, 2] = 1.0
-        Cpad[:, 0, 1] = bB
-        Cpad[:, 0, 2] = bB * bB
-        Cpad[:, 1, 2] = 2.0 * bB
-        self.Cpad = Cpad
+        self.bvalid, self.last, self.PadC, self.full = _padding(B, nbmax, tuple(n.tolist()))
 
     def _like(self, taus, xs, roots):
         return TableStack(taus, xs, roots, self.dt)
 
-    def _tables(self, idx, sig, om):
-        """e^{s dt j} (r, B) and e^{s dt B b} (r, nbmax), the latter zero beyond each record."""
+    def _tables(self, idx, sig, om, out=None):
+        """The table e^{s dt [j; B b]} (r, B + nbmax) (into ``out``), its F_j = e^{s dt j}
+        (r, B) and W_b = e^{s dt B b} (r, nbmax), W zero beyond each record's blocks."""
         ls = (-sig + 1j * om) * self.dt
-        e = np.exp(ls[:, None] * self.jb[None, :])
-        W = np.where(self.bvalid[idx], e[:, self.B:], 0.0)
-        return e, e[:, : self.B], W
+        e = np.exp(ls[:, None] * self.jb, out=out)
+        if not self.full:
+            e[:, self.B:] = np.where(self.bvalid[idx], e[:, self.B:], 0.0)
+        return e, e[:, : self.B], e[:, self.B:]
 
     def _data(self, idx, F, W):
         """Σ_n x_n w^n and Σ_n n x_n w^n per record ``idx`` (the records' blocked data; one
@@ -333,33 +328,34 @@ class TableStack(Stack):
 
     def _sums(self, Pm, W):
         """(Σ_b W_b P0_b, B Σ_b b W_b P0_b + Σ_b W_b P1_b) from the block products Pm."""
-        P0 = Pm[:, :, 0]
-        s0 = np.einsum("rb,rb->r", W, P0)
-        s1 = self.B * np.einsum("rb,rb->r", self.b[None, :] * W, P0) + np.einsum(
-            "rb,rb->r", W, Pm[:, :, 1])
-        return s0, s1
+        WW = np.empty((W.shape[0], 2, W.shape[1]), complex)
+        WW[:, 0] = W
+        np.multiply(W, self.b, out=WW[:, 1])
+        Q = WW @ Pm  # (record, [W, bW], [P0, P1])
+        return Q[:, 0, 0], self.B * Q[:, 1, 0] + Q[:, 0, 1]
 
     def _base(self, idx, sig, om):
         B, r = self.B, idx.size
-        e, F, W = self._tables(idx, sig, om)
-        T = np.empty((r, 3, e.shape[1]), complex)
-        T[:, 0, :B] = F
-        T[:, 0, B:] = W
-        np.multiply(T[:, 0], T[:, 0], out=T[:, 1])
-        T[:, 2] = T[:, 0].real * T[:, 0].real + T[:, 0].imag * T[:, 0].imag
+        sel = slice(None) if r == self.R else idx
+        T = np.empty((r, 3, B + self.nbmax), complex)
+        e, F, W = self._tables(idx, sig, om, out=T[:, 0])
+        np.multiply(e, e, out=T[:, 1])
+        np.multiply(e, e.conj(), out=T[:, 2])  # |w|², imaginary part exactly 0
         S = T @ self.Pw  # (record, table, [Σ j^p F_j, Σ b^p W_b])
         WF = S[:, :, 3:, None] * S[:, :, None, :3]
         mom = WF.reshape(r, 3, 9) @ self.Cm  # (record, table, p): Σ_n n^p w_t^n, padded
         # the last block's padding j ≥ j0: its partial sums, times that block's W
-        Ps = (T[:, :, :B] * self.padmask[idx][:, None, :]) @ self.Pw[:B, :3]
-        Wl = T[np.arange(r), :, B + self.last[idx]]
-        mom -= Wl[:, :, None] * (Ps @ self.Cpad[idx])
-        flat = mom.transpose(0, 2, 1).copy().view(float).reshape(r, 18)
-        K5 = (flat @ self.Amap.T).reshape(r, 5, 5)
-        K5[:, 0, 0] = self.n[idx]
+        Wl = T[:, :, -1] if self.full else T[np.arange(r), :, B + self.last[idx]]
+        mom -= Wl[:, :, None] * (T[:, :, :B] @ self.PadC[sel])
+        K5 = (mom.view(float).reshape(r, 18) @ self.Amap).reshape(r, 5, 5)
+        K5[:, 0, 0] = self.n[sel]
         s0, s1 = self._data(idx, F, W)
         dt = self.dt
-        Gx5 = np.stack([self.sx[idx], s0.real, s0.imag, s1.real * dt, s1.imag * dt], axis=1)
+        Gx5 = np.empty((r, 5))
+        Gx5[:, 0] = self.sx[sel]
+        Gc = Gx5[:, 1:].view(complex)
+        Gc[:, 0] = s0
+        np.multiply(s1, dt, out=Gc[:, 1])
         zh = None
         if self.kc:
             # w^n = W_b F_j (n = bB + j) over the fast columns' span
@@ -403,6 +399,34 @@ class TableStack(Stack):
         Gr[:, 1], Gr[:, 2] = s0.real, s0.imag
         Gr[:, 3], Gr[:, 4] = s1.real * dt, s1.imag * dt
         return rs, Gr
+
+
+@functools.lru_cache(maxsize=64)
+def _padding(B: int, nbmax: int, ns: tuple[int, ...]):
+    """The padding of a :class:`TableStack` of records of ``ns`` samples in blocks of B:
+    which blocks are a record's own (record, block), each record's last block, the map from
+    the table F to the sums Σ j^p F_j over the last block's padding j ≥ j0 shifted to
+    n = (nb − 1)B + j (record, j, p), and whether no record has padding blocks."""
+    n = np.array(ns)
+    nb = -(-n // B)
+    R = n.size
+    b = np.arange(nbmax)
+    j = np.arange(B)
+    bvalid = b[None, :] < nb[:, None]
+    j0 = n - (nb - 1) * B  # first padding index of each record's last block
+    padmask = (j[None, :] >= j0[:, None]).astype(float)
+    bB = ((nb - 1) * B).astype(float)
+    Cpad = np.zeros((R, 3, 3), complex)
+    Cpad[:, 0, 0] = Cpad[:, 1, 1] = Cpad[:, 2, 2] = 1.0
+    Cpad[:, 0, 1] = bB
+    Cpad[:, 0, 2] = bB * bB
+    Cpad[:, 1, 2] = 2.0 * bB
+    jpow = np.stack((np.ones(B), j, j * j), axis=1)
+    PadC = (padmask[:, :, None] * jpow[None, :, :]) @ Cpad
+    last = nb - 1
+    for arr in (bvalid, last, PadC):
+        arr.setflags(write=False)
+    return bvalid, last, PadC, bool((nb == nbmax).all())
 
 
 class DirectStack(Stack):
@@ -513,7 +537,10 @@ def table_constants(B: int, nb: int, dt: float):
     put(3, 3, [(h2, 2, 2, 0), (h2, 2, 1, 0)])
     put(3, 4, [(h2, 2, 1, 1)])
     put(4, 4, [(h2, 2, 2, 0), (-h2, 2, 1, 0)])
-    out = (jpow, bpow, j, b, jb, Pw, Cm, Cpad, A)
+    # the same map for the moments laid out (table t, power p, part c): index 6t + 2p + c,
+    # transposed for a right product
+    At = np.ascontiguousarray(A.reshape(25, 3, 3, 2).transpose(0, 2, 1, 3).reshape(25, 18).T)
+    out = (jpow, bpow, j, b, jb, Pw, Cm, Cpad, At)
     for arr in out:
         arr.setflags(write=False)
     return out
