@@ -18,8 +18,16 @@ import math
 import numpy as np
 import pytest
 
-from phoid.fits import _solver, _stack, decrement, modal
-from phoid.fits import DecayFit, detect_release, fit_decay, logdec
+from phoid.fits import (
+    DecayFit,
+    _solver,
+    _stack,
+    decrement,
+    detect_release,
+    fit_decay,
+    logdec,
+    modal,
+)
 
 SD = 1e-4  # m, white-noise sd of the sample set (truth.json)
 Q = 1e-6  # m, quantisation step of the sample set (truth.json)
