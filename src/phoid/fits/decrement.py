@@ -142,10 +142,8 @@ def logdec(t, x, *, release=None, skip=0.0) -> DecayFit:
     (successive differences share an extremum) propagated from the local fits; σ = δω_d/π.
     Variances are scaled by the noise variance (held segment, else second differences), and by
     a regression's reduced χ² when that is significantly above 1 (misfit widens them).
-
-    On noise-free single-mode records sampled at ≥ ~100 samples a period the relative error is
-    ~10⁻⁸ (≤ 10⁻⁷ for ζ up to 0.3); on the sample set's noise its standard errors are 2–4
-    times those of :func:`fit_decay`.
+    Its accuracy and efficiency against :func:`phoid.fits.modal.fit_decay`:
+    docs/design-notes/fits.md, "logdec".
 
     Examples
     --------

@@ -141,28 +141,24 @@ def fit_decay(
     longer than the start segment (barely damped loops with hundreds of cycles) are first
     fitted on block means of windows growing fourfold, each started from the last.
     On uniform sampling every sum the solver needs (Σ τᵖ e^{2sτ}, Σ x τᵖ e^{sτ}, …) is formed
-    from two √n-long exponential tables (n = bB + j), with no transcendental per sample; one
-    fit of 15 000 samples takes about 1–1.4 ms.
+    from two √n-long exponential tables (n = bB + j), with no transcendental per sample
+    (:class:`phoid.fits._stack.TableStack`).
 
     Covariance: RSS/(n − p) · (JᵀJ)⁻¹ with J the n × p Jacobian of all p parameters (5, plus
     the fast modes' amplitudes) at the optimum, its (σ, ω_d) block taken — the Cramér–Rao bound
     of this model at the estimate, with the noise variance from the residuals (so unmodelled
-    signal inflates it). Over seeded Monte Carlo replicas its square roots match the scatter of
-    the estimates to a few per cent.
+    signal inflates it).
 
     Window: the whole record after release + skip is fitted. The tail lost in noise is kept:
     it costs little time, biases nothing and pins the offset (truncating it only loses offset
     information); ``t_end`` caps the window.
 
-    Fast modes of a delayed loop: its non-dominant roots (for the seed paper's sweep the
-    slowest is real, s₂ = −σ₂ with σ₂ = 22–52 1/s) leave a transient of up to ~5 % of the
-    release displacement, which biases a single-mode fit started at the release (by 11
-    stderr in σ for the sample set's run 19). Either skip it — until the slowest fast mode's
-    envelope |A₂|e^{−σ₂t} is below ~0.01 noise sd; for the sample set
-    ``skip = max(2Δt, 5/(σ₂ − σ))`` does it — or give the two slowest non-dominant roots as
-    ``fast_roots`` and fit from the release. For the sample set the skip costs 13–15 % in the
-    standard errors of m, c and k against the Cramér–Rao bound of truth.json; the fast roots
-    (known to ≲ 1 %) cost 2–5 %, with a bias below 0.01 standard error.
+    Fast modes of a delayed loop: its non-dominant roots leave a transient right after the
+    release that biases a single-mode fit started there. Either skip it — until the slowest
+    fast mode's envelope |A₂|e^{−σ₂t} is below ~0.01 noise sd, e.g.
+    ``skip = max(2Δt, 5/(σ₂ − σ))`` — or give the two slowest non-dominant roots as
+    ``fast_roots`` and fit from the release, which keeps the information of the first
+    instants (docs/design-notes/fits.md, "fit_decay: skip or fast roots", has the figures).
 
     Examples
     --------

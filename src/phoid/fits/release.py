@@ -293,9 +293,8 @@ def detect_release(t, x) -> float:
     for 3 samples. The release is then refined backwards by least squares over the change point
     τ of x = L (t < τ), x = L + a(t − τ)² (t ≥ τ) up to that sample — the mass starts from
     rest, so it leaves the held level quadratically — and then of x = L + a u² + b u⁴,
-    u = (t − τ)₊, up to 32 noise sds, over candidates within 16 samples. On records like the
-    sample set (0.1 mm noise, 10 mm release, 1 kHz) the error has an sd of about 3 ms and no
-    detectable mean; a held sample or two left in a fit, or a few lost, does not matter to it.
+    u = (t − τ)₊, up to 32 noise sds, over candidates within 16 samples (its accuracy:
+    docs/design-notes/fits.md, "detect_release").
     """
     t, x = check_record(t, x)
     j, _ = locate_release(t, x)

@@ -273,19 +273,35 @@ def start_decay(
     What is left out is what a full fit adds for reporting: the exact residual, covariance and
     warnings. :func:`fit_decay` with ``guess=(start.sigma, start.omega_d)`` and
     ``release=start.release`` continues from it. With ``refine=False`` only the ESPRIT start
-    is made (within about one standard error of the optimum on the seed paper's sweep, but
-    lost on records where a slow non-dominant real mode is strong). ``refine="auto"`` runs
-    Gauss–Newton only where the ESPRIT start is in doubt: where its frequency disagrees with
-    the record's spectral peak (by more than a quarter, and more than 1.5 bins of the FFT), or
-    where it is a heavily damped pair (|σ| > 0.25 ω_d, ζ ≳ 0.24, where a ringing PHO run has
-    ζ ≲ 0.2) — which is how a start goes wrong on such records: on tests/test_identify.py's
-    slow-root run ESPRIT gives σ = 1.0 1/s, ω_d = 1.3 rad/s for the true 1.0 ± 15.0i, and the
-    Gauss–Newton that then runs finds no convergence, so the run is marked not oscillating
-    and started from the rough loop's root. A clean start costs no evaluation of the model.
-    ``coarse_release=True``
-    detects the release by its first stage only (the quadratic change point; the refinement
-    with an even quartic is left out), for callers that refine it with a model of their own.
-    Raises ValueError as :func:`fit_decay` does for unusable input.
+    is made (it can be lost on records where a slow non-dominant real mode is strong).
+    ``refine="auto"`` runs Gauss–Newton only where the ESPRIT start is in doubt: where its
+    frequency disagrees with the record's spectral peak (by more than a quarter, and more than
+    1.5 bins of the FFT), or where it is a heavily damped pair (|σ| > 0.25 ω_d, ζ ≳ 0.24,
+    where a ringing PHO run has ζ ≲ 0.2) — which is how a start goes wrong on such records; a
+    start the Gauss–Newton cannot confirm (no convergence) is marked not oscillating. A clean
+    start costs no evaluation of the model (docs/design-notes/fits.md, "start_decay").
+    ``coarse_release=True`` detects the release by its first stage only (the quadratic change
+    point; the refinement with an even quartic is left out), for callers that refine it with a
+    model of their own. Raises ValueError as :func:`fit_decay` does for unusable input.
+
+    Parameters
+    ----------
+    t : array_like, shape (n,)
+        Sample times, s, strictly increasing.
+    x : array_like, shape (n,)
+        Position, m.
+    release : float, optional
+        Release time, s; default: detected.
+    skip : float, default 0
+        Time after the release left out, s.
+    refine : bool or "auto", default True
+        Whether to confirm the ESPRIT start by Gauss–Newton (see above).
+    coarse_release : bool, default False
+        Detect the release by its change point only.
+
+    Returns
+    -------
+    DecayStart
     """
     pre = _start_prepare(t, x, release=release, skip=skip, coarse_release=coarse_release)
     s, energy = esprit(pre.y, pre.q * pre.dt, order=3)
