@@ -60,17 +60,22 @@ def gauss_newton(bt: Stack, pt: dict, rtol_se: float = 0.05, maxit: int | None =
     iters = np.zeros(R, int)
     act = np.arange(R)
     for it in range(maxit + 1):
-        sub = pt if act.size == R else take(pt, act)
+        whole = act.size == R
+        sub = pt if whole else take(pt, act)
         Mi, g, ok = bt.normal(sub)
-        Minv[act] = Mi
-        iters[act] = it
+        if whole:
+            Minv, iters[:] = Mi, it
+        else:
+            Minv[act], iters[act] = Mi, it
         sig, om, sse = sub["sig"], sub["om"], sub["sse"]
+        dof = bt.dof if whole else bt.dof[act]
         if not every(ok):
-            act, Mi, g, sig, om, sse = act[ok], Mi[ok], g[ok], sig[ok], om[ok], sse[ok]
+            act, Mi, g, dof = act[ok], Mi[ok], g[ok], dof[ok]
+            sig, om, sse = sig[ok], om[ok], sse[ok]
             if act.size == 0:
                 break
         scale = np.abs(sig) + np.abs(om)
-        step, done = small_step(Mi, g, sse, bt.dof[act], rtol_se, 1e-10 * scale)
+        step, done = small_step(Mi, g, sse, dof, rtol_se, 1e-10 * scale)
         if np.count_nonzero(done):
             converged[act[done]] = True
             keep = ~done
@@ -78,35 +83,37 @@ def gauss_newton(bt: Stack, pt: dict, rtol_se: float = 0.05, maxit: int | None =
             sig, om, sse = sig[keep], om[keep], sse[keep]
         if act.size == 0 or it == maxit:
             break
-        # step halving per record, all records still searching evaluated together
-        lam = np.ones(act.size)
-        moved = np.zeros(act.size, bool)
-        search = np.arange(act.size)
+        # the full step for every record still iterating, then step halving for those whose
+        # RSS it raised (beyond rounding), all records still searching evaluated together
+        # (pt's rows still searched, read through sig, om, sse, are not written meanwhile)
+        cand = bt.evaluate(act, sig + step[:, 0], np.abs(om + step[:, 1]))
+        good = cand["ok"] & (cand["sse"] <= sse + bt.floor[act])
+        if every(good):
+            if act.size == R:
+                pt = cand  # every record moved: the new point whole
+            else:
+                put(pt, act, cand)
+            continue
+        put(pt, act[good], take(cand, good))
+        moved = good
+        lam = np.full(act.size, 0.5)
+        search = np.flatnonzero(~good)
         while search.size:
             rows = act[search]
             cand = bt.evaluate(rows, sig[search] + lam[search] * step[search, 0],
                                np.abs(om[search] + lam[search] * step[search, 1]))
             good = cand["ok"] & (cand["sse"] <= sse[search] + bt.floor[rows])
-            if every(good):
-                if rows.size == R:
-                    pt = cand  # every record moved: the new point whole
-                else:
-                    put(pt, rows, cand)
-                moved[search] = True
-                break
-            # (pt's rows still searched, read through sig, om, sse, are not written here)
             put(pt, rows[good], take(cand, good))
             moved[search[good]] = True
             lam[search[~good]] *= 0.5
             search = search[~good & (lam[search] >= 2.0**-12)]
         # no descent: at the rounding floor if the step is tiny, else stuck
-        if not every(moved):
-            stuck = ~moved
-            tiny = (np.abs(step[:, 0]) <= 1e-6 * scale) & (np.abs(step[:, 1]) <= 1e-6 * scale)
-            converged[act[stuck & tiny]] = True
-            act = act[moved]
-            if act.size == 0:
-                break
+        stuck = ~moved
+        tiny = (np.abs(step[:, 0]) <= 1e-6 * scale) & (np.abs(step[:, 1]) <= 1e-6 * scale)
+        converged[act[stuck & tiny]] = True
+        act = act[moved]
+        if act.size == 0:
+            break
     return pt, Minv, converged, iters
 
 

@@ -210,19 +210,18 @@ class Stack:
             else:
                 K, Gx = K5, Gx5
                 Kl, Gl = K[:, :3, :3], Gx[:, :3]
+            # the linear part of every record, equilibrated to a unit diagonal (a record whose
+            # sums overflowed or whose diagonal is not positive gives NaN here: not ok)
             dg = Kl.diagonal(axis1=1, axis2=2)
-            ok = np.isfinite(K).all(axis=(1, 2)) & np.isfinite(Gx).all(axis=1) & (dg > 0).all(
-                axis=1)
-        if every(ok):
             d = np.sqrt(dg)
             beta = solve_each(Kl / (d[:, :, None] * d[:, None, :]), Gl / d) / d
+            ok = (np.isfinite(K).all(axis=(1, 2)) & np.isfinite(Gx).all(axis=1)
+                  & (dg > 0).all(axis=1) & np.isfinite(beta).all(axis=1))
+        if every(ok):
+            bz = beta
         else:
-            beta = np.full((r, Gl.shape[1]), np.nan)
-            if np.count_nonzero(ok):
-                d = np.sqrt(dg[ok])
-                beta[ok] = solve_each(Kl[ok] / (d[:, :, None] * d[:, None, :]), Gl[ok] / d) / d
-        ok &= np.isfinite(beta).all(axis=1)
-        bz = beta if every(ok) else np.where(ok[:, None], beta, 0.0)
+            beta[~ok] = np.nan
+            bz = np.where(ok[:, None], beta, 0.0)
         xx = self.xx if r == self.R else self.xx[idx]
         sse = np.maximum(xx - (bz[:, None, :] @ Gl[:, :, None])[:, 0, 0], 0.0)
         pt = {"sig": sig, "om": om, "K": K, "Gx": Gx, "beta": beta, "sse": sse, "ok": ok}
@@ -255,18 +254,13 @@ class Stack:
         if kc:
             M = M[:, self.perm][:, :, self.perm]
         diag = M.diagonal(axis1=1, axis2=2)
-        ok = np.isfinite(M).all(axis=(1, 2)) & (diag > 0).all(axis=1)
-        if every(ok):
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
             d = np.sqrt(diag)
             dd = d[:, :, None] * d[:, None, :]
             Minv = inv_each(M / dd) / dd
-        else:
-            Minv = np.full_like(M, np.nan)
-            if np.count_nonzero(ok):
-                d = np.sqrt(diag[ok])
-                dd = d[:, :, None] * d[:, None, :]
-                Minv[ok] = inv_each(M[ok] / dd) / dd
-        ok &= np.isfinite(Minv).all(axis=(1, 2))
+        ok = np.isfinite(Minv).all(axis=(1, 2)) & (diag > 0).all(axis=1)
+        if not every(ok):
+            Minv[~ok] = np.nan
         return Minv, g, ok
 
 
