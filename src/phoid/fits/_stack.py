@@ -212,11 +212,10 @@ class Stack:
                 Kl, Gl = K[:, :3, :3], Gx[:, :3]
             # the linear part of every record, equilibrated to a unit diagonal (a record whose
             # sums overflowed or whose diagonal is not positive gives NaN here: not ok)
-            dg = Kl.diagonal(axis1=1, axis2=2)
-            d = np.sqrt(dg)
+            d = np.sqrt(Kl.diagonal(axis1=1, axis2=2))
             beta = solve_each(Kl / (d[:, :, None] * d[:, None, :]), Gl / d) / d
             ok = (np.isfinite(K).all(axis=(1, 2)) & np.isfinite(Gx).all(axis=1)
-                  & (dg > 0).all(axis=1) & np.isfinite(beta).all(axis=1))
+                  & np.isfinite(beta).all(axis=1))
         if every(ok):
             bz = beta
         else:
@@ -253,12 +252,13 @@ class Stack:
         M = T @ K @ T.transpose(0, 2, 1)
         if kc:
             M = M[:, self.perm][:, :, self.perm]
-        diag = M.diagonal(axis1=1, axis2=2)
+        # equilibrated to a unit diagonal; a diagonal entry that is not positive or finite
+        # makes the record's inverse NaN: not ok
         with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-            d = np.sqrt(diag)
+            d = np.sqrt(M.diagonal(axis1=1, axis2=2))
             dd = d[:, :, None] * d[:, None, :]
             Minv = inv_each(M / dd) / dd
-        ok = np.isfinite(Minv).all(axis=(1, 2)) & (diag > 0).all(axis=1)
+        ok = np.isfinite(Minv).all(axis=(1, 2))
         if not every(ok):
             Minv[~ok] = np.nan
         return Minv, g, ok
@@ -363,35 +363,40 @@ class TableStack(Stack):
         record (each record's arrays stay in cache)."""
         beta, F, W = pt["beta"], pt["F"], pt["W"]
         coef = beta[:, 1] - 1j * beta[:, 2]
-        B, dt = self.B, self.dt
+        B, r = self.B, idx.size
         rs: list[np.ndarray] = []
-        Pm = np.empty((idx.size, self.nbmax, 2), complex)
-        Pm[:] = 0.0
-        Gr = np.empty((idx.size, self.m))
+        Pm = np.zeros((r, self.nbmax, 2), complex)
+        Gr = np.empty((r, self.m))
+        # (F_j, j F_j) per record, for the block products of the residual
+        Fm = np.empty((r, B, 2), complex)
+        Fm[:, :, 0] = F
+        np.multiply(self.j, F, out=Fm[:, :, 1])
+        Fv = Fm.view(float)
         with np.errstate(over="ignore", invalid="ignore", under="ignore"):
             for k, i in enumerate(idx.tolist()):
                 n, nb = int(self.n[i]), int(self.nb[i])
                 # Re((a − ib) W_b F_j) as one rank-2 real product, then x − it − x_off
                 wc = W[k, :nb] * coef[k]
-                R = np.stack((wc.real, -wc.imag), axis=1) @ np.stack((F[k].real, F[k].imag))
+                wv = np.empty((nb, 2))
+                wv[:, 0] = wc.real
+                np.negative(wc.imag, out=wv[:, 1])
+                R = wv @ F[k].view(float).reshape(B, 2).T
                 np.subtract(self.X[i, :nb], R, out=R)
                 R -= beta[k, 0]
                 flat = R.reshape(-1)
                 flat[n:] = 0.0  # the padding stays out of every sum
-                r = flat[:n]
+                r_ = flat[:n]
                 if self.kc:
                     c = self.cols[i]
-                    r[: c.shape[1]] -= beta[k, 3:] @ c
-                    Gr[k, 5:] = c @ r[: c.shape[1]]
-                Fm = np.empty((B, 2), complex)
-                Fm[:, 0] = F[k]
-                np.multiply(self.j, F[k], out=Fm[:, 1])
-                np.matmul(R, Fm.view(float), out=Pm[k, :nb].view(float))
-                Gr[k, 0] = r.sum()
-                rs.append(r)
+                    r_[: c.shape[1]] -= beta[k, 3:] @ c
+                    Gr[k, 5:] = c @ r_[: c.shape[1]]
+                np.matmul(R, Fv[k], out=Pm[k, :nb].view(float))
+                Gr[k, 0] = r_.sum()
+                rs.append(r_)
             s0, s1 = self._sums(Pm, W)
-        Gr[:, 1], Gr[:, 2] = s0.real, s0.imag
-        Gr[:, 3], Gr[:, 4] = s1.real * dt, s1.imag * dt
+        Gc = Gr[:, 1:5].view(complex)
+        Gc[:, 0] = s0
+        np.multiply(s1, self.dt, out=Gc[:, 1])
         return rs, Gr
 
 
