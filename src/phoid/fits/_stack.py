@@ -21,9 +21,9 @@ Two kinds of stack share that algebra and differ only in how the sums are formed
 :class:`DirectStack`
     any sampling: the basis is formed sample by sample.
 
-Records of a stack are zero-padded to the longest; the padding enters no sum, and every
-reduction runs per record, so a record's numbers do not depend on the others in its stack.
-A single record is a stack of one.
+Records of a stack are zero-padded to the longest; the padding enters no sum, so a record's
+numbers do not depend on the others in its stack beyond rounding (a BLAS product over a padded
+axis may block the same sum differently). A single record is a stack of one.
 """
 
 from __future__ import annotations

@@ -8,7 +8,7 @@ Gauss–Newton step moves (σ, ω_d) (:mod:`phoid.fits._solver`). Its standard e
 Cramér–Rao bound of the single-mode model. There is one implementation, for a stack of records:
 the records that share a sampling step, a block size and a number of fast-mode columns are
 fitted together, each keeping its own iteration and stopping point; a single record is a stack
-of one, and a record's result does not depend on the others fitted with it.
+of one, and a record's result does not depend on the others fitted with it (beyond rounding).
 """
 
 from __future__ import annotations
