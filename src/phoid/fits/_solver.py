@@ -76,18 +76,21 @@ def gauss_newton(bt: Stack, pt: dict, rtol_se: float = 0.05, maxit: int | None =
                 break
         scale = np.abs(sig) + np.abs(om)
         step, done = small_step(Mi, g, sse, dof, rtol_se, 1e-10 * scale)
+        if every(done):
+            converged[act] = True
+            break
         if np.count_nonzero(done):
             converged[act[done]] = True
             keep = ~done
             act, step, scale = act[keep], step[keep], scale[keep]
             sig, om, sse = sig[keep], om[keep], sse[keep]
-        if act.size == 0 or it == maxit:
+        if it == maxit:
             break
         # the full step for every record still iterating, then step halving for those whose
         # RSS it raised (beyond rounding), all records still searching evaluated together
         # (pt's rows still searched, read through sig, om, sse, are not written meanwhile)
         cand = bt.evaluate(act, sig + step[:, 0], np.abs(om + step[:, 1]))
-        good = cand["ok"] & (cand["sse"] <= sse + bt.floor[act])
+        good = cand["ok"] & (cand["sse"] <= sse + (bt.floor if act.size == R else bt.floor[act]))
         if every(good):
             if act.size == R:
                 pt = cand  # every record moved: the new point whole
@@ -132,10 +135,15 @@ def polish(bt: Stack, pt: dict, Minv: np.ndarray, rtol_se: float = 0.05):
     for _ in range(3):
         if act.size == 0:
             break
-        sig, om = pt["sig"][act], pt["om"][act]
         sse = np.array([float(r[i] @ r[i]) for i in act.tolist()])
-        step, small = small_step(Minv[act], g_all[act], sse, dof[act], rtol_se,
-                                 1e-15 * (np.abs(sig) + np.abs(om)))
+        if act.size == R:
+            sig, om = pt["sig"], pt["om"]
+            step, small = small_step(Minv, g_all, sse, dof, rtol_se,
+                                     1e-15 * (np.abs(sig) + np.abs(om)))
+        else:
+            sig, om = pt["sig"][act], pt["om"][act]
+            step, small = small_step(Minv[act], g_all[act], sse, dof[act], rtol_se,
+                                     1e-15 * (np.abs(sig) + np.abs(om)))
         if every(small):
             break
         big = ~small
