@@ -18,8 +18,6 @@ __all__ = ["MAXIT", "descend", "gauss_newton", "polish", "put", "small_step", "t
 MAXIT = 50
 
 
-
-
 def take(pt: dict, sel) -> dict:
     """The rows ``sel`` of every array of the point ``pt``."""
     return {k: v[sel] for k, v in pt.items()}
