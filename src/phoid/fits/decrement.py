@@ -9,6 +9,7 @@ import math
 from dataclasses import replace
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from phoid._threads import single_blas_thread
 from phoid.fits._stack import make_stack
@@ -97,7 +98,8 @@ def _extrema(tw, xw, offset, noise, per_t):
 
 
 @single_blas_thread
-def logdec(t, x, *, release=None, skip=0.0) -> DecayFit:
+def logdec(t: ArrayLike, x: ArrayLike, *, release: float | None = None,
+           skip: float = 0.0) -> DecayFit:
     """σ and ω_d by the logarithmic decrement of all the extrema above the noise floor.
 
     Parameters

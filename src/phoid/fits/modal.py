@@ -19,6 +19,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from phoid import _validate as v
 from phoid._threads import single_blas_thread
@@ -55,7 +56,9 @@ class FitJob:
     noise_sd: float | None = None
 
 
-def check_fast_roots(fast_roots) -> np.ndarray:
+def check_fast_roots(fast_roots: ArrayLike | None) -> np.ndarray:
+    """The fast roots (1/s) as a complex array, a root and its conjugate as one mode
+    (Im ≥ 0); ValueError unless every root is finite and decaying (Re s < 0)."""
     if fast_roots is None:
         return np.zeros(0, complex)
     try:
@@ -80,7 +83,15 @@ def check_fast_roots(fast_roots) -> np.ndarray:
 
 @single_blas_thread
 def fit_decay(
-    t, x, *, release=None, skip=0.0, t_end=None, noise_sd=None, fast_roots=None, guess=None
+    t: ArrayLike,
+    x: ArrayLike,
+    *,
+    release: float | None = None,
+    skip: float = 0.0,
+    t_end: float | None = None,
+    noise_sd: float | None = None,
+    fast_roots: ArrayLike | None = None,
+    guess: tuple[float, float] | None = None,
 ) -> DecayFit:
     """Decay rate σ and damped frequency ω_d of the dominant mode by maximum likelihood.
 
@@ -180,8 +191,10 @@ def fit_decay(
 
 
 
-def fit_checked(t, x, *, release=None, skip=0.0, t_end=None, noise_sd=None, fast_roots=None,
-                guess=None) -> DecayFit:
+def fit_checked(t: np.ndarray, x: np.ndarray, *, release: float | None = None,
+                skip: float = 0.0, t_end: float | None = None, noise_sd: float | None = None,
+                fast_roots: ArrayLike | None = None,
+                guess: tuple[float, float] | None = None) -> DecayFit:
     """:func:`fit_decay` on a record that has passed ``check_record`` already (float64
     arrays, finite, t strictly increasing): a stack of one. Raises as :func:`fit_decay`."""
     prep = _fit_prepare(t, x, release=release, skip=skip, t_end=t_end, noise_sd=noise_sd,

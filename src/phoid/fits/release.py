@@ -13,6 +13,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from phoid import _validate as v
 from phoid.fits.result import MIN_SAMPLES
@@ -32,7 +33,7 @@ __all__ = [
 _RELEASE_NSD = 8.0
 
 
-def check_record(t, x) -> tuple[np.ndarray, np.ndarray]:
+def check_record(t: ArrayLike, x: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
     """``t`` (s) and ``x`` (m) as float64 arrays, checked for every fit: finite, 1-D, the same
     length, at least ``MIN_SAMPLES`` samples, t strictly increasing, x not constant, no
     magnitude beyond 1e100. Raises ValueError naming the argument and value otherwise."""
@@ -265,7 +266,7 @@ def _refine_release(t: np.ndarray, x: np.ndarray, dep: _Departure, j0: int) -> i
     return int(cand[np.argmin(sse2)])
 
 
-def detect_release(t, x) -> float:
+def detect_release(t: ArrayLike, x: ArrayLike) -> float:
     """Time at which the held mass is let go, s.
 
     Parameters

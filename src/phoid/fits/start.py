@@ -10,6 +10,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from phoid.fits._solver import descend
 from phoid.fits._stack import make_stack
@@ -266,7 +267,13 @@ _START_MAX_DAMPING = 0.25
 
 
 def start_decay(
-    t, x, *, release=None, skip=0.0, refine: bool | str = True, coarse_release=False
+    t: ArrayLike,
+    x: ArrayLike,
+    *,
+    release: float | None = None,
+    skip: float = 0.0,
+    refine: bool | str = True,
+    coarse_release: bool = False,
 ) -> DecayStart:
     """The first stages of :func:`fit_decay`: release, noise, window, start and Gauss–Newton.
 
