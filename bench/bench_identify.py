@@ -10,7 +10,7 @@ Three pipelines on the same records:
   least squares (what a careful notebook user would write). The speed benchmark also times it
   with curve_fit's default finite-difference Jacobian ("curve_fit+OLS, numerical Jacobian"),
   which reaches the same optimum (to ~1e−8) at about twice the cost;
-* **logdec+OLS** — ``phoid.fits.decay.logdec`` per run from the release + 3Δt (peaks, sub-sample
+* **logdec+OLS** — ``phoid.fits.logdec`` per run from the release + 3Δt (peaks, sub-sample
   interpolation, noise-floor cut-off), then eq. (35) by OLS (the paper's route).
 
 The two alternatives are given the **true release instant** (as if the rig logged the release
@@ -38,7 +38,7 @@ from sets import SETS, SetSpec, simulate_replicas
 
 from phoid.api import identify_data
 from phoid.errors import PhoidError
-from phoid.fits.decay import logdec
+from phoid.fits import logdec
 from phoid.io import read_experiment
 from phoid.methods.pho import MCKFit, fit_lines
 

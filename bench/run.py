@@ -475,7 +475,7 @@ PROFILING = [
     "- **2026-12-01 (second session): a further ~22 % less compute on Table 1** (paired as "
     "above against that morning's code: Table 1 0.78, overdamped 0.79, mass–damper 0.90; "
     "estimates unchanged to ~1e−12 stderr): every run's full decay fit is made in one batch "
-    "(`phoid.fits.batch`: the tabulated sums, linear solves, Kaufman normal matrices and the "
+    "(`phoid.fits.modal`: the tabulated sums, linear solves, Kaufman normal matrices and the "
     "step-halving Gauss–Newton stacked over the runs, the per-sample products and exact "
     "residuals record by record — stacked, those streamed 2–5 MB temporaries from memory and "
     "were slower than the one-by-one fits; fit stage 0.71); the first look's ESPRIT "
@@ -534,7 +534,7 @@ PROFILING = [
     "target; phoid now gets 1000 replicas per set (±2.2 % sd), the alternatives 200.",
     "- **Record length 1e7 samples per run (identify).** Profiling the 1e7-sample point "
     "showed the time growing ~50× from 1e6 to 1e7 samples (not 10×): "
-    "`phoid.fits.decay.uniform_step` accepted a record as uniformly sampled only when every time "
+    "`phoid.fits.start.uniform_step` accepted a record as uniformly sampled only when every time "
     "stamp was within 1e−9 of a step of the ideal grid, but float64 time stamps near t = 10 s "
     "carry rounding of ~2e−15 s, 2e−9 of a 1 µs step; such records fell to interpolation and "
     "the per-sample `_Direct` evaluator. Fixed: the test now also allows 64 ulp of the "

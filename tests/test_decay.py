@@ -1,4 +1,4 @@
-"""Free-decay estimators (phoid.fits.decay): exactness, Cramér–Rao calibration, the sample set.
+"""Free-decay estimators (phoid.fits): exactness, Cramér–Rao calibration, the sample set.
 
 Where every expected value comes from:
 - noise-free records are exactly eq. (15) plus an offset, so (σ, ω_d) are known exactly;
@@ -18,8 +18,16 @@ import math
 import numpy as np
 import pytest
 
-from phoid.fits import decay
-from phoid.fits.decay import DecayFit, detect_release, fit_decay, logdec
+from phoid.fits import (
+    DecayFit,
+    _solver,
+    _stack,
+    decrement,
+    detect_release,
+    fit_decay,
+    logdec,
+    modal,
+)
 
 SD = 1e-4  # m, white-noise sd of the sample set (truth.json)
 Q = 1e-6  # m, quantisation step of the sample set (truth.json)
@@ -409,7 +417,7 @@ def test_warning_no_oscillation():
 
 
 def test_warning_not_converged(monkeypatch):
-    monkeypatch.setattr(decay, "_MAXIT", 0)
+    monkeypatch.setattr(_solver, "MAXIT", 0)
     rng = np.random.default_rng(16)
     t = np.arange(15000) / 1000
     f = fit_decay(t, mode(t, 0.5, 6.2) + SD * rng.standard_normal(t.size), release=0.0)
@@ -530,8 +538,9 @@ def test_decayfit_is_frozen_and_summarised():
 def test_docstring_examples_run():
     import doctest
 
-    result = doctest.testmod(decay)
-    assert result.attempted > 0 and result.failed == 0
+    for module in (modal, decrement):
+        result = doctest.testmod(module)
+        assert result.attempted > 0 and result.failed == 0
 
 
 def test_table_and_direct_evaluators_agree():
@@ -540,11 +549,15 @@ def test_table_and_direct_evaluators_agree():
     t = np.arange(15001) / 1000
     x = mode(t, 0.5, 6.2) + SD * rng.standard_normal(t.size)
     fast = np.array([-25.0, complex(-35.0, 73.0)])
-    pa = decay._Table(t, x, fast, 1e-3)(0.51, 6.19)
-    pb = decay._Direct(t, x, fast)(0.51, 6.19)
-    assert np.allclose(pa.K, pb.K, rtol=1e-11, atol=1e-11 * np.abs(pb.K).max())
-    assert np.allclose(pa.Gx, pb.Gx, rtol=1e-11, atol=1e-11 * np.abs(pb.Gx).max())
-    assert np.allclose(pa.beta, pb.beta, rtol=1e-9)
+    one, at = np.arange(1), (np.array([0.51]), np.array([6.19]))
+    pa = _stack.TableStack([t], [x], [fast], 1e-3).evaluate(one, *at)
+    pb = _stack.DirectStack([t], [x], [fast]).evaluate(one, *at)
+    assert pa["ok"][0] and pb["ok"][0]
+    Ka, Kb = pa["K"][0], pb["K"][0]
+    assert np.allclose(Ka, Kb, rtol=1e-11, atol=1e-11 * np.abs(Kb).max())
+    assert np.allclose(pa["Gx"][0], pb["Gx"][0], rtol=1e-11,
+                       atol=1e-11 * np.abs(pb["Gx"][0]).max())
+    assert np.allclose(pa["beta"][0], pb["beta"][0], rtol=1e-9)
 
 
 # --------------------------------------------------------------------------------------------
@@ -643,22 +656,27 @@ def test_table_evaluator_matches_direct(n, fast):
     dt = 1e-3
     tau = dt * np.arange(n)
     x = 2e-4 + mode(tau, 0.5, 6.2) + 1e-4 * rng.standard_normal(n)
-    fr = None if fast is None else np.array(fast)
-    tab = decay._evaluator(tau, x, dt, fr)
-    direct = decay._Direct(tau, x, np.zeros(0, complex) if fr is None else fr)
-    assert isinstance(tab, decay._Table)
+    roots = modal.check_fast_roots(fast)
+    tab = _stack.make_stack([tau], [x], dt, [roots])
+    direct = _stack.DirectStack([tau], [x], [roots])
+    assert isinstance(tab, _stack.TableStack)
+    one = np.arange(1)
     for sig, om in ((0.5, 6.2), (0.47, 6.25), (-0.1, 3.0), (2.0, 40.0)):
-        p, q = tab(sig, om), direct(sig, om)
-        scale = np.abs(q.K).max()
-        np.testing.assert_allclose(p.K, q.K, rtol=1e-9, atol=1e-12 * scale)
-        np.testing.assert_allclose(p.Gx, q.Gx, rtol=1e-9, atol=1e-12 * np.abs(q.Gx).max())
+        p = tab.evaluate(one, np.array([sig]), np.array([om]))
+        q = direct.evaluate(one, np.array([sig]), np.array([om]))
+        assert p["ok"][0] and q["ok"][0]
+        scale = np.abs(q["K"]).max()
+        np.testing.assert_allclose(p["K"], q["K"], rtol=1e-9, atol=1e-12 * scale)
+        np.testing.assert_allclose(p["Gx"], q["Gx"], rtol=1e-9,
+                                   atol=1e-12 * np.abs(q["Gx"]).max())
         if n >= 1000:  # over 64 ms the columns are nearly collinear: β is ill-conditioned
-            np.testing.assert_allclose(p.beta, q.beta, rtol=1e-8, atol=1e-12)
-        r1, g1 = tab.residual(p)
-        r2, g2 = direct.residual(q)
+            np.testing.assert_allclose(p["beta"], q["beta"], rtol=1e-8, atol=1e-12)
+        (r1,), (g1,) = tab.residual(one, p)
+        (r2,), (g2,) = direct.residual(one, q)
         np.testing.assert_allclose(r1, r2, rtol=0, atol=1e-12 if n >= 1000 else 1e-9)
         # G r cancels: compare on the scale |G_i| |r| of its terms
-        tol = (1e-10 if n >= 1000 else 1e-7) * np.sqrt(np.diagonal(q.K)) * np.linalg.norm(r2)
+        tol = ((1e-10 if n >= 1000 else 1e-7) * np.sqrt(np.diagonal(q["K"][0]))
+               * np.linalg.norm(r2))
         assert np.all(np.abs(g1 - g2) <= tol)
 
 
@@ -669,22 +687,26 @@ def test_normal_equations_match_explicit_jacobian(fast):
     dt = 1e-3
     tau = dt * np.arange(3000)
     x = mode(tau, 0.8, 7.0) + 1e-4 * rng.standard_normal(tau.size)
-    fr = None if fast is None else np.array(fast)
-    ev = decay._evaluator(tau, x, dt, fr)
-    p = ev(0.78, 7.03)
-    p.normal()  # (JᵀJ)⁻¹ is kept on the point: the call with the exact G r must reuse it right
-    r, Gr = ev.residual(p)
-    Minv, g = p.normal(Gr)
-    fresh = ev(0.78, 7.03)
-    M2, g2 = fresh.normal(ev.residual(fresh)[1])
+    roots = modal.check_fast_roots(fast)
+    ev = _stack.make_stack([tau], [x], dt, [roots])
+    one, at = np.arange(1), (np.array([0.78]), np.array([7.03]))
+    p = ev.evaluate(one, *at)
+    # (JᵀJ)⁻¹ at the point, reused with the exact G r: as if computed afresh with it
+    Minv0, _g, ok = ev.normal(p)
+    assert ok[0]
+    (r,), Gr = ev.residual(one, p)
+    (Minv,), (g,), _ok = ev.normal(p, Gr, minv=Minv0)
+    fresh = ev.evaluate(one, *at)
+    (M2,), (g2,), _ok = ev.normal(fresh, ev.residual(one, fresh)[1])
     np.testing.assert_array_equal(Minv, M2)
     np.testing.assert_array_equal(g, g2)
-    a, b = p.beta[1:3]
-    z = np.exp(complex(-p.sig, p.om) * tau)
+    a, b = p["beta"][0, 1:3]
+    z = np.exp(complex(-p["sig"][0], p["om"][0]) * tau)
     C, S = z.real, z.imag
     cols = [np.ones_like(tau), C, S]
-    if fr is not None:
-        F = decay._fast_columns(tau, decay._check_fast_roots(fr))
+    if fast is not None:
+        FT, (nf,) = _stack.fast_columns([tau], [roots], None)
+        F = FT[0, : FT.shape[1] // 2, :nf]
         cols += [np.pad(f, (0, tau.size - f.size)) for f in F]
     cols += [-(a * tau * C + b * tau * S), b * tau * C - a * tau * S]
     J = np.array(cols)
@@ -718,7 +740,7 @@ def test_model_with_fast_modes_reproduces_the_fit_residual(sample_set_path):
 def test_fast_long_records_count_as_uniform():
     # 1 MHz time stamps near 10 s carry float rounding of ~2e-9 of a step (ulp(10) = 1.8e-15 s):
     # still uniform sampling (the tabulated evaluator), not a non-uniform record to interpolate
-    from phoid.fits.decay import uniform_step
+    from phoid.fits import uniform_step
 
     t = 9.0 + np.arange(2_000_000) / 1e6
     assert uniform_step(t - t[0], float(t[0])) == pytest.approx(1e-6, rel=1e-12)

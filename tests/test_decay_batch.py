@@ -1,13 +1,15 @@
-"""Batched decay fits and starts (phoid.fits.batch) against one-by-one ones (phoid.fits.decay).
+"""Stacked decay fits and starts (phoid.fits.modal.fit_decays, phoid.fits.start.start_decays).
 
-Where every expected value comes from: ``phoid.fits.decay.fit_decay`` of the same record with the
-same options (the one-record path, itself checked against exact modes, the Cramér–Rao bound and
-the independent sample set in tests/test_decay.py). The batch does the same arithmetic in a
-different order (stacked sums, a stacked linear solve), so the two agree to rounding: the
-tolerance, 1e−6 of a standard error (1e−12 relative for noise-free records, whose standard
-error is rounding itself), is far above that rounding (~1e−11 stderr here) and far
-below what a different iteration or stopping decision would give (~0.05 stderr, the
-Gauss–Newton stopping rule).
+The fit has one implementation, for a stack of records; ``fit_decay`` of one record is a stack
+of one (checked here to be exactly ``fit_decays`` of that one job). Where every expected value
+comes from: the same record fitted alone, as a stack of one (itself checked against exact
+modes, the Cramér–Rao bound and the independent sample set in tests/test_decay.py). In a stack
+of mixed records a record's sums run over the stack's padded length, and BLAS blocks a long
+reduction by its total length, so grouping and padding may move a result by rounding only:
+the tolerance, 1e−6 of a standard error (1e−12 relative for noise-free records, whose standard
+error is rounding itself), is far above that rounding (~1e−11 stderr here) and far below what
+a different iteration or stopping decision would give (~0.05 stderr, the Gauss–Newton stopping
+rule); every discrete outcome (errors, warnings, sample counts) must be equal.
 """
 
 from __future__ import annotations
@@ -16,23 +18,46 @@ import math
 
 import numpy as np
 import pytest
-
-from phoid.dynamics.rightmost import rightmost_roots
-from phoid.fits import batch as decay_batch
-from phoid.fits import decay
-from phoid.fits.batch import FitJob, fit_decays, start_decays
-from phoid.fits.decay import check_record, fit_decay, start_decay
 from phoid.io import read_experiment
+
+from phoid._threads import single_blas_thread
+from phoid.dynamics.loop import rightmost_roots
+from phoid.fits import (
+    FitJob,
+    _stack,
+    check_record,
+    fit_decay,
+    fit_decays,
+    modal,
+    release,
+    start_decay,
+    start_decays,
+)
 
 TOL_SE = 1e-6  # of a standard error: rounding passes, a different iteration does not
 
+# with one BLAS thread, as fit_decay and the identification run it (a threaded BLAS splits
+# its reductions by the number of threads: other rounding)
+fit_decays = single_blas_thread(fit_decays)
+
 
 def _single(job: FitJob):
+    """The job fitted alone, a stack of one; fit_decay gives exactly that."""
+    alone = fit_decays([job])[0]
     try:
-        return fit_decay(job.t, job.x, release=job.release, skip=job.skip,
-                         fast_roots=job.fast_roots, guess=job.guess)
+        public = fit_decay(job.t, job.x, release=job.release, skip=job.skip,
+                           fast_roots=job.fast_roots, guess=job.guess)
     except ValueError as exc:
-        return str(exc)
+        public = str(exc)
+    if isinstance(alone, str):
+        assert public == alone
+    else:
+        assert not isinstance(public, str), public
+        assert (public.sigma, public.omega_d, public.offset, public.residual_rms) == (
+            alone.sigma, alone.omega_d, alone.offset, alone.residual_rms)
+        np.testing.assert_array_equal(public.cov, alone.cov)
+        assert public.warnings == alone.warnings
+    return alone
 
 
 def _assert_same(batch, single):
@@ -62,7 +87,7 @@ def _checked(t, x):
     return check_record(t, x)
 
 
-def test_sample_set_runs_batched_as_one_by_one(sample_set_path, truth):
+def test_sample_set_runs_stacked_as_each_alone(sample_set_path, truth):
     # the seed's 19-run sweep (jitcdde-made): every run from its release with the loop's two
     # slowest non-dominant modes (the identification's full fit), batched in one group
     exp = read_experiment(sample_set_path)
@@ -86,16 +111,17 @@ def _decay(t, sigma, omega, x0=0.01, offset=2e-4, fast=None):
 
 
 @pytest.mark.parametrize("limit", [None, 10000])
-def test_mixed_batch_matches_one_by_one(limit, monkeypatch):
-    # limit: the batch size cap (samples); 10 000 cuts every group into batches of one or two
+def test_mixed_stack_matches_each_record_alone(limit, monkeypatch):
+    # limit: the stack size cap (samples); 10 000 cuts every group into stacks of one or two
     # records, as long records are (memory stays that of the one-by-one fits)
     if limit is not None:
-        monkeypatch.setattr(decay_batch, "_BATCH_SAMPLES", limit)
+        monkeypatch.setattr(modal, "_BATCH_SAMPLES", limit)
     # records of different lengths, rates, fast-mode counts and kinds in one call: two sample
     # rates (two groups), lengths that differ within a group (zero-padded blocks), one record
     # without fast modes, a noise-free one (the polish takes its extra exact-gradient steps), a
-    # growing one, non-uniform sampling and a too-short window (both fitted one by one), and a
-    # start that overflows (the one-record fit's fallback start)
+    # growing one, non-uniform sampling of three lengths (a direct stack, zero-padded), a short
+    # uniform record (< 64 samples: direct), a too-short window, and a start that overflows
+    # (the fallback start, in a stack of its own)
     rng = np.random.default_rng(11)
     jobs = []
     for n, fs, sig, om in ((15000, 1000.0, 0.4, 9.0), (12345, 1000.0, 1.1, 14.0),
@@ -111,15 +137,24 @@ def test_mixed_batch_matches_one_by_one(limit, monkeypatch):
                        np.array([-40.0 + 0j]), (0.7001, 7.999)))
     jobs.append(FitJob(*_checked(t, _decay(t, -0.05, 8.0) + 1e-4 * rng.standard_normal(t.size)),
                        0.0, 0.0, np.array([-40.0 + 0j]), (-0.05, 8.0)))
-    tj = np.sort(rng.uniform(0.0, 8.0, 8000))
-    jobs.append(FitJob(*_checked(tj, _decay(tj, 0.7, 8.0) + 1e-4 * rng.standard_normal(8000)),
-                       0.0, 0.0, None, (0.7, 8.0)))
+    for n in (8000, 6500, 5000):
+        tj = np.sort(rng.uniform(0.0, n / 1000.0, n))
+        jobs.append(FitJob(*_checked(tj, _decay(tj, 0.7, 8.0) + 1e-4 * rng.standard_normal(n)),
+                           0.0, 0.0, None, (0.7, 8.0)))
+    tj = np.sort(rng.uniform(0.0, 4.0, 4000))
+    jobs.append(FitJob(*_checked(tj, _decay(tj, 0.9, 9.0) + 1e-4 * rng.standard_normal(4000)),
+                       0.0, 0.0, np.array([-40.0 + 0j]), (0.9, 9.0)))
+    ts = np.arange(60) / 20.0
+    jobs.append(FitJob(*_checked(ts, _decay(ts, 0.3, 5.0)), 0.0, 0.0, None, (0.3, 5.0)))
     jobs.append(FitJob(*_checked(t, _decay(t, 0.7, 8.0)), 0.0, 7.995, None, (0.7, 8.0)))
     jobs.append(FitJob(*_checked(t, _decay(t, 0.7, 8.0) + 1e-4 * rng.standard_normal(t.size)),
                        0.0, 0.0, np.array([-40.0 + 0j]), (-1e4, 8.0)))
     out = fit_decays(jobs)
     assert isinstance(out[-2], str) and "at least" in out[-2]
     assert not isinstance(out[-1], str) and abs(out[-1].sigma - 0.7) < 0.05
+    assert abs(out[-3].sigma - 0.3) < 1e-9 and abs(out[-3].omega_d - 5.0) < 1e-9
+    for got in out[8:12]:  # the non-uniformly sampled records
+        assert abs(got.sigma - 0.7 if got.omega_d < 8.5 else got.sigma - 0.9) < 0.05
     for job, got in zip(jobs, out, strict=True):
         _assert_same(got, _single(job))
 
@@ -183,34 +218,40 @@ def test_start_decays_equal_one_by_one_starts(sample_set_path):
         assert not any(isinstance(g, str) for g in got[:-2])
 
 
-def test_fast_columns_many_equal_one_by_one():
-    # the stacked fast-mode columns are those of phoid.fits.decay._fast_columns, element for element
-    # (the same exponentials and table products), zero beyond each record's nf. Bit for bit on
-    # x86-64; numpy may evaluate exp of a strided (stacked) and a contiguous array by different
-    # SIMD or libm paths on other machines (a few ulps each), and a column entry is a product of
-    # at most two tabulated exponentials: rel 32 eps covers that with margin, while a wrong root,
-    # record or offset changes entries at O(1). Records of different lengths, with complex
-    # roots tabulated (nf > 256) and direct (nf ≤ 256), and real roots, in different orders
+def test_fast_columns_stacked_equal_each_alone():
+    # the stacked fast-mode columns of a record are its columns alone, element for element
+    # (the same exponentials and table products, whatever the other records), zero beyond its
+    # nf, and they are e^{rτ} (real roots) or its real and imaginary parts (complex): to
+    # 1e-12 of the envelope |e^{rτ}| (a tabulated entry's phase, up to ~10³ rad here, is
+    # rounded differently from r τ's: ~10³ eps), while a wrong root, record or offset changes
+    # entries at O(1). Records of different lengths, with complex roots tabulated (nf > 256)
+    # and direct (nf ≤ 256, or no step given), real roots
     dt = 1e-3
     taus = [np.arange(n) * dt for n in (3000, 5000, 4000, 2000)]
     roots = [np.array([-40 + 300j, -9.0, -120.0]),
              np.array([-7.5, -55 + 80j, -300.0]),
              np.array([-200 + 900j, -210.0, -800.0]),  # nf = 185: computed directly
              np.array([-90 + 1j, -60.0, -61.0])]
-    FT, nf = decay_batch._fast_columns_many(taus, roots, dt)
-    assert FT.shape[1] == 2 * 4
-    for i, (tau, r) in enumerate(zip(taus, roots, strict=True)):
-        want = decay._fast_columns(tau, r, dt)
-        assert nf[i] == want.shape[1]
-        eps = np.finfo(float).eps
-        np.testing.assert_allclose(FT[i, :4, : nf[i]], want, rtol=32 * eps, atol=0)
-        np.testing.assert_allclose(FT[i, 4:, : nf[i]], want * tau[: nf[i]], rtol=32 * eps,
-                                   atol=0)
-        assert not FT[i, :, nf[i]:].any()
+    for step in (dt, None):
+        FT, nf = _stack.fast_columns(taus, roots, step)
+        assert FT.shape[1] == 2 * 4
+        for i, (tau, r) in enumerate(zip(taus, roots, strict=True)):
+            alone, (nf1,) = _stack.fast_columns([tau], [r], step)
+            assert nf[i] == nf1
+            np.testing.assert_array_equal(FT[i, :, :nf1], alone[0, :, :nf1])
+            assert not FT[i, :, nf[i]:].any()
+            cols, env = [], []
+            for z in r.tolist():
+                e = np.exp(z * tau[:nf1])
+                cols += [e.real, e.imag] if z.imag else [e.real]
+                env += [np.abs(e)] * (2 if z.imag else 1)
+            want, tol = np.array(cols), 1e-12 * np.array(env)
+            assert np.all(np.abs(FT[i, :4, :nf1] - want) <= tol)
+            assert np.all(np.abs(FT[i, 4:, :nf1] - want * tau[:nf1]) <= tol * tau[:nf1])
 
 
 def test_change_points_match_brute_force_least_squares():
-    # the reverse-cumulative-sum change point of phoid.fits.decay._change_points against the
+    # the reverse-cumulative-sum change point of phoid.fits.release.change_points against the
     # straightforward one: for every candidate j a least-squares fit of x = L + a (t − t_j)₊²
     # over the samples ≤ i1 (np.linalg.lstsq), the smallest residual. Same index expected (the
     # sums differ only by rounding, ~1e−16 relative, the residuals of neighbouring candidates
@@ -232,8 +273,8 @@ def test_change_points_match_brute_force_least_squares():
         xs.append(x)
         i1s.append(i1)
         want.append(int(np.argmin(sse)))
-    assert decay._change_points(ts, xs, i1s) == want
-    alone = [decay._change_points([t], [x], [i])[0] for t, x, i in zip(ts, xs, i1s, strict=True)]
+    assert release.change_points(ts, xs, i1s) == want
+    alone = [release.change_points([t], [x], [i])[0] for t, x, i in zip(ts, xs, i1s, strict=True)]
     assert alone == want
 
 
@@ -246,8 +287,8 @@ def test_change_points_of_a_record_without_finite_candidates_is_zero_in_a_batch(
     t2 = np.arange(400) * 1e-3
     x2 = 1e-3 + 5 * np.maximum(t2 - 0.2, 0) ** 2
     with np.errstate(over="ignore"):
-        alone = decay._change_points([t1], [x1], [150])
-        both = decay._change_points([t1, t2], [x1, x2], [150, 250])
+        alone = release.change_points([t1], [x1], [150])
+        both = release.change_points([t1, t2], [x1, x2], [150, 250])
     assert alone == [0]
     assert both[0] == 0
-    assert both[1] == decay._change_points([t2], [x2], [250])[0]
+    assert both[1] == release.change_points([t2], [x2], [250])[0]

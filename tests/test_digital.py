@@ -34,7 +34,7 @@ from phoid.dynamics.digital import (
 )
 from phoid.dynamics.plant import Plant
 from phoid.dynamics.rightmost import dominant_roots
-from phoid.fits.decay import fit_decay
+from phoid.fits import fit_decay
 from phoid.methods.pho import fit_modes
 from phoid.simulation import simulate
 

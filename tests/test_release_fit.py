@@ -13,7 +13,7 @@ import pytest
 
 import phoid.methods.pho_release as ident
 from phoid import Plant, simulate
-from phoid.fits.decay import start_decay
+from phoid.fits import start_decay
 from phoid.simulation import release_response
 
 EPS = np.finfo(float).eps

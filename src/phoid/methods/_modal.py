@@ -25,7 +25,7 @@ import numpy as np
 
 from phoid.dynamics.plant import modal_basis
 from phoid.errors import IdentificationError
-from phoid.fits.decay import esprit
+from phoid.fits import esprit
 
 __all__ = [
     "ModalFit",

@@ -19,7 +19,7 @@ starts where the motion has surely begun (3 samples in a row more than 8 noise s
 level): a held sample left in the window would bias the decay, while the few samples skipped,
 within a few noise sd of the held level, carry almost no information. The state (x₀, v₀) is
 fitted at the window's start and carried back to the detected release
-(:func:`phoid.fits.decay.detect_release`'s rule) for the report. The release time is not a
+(:func:`phoid.fits.detect_release`'s rule) for the report. The release time is not a
 fitted parameter (docs/design-notes/classical.md says why).
 
 Only ratios are identifiable from a free decay: c/m = 2σ (eq. 3) and k/m = ω₀² (eq. 5). With a
@@ -48,7 +48,7 @@ from phoid import _validate as v
 from phoid._threads import single_blas_thread
 from phoid.dynamics.plant import free_response
 from phoid.errors import IdentificationError
-from phoid.fits.decay import diff_noise, locate_release
+from phoid.fits import diff_noise, locate_release
 from phoid.methods._modal import (
     ModalFit,
     Segment,
@@ -470,7 +470,7 @@ def identify_free_data(
     -----
     Per run: the white-noise sd from second differences; a record whose peak-to-peak motion is
     within 12 noise sds never moved and is set aside, as is one with fewer than 16 samples after
-    its release. The release is found by :func:`phoid.fits.decay.detect_release`'s rule; when
+    its release. The release is found by :func:`phoid.fits.detect_release`'s rule; when
     a held segment precedes it, the window starts where the motion has surely begun (module
     docstring). Starting rates: ESPRIT (an offset and two modes) on each run's motion, every
     admissible pair of roots tried, the best by the residual sum of squares

@@ -21,7 +21,7 @@ from scipy.special import chdtri  # chi2 quantile: chdtri(dof, 1 - p) = chi2.ppf
 
 from phoid._threads import single_blas_thread
 from phoid.errors import IdentificationError
-from phoid.fits.batch import start_decays
+from phoid.fits import start_decays
 from phoid.methods.pho import Estimate, MCKFit, delay_profile, fit_lines, fit_modes
 from phoid.methods.pho_checks import (
     check_added_mass,
@@ -272,7 +272,7 @@ def _estimate_delay(data, P, D, *, files, names, source, added_mass=None) -> Ide
 
     Only the right delay maps all runs' modes onto one plant (eq. 35's points collinear, with
     one slope), so with three or more distinct gain pairs Δt is identifiable. Start: each run's
-    mode from the release on (:func:`phoid.fits.decay.start_decay`, no transient skipped: a slightly
+    mode from the release on (:func:`phoid.fits.start_decay`, no transient skipped: a slightly
     biased but robust first look), then the profile of :func:`phoid.methods.pho.delay_profile` over
     0 … π/max ω_d (a delay of half the fastest run's period; the loop's phase lag at that delay
     is already beyond what a PD loop rings with). Then the full pipeline at that delay with

@@ -1,7 +1,7 @@
 """Each run's dominant mode, measured past the delayed loop's fast transient (two passes).
 
 Right after the release the delayed loop also rings in its fast non-dominant modes, which would
-bias a single-mode fit. A first pass (:func:`phoid.fits.batch.start_decays`, the record after
+bias a single-mode fit. A first pass (:func:`phoid.fits.start_decays`, the record after
 3Δt) gives a rough plant through eq. (35)'s lines; its exact loop roots give each run's next two
 modes, which the second pass fits alongside the dominant one (free amplitudes, rates fixed)
 right from the release. The fit starts as soon as the first mode left out — whose amplitude
@@ -23,8 +23,15 @@ from typing import Any
 import numpy as np
 
 from phoid.dynamics import rightmost_roots_many
-from phoid.fits.batch import FitJob, fit_decays, start_decays
-from phoid.fits.decay import DecayFit, detect_release, fit_checked, start_decay
+from phoid.fits import (
+    DecayFit,
+    FitJob,
+    detect_release,
+    fit_checked,
+    fit_decays,
+    start_decay,
+    start_decays,
+)
 from phoid.methods.loop_modes import distinct_modes, mode_residue
 from phoid.methods.pho import fit_lines
 from phoid.methods.pho_release import model_releases
@@ -111,7 +118,7 @@ def measure_modes(
 
 def start_run(t: np.ndarray, x: np.ndarray, skip: float, coarse_release: bool = False
               ) -> tuple[Any, str | None]:
-    """One run's first look (:func:`phoid.fits.decay.start_decay`) and None, or None and why
+    """One run's first look (:func:`phoid.fits.start_decay`) and None, or None and why
     it failed.
 
     Parameters
@@ -157,7 +164,7 @@ def measure_runs(data: Sequence[tuple[np.ndarray, np.ndarray]], P: np.ndarray, D
     """Both passes of :func:`measure_modes`.
 
     The first pass is only the starting stage of the decay fit
-    (:func:`phoid.fits.decay.start_decay`: release, noise, window, and (σ, ω_d) from ESPRIT on
+    (:func:`phoid.fits.start_decay`: release, noise, window, and (σ, ω_d) from ESPRIT on
     the record after 3Δt): it is within about one standard error of a full fit, which is all
     the rough plant needs. Each run is then fitted once, in full: from the release with the
     loop's fast modes where the rough plant gives them, else a single mode after 3Δt.
@@ -233,7 +240,7 @@ def measure_runs(data: Sequence[tuple[np.ndarray, np.ndarray]], P: np.ndarray, D
                     all_roots[i] = r
         except (RuntimeError, ValueError):
             pass
-    # every run's fit is planned first and made in one batch (phoid.fits.batch); a run whose
+    # every run's fit is planned first and made in one batch (phoid.fits.modal); a run whose
     # planned fit fails, or that has none, then gets the plain single-mode fit after 3Δt
     plans: dict[int, tuple[FitJob, bool]] = {}  # run: (fit, made with fast modes)
     rel_of: dict[int, float] = {}

@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from phoid.fits.decay import uniform_step
+from phoid.fits import uniform_step
 
 __all__ = ["REL_HALF", "interp_uniform", "model_releases", "release_fit"]
 
@@ -26,7 +26,7 @@ def model_releases(data: Sequence[tuple[np.ndarray, np.ndarray]], fits: Sequence
                    ) -> list[float | None]:
     """Release times fitted with each loop's own response from rest (None where not done).
 
-    The data-only detection (:func:`phoid.fits.decay.detect_release`: a quadratic, then an even
+    The data-only detection (:func:`phoid.fits.detect_release`: a quadratic, then an even
     quartic departure from the held level) is off by a few samples — and, for stiff loops on
     heavily damped plants, whose departure from rest is not of that shape (strong damping; the
     delayed feedback changes it after Δt), sometimes by many samples, early. The second pass

@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from phoid.fits.decay import DecayFit
+from phoid.fits import DecayFit
 from phoid.methods.pho import Estimate, MCKFit, open_loop_omega0, open_loop_zeta
 
 __all__ = ["Identification", "RunMode"]

@@ -16,7 +16,7 @@ e^{σΔt}, is confounded with the calibration of u and is not relied on, see bel
 Method (per run, then all runs together):
 
 1. **Joint fit of x and u per run** (:func:`fit_run`). The x model is the run's decay fit
-   (:class:`phoid.fits.decay.DecayFit`: offset, dominant mode s = −σ + iω_d with complex amplitude
+   (:class:`phoid.fits.DecayFit`: offset, dominant mode s = −σ + iω_d with complex amplitude
    C₀, the loop's fitted fast modes with free complex amplitudes and fixed rates), over the
    decay fit's own window. The u model is that same x model pushed through the loop,
    u = u_off + g Re Σⱼ −(P + D sⱼ) Cⱼ e^{sⱼ(t − Δt − t_ref)}, over the samples where the delayed
@@ -67,7 +67,7 @@ from scipy.special import chdtri  # chi2 quantile: chdtri(dof, 1 - p) = chi2.ppf
 
 from phoid.dynamics import characteristic, dominant_roots
 from phoid.errors import IdentificationError
-from phoid.fits.decay import DecayFit, diff_noise, is_clipped
+from phoid.fits import DecayFit, diff_noise, is_clipped
 from phoid.methods.loop_modes import distinct_modes, mode_residue
 
 __all__ = ["UDelayFit", "URun", "check_u", "combine", "fit_run", "u_skip", "with_u"]

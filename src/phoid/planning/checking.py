@@ -17,7 +17,7 @@ import numpy as np
 
 import phoid._validate as v
 from phoid.errors import PhoidError
-from phoid.fits.decay import detect_release
+from phoid.fits import detect_release
 from phoid.io import ExperimentSet, read_experiment
 from phoid.planning.result import Design, assemble, roots_in_range
 from phoid.planning.schedule import read_schedule

@@ -23,7 +23,7 @@ plants get negative D by the placement itself.
 
 A prior so wide that no run meets the band while staying safe on all of it (e.g. c 20–60 with a
 5 ms delay: a run that rings lightly at c = 20 is heavily damped at c = 60) falls back to safe
-runs with at least 3 cycles (``phoid.fits.decay.MIN_CYCLES``) at the nominal plant, with a
+runs with at least 3 cycles (``phoid.fits.MIN_CYCLES``) at the nominal plant, with a
 warning: such a schedule is a first experiment whose identification narrows the prior for a
 second design. With so few cycles the prediction is optimistic (docs/design-notes/planning.md).
 """
@@ -35,7 +35,7 @@ from typing import Any
 
 import numpy as np
 
-from phoid.fits.decay import MIN_CYCLES
+from phoid.fits import MIN_CYCLES
 from phoid.planning.evaluation import Evaluation, evaluate, log_var, place, run_information
 from phoid.planning.result import Design, assemble, roots_in_range
 from phoid.planning.settings import DesignError, DesignSettings, Prior, fmt_range, make_prior

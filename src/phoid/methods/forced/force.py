@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from phoid.errors import IdentificationError
-from phoid.fits.decay import diff_noise
+from phoid.fits import diff_noise
 
 __all__ = ["F_REJECT", "MIN_SAMPLES", "Force", "fit_force"]
 

@@ -34,7 +34,7 @@ import numpy as np
 from phoid import _validate as v
 from phoid._threads import single_blas_thread
 from phoid.errors import IdentificationError
-from phoid.fits.decay import diff_noise
+from phoid.fits import diff_noise
 from phoid.methods._modal import (
     Prep,
     Segment,

@@ -1,6 +1,6 @@
 """A model-free look at each record of a friction set, and at its recorded force u.
 
-Per run (:func:`survey_run`): the release (:func:`phoid.fits.decay.detect_release`), the held
+Per run (:func:`survey_run`): the release (:func:`phoid.fits.detect_release`), the held
 level x₀ᵢ + bᵢ, the noise sd (the held segment's, or from third differences), the final level
 and the end of the motion (the last sample more than 6 noise sd from the final level). Runs set
 aside before fitting (with the reason):
@@ -34,7 +34,7 @@ from typing import Any
 import numpy as np
 
 from phoid.errors import ExperimentError
-from phoid.fits.decay import detect_release
+from phoid.fits import detect_release
 
 __all__ = ["Survey", "check_run", "check_u", "survey_run"]
 

@@ -1,0 +1,346 @@
+"""Release detection and the fitted window: when the held mass is let go, the held segment's
+noise, and the checks a record must pass before any fit.
+
+A record (t s, x m) starts with the mass held at a level; after its release it rings. The
+release is found from the data (:func:`locate_release`): the departure from the held level, its
+quadratic change point (the mass starts from rest) and a refinement with an even quartic.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from phoid import _validate as v
+from phoid.fits.result import MIN_SAMPLES
+
+__all__ = [
+    "check_record",
+    "detect_release",
+    "diff_noise",
+    "hold_sd",
+    "locate_release",
+    "med",
+    "releases",
+    "window",
+]
+
+#: release detection: the signal has left the held level when it is this many noise sds away
+_RELEASE_NSD = 8.0
+
+
+def check_record(t: ArrayLike, x: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
+    """``t`` (s) and ``x`` (m) as float64 arrays, checked for every fit: finite, 1-D, the same
+    length, at least ``MIN_SAMPLES`` samples, t strictly increasing, x not constant, no
+    magnitude beyond 1e100. Raises ValueError naming the argument and value otherwise."""
+    t = v.finite_array("t", t, ndim=1)
+    x = v.finite_array("x", x, ndim=1)
+    if t.shape != x.shape:
+        raise ValueError(f"`t` and `x` must have the same length; got {t.size} and {x.size}")
+    if t.size < MIN_SAMPLES:
+        raise ValueError(f"`x` must hold at least {MIN_SAMPLES} samples; got {t.size}")
+    if not (t[1:] > t[:-1]).all():
+        i = int(np.argmin(t[1:] > t[:-1]))
+        raise ValueError(
+            f"`t` must be strictly increasing; got t[{i}] = {t[i]:.9g} s, "
+            f"t[{i + 1}] = {t[i + 1]:.9g} s"
+        )
+    if not x.max() > x.min():
+        raise ValueError(f"`x` is constant ({x[0]:g} m): no motion to analyse")
+    for name, a, unit in (("t", t, "s"), ("x", x, "m")):
+        big = max(abs(float(a[0])), abs(float(a[-1])), float(np.abs(a).max()))
+        if big > _MAX_MAGNITUDE:
+            raise ValueError(f"`{name}` reaches {big:.3g} {unit}: beyond any record the fit "
+                             f"can square without overflow (is it in {unit}?)")
+    return t, x
+
+
+# |t|, |x| beyond this overflow the fits' sums of squares (1e100² · samples ≪ 1.8e308) and are
+# no position in m, or time in s, a rig records
+_MAX_MAGNITUDE = 1e100
+
+
+def med(a: np.ndarray) -> float:
+    """Median (the upper middle value for an even count): cheaper than np.median."""
+    k = a.size // 2
+    return float(np.partition(a, k)[k])
+
+
+def diff_noise(x: np.ndarray) -> float:
+    """Robust white-noise sd from second differences (MAD; var Δ²x = 6 sd² for white noise).
+
+    A smooth signal sampled fast contributes ~A(ω dt)² per difference, negligible at ≥ ~20
+    samples per period against noise of a few parts in 10⁴ of the amplitude.
+    """
+    if x.size < 3:
+        return 0.0
+    d1 = x[1:] - x[:-1]  # np.diff(x, 2), without its per-call overhead
+    d2 = d1[1:] - d1[:-1]
+    mad = med(np.abs(d2 - med(d2)))
+    if mad > 0:
+        return 1.4826 * mad / math.sqrt(6.0)
+    # quantised or noise-free records: most differences are exactly 0
+    return float(np.sqrt(np.mean(d2 * d2) / 6.0))
+
+
+# --------------------------------------------------------------------------------------------
+# release
+
+
+def hold_sd(x: np.ndarray, j: int) -> float | None:
+    """sd of the held segment x[:j+1], if it has ≥ 10 samples and looks held (its sd is not
+    above 1.5 times its second-difference noise: no motion)."""
+    if j < 10:
+        return None
+    seg = x[: j + 1]
+    d = seg - seg.sum() / seg.size  # np.std(seg, ddof=1), the same sums, fewer calls
+    sd = math.sqrt(float(np.add.reduce(d * d)) / (seg.size - 1))
+    return sd if sd <= 1.5 * diff_noise(seg) + 1e-300 else None
+
+
+@dataclass(frozen=True)
+class _Departure:
+    """The release detection's first stage on one record: the held level (m), the threshold
+    (m), the first sample ``i1`` from which the signal stays beyond it for 3 samples (None when
+    there is none, or it is among the first 3), and the prefix length searched."""
+
+    level: float
+    thr: float
+    i1: int | None
+    m_search: int
+
+
+def _departure(x: np.ndarray) -> _Departure:
+    """The first sample from which x stays more than 8 noise sds from its held level for 3
+    samples (a lone spike is no release), searched in growing prefixes."""
+    n = x.size
+    sd = diff_noise(x[:2048])
+    n0 = max(3, min(20, n // 50))
+    level = med(x[:n0])
+    thr = max(_RELEASE_NSD * sd, 1e-6 * (float(x.max()) - float(x.min())))
+    m_search = 2048
+    while True:
+        out = np.abs(x[:m_search] - level) > thr
+        hits = np.flatnonzero(out[:-2] & out[1:-1] & out[2:])
+        if hits.size or m_search >= n:
+            break
+        m_search *= 4
+    m_search = min(m_search, n)
+    i1 = int(hits[0]) if hits.size else None
+    return _Departure(level, thr, i1 if i1 is not None and i1 > 2 else None, m_search)
+
+
+#: samples (records × padded length) per batch of :func:`change_points`
+_CHANGE_BATCH = 1 << 18
+
+
+def change_points(ts: Sequence[np.ndarray], xs: Sequence[np.ndarray], i1s: Sequence[int]
+                   ) -> list[int]:
+    """The quadratic change point of each record, up to its departure sample i1.
+
+    x = L for t < τ, L + a (t − τ)² after (a held mass starts from rest, so the motion leaves
+    the held level quadratically); least squares over τ at the samples ≤ i1, τ on the samples.
+    For every candidate j the sums over i ≥ j come from reverse cumulative sums of u^p and
+    y u^p (u = t − t[i1], p = 0..4), so all candidates cost O(i1). The records are stacked,
+    right-aligned (every record's sample i1 in the last column, zeros before its first sample,
+    which enter only the sums of masked candidates) and done together; the cumulative sums run
+    sample by sample, so a record gives the same candidate, bit for bit, alone or in a batch.
+    """
+    out = [0] * len(ts)
+    order = sorted(range(len(ts)), key=lambda i: i1s[i])
+    groups: list[list[int]] = [[]]
+    for i in order:
+        if groups[-1] and (len(groups[-1]) + 1) * (i1s[i] + 1) > _CHANGE_BATCH:
+            groups.append([])
+        groups[-1].append(i)
+    for grp in groups if order else []:
+        ms = np.array([i1s[i] + 1 for i in grp])
+        W = int(ms.max())
+        R = len(grp)
+        P = np.zeros((R, 9, W))  # u^0..u^4, y u^0..u^2, y² (suffix sums of each below)
+        for r, i in enumerate(grp):
+            m = int(ms[r])
+            P[r, 1, W - m:] = ts[i][:m] - ts[i][m - 1]
+            P[r, 5, W - m:] = xs[i][:m]
+        P[:, 0] = 1.0
+        u, y = P[:, 1], P[:, 5]
+        np.multiply(u, u, out=P[:, 2])
+        np.multiply(P[:, 2], u, out=P[:, 3])
+        np.multiply(P[:, 2], P[:, 2], out=P[:, 4])
+        np.multiply(P[:, 1:3], y[:, None], out=P[:, 6:8])
+        np.multiply(y, y, out=P[:, 8])
+        Sp = np.cumsum(P[:, :, ::-1], axis=2)[:, :, ::-1]
+        first = (W - ms)[:, None]
+        s_y = np.take_along_axis(Sp[:, 5], first, axis=1)  # Σ y, Σ y² over the whole record
+        s_yy = np.take_along_axis(Sp[:, 8], first, axis=1)
+        u2, u3, u4 = P[:, 2], P[:, 3], P[:, 4]
+        # q_i = (u_i − u_j)², Σq and Σq² over i ≥ j, Σ y q over i ≥ j
+        s_q = Sp[:, 2] - 2 * u * Sp[:, 1] + u2 * Sp[:, 0]
+        s_qq = (Sp[:, 4] - 4 * u * Sp[:, 3] + 6 * u2 * Sp[:, 2] - 4 * u3 * Sp[:, 1]
+                + u4 * Sp[:, 0])
+        s_yq = Sp[:, 7] - 2 * u * Sp[:, 6] + u2 * Sp[:, 5]
+        det = ms[:, None] * s_qq - s_q**2
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+            L = (s_qq * s_y - s_q * s_yq) / det
+            a = (ms[:, None] * s_yq - s_q * s_y) / det
+            sse = s_yy - L * s_y - a * s_yq
+        valid = np.arange(W)[None, :] >= first
+        sse = np.where(valid & np.isfinite(sse) & (det > 0), sse, np.inf)
+        # (a record none of whose candidates is finite gets 0, as alone: its padding is not
+        # a candidate)
+        j0 = np.where(np.isfinite(sse.min(axis=1)), np.argmin(sse, axis=1) - first[:, 0], 0)
+        for r, i in enumerate(grp):
+            out[i] = int(j0[r])
+    return out
+
+
+def releases(ts: Sequence[np.ndarray], xs: Sequence[np.ndarray], refine: bool = True
+              ) -> list[tuple[int, float | None]]:
+    """:func:`locate_release` of many records, the change points of all of them in one batch."""
+    deps = [_departure(x) for x in xs]
+    live = [i for i, d in enumerate(deps) if d.i1 is not None]
+    j0s = dict(zip(live, change_points([ts[i] for i in live], [xs[i] for i in live],
+                                        [deps[i].i1 for i in live]), strict=True))
+    out: list[tuple[int, float | None]] = []
+    for i, (t, x) in enumerate(zip(ts, xs, strict=True)):
+        if i not in j0s:
+            out.append((0, None))
+            continue
+        j = j0s[i] if not refine else _refine_release(t, x, deps[i], j0s[i])
+        out.append((j, hold_sd(x, j)))
+    return out
+
+
+def locate_release(t: np.ndarray, x: np.ndarray, refine: bool = True) -> tuple[int, float | None]:
+    """Index of the release sample and the sd of the held segment (None if too short).
+
+    The departure from the held level (:func:`_departure`), its quadratic change point before
+    it (:func:`change_points`) and, with ``refine``, a refinement with an even quartic
+    (:func:`_refine_release`). ``refine=False`` stops after the change point (a few samples
+    off, typically), for callers that refine the release with a model of their own."""
+    return releases([t], [x], refine)[0]
+
+
+def _refine_release(t: np.ndarray, x: np.ndarray, dep: _Departure, j0: int) -> int:
+    """The release refined on a longer stretch (until 4× the threshold) with x = L + a u² +
+    b u⁴, u = (t − τ)₊ (the free response from rest is even in u), over candidates within 16
+    samples of the change point ``j0``."""
+    n = x.size
+    level, thr, i1, m_search = dep.level, dep.thr, dep.i1, dep.m_search
+    assert i1 is not None
+    far = np.flatnonzero(np.abs(x[i1:m_search] - level) > 4 * thr)
+    i2 = i1 + int(far[0]) if far.size else min(n - 1, 2 * i1)
+    w = 16
+    cand = np.arange(max(j0 - w, 0), min(j0 + w, i1) + 1)
+    lo = max(int(cand[0]) - 4 * w, 0)
+    tt = t[lo : i2 + 1]
+    yy = x[lo : i2 + 1]
+    U = np.maximum(tt[None, :] - t[cand][:, None], 0.0) / max(t[i2] - t[lo], 1e-300)
+    y0 = yy - level
+    # U², U⁴, U⁶, U⁸ and their sums
+    Q = np.empty((4, *U.shape))
+    np.multiply(U, U, out=Q[0])
+    np.multiply(Q[0], Q[0], out=Q[1])
+    np.multiply(Q[1], Q[0], out=Q[2])
+    np.multiply(Q[1], Q[1], out=Q[3])
+    s2, s4, s6, s8 = Q.sum(axis=2)
+    AtA = np.empty((cand.size, 3, 3))
+    AtA[:, 0, 0] = yy.size
+    AtA[:, 0, 1] = AtA[:, 1, 0] = s2
+    AtA[:, 0, 2] = AtA[:, 2, 0] = AtA[:, 1, 1] = s4
+    AtA[:, 1, 2] = AtA[:, 2, 1] = s6
+    AtA[:, 2, 2] = s8
+    Aty = np.empty((cand.size, 3))
+    Aty[:, 0] = y0.sum()
+    Aty[:, 1] = Q[0] @ y0
+    Aty[:, 2] = Q[1] @ y0
+    try:
+        coef = np.linalg.solve(AtA, Aty[..., None])[..., 0]
+    except np.linalg.LinAlgError:
+        return j0
+    sse2 = float(y0 @ y0) - (coef * Aty).sum(1)
+    return int(cand[np.argmin(sse2)])
+
+
+def detect_release(t: ArrayLike, x: ArrayLike) -> float:
+    """Time at which the held mass is let go, s.
+
+    Parameters
+    ----------
+    t : array_like, shape (n,)
+        Sample times, s, strictly increasing.
+    x : array_like, shape (n,)
+        Position, m.
+
+    Returns
+    -------
+    float
+        Release time, s: the last sample at the held level; ``t[0]`` when the record holds no
+        held segment.
+
+    Raises
+    ------
+    ValueError
+        For unusable input, as :func:`fit_decay`.
+
+    Notes
+    -----
+    The record's white-noise sd is estimated robustly from second differences. The signal has
+    left the held level (the median of the first samples) when it stays more than 8 sds away
+    for 3 samples. The release is then refined backwards by least squares over the change point
+    τ of x = L (t < τ), x = L + a(t − τ)² (t ≥ τ) up to that sample — the mass starts from
+    rest, so it leaves the held level quadratically — and then of x = L + a u² + b u⁴,
+    u = (t − τ)₊, up to 32 noise sds, over candidates within 16 samples (its accuracy:
+    docs/design-notes/fits.md, "detect_release").
+    """
+    t, x = check_record(t, x)
+    j, _ = locate_release(t, x)
+    return float(t[j])
+
+
+def window(t, x, release, skip, t_end, refine_release=True, detected=None):
+    """The release (s), the held segment's sd (m, or None), the window's t and x, and the
+    range of x over it (m).
+
+    ``detected``: the release's sample and held sd when they were already detected (as
+    :func:`locate_release` gives them), for ``release=None``."""
+    skip = v.nonnegative("skip", skip, "s")
+    if release is None:
+        j, held = locate_release(t, x, refine_release) if detected is None else detected
+        release = float(t[j])
+    else:
+        release = v.finite("release", release, "s")
+        if not release < t[-1]:
+            raise ValueError(
+                f"`release` must be before the record's end t[-1] = {t[-1]:g} s; got {release:g}"
+            )
+        j = int(np.searchsorted(t, release, side="right")) - 1
+        held = hold_sd(x, j)
+    t0 = release + skip
+    if t_end is None:
+        t1 = float(t[-1])
+    else:
+        t1 = v.finite("t_end", t_end, "s")
+        if not t1 > t0:
+            raise ValueError(f"`t_end` must be > release + skip = {t0:g} s; got {t1:g}")
+    # the sample at release + skip itself belongs to the window (tolerance: rounding of t)
+    tol = 1e-9 * (abs(t0) + (t[-1] - t[0]) / t.size)
+    i0 = int(np.searchsorted(t, t0 - tol, side="left"))
+    i1 = int(np.searchsorted(t, t1 + tol, side="right"))
+    nw = max(i1 - i0, 0)
+    if nw < MIN_SAMPLES:
+        raise ValueError(
+            f"the window [release + skip, t_end] = [{t0:g}, {t1:g}] s holds {nw} samples; "
+            f"at least {MIN_SAMPLES} are needed"
+        )
+    tw, xw = t[i0:i1], x[i0:i1]
+    ptp = float(xw.max()) - float(xw.min())
+    if not ptp > 0:
+        raise ValueError(f"`x` is constant ({xw[0]:g} m) in the window [{t0:g}, {t1:g}] s")
+    return release, held, tw, xw, ptp
+
+
