@@ -18,7 +18,6 @@ import math
 
 import numpy as np
 import pytest
-from phoid.io import read_experiment
 
 from phoid._threads import single_blas_thread
 from phoid.dynamics.loop import rightmost_roots
@@ -33,6 +32,7 @@ from phoid.fits import (
     start_decay,
     start_decays,
 )
+from phoid.io import read_experiment
 
 TOL_SE = 1e-6  # of a standard error: rounding passes, a different iteration does not
 
