@@ -11,8 +11,9 @@ loads numpy, scipy or matplotlib only when a function needs them.
 >>> print(result.report())  # doctest: +SKIP
 """
 
-import importlib as _importlib
 from typing import TYPE_CHECKING
+
+from phoid._lazy import lazy_exports
 
 if TYPE_CHECKING:  # the real imports, for type checkers and IDEs; at run time see __getattr__
     from phoid.api import identify, identify_data
@@ -192,19 +193,6 @@ __all__ = [
 ]
 
 
-def __getattr__(name: str) -> object:
-    """Import a public name's module on first access and cache the name here."""
-    module = _LAZY.get(name)
-    if module is None:
-        raise AttributeError(f"module 'phoid' has no attribute {name!r}")
-    value = getattr(_importlib.import_module(module), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__() -> list[str]:
-    """The module's names, with the public ones not yet imported."""
-    return sorted(set(globals()) | set(__all__))
-
+__getattr__, __dir__ = lazy_exports(__name__, globals(), _LAZY)
 
 del TYPE_CHECKING

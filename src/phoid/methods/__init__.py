@@ -1,54 +1,112 @@
-"""phoid.methods."""
+"""phoid.methods: each method turns an experiment's records into a result.
 
-from phoid.methods.diagnose import (
-    SIGN_CONVENTION,
-    probable_cause,
-)
-from phoid.methods.forced import (
-    ForcedIdentification,
-    ForcedRun,
-    ResponseFit,
-    fit_response,
-    identify_forced,
-    identify_forced_data,
-    simulate_forced,
-    two_frequency,
-)
-from phoid.methods.free import (
-    FreeIdentification,
-    FreeRun,
-    identify_free,
-    identify_free_data,
-)
-from phoid.methods.friction import (
-    FrictionEvidence,
-    FrictionFit,
-    FrictionRun,
-    friction_evidence,
-    identify_friction,
-    identify_friction_set,
-)
-from phoid.methods.identification import identify_pho, identify_pho_data
-from phoid.methods.pho import (
-    Estimate,
-    LineFit,
-    MCKFit,
-    delay_profile,
-    fit_lines,
-    fit_modes,
-)
-from phoid.methods.pho_checks import DIGITAL_KEYS, read_digital_loop, refuse_bias
-from phoid.methods.pho_measure import measure_modes
-from phoid.methods.pho_result import Identification, RunMode
-from phoid.methods.udelay import (
-    UDelayFit,
-    URun,
-    check_u,
-    combine,
-    fit_run,
-    u_skip,
-    with_u,
-)
+``pho`` (eq. 35 lines), the PHO pipeline (``identification``, ``pho_measure``, ``pho_release``,
+``pho_checks``, ``pho_result``), the delay from a recorded force (``udelay``), ``friction``,
+``forced``, ``free`` (sharing ``_modal``) and ``diagnose``. The names below are imported from
+their modules on first use (:mod:`phoid._lazy`), so that the PHO path does not load the forced
+and friction methods.
+"""
+
+from typing import TYPE_CHECKING
+
+from phoid._lazy import lazy_exports
+
+if TYPE_CHECKING:  # the real imports, for type checkers and IDEs
+    from phoid.methods.diagnose import (
+        SIGN_CONVENTION,
+        probable_cause,
+    )
+    from phoid.methods.forced import (
+        ForcedIdentification,
+        ForcedRun,
+        ResponseFit,
+        fit_response,
+        identify_forced,
+        identify_forced_data,
+        simulate_forced,
+        two_frequency,
+    )
+    from phoid.methods.free import (
+        FreeIdentification,
+        FreeRun,
+        identify_free,
+        identify_free_data,
+    )
+    from phoid.methods.friction import (
+        FrictionEvidence,
+        FrictionFit,
+        FrictionRun,
+        friction_evidence,
+        identify_friction,
+        identify_friction_set,
+    )
+    from phoid.methods.identification import identify_pho, identify_pho_data
+    from phoid.methods.pho import (
+        Estimate,
+        LineFit,
+        MCKFit,
+        delay_profile,
+        fit_lines,
+        fit_modes,
+    )
+    from phoid.methods.pho_checks import DIGITAL_KEYS, read_digital_loop, refuse_bias
+    from phoid.methods.pho_measure import measure_modes
+    from phoid.methods.pho_result import Identification, RunMode
+    from phoid.methods.udelay import (
+        UDelayFit,
+        URun,
+        check_u,
+        combine,
+        fit_run,
+        u_skip,
+        with_u,
+    )
+
+_EXPORTS = {
+    "SIGN_CONVENTION": "phoid.methods.diagnose",
+    "probable_cause": "phoid.methods.diagnose",
+    "ForcedIdentification": "phoid.methods.forced",
+    "ForcedRun": "phoid.methods.forced",
+    "ResponseFit": "phoid.methods.forced",
+    "fit_response": "phoid.methods.forced",
+    "identify_forced": "phoid.methods.forced",
+    "identify_forced_data": "phoid.methods.forced",
+    "simulate_forced": "phoid.methods.forced",
+    "two_frequency": "phoid.methods.forced",
+    "FreeIdentification": "phoid.methods.free",
+    "FreeRun": "phoid.methods.free",
+    "identify_free": "phoid.methods.free",
+    "identify_free_data": "phoid.methods.free",
+    "FrictionEvidence": "phoid.methods.friction",
+    "FrictionFit": "phoid.methods.friction",
+    "FrictionRun": "phoid.methods.friction",
+    "friction_evidence": "phoid.methods.friction",
+    "identify_friction": "phoid.methods.friction",
+    "identify_friction_set": "phoid.methods.friction",
+    "identify_pho": "phoid.methods.identification",
+    "identify_pho_data": "phoid.methods.identification",
+    "Estimate": "phoid.methods.pho",
+    "LineFit": "phoid.methods.pho",
+    "MCKFit": "phoid.methods.pho",
+    "delay_profile": "phoid.methods.pho",
+    "fit_lines": "phoid.methods.pho",
+    "fit_modes": "phoid.methods.pho",
+    "DIGITAL_KEYS": "phoid.methods.pho_checks",
+    "read_digital_loop": "phoid.methods.pho_checks",
+    "refuse_bias": "phoid.methods.pho_checks",
+    "measure_modes": "phoid.methods.pho_measure",
+    "Identification": "phoid.methods.pho_result",
+    "RunMode": "phoid.methods.pho_result",
+    "UDelayFit": "phoid.methods.udelay",
+    "URun": "phoid.methods.udelay",
+    "check_u": "phoid.methods.udelay",
+    "combine": "phoid.methods.udelay",
+    "fit_run": "phoid.methods.udelay",
+    "u_skip": "phoid.methods.udelay",
+    "with_u": "phoid.methods.udelay",
+}
+
+__getattr__, __dir__ = lazy_exports(__name__, globals(), _EXPORTS)
 
 __all__ = [
     "DIGITAL_KEYS",
