@@ -25,7 +25,7 @@ information of θ is Σᵢ Gᵢᵀ Iᵢ Gᵢ with Gᵢ = ∂(σᵢ, ω_dᵢ)/∂
 The release amplitude of the dominant mode is not x₀: a run released from a held position x₀
 (history x = x₀ on [−Δt, 0]) has X(s) = x₀ N(s)/f(s) with
 N(s) = m s + c + D e^{−sΔt} − P (1 − e^{−sΔt})/s, so the mode e^{st} carries the residue
-x₀ N(s)/f′(s) and w = 2 x₀ N(s)/f′(s) (:func:`release_amplitude`; docs/architecture.md).
+x₀ N(s)/f′(s) and w = 2 x₀ N(s)/f′(s) (:func:`release_amplitude`; docs/design-notes/history.md).
 
 Sensor noise is the only noise in this model: the feedback acts on the true position (as in
 :func:`phoid.simulation.simulate`). The non-dominant modes that ring right after the release
