@@ -159,8 +159,9 @@ def test_crb_reproduces_truth_json(truth):
 
     truth.json's bound is bench/crb.py's: the same single-mode model with the dominant mode's
     residue as amplitude (docs/design-notes/history.md), but summed sample by sample with the
-    nuisances profiled out numerically, and with the effective noise √(s² + q²/12) of 1 µm quantisation,
-    which makes it larger by q²/(24 s²) = 4.2e-6 relative; 2e-5 leaves a margin of ~5 over that.
+    nuisances profiled out numerically, and with the effective noise √(s² + q²/12) of 1 µm
+    quantisation, which makes it larger by q²/(24 s²) = 4.2e-6 relative; 2e-5 leaves a margin of
+    ~5 over that.
     """
     b = cramer_rao(truth["m"], truth["c"], truth["k"], PAPER_P, PAPER_D, truth["delay"],
                    fs=truth["fs"], duration=truth["T"], noise=truth["noise"], x0=truth["x0"])
