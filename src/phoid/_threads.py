@@ -3,8 +3,8 @@
 phoid's numerical work is many small matrix products (a few thousand elements at most). With
 OpenBLAS's default of one thread per core, each such product wakes a thread pool whose workers
 spin while they wait: on an idle machine that costs a little, on a busy one (another process on
-every core — a test runner, a second phoid) it made an identification ten times slower (77 ms
-of CPU time became 950 ms on the 2-core development machine). The public entry points that do
+every core — a test runner, a second phoid) it made an identification several times slower
+(the measurement: docs/design-notes/history.md, "One BLAS thread"). The public entry points that do
 the work therefore run with the BLAS pools limited to one thread, through threadpoolctl (the
 library scikit-learn and joblib use for this), and restore the caller's setting on return.
 """
