@@ -203,8 +203,9 @@ def chi2_isf(p: float, dof: float) -> float:
     of the series, P ≈ (x/2)^{k/2} / Γ(k/2 + 1)). It is refined by Newton's method on the
     logarithm of the smaller tail, T(x) = Q or P, whose derivative is ∓f(x)/T with f the χ²
     density; a step that leaves the bracket kept from the iterates is replaced by bisection,
-    so the iteration always converges, and it stops when a step is below 1e-14 of x. The
-    result is exact to the accuracy of T (a few units of rounding), i.e. ~1e-13 relative.
+    so the iteration always converges. It stops after a Newton step below 1e-12 of x: the
+    convergence being quadratic, the error left is then far below the rounding of T, so the
+    result is exact to the accuracy of T (a few units of rounding), ~1e-13 relative.
     References: E. B. Wilson and M. M. Hilferty, PNAS 17 (1931) 684; Press et al.,
     *Numerical Recipes*, 3rd ed., §6.2 and §6.14.
 
@@ -271,9 +272,11 @@ def chi2_isf(p: float, dof: float) -> float:
             new = x + step if upper else x - step
         else:
             new = math.nan
+        if abs(new - x) <= 1e-12 * x:   # quadratic convergence: the error is now ~1e-24
+            return new
         if not lo < new < hi:   # Newton left the bracket: bisect (or grow an open bracket)
             new = 2.0 * x if math.isinf(hi) else 0.5 * (lo + hi)
-        if abs(new - x) <= 1e-14 * x or lo == hi:
+        if abs(new - x) <= 1e-15 * x:
             return new
         x = new
     return x
