@@ -344,3 +344,59 @@ def test_lazy_namespace_gives_every_public_name():
             raise AssertionError("phoid.no_such_name did not raise AttributeError")
     """)
     assert r.returncode == 0, r.stderr[-2000:]
+
+
+
+# which of the heavy modules identifying a set loads, and whether the simulator's import of
+# scipy.signal loaded it: a finder that sees each first import and the modules on the stack
+_IDENTIFY = """
+import json, sys
+heavy = ("scipy.special", "scipy.stats", "scipy.signal", "matplotlib")
+via_signal = {}
+
+class Spy:
+    def find_spec(self, name, path=None, target=None):
+        if name in heavy and name not in via_signal:
+            f, names = sys._getframe(1), []
+            while f is not None:
+                names.append(str(f.f_globals.get("__name__", "")))
+                f = f.f_back
+            importer = next((n for n in names if n.startswith("phoid")), "")
+            via_signal[name] = any(n.startswith("scipy.signal") for n in names) or (
+                name == "scipy.signal" and importer.startswith("phoid.simulation"))
+        return None
+
+sys.meta_path.insert(0, Spy())
+import phoid
+phoid.identify(phoid.read_experiment(sys.argv[1]))
+print(json.dumps({m: via_signal.get(m, False) for m in heavy if m in sys.modules}))
+"""
+
+
+def _simulation_imports_scipy_signal() -> bool:
+    for name, tree in TREES.items():
+        if name.split(".")[:2] != ["phoid", "simulation"]:
+            continue
+        for node in ast.walk(tree):
+            mods = ([a.name for a in node.names] if isinstance(node, ast.Import)
+                    else [node.module or ""] if isinstance(node, ast.ImportFrom) else [])
+            if any(m == "scipy.signal" or m.startswith("scipy.signal.") for m in mods):
+                return True
+            if isinstance(node, ast.ImportFrom) and node.module == "scipy" and any(
+                    a.name == "signal" for a in node.names):
+                return True
+    return False
+
+
+def test_identifying_the_sample_set_stays_light():
+    """The PHO path (``phoid.identify`` on examples/paper-sample) imports neither scipy.special
+    nor scipy.stats nor matplotlib nor scipy.signal (while the simulator still imports
+    scipy.signal, what that import brings along is tolerated, as an expected failure)."""
+    r = _run(_IDENTIFY, str(ROOT / "examples" / "paper-sample"), timeout=300)
+    assert r.returncode == 0, r.stderr[-2000:]
+    loaded = json.loads(r.stdout.strip().splitlines()[-1])
+    own = sorted(m for m, via_signal in loaded.items() if not via_signal)
+    assert not own, f"identifying the sample set imports {own}"
+    if loaded and _simulation_imports_scipy_signal():
+        pytest.xfail("simulation still imports scipy.signal")
+    assert not loaded, f"identifying the sample set imports {sorted(loaded)}"

@@ -17,11 +17,11 @@ from dataclasses import replace
 from typing import Any
 
 import numpy as np
-from scipy.special import chdtri  # chi2 quantile: chdtri(dof, 1 - p) = chi2.ppf(p, dof)
 
 from phoid._threads import single_blas_thread
 from phoid.errors import IdentificationError
 from phoid.fits import start_decays
+from phoid.methods.chi2 import chi2_isf
 from phoid.methods.pho import Estimate, MCKFit, delay_profile, fit_lines, fit_modes
 from phoid.methods.pho_checks import (
     check_added_mass,
@@ -62,7 +62,7 @@ def check_estimator(estimator: str, compensate: bool) -> None:
 
 def _misfit(mck: MCKFit) -> bool:
     """True when the weighted fit's χ² exceeds its 99.9 % quantile (runs disagree)."""
-    return mck.dof > 0 and mck.chi2 > chdtri(mck.dof, 0.001)
+    return mck.dof > 0 and mck.chi2 > chi2_isf(0.001, mck.dof)
 
 
 def identify_pho(

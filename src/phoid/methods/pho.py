@@ -25,7 +25,6 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from scipy.special import chdtri  # chi2 quantile: chdtri(dof, 1 - p) = chi2.ppf(p, dof)
 
 from phoid._threads import single_blas_thread
 from phoid.dynamics import (
@@ -38,6 +37,7 @@ from phoid.dynamics import (
 )
 from phoid.dynamics.digital import digital_is_dominant, digital_modes
 from phoid.errors import IdentificationError
+from phoid.methods.chi2 import chi2_isf
 
 __all__ = ["Estimate", "LineFit", "MCKFit", "delay_profile", "fit_lines", "fit_modes"]
 
@@ -517,7 +517,7 @@ def fit_modes(
     covp = np.linalg.inv(JtJ)
     dof = 2 * sigma.size - npar
     warnings: list[str] = []
-    if dof > 0 and chi2 > chdtri(dof, 0.001):
+    if dof > 0 and chi2 > chi2_isf(0.001, dof):
         red = chi2 / dof
         covp = covp * red
         warnings.append(

@@ -17,6 +17,7 @@ import numpy as np
 
 from phoid.errors import IdentificationError
 from phoid.methods.pho import fit_lines
+from phoid.methods.savgol import savgol_filter
 
 __all__ = [
     "DIGITAL_KEYS",
@@ -94,8 +95,6 @@ def u_contradicts_gains(data: Sequence[tuple[np.ndarray, np.ndarray]],
                         ) -> str | None:
     """A warning naming the runs whose recorded u contradicts the given gains and delay
     (u ≠ −[P x(t − Δt) + D ẋ(t − Δt)] by more than a calibration could explain), or None."""
-    from scipy.signal import savgol_filter
-
     bad = []
     for i, ((t, x), ui) in enumerate(zip(data, u, strict=True)):
         if ui is None or t.size < 32 or not (P[i] or D[i]) or not math.isfinite(omega_d[i]):

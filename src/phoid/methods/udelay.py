@@ -63,11 +63,11 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.special import chdtri  # chi2 quantile: chdtri(dof, 1 - p) = chi2.ppf(p, dof)
 
 from phoid.dynamics import characteristic, dominant_roots
 from phoid.errors import IdentificationError
 from phoid.fits import DecayFit, diff_noise, is_clipped
+from phoid.methods.chi2 import chi2_isf
 from phoid.methods.loop_modes import distinct_modes, mode_residue
 
 __all__ = ["UDelayFit", "URun", "check_u", "combine", "fit_run", "u_skip", "with_u"]
@@ -574,7 +574,7 @@ def combine(
     covp = np.linalg.inv(J.T @ J)
     dof = int(2 * n + np.count_nonzero(has) - 4)
     warnings: list[str] = []
-    if dof > 0 and chi2 > chdtri(dof, 0.001):
+    if dof > 0 and chi2 > chi2_isf(0.001, dof):
         red = chi2 / dof
         covp = covp * red
         warnings.append(
