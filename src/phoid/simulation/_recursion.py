@@ -27,6 +27,8 @@ recursion grows, and overflows to ±inf or nan, as lfilter's does.
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 from numpy.typing import ArrayLike
 from scipy.linalg.lapack import dtbtrs
@@ -98,34 +100,46 @@ def recurse(
         v[..., : zi.shape[-1]] += zi
     if v.size == 0:
         return v
-    a0 = a[..., :1]
-    a = a[..., : n] / a0  # coefficients beyond the record never act
     rows = v.reshape(-1, n)
     if a.ndim == 1:
-        if np.any(a0 != 1.0):
-            rows /= a0
+        a = a[:n]  # coefficients beyond the record never act
+        if a[0] != 1.0:
+            rows /= a[0]
+            a = a / a[0]
         return _solve_shared(a, rows).reshape(v.shape)
     if a.shape[0] != rows.shape[0]:
         raise ValueError(
             f"`a` must have one row per sequence ({rows.shape[0]}); got shape {a.shape}"
         )
-    if np.any(a0 != 1.0):
-        rows /= a0
+    a = a[:, :n]
+    if np.any(a[:, 0] != 1.0):
+        rows /= a[:, :1]
+        a = a / a[:, :1]
     return _solve_rows(a, rows).reshape(v.shape)
 
 
 def _solve_shared(a: np.ndarray, rows: np.ndarray) -> np.ndarray:
     """Solve every row (R, N) with the one recursion a (k + 1,), a₀ = 1; in place."""
-    k = a.size - 1
-    if k == 0:
+    if a.size == 1:
         return rows
-    n = rows.shape[1]
-    ab = np.empty((k + 1, n), order="F")  # upper band of Tᵀ: row k − i holds a_i
-    ab[:] = a[::-1, None]
-    y, info = dtbtrs(ab, rows.T, uplo="U", trans="T", diag="U", overwrite_b=1)
+    y, info = dtbtrs(_band(a.tobytes(), rows.shape[1]), rows.T, "U", "T", "U", 1)
     if info != 0:  # only argument errors are possible with a unit diagonal
         raise RuntimeError(f"dtbtrs failed (info = {info})")
     return y.T
+
+
+@functools.lru_cache(maxsize=16)
+def _band(a_bytes: bytes, n: int) -> np.ndarray:
+    """Upper band (k + 1, N) of Tᵀ for a (k + 1,) given as bytes: row k − i holds a_i.
+
+    Cached (read-only): a simulation runs the same recursion block after block, and a fresh
+    band for a long record costs more than the solve's setup.
+    """
+    a = np.frombuffer(a_bytes)
+    ab = np.empty((a.size, n), order="F")
+    ab[...] = a[::-1, None]
+    ab.flags.writeable = False
+    return ab
 
 
 def _solve_rows(a: np.ndarray, rows: np.ndarray) -> np.ndarray:
@@ -146,9 +160,7 @@ def _solve_rows(a: np.ndarray, rows: np.ndarray) -> np.ndarray:
         for i in range(1, k + 1):  # a_i would reach into the previous row
             abt[:, : min(i, n), k - i] = 0.0
         seq = rows[r0:r1].reshape(-1, 1)
-        y, info = dtbtrs(
-            abt.reshape(-1, k + 1).T, seq, uplo="U", trans="T", diag="U", overwrite_b=1
-        )
+        y, info = dtbtrs(abt.reshape(-1, k + 1).T, seq, "U", "T", "U", 1)
         if info != 0:
             raise RuntimeError(f"dtbtrs failed (info = {info})")
         rows[r0:r1] = y.reshape(r1 - r0, n)
