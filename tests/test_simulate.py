@@ -662,6 +662,21 @@ def test_recursion_short_records_and_overflow():
         np.testing.assert_allclose(got[fin], ref[fin], rtol=1e-9)
 
 
+def test_recursion_calls_in_sequence_use_their_own_coefficients():
+    """recurse keeps its band memory between calls: alternating recursions of one length,
+    per-sequence ones in between, and bands too long for that memory, each give lfilter's."""
+    rng = np.random.default_rng(3)
+    a1, a2 = np.array([1.0, -1.2, 0.5]), np.array([1.0, 0.3, -0.2])
+    x = rng.standard_normal((2, 300))
+    rows = np.array([[1.0, -0.9], [1.0, 0.4]])
+    long = rng.standard_normal((1, 600_000))  # 3 × 600 000 band entries: not kept
+    calls = [(a1, x), (a2, x), (rows, x), (a1, x), (a1, long), (a2, x), (a1, x), (a1, long)]
+    for a, xx in calls:
+        ref = (lfilter([1.0], a, xx) if a.ndim == 1
+               else np.stack([lfilter([1.0], a[i], xx[i]) for i in range(2)]))
+        np.testing.assert_allclose(recurse(a, xx), ref, rtol=1e-12, atol=1e-12 * np.abs(ref).max())
+
+
 def test_import_simulation_leaves_scipy_signal_out():
     """The simulator does not import scipy.signal (≈ 0.65 s of start-up)."""
     code = "import sys, phoid.simulation; print('scipy.signal' in sys.modules)"

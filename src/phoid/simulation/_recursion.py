@@ -27,7 +27,7 @@ recursion grows, and overflows to ±inf or nan, as lfilter's does.
 
 from __future__ import annotations
 
-import functools
+import threading
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -38,6 +38,7 @@ __all__ = ["recurse"]
 # per-row denominators: rows are solved together in chunks whose banded matrix has at most this
 # many entries (8 MiB), so memory stays bounded for long records and large batches
 _CHUNK_ENTRIES = 1 << 20
+_scratch = threading.local()  # per-thread memory for the bands (see _band)
 
 
 def recurse(
@@ -122,24 +123,36 @@ def _solve_shared(a: np.ndarray, rows: np.ndarray) -> np.ndarray:
     """Solve every row (R, N) with the one recursion a (k + 1,), a₀ = 1; in place."""
     if a.size == 1:
         return rows
-    y, info = dtbtrs(_band(a.tobytes(), rows.shape[1]), rows.T, "U", "T", "U", 1)
+    n, k = rows.shape[1], a.size - 1
+    ab = _band(k + 1, n)  # upper band of Tᵀ: row k − i holds a_i
+    key = (n, a.tobytes())
+    fresh = (k + 1) * n > _CHUNK_ENTRIES  # not from the scratch memory
+    if fresh or getattr(_scratch, "key", None) != key:  # not the band the last call left
+        for i in range(k + 1):
+            ab[k - i] = a[i]
+        if not fresh:
+            _scratch.key = key
+    y, info = dtbtrs(ab, rows.T, "U", "T", "U", 1)  # uplo, trans, diag, overwrite_b
     if info != 0:  # only argument errors are possible with a unit diagonal
         raise RuntimeError(f"dtbtrs failed (info = {info})")
     return y.T
 
 
-@functools.lru_cache(maxsize=16)
-def _band(a_bytes: bytes, n: int) -> np.ndarray:
-    """Upper band (k + 1, N) of Tᵀ for a (k + 1,) given as bytes: row k − i holds a_i.
+def _band(k1: int, n: int) -> np.ndarray:
+    """An uninitialised (k1, n) Fortran-order array for a band, from this thread's scratch.
 
-    Cached (read-only): a simulation runs the same recursion block after block, and a fresh
-    band for a long record costs more than the solve's setup.
+    A simulation runs one recursion after another; reusing the memory spares the page faults
+    of a fresh band on every call (a band up to ``_CHUNK_ENTRIES`` entries; larger ones are
+    allocated).
     """
-    a = np.frombuffer(a_bytes)
-    ab = np.empty((a.size, n), order="F")
-    ab[...] = a[::-1, None]
-    ab.flags.writeable = False
-    return ab
+    size = k1 * n
+    if size > _CHUNK_ENTRIES:
+        return np.empty((k1, n), order="F")
+    buf = getattr(_scratch, "buf", None)
+    if buf is None or buf.size < size:
+        buf = _scratch.buf = np.empty(max(size, 4096))
+        _scratch.key = None
+    return buf[:size].reshape(n, k1).T
 
 
 def _solve_rows(a: np.ndarray, rows: np.ndarray) -> np.ndarray:
@@ -155,12 +168,13 @@ def _solve_rows(a: np.ndarray, rows: np.ndarray) -> np.ndarray:
     per = max(1, _CHUNK_ENTRIES // ((k + 1) * n))
     for r0 in range(0, R, per):
         r1 = min(R, r0 + per)
-        abt = np.empty((r1 - r0, n, k + 1))  # (k + 1, rows·N) in Fortran order, transposed
-        abt[:] = a[r0:r1, None, ::-1]
+        ab = _band(k + 1, (r1 - r0) * n)
+        _scratch.key = None  # the shared band, if any, is overwritten
+        abt = ab.T.reshape(r1 - r0, n, k + 1)  # a view: row r's columns, transposed
+        abt[...] = a[r0:r1, None, ::-1]
         for i in range(1, k + 1):  # a_i would reach into the previous row
             abt[:, : min(i, n), k - i] = 0.0
-        seq = rows[r0:r1].reshape(-1, 1)
-        y, info = dtbtrs(abt.reshape(-1, k + 1).T, seq, "U", "T", "U", 1)
+        y, info = dtbtrs(ab, rows[r0:r1].reshape(-1, 1), "U", "T", "U", 1)
         if info != 0:
             raise RuntimeError(f"dtbtrs failed (info = {info})")
         rows[r0:r1] = y.reshape(r1 - r0, n)
