@@ -29,15 +29,16 @@ their step (item 6).
 4. **Blocks of d steps.** Within a block of d consecutive steps every delayed input is known, so
    the block is the 2 × 2 linear recursion y_{n+1} = Φ y_n + w_n. By Cayley–Hamilton
    (Φ² = τΦ − δI, τ = tr Φ, δ = det Φ) each component obeys the scalar second-order recursion
-   y_{n+2} − τ y_{n+1} + δ y_n = w_{n+1} + (Φ − τI) w_n, which ``scipy.signal.lfilter`` runs in
-   C for the whole batch at once (all runs share Φ when Δt > 0); one batched matrix product per
-   block maps the previous block's step data to all the delayed-input polynomials. Python thus
-   loops over blocks (duration/Δt iterations: 150 for Table 1), never over samples; a very short
-   delay therefore costs more Python iterations than a long one.
+   y_{n+2} − τ y_{n+1} + δ y_n = w_{n+1} + (Φ − τI) w_n, which LAPACK's banded triangular
+   solve runs in compiled code (:mod:`phoid.simulation._recursion`) for the whole batch at once
+   (all runs share Φ when Δt > 0); one batched matrix product per block maps the previous
+   block's step data to all the delayed-input polynomials. Python thus loops over blocks
+   (duration/Δt iterations: 150 for Table 1), never over samples; a very short delay therefore
+   costs more Python iterations than a long one.
 5. **Conditioning.** The scalar recursion stores the dynamics in the last bits of τ ≈ 2 and
    δ ≈ 1, so its rounding is amplified by κ = 1/|λ₁ − λ₂| (λ the eigenvalues of Φ; κ ≈ 90 at
    1 kHz for Table 1, 10⁴ at 64 kHz). When √N·ε·κ could exceed 1e−11, one step of iterative
-   refinement against the exact 2 × 2 recursion (a second ``lfilter`` pass on the defect)
+   refinement against the exact 2 × 2 recursion (a second recursion on the defect)
    brings the error back to that of the 2 × 2 recursion, ≈ N·ε.
 6. **Off-grid samples** are evaluated inside their step from the step's exact Taylor series
    (summed to rounding level; the step solution is an entire function).
@@ -89,7 +90,6 @@ from dataclasses import dataclass
 from fractions import Fraction
 
 import numpy as np
-from scipy.signal import lfilter
 
 from phoid.errors import PhoidError
 from phoid.simulation._checks import MAX_STEPS
@@ -101,6 +101,7 @@ from phoid.simulation._propagation import (
     force_coeffs,
     horner,
 )
+from phoid.simulation._recursion import recurse
 from phoid.simulation._stickslip import Friction, friction_block, initial_mode
 
 __all__ = ["continuous_grid", "feedback_maps", "history", "run_continuous", "run_delayed"]
@@ -518,7 +519,7 @@ def history(B: int, d: int, x0: np.ndarray, k: float) -> np.ndarray:
 
 
 def _linear_blocks(ctx: _Ctx, L10T, cFT, y, x0) -> None:
-    """The hot loop for Δt > 0 without friction: one fused matmul and one lfilter per block.
+    """The hot loop for Δt > 0 without friction: one fused matmul and one recursion per block.
 
     For the steps of a block, G_b = [L10ᵀ; K L10ᵀ; (Φ − τI) K L10ᵀ] maps the previous block's
     step data S = (y_m, y_{m+1}, c_m) to the delayed-input polynomial c^u, the step forcing
@@ -528,7 +529,7 @@ def _linear_blocks(ctx: _Ctx, L10T, cFT, y, x0) -> None:
     B = y.shape[0]
     d, Ns = grid.d, grid.n_steps
     K, Mch = eng.K[0], eng.Mch[0]
-    a_ch, b_ch = eng.a_ch[0], eng.b_ch
+    a_ch = eng.a_ch[0]
     refine = bool(eng.do_refine[0])
     G = np.concatenate([L10T, np.matmul(K, L10T), np.matmul(Mch @ K, L10T)], axis=1)
     if cFT is not None:
@@ -548,9 +549,8 @@ def _linear_blocks(ctx: _Ctx, L10T, cFT, y, x0) -> None:
             wm = wm + mF[:, sl]
         else:
             c = cu
-        Y = lfilter(
-            b_ch, a_ch, ch_input(y, wk[:, :, 0], wk[:, :, 1:], wm[:, :, :-1], Mch), axis=-1
-        )
+        X = ch_input(y, wk[:, :, 0], wk[:, :, 1:], wm[:, :, :-1], Mch)
+        Y = recurse(a_ch, X, overwrite_x=True)
         if refine:
             Y = eng.refine(0, Y, wk)
         a, b = _block_samples(grid, n0, L)
@@ -580,7 +580,7 @@ def _run_ode(m, c, k, fc, P, D, x0, v0, cF, grid, out, bias=None):
     ctx = _Ctx(grid, eng, grp, P, D, out, fr, bias)
     y = np.stack([x0, v0], axis=1)
     cFT = np.ascontiguousarray(cF.T) if cF is not None else None  # (6, Ns)
-    if fr is None:  # one lfilter call per distinct (P, D) over all steps
+    if fr is None:  # one recursion per distinct (P, D) over all steps
         Y = np.empty((B, 2, Ns + 1))
         for gi in range(keys.shape[0]):
             rows = np.flatnonzero(grp == gi)

@@ -17,9 +17,9 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.signal import lfilter
 
 from phoid.dynamics.digital import expm_stack
+from phoid.simulation._recursion import recurse
 
 __all__ = ["NQ", "RHO_H", "Engine", "ch_input", "force_coeffs", "horner", "poly_deriv", "shift"]
 
@@ -50,7 +50,6 @@ class Engine:
         self.tr = self.Phi[:, 0, 0] + self.Phi[:, 1, 1]
         self.det = self.Phi[:, 0, 0] * self.Phi[:, 1, 1] - self.Phi[:, 0, 1] * self.Phi[:, 1, 0]
         self.Mch = self.Phi - self.tr[:, None, None] * np.eye(2)  # Φ − τI
-        self.b_ch = np.array([1.0])
         self.a_ch = np.stack([np.ones(G), -self.tr, self.det], axis=1)
         # conditioning of the scalar recursion: rounding is amplified by κ = 1/|λ₁ − λ₂|
         # (λ = e^{sh}, s the eigenvalues of A); refine when √N·ε·κ could exceed 1e-11
@@ -80,13 +79,14 @@ class Engine:
 
         y0 (n, 2) and w (n, 2, L) give Y (n, 2, L+1) with Y[..., 0] = y0. By Cayley–Hamilton each
         component obeys y_{j+2} − τ y_{j+1} + δ y_j = w_{j+1} + (Φ − τI) w_j, a second-order
-        recursive filter that ``lfilter`` runs in C along the last axis; the initial conditions
-        enter as its first two input samples (see :func:`ch_input`). Where the scalar form is
-        ill-conditioned, one step of iterative refinement (:meth:`refine`) follows.
+        recursive filter that :func:`~phoid.simulation._recursion.recurse` runs in compiled
+        code along the last axis; the initial conditions enter as its first two input samples
+        (see :func:`ch_input`). Where the scalar form is ill-conditioned, one step of iterative
+        refinement (:meth:`refine`) follows.
         """
         Mch = self.Mch[g]
         X = ch_input(y0, w[:, :, 0], w[:, :, 1:], np.matmul(Mch, w[:, :, :-1]), Mch)
-        Y = lfilter(self.b_ch, self.a_ch[g], X, axis=-1)
+        Y = recurse(self.a_ch[g], X, overwrite_x=True)
         return self.refine(g, Y, w) if self.do_refine[g] else Y
 
     def refine(self, g: int, Y: np.ndarray, w: np.ndarray) -> np.ndarray:
@@ -104,7 +104,7 @@ class Engine:
         r += w
         r -= Y[:, :, 1:]
         X = ch_input(0.0, r[:, :, 0], r[:, :, 1:], np.matmul(Mch, r[:, :, :-1]), Mch)
-        Y += lfilter(self.b_ch, self.a_ch[g], X, axis=-1)
+        Y += recurse(self.a_ch[g], X, overwrite_x=True)
         return Y
 
     # ---- Taylor expansion of a step's exact solution ---------------------------------------

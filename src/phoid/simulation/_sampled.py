@@ -14,13 +14,14 @@ plant (f_c = 0):
    polynomial of :mod:`~phoid.dynamics.digital`: X(z) = [Q(z) + z^d(z − a)((z − Φ₂₂)F₁(z) +
    Φ₁₂F₂(z))]/χ(z)
    with F_n the plant state that the external force alone adds over period n. One IIR
-   ``lfilter`` per run (order d + 3) gives every x_n at once.
+   recursion per run (order d + 3, :mod:`phoid.simulation._recursion`, all runs in one call)
+   gives every x_n at once.
 2. **One step of iterative refinement.** From x_n, the estimator state (a first-order
-   ``lfilter``), the commands and the held, delayed input follow; the plant's exact 2 × 2
+   recursion), the commands and the held, delayed input follow; the plant's exact 2 × 2
    recursion y_{n+1} = Φ y_n + Γ u_{n−d} + F_n driven by them (the Cayley–Hamilton filter with
    its own refinement, :mod:`phoid.simulation._propagation`) gives x̃_n. The defect e = x̃ − x
    is mapped back through the closed loop's sensitivity z^d(z − a)Δ(z)/χ(z) (one more
-   ``lfilter``) and added to x; the commands and the plant state are recomputed from the
+   recursion) and added to x; the commands and the plant state are recomputed from the
    corrected x. The recorded x, ẋ are the plant recursion's, so x, ẋ and u are consistent to
    rounding (≈ N·ε).
 3. **Between controller instants** (M > 1): y(nT_s + ih) = Φ(ih) y_n + Γ(ih) u_{n−d} plus the
@@ -29,11 +30,11 @@ plant (f_c = 0):
    (Chebyshev–Lobatto nodes, as for the continuous loop; sub-steps so that ρh ≤ 0.1 for the
    plant's and the loop's dominant rates), propagated exactly; shared by all runs.
 
-Python thus loops over runs (one ``lfilter`` each) and over the sub-steps of one period, never
-over periods or samples. With Coulomb friction (f_c > 0) the plant is propagated by the
-stick–slip machinery of :mod:`phoid.simulation._stickslip` in blocks of d + 1 controller periods
-(within such a block every applied command is already known), and the commands are updated
-after each block: Python loops over blocks, i.e. ≈ N/(M(d + 1)) iterations.
+Python thus loops over the sub-steps of one period, never over runs, periods or samples. With
+Coulomb friction (f_c > 0) the plant is propagated by the stick–slip machinery of
+:mod:`phoid.simulation._stickslip` in blocks of d + 1 controller periods (within such a block
+every applied command is already known), and the commands are updated after each block:
+Python loops over blocks, i.e. ≈ N/(M(d + 1)) iterations.
 
 A DC-offset bias b adds one more term to the command, uₙ = −P xₙ − D v̂ₙ + b·sign(v̂ₙ), held by
 the zero-order hold; the loop is then nonlinear and takes the block-by-block path of the
@@ -46,7 +47,6 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.signal import lfilter
 
 from phoid.dynamics.digital import (
     DigitalPD,
@@ -57,6 +57,7 @@ from phoid.dynamics.digital import (
 )
 from phoid.dynamics.plant import quadratic_roots
 from phoid.simulation._propagation import NQ, RHO_H, Engine, force_coeffs
+from phoid.simulation._recursion import recurse
 from phoid.simulation._stickslip import Friction
 
 __all__ = ["run_sampled"]
@@ -204,16 +205,14 @@ def _sampled_linear(m, c, k, P, D, x0, v0, loop, geo: _SampledGeometry, cF, out)
         b1c = np.array([0.0, 1.0, -(a + Phi[1, 1]), a * Phi[1, 1]])
         b2c = np.array([0.0, 0.0, Phi[0, 1], -a * Phi[0, 1]])
         inp += (np.convolve(gF[:, 0], b1c) + np.convolve(gF[:, 1], b2c))[None, : L + 1]
-    x = np.empty((B, L + 1))
-    for b in range(B):
-        x[b] = lfilter([1.0], chi[b], inp[b])
+    x = recurse(chi, inp, overwrite_x=True)  # each run with its own χ
 
     def commands(x):
         """Commands u_n and applied inputs u_{n−d} at n1 … n_last from the sampled x."""
         w = np.empty_like(x)
         w[:, 0] = -cf * x0
         w[:, 1:] = (a - 1.0) * cf * x[:, :-1]
-        q = lfilter([1.0], [1.0, -a], w, axis=1) if a != 0.0 else w  # q_n = v̂_n − c_f x_n
+        q = recurse([1.0, -a], w, overwrite_x=True) if a != 0.0 else w  # q_n = v̂_n − c_f x_n
         Ucl = -(P + D * cf)[:, None] * x - D[:, None] * q
         uapp = np.repeat((-P * x0)[:, None], L + 1, axis=1)  # held commands first
         if d <= L:
@@ -233,8 +232,7 @@ def _sampled_linear(m, c, k, P, D, x0, v0, loop, geo: _SampledGeometry, cF, out)
     Y = plant(uapp)
     sens = np.array([1.0, -(zp.tau + a), zp.delta + a * zp.tau, -a * zp.delta])
     e = Y[:, 0] - x
-    for b in range(B):
-        x[b] += lfilter(sens, chi[b], e[b])
+    x += recurse(chi, e, b=sens)
     Ucl, uapp = commands(x)
     Y = plant(uapp)
     U[:, n1:] = Ucl
@@ -291,7 +289,7 @@ def _sampled_friction(m, c, k, fc, P, D, x0, v0, loop, geo: _SampledGeometry, cF
             return
         xseq = Xc[:, lo : upto + 1]
         dx = np.diff(np.concatenate([state["x"][:, None], xseq], axis=1), axis=1)
-        ve, _ = lfilter([cf], [1.0, -a], dx, axis=1, zi=(a * state["ve"])[:, None])
+        ve = recurse([1.0, -a], dx, b=[cf], zi=(a * state["ve"])[:, None])
         U[:, lo : upto + 1] = -(P[:, None] * xseq + D[:, None] * ve)
         if bias is not None:
             S, given = signs
