@@ -26,16 +26,18 @@ echo "wheel-check: python -m build"
 ls -l "$TMP/dist"
 
 WHEEL="$(ls "$TMP"/dist/*.whl)"
-# every module of src/phoid is in the wheel
-missing=""
-for f in "$ROOT"/src/phoid/*; do
-    case "$f" in *__pycache__*) continue;; esac
-    name="phoid/$(basename "$f")"
-    "$TMP/build-venv/bin/python" - "$WHEEL" "$name" <<'PY' || missing="$missing $name"
-import sys, zipfile
-sys.exit(0 if sys.argv[2] in zipfile.ZipFile(sys.argv[1]).namelist() else 1)
+# every tracked file of src/phoid (the modules of every subpackage, package data) is in the wheel
+missing="$("$TMP/build-venv/bin/python" - "$WHEEL" "$TMP/src/src" <<'PY'
+import pathlib, sys, zipfile
+names = set(zipfile.ZipFile(sys.argv[1]).namelist())
+src = pathlib.Path(sys.argv[2])
+for f in sorted((src / "phoid").rglob("*")):
+    if f.is_file() and "__pycache__" not in f.parts and f.suffix != ".pyc":
+        rel = f.relative_to(src).as_posix()
+        if rel not in names:
+            print(" " + rel, end="")
 PY
-done
+)"
 [ -z "$missing" ] || { echo "wheel-check: missing from the wheel:$missing" >&2; exit 1; }
 
 echo "wheel-check: pip install the wheel into a clean venv"
