@@ -242,77 +242,21 @@ class FreeIdentification:
 
     def report(self) -> str:
         """Plain-text report: σ, ω₀, ζ, roots, c/m, k/m (c, k with a known mass), runs."""
-        from phoid.reports.text import format_estimate
+        from phoid.reports.text import free_text
 
-        lines = [f"phoid identify (free decay): {self.source}" if self.source
-                 else "phoid identify (free decay)", ""]
-        for name, est in (("σ", self.sigma), ("ω₀", self.omega0), ("ζ", self.zeta),
-                          ("c/m", self.c_over_m), ("k/m", self.k_over_m)):
-            val = (format_estimate(est.value, est.stderr) if math.isfinite(est.value)
-                   else "undefined")
-            lines.append(f"  {name:<4}= {val} {est.unit}".rstrip())
-        lines.append(f"  regime: {self.regime}")
-        for j, (s, se) in enumerate(zip(self.roots, self.roots_stderr, strict=True), 1):
-            re = format_estimate(s.real, se[0])
-            im = format_estimate(abs(s.imag), se[1])
-            sign = "+" if s.imag >= 0 else "−"
-            lines.append(f"  root {j}: {re} {sign} {im}i 1/s")
-        if self.m is not None and self.c is not None and self.k is not None:
-            lines.append(f"  with the known mass m = {self.m.value:g} kg:")
-            lines.append(f"  c = {format_estimate(self.c.value, self.c.stderr)} {self.c.unit}")
-            lines.append(f"  k = {format_estimate(self.k.value, self.k.stderr)} {self.k.unit}")
-        else:
-            lines.append("  (m, c, k are not separately identifiable from a free decay: "
-                         "give the mass with --mass to get c and k)")
-        lines.append("")
-        lines.append(f"  {'run':<18}{'release s':>11}{'held':>6}{'x0 m':>12}{'v0 m/s':>12}"
-                     f"{'samples':>9}{'resid m':>10}")
-        for r in self.runs:
-            mark = "" if r.used else "  (set aside)"
-            lines.append(f"  {r.file:<18}{r.release:>11.5g}{'yes' if r.held else 'no':>6}"
-                         f"{r.x0:>12.4g}{r.v0:>12.4g}{r.n_samples:>9d}"
-                         f"{r.residual_rms:>10.2g}{mark}")
-        if self.warnings:
-            lines += ["", "warnings:"] + [f"  - {w}" for w in self.warnings]
-        return "\n".join(lines)
+        return free_text(self)
 
     def plot(self, out_dir: str | Path, *, overwrite: bool = False) -> list[Path]:
         """Write one PNG per run (record, fitted free response, residual) into ``out_dir``.
 
         ``out_dir`` is created if needed; existing files are replaced only with ``overwrite``
         and links in it are refused (:mod:`phoid._output`; all names checked before the first
-        figure is written). Returns the list of paths written.
+        figure is written). Returns the list of paths written
+        (:func:`phoid.reports.figures.plot_free`).
         """
-        from matplotlib.figure import Figure
+        from phoid.reports.figures import plot_free
 
-        from phoid._output import OutputFolder
-        from phoid.reports.figures import save_png
-
-        plotted = [i for i, r in enumerate(self.runs) if r.used and i < len(self.data)]
-        names = {i: f"free-{i + 1:02d}-{Path(self.runs[i].file).name.split('.')[0]}.png"
-                 for i in plotted}
-        out = OutputFolder(out_dir, overwrite=overwrite)
-        out.check(names.values())
-        written = []
-        for i in plotted:
-            r = self.runs[i]
-            t, x = self.data[i]
-            sel = (t >= r.t_start) & (t <= r.t_end)
-            model = self.model(i, t[sel])
-            fig = Figure(figsize=(8, 5.5), layout="constrained")
-            ax, axr = fig.subplots(2, 1, sharex=True, height_ratios=[3, 1])
-            ax.plot(t, x * 1e3, lw=0.6, color="0.5", label="record")
-            ax.plot(t[sel], model * 1e3, lw=1.0, color="C0", label="fitted free response")
-            ax.axvline(r.release, color="C3", ls=":", lw=1, label="release")
-            ax.set_ylabel("x (mm)")
-            ax.set_title(f"{r.file}: σ = {self.sigma.value:.5g} 1/s, "
-                         f"ω₀ = {self.omega0.value:.5g} rad/s, ζ = {self.zeta.value:.4g}")
-            ax.legend(loc="upper right", fontsize=8)
-            axr.plot(t[sel], (x[sel] - model) * 1e3, lw=0.5, color="C1")
-            axr.set_ylabel("residual (mm)")
-            axr.set_xlabel("t (s)")
-            written.append(save_png(fig, out, names[i]))
-        return written
+        return plot_free(self, out_dir, overwrite=overwrite)
 
 
 # --------------------------------------------------------------------------------------------

@@ -194,7 +194,7 @@ class Identification:
         """Write per-run decay fits with residuals and the two eq. (35) lines as PNG files.
 
         Existing files are replaced only with ``overwrite``; links in ``out_dir`` are refused
-        (:func:`phoid.reports.text.plot_identification`). Returns the list of paths written.
+        (:func:`phoid.reports.figures.plot_identification`). Returns the list of paths written.
         """
         from phoid.reports.figures import plot_identification
 

@@ -6,20 +6,28 @@ Results are taken by duck typing: nothing here imports the methods, planning or 
 
 from phoid.reports.figures import (
     figure1,
+    plot_forced,
+    plot_free,
     plot_identification,
     save_png,
 )
 from phoid.reports.text import (
+    forced_text,
     format_estimate,
+    free_text,
     friction_text,
     identification_text,
 )
 
 __all__ = [
     "figure1",
+    "forced_text",
     "format_estimate",
+    "free_text",
     "friction_text",
     "identification_text",
+    "plot_forced",
+    "plot_free",
     "plot_identification",
     "save_png",
 ]

@@ -7,6 +7,7 @@ imports the methods that make them.
 
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -18,7 +19,7 @@ from phoid.dynamics.loop import inverse_map
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
-__all__ = ["figure1", "plot_identification", "save_png"]
+__all__ = ["figure1", "plot_forced", "plot_free", "plot_identification", "save_png"]
 
 
 def save_png(fig: Figure, out: OutputFolder, name: str) -> Path:
@@ -36,9 +37,11 @@ def plot_identification(ident: Any, out_dir: str | Path, *,
     Parameters
     ----------
     ident : phoid.Identification or alike
-        Read: ``runs`` (each with ``fit``, ``file``, ``P``, ``D``, ``sigma``, ``omega_d``,
-        ``c_prime``, ``k_prime``, ``used``), ``data`` (per-run ``(t, x)``), ``delay`` and
-        ``m``, ``c``, ``k`` (each with ``value``).
+        Read: ``runs`` (each with ``fit`` (a :class:`phoid.fits.DecayFit` or None: its
+        ``t_start``, ``t_end``, ``release`` in s, ``fast_modes``, ``cov`` and ``model``),
+        ``file``, ``P`` (N/m), ``D`` (N s/m), ``sigma`` (1/s), ``omega_d`` (rad/s),
+        ``c_prime`` (N s/m), ``k_prime`` (N/m), ``used``), ``data`` (per run ``(t, x)``, s and
+        m), ``delay`` (s) and ``m``, ``c``, ``k`` (each with ``value``: kg, N s/m, N/m).
     out_dir : path
         Folder to write PNG files into (created if needed).
     overwrite : bool
@@ -48,42 +51,62 @@ def plot_identification(ident: Any, out_dir: str | Path, *,
     Returns
     -------
     list of Path
-        The files written.
+        The files written: ``run-NN-<file>.png`` for every run with a fit, then
+        ``eq35-lines.png``.
 
     Raises
     ------
     phoid.errors.OutputError
         A file in the way; checked for all figures before the first is written.
     """
-    from matplotlib.figure import Figure
-
     plotted = [i for i, r in enumerate(ident.runs) if r.fit is not None and i < len(ident.data)]
-    names = {i: f"run-{i + 1:02d}-{Path(ident.runs[i].file).name.split('.')[0]}.png"
+    return _write_figures(out_dir, overwrite, "run", ident.runs, plotted,
+                          lambda i: _pho_run_figure(ident, i),
+                          [("eq35-lines.png", lambda: _lines_figure(ident))])
+
+
+def _write_figures(out_dir: str | Path, overwrite: bool, prefix: str, runs: Sequence[Any],
+                   plotted: Sequence[int], draw_run: Callable[[int], Figure],
+                   extra: Sequence[tuple[str, Callable[[], Figure]]] = ()) -> list[Path]:
+    """The per-run scaffolding of the ``plot_*`` functions: names, checks, then the writes.
+
+    Run ``i`` (0-based, in ``plotted``) is drawn by ``draw_run(i)`` into
+    ``<prefix>-<i + 1:02d>-<stem of runs[i].file>.png``; the ``extra`` figures follow, each
+    ``(name, draw)``. Every name is checked in ``out_dir`` before the first figure is drawn
+    (:meth:`phoid._output.OutputFolder.check`), so a file in the way writes nothing. Returns
+    the paths written, in that order.
+    """
+    names = {i: f"{prefix}-{i + 1:02d}-{Path(runs[i].file).name.split('.')[0]}.png"
              for i in plotted}
     out = OutputFolder(out_dir, overwrite=overwrite)
-    out.check([*names.values(), "eq35-lines.png"])
-    written: list[Path] = []
-    for i in plotted:
-        r = ident.runs[i]
-        t, x = ident.data[i]
-        fig = Figure(figsize=(8, 5.5), layout="constrained")
-        ax, axr = fig.subplots(2, 1, sharex=True, height_ratios=[3, 1])
-        ax.plot(t, x * 1e3, lw=0.6, color="0.5", label="record")
-        sel = (t >= r.fit.t_start) & (t <= r.fit.t_end)
-        model = r.fit.model(t[sel], fast=True)
-        label = "fitted dominant mode" + (" + fast loop modes" if r.fit.fast_modes else "")
-        ax.plot(t[sel], model * 1e3, lw=1.0, color="C0", label=label)
-        ax.axvline(r.fit.release, color="C3", ls=":", lw=1, label="release")
-        ax.set_ylabel("x (mm)")
-        ax.set_title(f"{r.file}: P = {r.P:g} N/m, D = {r.D:g} N s/m, "
-                     f"σ = {r.sigma:.5g} 1/s, ω_d = {r.omega_d:.5g} rad/s")
-        ax.legend(loc="upper right", fontsize=8)
-        axr.plot(t[sel], (x[sel] - model) * 1e3, lw=0.5, color="C1")
-        axr.set_ylabel("residual (mm)")
-        axr.set_xlabel("t (s)")
-        written.append(save_png(fig, out, names[i]))
-    written.append(_lines_figure(ident, out, "eq35-lines.png"))
+    out.check([*names.values(), *(name for name, _ in extra)])
+    written = [save_png(draw_run(i), out, names[i]) for i in plotted]
+    written += [save_png(draw(), out, name) for name, draw in extra]
     return written
+
+
+def _pho_run_figure(ident: Any, i: int) -> Figure:
+    """Run ``i``'s record, its fitted dominant mode (with the fast loop modes) and residual."""
+    from matplotlib.figure import Figure
+
+    r = ident.runs[i]
+    t, x = ident.data[i]
+    fig = Figure(figsize=(8, 5.5), layout="constrained")
+    ax, axr = fig.subplots(2, 1, sharex=True, height_ratios=[3, 1])
+    ax.plot(t, x * 1e3, lw=0.6, color="0.5", label="record")
+    sel = (t >= r.fit.t_start) & (t <= r.fit.t_end)
+    model = r.fit.model(t[sel], fast=True)
+    label = "fitted dominant mode" + (" + fast loop modes" if r.fit.fast_modes else "")
+    ax.plot(t[sel], model * 1e3, lw=1.0, color="C0", label=label)
+    ax.axvline(r.fit.release, color="C3", ls=":", lw=1, label="release")
+    ax.set_ylabel("x (mm)")
+    ax.set_title(f"{r.file}: P = {r.P:g} N/m, D = {r.D:g} N s/m, "
+                 f"σ = {r.sigma:.5g} 1/s, ω_d = {r.omega_d:.5g} rad/s")
+    ax.legend(loc="upper right", fontsize=8)
+    axr.plot(t[sel], (x[sel] - model) * 1e3, lw=0.5, color="C1")
+    axr.set_ylabel("residual (mm)")
+    axr.set_xlabel("t (s)")
+    return fig
 
 
 def _line_errors(ident: Any) -> np.ndarray:
@@ -108,7 +131,8 @@ def _line_errors(ident: Any) -> np.ndarray:
     return np.array(rows)
 
 
-def _lines_figure(ident: Any, out: OutputFolder, name: str) -> Path:
+def _lines_figure(ident: Any) -> Figure:
+    """The two lines of eq. (35), c′ᵢ against 2σᵢ and k′ᵢ against ω₀ᵢ², with the fitted m, c, k."""
     from matplotlib.figure import Figure
 
     used = [r for r in ident.runs if r.used]
@@ -134,7 +158,148 @@ def _lines_figure(ident: Any, out: OutputFolder, name: str) -> Path:
     b.set_ylabel("k′ᵢ (N/m)")
     b.legend(fontsize=8)
     fig.suptitle("eq. (35) lines, per-run error bars ±1 stderr")
-    return save_png(fig, out, name)
+    return fig
+
+
+def plot_free(result: Any, out_dir: str | Path, *, overwrite: bool = False) -> list[Path]:
+    """Per-run record of a free-decay set with its fitted free response and residual.
+
+    Parameters
+    ----------
+    result : phoid.methods.free.FreeIdentification or alike
+        Read: ``runs`` (each with ``file``, ``used``, ``release``, ``t_start`` and ``t_end``,
+        s), ``data`` (per run ``(t, x)``, s and m), ``model(i, t)`` (run ``i``'s fitted
+        position at times ``t``, m) and ``sigma`` (1/s), ``omega0`` (rad/s), ``zeta`` (each
+        with ``value``).
+    out_dir : path
+        Folder to write PNG files into (created if needed).
+    overwrite : bool
+        Replace existing files of the same names (otherwise they are an error; links in the
+        folder are refused either way: see :mod:`phoid._output`).
+
+    Returns
+    -------
+    list of Path
+        The files written: ``free-NN-<file>.png`` for every run used.
+
+    Raises
+    ------
+    phoid.errors.OutputError
+        A file in the way; checked for all figures before the first is written.
+    """
+    plotted = [i for i, r in enumerate(result.runs) if r.used and i < len(result.data)]
+    return _write_figures(out_dir, overwrite, "free", result.runs, plotted,
+                          lambda i: _free_run_figure(result, i))
+
+
+def _free_run_figure(result: Any, i: int) -> Figure:
+    """Run ``i``'s record, the fitted free response over the analysed window, and residual."""
+    from matplotlib.figure import Figure
+
+    r = result.runs[i]
+    t, x = result.data[i]
+    sel = (t >= r.t_start) & (t <= r.t_end)
+    model = result.model(i, t[sel])
+    fig = Figure(figsize=(8, 5.5), layout="constrained")
+    ax, axr = fig.subplots(2, 1, sharex=True, height_ratios=[3, 1])
+    ax.plot(t, x * 1e3, lw=0.6, color="0.5", label="record")
+    ax.plot(t[sel], model * 1e3, lw=1.0, color="C0", label="fitted free response")
+    ax.axvline(r.release, color="C3", ls=":", lw=1, label="release")
+    ax.set_ylabel("x (mm)")
+    ax.set_title(f"{r.file}: σ = {result.sigma.value:.5g} 1/s, "
+                 f"ω₀ = {result.omega0.value:.5g} rad/s, ζ = {result.zeta.value:.4g}")
+    ax.legend(loc="upper right", fontsize=8)
+    axr.plot(t[sel], (x[sel] - model) * 1e3, lw=0.5, color="C1")
+    axr.set_ylabel("residual (mm)")
+    axr.set_xlabel("t (s)")
+    return fig
+
+
+def plot_forced(result: Any, out_dir: str | Path, *, overwrite: bool = False) -> list[Path]:
+    """Per-run fits of a forced set (x, model, residual; F) and the eq. (20) lines.
+
+    Parameters
+    ----------
+    result : phoid.methods.forced.ForcedIdentification or alike
+        Read: ``runs`` (each with ``file``, ``used``, ``t_start`` and ``settle_time`` (s),
+        ``model(t)`` (the fitted x at times ``t``, m), ``omega`` (rad/s), ``R`` (N/m), ``rho``
+        (rad), ``Z`` (R e^{iρ}, N/m) and ``Z_cov`` (its (2, 2) covariance of real and
+        imaginary parts, (N/m)²)), ``data`` (per run ``(t, x, F)``, s, m and N) and ``m``,
+        ``c``, ``k`` (each with ``value``: kg, N s/m, N/m).
+    out_dir : path
+        Folder to write PNG files into (created if needed).
+    overwrite : bool
+        Replace existing files of the same names (otherwise they are an error; links in the
+        folder are refused either way: see :mod:`phoid._output`).
+
+    Returns
+    -------
+    list of Path
+        The files written: ``forced-NN-<file>.png`` for every run used, then
+        ``eq20-lines.png``.
+
+    Raises
+    ------
+    phoid.errors.OutputError
+        A file in the way; checked for all figures before the first is written.
+    """
+    plotted = [i for i, r in enumerate(result.runs) if r.used and i < len(result.data)]
+    return _write_figures(out_dir, overwrite, "forced", result.runs, plotted,
+                          lambda i: _forced_run_figure(result, i),
+                          [("eq20-lines.png", lambda: _eq20_figure(result))])
+
+
+def _forced_run_figure(result: Any, i: int) -> Figure:
+    """Run ``i``'s record with its steady state + transient, the residual, and the force F."""
+    from matplotlib.figure import Figure
+
+    r = result.runs[i]
+    t, x, F = result.data[i]
+    sel = t >= r.t_start
+    model = r.model(t[sel])
+    fig = Figure(figsize=(8, 6.5), layout="constrained")
+    ax, axr, axf = fig.subplots(3, 1, sharex=True, height_ratios=[3, 1, 1.2])
+    ax.plot(t, x * 1e3, lw=0.6, color="0.5", label="record")
+    ax.plot(t[sel], model * 1e3, lw=0.9, color="C0", label="steady state + transient")
+    ax.axvline(r.settle_time, color="C3", ls=":", lw=1, label="transient < noise")
+    ax.set_ylabel("x (mm)")
+    ax.set_title(f"{r.file}: ω = {r.omega:.5g} rad/s, R = {r.R:.5g} N/m, "
+                 f"ρ = {r.rho:.4g} rad")
+    ax.legend(loc="upper right", fontsize=8)
+    axr.plot(t[sel], (x[sel] - model) * 1e3, lw=0.5, color="C1")
+    axr.set_ylabel("residual (mm)")
+    axf.plot(t, F, lw=0.6, color="C2")
+    axf.set_ylabel("F (N)")
+    axf.set_xlabel("t (s)")
+    return fig
+
+
+def _eq20_figure(result: Any) -> Figure:
+    """The two lines of eq. (20): R cos ρ = k − mω² against ω², R sin ρ = cω against ω."""
+    from matplotlib.figure import Figure
+
+    used = [r for r in result.runs if r.used]
+    w = np.array([r.omega for r in used])
+    Z = np.array([r.Z for r in used])
+    se = np.array([np.sqrt(np.clip(np.diag(r.Z_cov), 0, None)) for r in used])
+    m, c, k = result.m.value, result.c.value, result.k.value
+    fig = Figure(figsize=(11, 4.5), layout="constrained")
+    a, b = fig.subplots(1, 2)
+    a.errorbar(w**2, Z.real, yerr=se[:, 0], fmt="o", ms=4, capsize=2)
+    xx = np.linspace(0, (w**2).max() * 1.05, 50)
+    a.plot(xx, k - m * xx, "-", label=f"k − mω²: m = {m:.5g} kg, k = {k:.5g} N/m")
+    a.axhline(0, color="0.7", lw=0.5)
+    a.set_xlabel("ω² (rad²/s²)")
+    a.set_ylabel("R cos ρ (N/m)")
+    a.legend(fontsize=8)
+    b.errorbar(w, Z.imag, yerr=se[:, 1], fmt="o", ms=4, capsize=2)
+    xx = np.linspace(0, w.max() * 1.05, 50)
+    b.plot(xx, c * xx, "-", label=f"cω: c = {c:.5g} N s/m")
+    b.set_xlabel("ω (rad/s)")
+    b.set_ylabel("R sin ρ (N/m)")
+    b.legend(fontsize=8)
+    fig.suptitle("eq. (20), per-run error bars ±1 stderr")
+    return fig
 
 
 def figure1(result: Any, out_dir: str | Path, *,

@@ -1,4 +1,4 @@
-"""Plain-text reports of results: identification, friction fit, and one estimate ± stderr.
+"""Plain-text reports of results (PHO, free decay, forced, friction) and one estimate ± stderr.
 
 The results are taken by duck typing (the attributes each function reads are named in its
 docstring): this subpackage never imports the methods that make them.
@@ -9,7 +9,7 @@ from __future__ import annotations
 import math
 from typing import Any
 
-__all__ = ["format_estimate", "friction_text", "identification_text"]
+__all__ = ["forced_text", "format_estimate", "free_text", "friction_text", "identification_text"]
 
 
 def format_estimate(value: float, se: float | None) -> str:
@@ -133,4 +133,93 @@ def friction_text(fit: Any) -> str:
         lines.append("")
         lines.append("warnings:")
         lines.extend(f"  - {w}" for w in fit.warnings)
+    return "\n".join(lines)
+
+
+def free_text(result: Any) -> str:
+    """Plain-text report of a free-decay identification: σ, ω₀, ζ, roots, c/m, k/m, runs.
+
+    Parameters
+    ----------
+    result : phoid.methods.free.FreeIdentification or alike
+        Read: ``source``, ``sigma`` (1/s), ``omega0`` (rad/s), ``zeta``, ``c_over_m`` (1/s),
+        ``k_over_m`` (1/s²) (each with ``value``, ``stderr``, ``unit``), ``regime``, ``roots``
+        (two complex, 1/s) and ``roots_stderr`` (per root the stderr of its real and
+        imaginary parts, or None), ``m``, ``c``, ``k`` (each an estimate as above, or None
+        without a known mass), ``runs`` (each with ``file``, ``release`` (s), ``held``,
+        ``x0`` (m), ``v0`` (m/s), ``n_samples``, ``residual_rms`` (m), ``used``) and
+        ``warnings``.
+
+    Returns
+    -------
+    str
+    """
+    lines = [f"phoid identify (free decay): {result.source}" if result.source
+             else "phoid identify (free decay)", ""]
+    for name, est in (("σ", result.sigma), ("ω₀", result.omega0), ("ζ", result.zeta),
+                      ("c/m", result.c_over_m), ("k/m", result.k_over_m)):
+        val = (format_estimate(est.value, est.stderr) if math.isfinite(est.value)
+               else "undefined")
+        lines.append(f"  {name:<4}= {val} {est.unit}".rstrip())
+    lines.append(f"  regime: {result.regime}")
+    for j, (s, se) in enumerate(zip(result.roots, result.roots_stderr, strict=True), 1):
+        re = format_estimate(s.real, se[0])
+        im = format_estimate(abs(s.imag), se[1])
+        sign = "+" if s.imag >= 0 else "−"
+        lines.append(f"  root {j}: {re} {sign} {im}i 1/s")
+    if result.m is not None and result.c is not None and result.k is not None:
+        lines.append(f"  with the known mass m = {result.m.value:g} kg:")
+        lines.append(f"  c = {format_estimate(result.c.value, result.c.stderr)} {result.c.unit}")
+        lines.append(f"  k = {format_estimate(result.k.value, result.k.stderr)} {result.k.unit}")
+    else:
+        lines.append("  (m, c, k are not separately identifiable from a free decay: "
+                     "give the mass with --mass to get c and k)")
+    lines.append("")
+    lines.append(f"  {'run':<18}{'release s':>11}{'held':>6}{'x0 m':>12}{'v0 m/s':>12}"
+                 f"{'samples':>9}{'resid m':>10}")
+    for r in result.runs:
+        mark = "" if r.used else "  (set aside)"
+        lines.append(f"  {r.file:<18}{r.release:>11.5g}{'yes' if r.held else 'no':>6}"
+                     f"{r.x0:>12.4g}{r.v0:>12.4g}{r.n_samples:>9d}"
+                     f"{r.residual_rms:>10.2g}{mark}")
+    if result.warnings:
+        lines += ["", "warnings:"] + [f"  - {w}" for w in result.warnings]
+    return "\n".join(lines)
+
+
+def forced_text(result: Any) -> str:
+    """Plain-text report of a forced identification: m, c, k ± stderr, ω₀, ζ, runs, warnings.
+
+    Parameters
+    ----------
+    result : phoid.methods.forced.ForcedIdentification or alike
+        Read: ``source``, ``m`` (kg), ``c`` (N s/m), ``k`` (N/m) (each with ``value``,
+        ``stderr``, ``unit``), ``omega0`` (rad/s) and ``zeta`` (each with ``value`` and
+        ``stderr``), ``runs`` (each with ``file``, ``omega`` (rad/s), ``B`` (N), ``C`` (m),
+        ``R`` and ``R_stderr`` (N/m), ``rho`` and ``rho_stderr`` (rad), ``t_start`` and
+        ``settle_time`` (s), ``used``) and ``warnings``.
+
+    Returns
+    -------
+    str
+    """
+    lines = [f"phoid identify (forced): {result.source}" if result.source
+             else "phoid identify (forced)", ""]
+    for name, est in (("m", result.m), ("c", result.c), ("k", result.k)):
+        lines.append(f"  {name} = {format_estimate(est.value, est.stderr)} {est.unit}")
+    w0, z = result.omega0, result.zeta
+    if math.isfinite(w0.value):
+        lines.append(f"  ω₀ = {format_estimate(w0.value, w0.stderr)} rad/s,  "
+                     f"ζ = {format_estimate(z.value, z.stderr)}")
+    lines.append("")
+    lines.append(f"  {'run':<16}{'ω rad/s':>12}{'B N':>10}{'C m':>11} {'R N/m':>22} "
+                 f"{'ρ rad':>22}{'settled s':>11}")
+    for r in result.runs:
+        mark = "" if r.used else "  (set aside)"
+        lines.append(
+            f"  {r.file:<16}{r.omega:>12.6g}{r.B:>10.4g}{r.C:>11.4g} "
+            f"{format_estimate(r.R, r.R_stderr):>22} {format_estimate(r.rho, r.rho_stderr):>22}"
+            f"{r.settle_time - r.t_start:>11.3g}{mark}")
+    if result.warnings:
+        lines += ["", "warnings:"] + [f"  - {w}" for w in result.warnings]
     return "\n".join(lines)

@@ -192,94 +192,18 @@ class ForcedIdentification:
 
     def report(self) -> str:
         """Plain-text report: m, c, k ± stderr, ω₀, ζ, per-run table, warnings."""
-        from phoid.reports.text import format_estimate
+        from phoid.reports.text import forced_text
 
-        lines = [f"phoid identify (forced): {self.source}" if self.source
-                 else "phoid identify (forced)", ""]
-        for name, est in (("m", self.m), ("c", self.c), ("k", self.k)):
-            lines.append(f"  {name} = {format_estimate(est.value, est.stderr)} {est.unit}")
-        w0, z = self.omega0, self.zeta
-        if math.isfinite(w0.value):
-            lines.append(f"  ω₀ = {format_estimate(w0.value, w0.stderr)} rad/s,  "
-                         f"ζ = {format_estimate(z.value, z.stderr)}")
-        lines.append("")
-        lines.append(f"  {'run':<16}{'ω rad/s':>12}{'B N':>10}{'C m':>11} {'R N/m':>22} "
-                     f"{'ρ rad':>22}{'settled s':>11}")
-        for r in self.runs:
-            mark = "" if r.used else "  (set aside)"
-            lines.append(
-                f"  {r.file:<16}{r.omega:>12.6g}{r.B:>10.4g}{r.C:>11.4g} "
-                f"{format_estimate(r.R, r.R_stderr):>22} {format_estimate(r.rho, r.rho_stderr):>22}"
-                f"{r.settle_time - r.t_start:>11.3g}{mark}")
-        if self.warnings:
-            lines += ["", "warnings:"] + [f"  - {w}" for w in self.warnings]
-        return "\n".join(lines)
+        return forced_text(self)
 
     def plot(self, out_dir: str | Path, *, overwrite: bool = False) -> list[Path]:
         """Write per-run fits (x, model, residual; F) and the eq. (20) lines as PNG files.
 
         ``out_dir`` is created if needed; existing files are replaced only with ``overwrite``
         and links in it are refused (:mod:`phoid._output`; all names checked before the first
-        figure is written). Returns the list of paths written.
+        figure is written). Returns the list of paths written
+        (:func:`phoid.reports.figures.plot_forced`).
         """
-        from matplotlib.figure import Figure
+        from phoid.reports.figures import plot_forced
 
-        from phoid._output import OutputFolder
-        from phoid.reports.figures import save_png
-
-        plotted = [i for i, r in enumerate(self.runs) if r.used and i < len(self.data)]
-        names = {i: f"forced-{i + 1:02d}-{Path(self.runs[i].file).name.split('.')[0]}.png"
-                 for i in plotted}
-        out = OutputFolder(out_dir, overwrite=overwrite)
-        out.check([*names.values(), "eq20-lines.png"])
-        written: list[Path] = []
-        for i in plotted:
-            r = self.runs[i]
-            t, x, F = self.data[i]
-            sel = t >= r.t_start
-            model = r.model(t[sel])
-            fig = Figure(figsize=(8, 6.5), layout="constrained")
-            ax, axr, axf = fig.subplots(3, 1, sharex=True, height_ratios=[3, 1, 1.2])
-            ax.plot(t, x * 1e3, lw=0.6, color="0.5", label="record")
-            ax.plot(t[sel], model * 1e3, lw=0.9, color="C0", label="steady state + transient")
-            ax.axvline(r.settle_time, color="C3", ls=":", lw=1, label="transient < noise")
-            ax.set_ylabel("x (mm)")
-            ax.set_title(f"{r.file}: ω = {r.omega:.5g} rad/s, R = {r.R:.5g} N/m, "
-                         f"ρ = {r.rho:.4g} rad")
-            ax.legend(loc="upper right", fontsize=8)
-            axr.plot(t[sel], (x[sel] - model) * 1e3, lw=0.5, color="C1")
-            axr.set_ylabel("residual (mm)")
-            axf.plot(t, F, lw=0.6, color="C2")
-            axf.set_ylabel("F (N)")
-            axf.set_xlabel("t (s)")
-            written.append(save_png(fig, out, names[i]))
-        written.append(self._eq20_figure(out, "eq20-lines.png"))
-        return written
-
-    def _eq20_figure(self, out: Any, name: str) -> Path:
-        from matplotlib.figure import Figure
-
-        from phoid.reports.figures import save_png
-
-        used = [r for r in self.runs if r.used]
-        w = np.array([r.omega for r in used])
-        Z = np.array([r.Z for r in used])
-        se = np.array([np.sqrt(np.clip(np.diag(r.Z_cov), 0, None)) for r in used])
-        m, c, k = self.m.value, self.c.value, self.k.value
-        fig = Figure(figsize=(11, 4.5), layout="constrained")
-        a, b = fig.subplots(1, 2)
-        a.errorbar(w**2, Z.real, yerr=se[:, 0], fmt="o", ms=4, capsize=2)
-        xx = np.linspace(0, (w**2).max() * 1.05, 50)
-        a.plot(xx, k - m * xx, "-", label=f"k − mω²: m = {m:.5g} kg, k = {k:.5g} N/m")
-        a.axhline(0, color="0.7", lw=0.5)
-        a.set_xlabel("ω² (rad²/s²)")
-        a.set_ylabel("R cos ρ (N/m)")
-        a.legend(fontsize=8)
-        b.errorbar(w, Z.imag, yerr=se[:, 1], fmt="o", ms=4, capsize=2)
-        xx = np.linspace(0, w.max() * 1.05, 50)
-        b.plot(xx, c * xx, "-", label=f"cω: c = {c:.5g} N s/m")
-        b.set_xlabel("ω (rad/s)")
-        b.set_ylabel("R sin ρ (N/m)")
-        b.legend(fontsize=8)
-        fig.suptitle("eq. (20), per-run error bars ±1 stderr")
-        return save_png(fig, out, name)
+        return plot_forced(self, out_dir, overwrite=overwrite)
