@@ -7,7 +7,8 @@ coefficients), the number of roots with Re u > 0 at delay 0 follows from the qua
 P̃ + Q̃, and it changes only where a root pair crosses the imaginary axis at u = ±iω, i.e. at a
 positive root ω² of F(ω²) = |P̃(iω)|² − |Q̃(iω)|² (a quadratic in ω²), at the delays where
 e^{−iωτ} = −P̃(iω)/Q̃(iω); each crossing adds two roots when F′(ω²) > 0 and removes two when
-F′(ω²) < 0. The count is verified against :func:`phoid.dynamics.loop.count_roots_right_of` in the
+F′(ω²) < 0. The count is verified against
+:func:`phoid.dynamics.counting.count_roots_right_of` in the
 tests. The delay margin is the first crossing delay beyond Δt of the unshifted f.
 """
 
