@@ -64,7 +64,7 @@ def _run(code: str, *args: str, timeout: float = 120) -> subprocess.CompletedPro
 
 
 def _group(module: str) -> str:
-    """The subpackage a module belongs to (``phoid.fits`` for ``phoid.fits.decay``); a top-level
+    """The subpackage a module belongs to (``phoid.fits`` for ``phoid.fits.modal``); a top-level
     module (``phoid.cli``) and the package itself are their own group."""
     parts = module.split(".")
     return ".".join(parts[:2])
