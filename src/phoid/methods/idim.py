@@ -131,7 +131,16 @@ def _decimate(x: np.ndarray, r: int) -> np.ndarray:
     return y[nbeg - 1::r]
 
 
-def _check(t, q, u, gain, cutoff, order, decimation, trim):
+def _trim_pair(trim) -> tuple[int, int]:
+    """``trim`` as (samples dropped at the start, at the end), or a one-line ValueError."""
+    pair = (trim, trim) if not isinstance(trim, (tuple, list)) else tuple(trim)
+    if len(pair) != 2 or any(isinstance(k, bool) or not isinstance(k, (int, np.integer))
+                             or k < 0 for k in pair):
+        raise ValueError(f"trim: must be an integer >= 0 or a pair of them, got {trim!r}")
+    return int(pair[0]), int(pair[1])
+
+
+def _check(t, q, u, gain, cutoff, order, decimation, trim, sigma):
     """The inputs as float arrays and the sample interval, or a one-line ValueError."""
     arrays = {}
     for name, value in (("t", t), ("q", q), ("u", u)):
@@ -147,8 +156,10 @@ def _check(t, q, u, gain, cutoff, order, decimation, trim):
             raise ValueError(f"{name}: length {arrays[name].size} differs from t's length {n}")
     if not (isinstance(gain, (int, float)) and math.isfinite(gain) and gain > 0):
         raise ValueError(f"gain: must be a finite number > 0 (N per unit of u), got {gain!r}")
-    for name, value, low in (("order", order, 1), ("decimation", decimation, 1),
-                             ("trim", trim, 0)):
+    if sigma not in ("ols", "sample-std"):
+        raise ValueError(f"sigma: must be 'ols' or 'sample-std', got {sigma!r}")
+    start, end = _trim_pair(trim)
+    for name, value, low in (("order", order, 1), ("decimation", decimation, 1)):
         if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low:
             raise ValueError(f"{name}: must be an integer >= {low}, got {value!r}")
     if n < 2:
@@ -162,16 +173,17 @@ def _check(t, q, u, gain, cutoff, order, decimation, trim):
     # MATLAB filtfilt needs more than 3·(nfilt − 1) samples; the decimation filter has nfilt = 9
     # and the regression p + 1 = 5 rows.
     need = max(3 * order + 1,
-               2 * trim + max(3 * _DECIMATE_ORDER + 1 if decimation > 1 else 1,
+               start + end + max(3 * _DECIMATE_ORDER + 1 if decimation > 1 else 1,
                               4 * decimation + 1))
     if n < need:
         raise ValueError(f"t: too short for the filter/decimation: {n} samples, need at least "
                          f"{need} (order {order}, decimation {decimation}, trim {trim})")
-    return arrays["t"], arrays["q"], arrays["u"], float(dt)
+    return arrays["t"], arrays["q"], arrays["u"], float(dt), (start, end)
 
 
 def idim_ls(t: np.ndarray, q: np.ndarray, u: np.ndarray, *, gain: float, cutoff: float = 100.0,
-            order: int = 4, decimation: int = 10, trim: int = 50) -> IDIMFit:
+            order: int = 4, decimation: int = 10, trim: int | tuple[int, int] = 50,
+            sigma: str = "ols") -> IDIMFit:
     """Identify M, Fv, Fc, OF of ``gain·u = M q̈ + Fv q̇ + Fc sign(q̇) + OF`` by IDIM-LS.
 
     The recipe (Janot, Gautier and Brunot's EMPS benchmark):
@@ -179,14 +191,24 @@ def idim_ls(t: np.ndarray, q: np.ndarray, u: np.ndarray, *, gain: float, cutoff:
     1. q filtered by a Butterworth low-pass of ``order`` at ``cutoff`` Hz, forward and backward
        (MATLAB ``filtfilt``: odd extension of 3·order samples, steady-state initial conditions);
     2. q̇ and q̈ by central differences of the filtered q and then of q̇ (``numpy.gradient``);
-    3. ``trim`` samples dropped at each end (the filters' end transients);
+    3. ``trim`` samples dropped at each end (the filters' end transients), or ``trim =
+       (start, end)`` samples at the start and at the end;
     4. the columns q̈, q̇, sign(q̇), 1 and the force ``gain·u`` each decimated by ``decimation``
        (MATLAB ``decimate``: Chebyshev I of order 8, 0.05 dB ripple, cut-off 0.8/decimation of
        Nyquist, forward–backward, the samples kept so that the last one is kept). The same
        linear filter on both sides keeps the model's equation, and it removes the noise above
        the useful band before the resampling;
     5. ordinary least squares θ̂ = argmin ‖y − Xθ‖, stderr = sqrt(diag(σ² (XᵀX)⁻¹)),
-       σ² = RSS/(n − p), p = 4.
+       σ² = RSS/(n − p), p = 4 (``sigma="ols"``, the unbiased estimate), or σ² the sample
+       variance of the residual, Σ(eₖ − ē)²/(n − 1) (``sigma="sample-std"``: MATLAB's
+       ``std(e)``, the convention of the EMPS benchmark's published script; with the constant
+       column ē = 0, so the two differ by the factor (n − p)/(n − 1) only).
+
+    The EMPS benchmark's published IDIM-LS (Janot, Gautier and Brunot) is reproduced to every
+    printed digit by ``idim_ls(t, qm, vir, gain=gtau, trim=(49, 0), sigma="sample-std")``: its
+    script keeps the samples 50:end (MATLAB, 1-based) of the record, which the diagonal of the
+    QR factor of its regressor, printed in the benchmark's description, confirms (24 792 rows
+    before the decimation).
 
     Parameters
     ----------
@@ -204,8 +226,10 @@ def idim_ls(t: np.ndarray, q: np.ndarray, u: np.ndarray, *, gain: float, cutoff:
         Butterworth order.
     decimation : int, optional
         Decimation factor (1: none).
-    trim : int, optional
-        Samples dropped at each end before the decimation.
+    trim : int or (int, int), optional
+        Samples dropped at each end before the decimation, or (at the start, at the end).
+    sigma : {"ols", "sample-std"}, optional
+        The residual scale of the stderrs: RSS/(n − p) or the sample variance (n − 1).
 
     Returns
     -------
@@ -241,12 +265,12 @@ def idim_ls(t: np.ndarray, q: np.ndarray, u: np.ndarray, *, gain: float, cutoff:
     """
     from scipy import signal
 
-    t, q, u, dt = _check(t, q, u, gain, cutoff, order, decimation, trim)
+    t, q, u, dt, (start, end) = _check(t, q, u, gain, cutoff, order, decimation, trim, sigma)
     b, a = signal.butter(order, cutoff / (0.5 / dt))
     qf = _filtfilt(b, a, q)
     qd = np.gradient(qf, dt)
     qdd = np.gradient(qd, dt)
-    keep = slice(trim, t.size - trim)
+    keep = slice(start, t.size - end)
     columns = np.column_stack([qdd[keep], qd[keep], np.sign(qd[keep]), np.ones(t.size)[keep]])
     x = _decimate(columns, decimation)
     y = _decimate(gain * u[keep], decimation)
@@ -258,7 +282,7 @@ def idim_ls(t: np.ndarray, q: np.ndarray, u: np.ndarray, *, gain: float, cutoff:
                          f"(regressor rank {rank} < {p})")
     residual = y - x @ theta
     rss = float(residual @ residual)
-    sigma2 = rss / (n - p)
+    sigma2 = rss / (n - p) if sigma == "ols" else float(np.var(residual, ddof=1))
     covariance = sigma2 * np.linalg.inv(x.T @ x)
     stderr = np.sqrt(np.diag(covariance))
     relative_error = 100.0 * math.sqrt(rss) / float(np.linalg.norm(y))
