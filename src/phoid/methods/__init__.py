@@ -2,7 +2,8 @@
 
 ``pho`` (eq. 35 lines), the PHO pipeline (``identification``, ``pho_measure``, ``pho_release``,
 ``pho_checks``, ``pho_result``), the delay from a recorded force (``udelay``), ``friction``,
-``forced``, ``free`` (sharing ``_modal``) and ``diagnose``. The names below are imported from
+``forced``, ``free`` (sharing ``_modal``), ``diagnose`` and the inverse dynamics least squares of
+a tracking record (``idim``). The names below are imported from
 their modules on first use (:mod:`phoid._lazy`), so that the PHO path does not load the forced
 and friction methods.
 """
@@ -41,6 +42,7 @@ if TYPE_CHECKING:  # the real imports, for type checkers and IDEs
         identify_friction_set,
     )
     from phoid.methods.identification import identify_pho, identify_pho_data
+    from phoid.methods.idim import IDIMFit, idim_ls
     from phoid.methods.pho import (
         Estimate,
         LineFit,
@@ -85,6 +87,8 @@ _EXPORTS = {
     "identify_friction_set": "phoid.methods.friction",
     "identify_pho": "phoid.methods.identification",
     "identify_pho_data": "phoid.methods.identification",
+    "IDIMFit": "phoid.methods.idim",
+    "idim_ls": "phoid.methods.idim",
     "Estimate": "phoid.methods.pho",
     "LineFit": "phoid.methods.pho",
     "MCKFit": "phoid.methods.pho",
@@ -119,6 +123,7 @@ __all__ = [
     "FrictionEvidence",
     "FrictionFit",
     "FrictionRun",
+    "IDIMFit",
     "Identification",
     "LineFit",
     "MCKFit",
@@ -142,6 +147,7 @@ __all__ = [
     "identify_friction_set",
     "identify_pho",
     "identify_pho_data",
+    "idim_ls",
     "measure_modes",
     "probable_cause",
     "read_digital_loop",
