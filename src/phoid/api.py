@@ -8,10 +8,7 @@ to :func:`phoid.methods.identification.identify_pho`, forced and free sets to
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
-
-import numpy as np
 
 from phoid.errors import IdentificationError
 from phoid.methods.identification import check_estimator, identify_pho, identify_pho_data
@@ -82,34 +79,7 @@ def identify(
     return identify_pho(experiment, delay=delay, estimator=estimator, compensate=compensate)
 
 
-def identify_data(
-    data: Sequence[tuple[np.ndarray, np.ndarray]],
-    P: np.ndarray,
-    D: np.ndarray,
-    delay: float | None,
-    *,
-    files: Sequence[str] | None = None,
-    names: Sequence[str] | None = None,
-    estimator: str = "gls",
-    compensate: bool = True,
-    source: str = "",
-    digital: Any = None,
-    added_mass: np.ndarray | None = None,
-    u: Sequence[np.ndarray | None] | None = None,
-) -> Identification:
-    """:func:`identify` on plain arrays: ``data`` is a sequence of (t, x) per run.
-
-    Parameters are as in :func:`identify`; ``files``/``names`` label the runs. ``delay=None``
-    estimates the loop delay with m, c, k. ``digital`` (a
-    :class:`phoid.dynamics.digital.DigitalPD`; its gains are ignored) models a sampled loop
-    exactly; ``delay`` is then ignored (the loop's own d·T_s is used for the starting lines).
-    ``added_mass`` (kg, per run) is a known mass added in each run (the paper's added-mass
-    trick): run i's loop has mass m + Δmᵢ and the estimate is the mass without additions.
-    ``u`` (N, per run, None where not recorded; same samples as x) is the feedback force
-    applied: with ``delay=None`` the delay is then estimated from x and u together
-    (:func:`phoid.methods.udelay.with_u`). This is the PHO pipeline,
-    :func:`phoid.methods.identification.identify_pho_data`.
-    """
-    return identify_pho_data(data, P, D, delay, files=files, names=names, estimator=estimator,
-                             compensate=compensate, source=source, digital=digital,
-                             added_mass=added_mass, u=u)
+#: :func:`identify` on plain arrays (``data``: a sequence of (t, x) per run). Records given as
+#: arrays carry no ``method``, so there is nothing to dispatch: this is the PHO pipeline itself,
+#: :func:`phoid.methods.identification.identify_pho_data`, under its public name.
+identify_data = identify_pho_data
