@@ -402,7 +402,7 @@ def _start_values(records: Sequence[TrackingRecord], fixed: Mapping[str, float])
             u = np.clip(u, -ctrl.saturation, ctrl.saturation)
         if rec.w is not None:
             u = u + rec.w
-        d = int(round(ctrl.delay / ctrl.sample_time))
+        d = round(ctrl.delay / ctrl.sample_time)
         force = ctrl.command_gain * u
         if d:
             force = np.concatenate((np.full(d, force[0]), force[:-d]))
