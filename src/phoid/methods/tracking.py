@@ -137,6 +137,10 @@ class TrackingFit:
     records : tuple of TrackingRecord
     nfev : int
         Simulations of the whole set during the fit.
+    delay_status : str
+        ``"given"`` (τ was not fitted), ``"estimated"``, ``"confounded"`` (|corr(m, τ)| >
+        0.95: m's stderr is the widened one with τ free) or ``"on-bound"`` (the best τ is 0 or
+        5T, where no ± exists: the record does not determine it; give the delay).
     warnings : tuple of str
     """
 
@@ -152,6 +156,7 @@ class TrackingFit:
     simulations: tuple[TrackingSimulation, ...]
     records: tuple[TrackingRecord, ...]
     nfev: int
+    delay_status: str = "given"
     warnings: tuple[str, ...] = field(default=())
 
     def corr(self, a: str, b: str) -> float | None:
@@ -173,6 +178,7 @@ class TrackingFit:
             "rms_residual": float(self.rms_residual),
             "relative_error_percent": float(self.relative_error),
             "n_evaluations": int(self.nfev),
+            "delay_status": self.delay_status,
             "warnings": list(self.warnings),
         }
 
@@ -318,25 +324,35 @@ def fit_tracking_runs(records: Sequence[TrackingRecord], *,
     dsd = np.where(stderr > 0, stderr, 1.0)
     corr = cov.robust / np.outer(dsd, dsd)
     p = params(theta)
+    delay_status = "given"
+    if estimate_delay:
+        i = names.index("delay")
+        on_bound = _on_bound(theta[i], lower[i], upper[i], scale[i])
+        confounded = "m" in names and abs(corr[names.index("m"), i]) > CONFOUNDED
+        delay_status = "on-bound" if on_bound else "confounded" if confounded else "estimated"
     estimates = {}
     for key in PARAMETERS:
         if key in names:
             i = names.index(key)
-            estimates[key] = Estimate(p[key], float(stderr[i]), UNITS[key])
+            # a parameter on its bound has no Gaussian ±: the constraint, not the data, holds it
+            on_bound = _on_bound(theta[i], lower[i], upper[i], scale[i])
+            estimates[key] = Estimate(p[key], None if on_bound else float(stderr[i]), UNITS[key])
         elif key == "delay":
             estimates[key] = Estimate(_common_delay(records), 0.0, UNITS[key])
         else:
             estimates[key] = Estimate(p[key], 0.0, UNITS[key])
     e_meas = np.concatenate([(rec.x - rec.r)[rec.start:] for rec in records])
     rel = 100.0 * float(np.linalg.norm(e)) / max(float(np.linalg.norm(e_meas)), 1e-300)
-    warnings = _warnings(names, theta, lower, upper, corr, stderr, white, cov, sims, sol)
+    warnings = _warnings(names, theta, [_on_bound(*q) for q in zip(theta, lower, upper, scale,
+                                                                      strict=True)],
+                         corr, stderr, cov, sims, sol)
     return TrackingFit(
         estimates=estimates, free=names, covariance=cov.robust,
         white_stderr=dict(zip(names, (float(q) for q in white), strict=True)),
         correlation=corr, bandwidth=cov.bandwidth, lag1_autocorrelation=cov.lag1,
         rms_residual=float(np.sqrt(np.mean(e**2))), relative_error=rel,
         simulations=tuple(sims), records=records, nfev=int(sol.nfev),
-        warnings=tuple(warnings),
+        delay_status=delay_status, warnings=tuple(warnings),
     )
 
 
@@ -441,7 +457,12 @@ def _check_stable(records, p, what) -> None:
             )
 
 
-def _warnings(names, theta, lower, upper, corr, stderr, white, cov, sims, sol) -> list[str]:
+def _on_bound(value: float, lo: float, hi: float, scale: float) -> bool:
+    """Whether a fitted value sits on a (finite) bound, to 1e-9 of its scale."""
+    return bool(value <= lo + 1e-9 * scale or value >= hi - 1e-9 * scale)
+
+
+def _warnings(names, theta, bound, corr, stderr, cov, sims, sol) -> list[str]:
     out = [
         f"the stderrs are Newey–West (autocorrelation-robust, lag window {cov.bandwidth} "
         f"samples): the position residual's lag-1 autocorrelation is {cov.lag1:.4f}, so the "
@@ -458,8 +479,17 @@ def _warnings(names, theta, lower, upper, corr, stderr, white, cov, sims, sol) -
                 "the delay ([loop] delay, or --delay) if it is known"
             )
     for i, name in enumerate(names):
-        if theta[i] <= lower[i] or theta[i] >= upper[i]:
-            out.append(f"{name} ended on its bound ({theta[i]:.4g} {UNITS[name]})")
+        if bound[i]:
+            if name == "delay":
+                out.append(
+                    f"the command delay ended on its bound ({theta[i] * 1e3:.4g} ms): the "
+                    "record favours a delay outside [0, 5T], which the loop model cannot "
+                    "take, so it does not determine the delay and no ± is given — give the "
+                    "delay ([loop] delay, or --delay) if it is known"
+                )
+            else:
+                out.append(f"{name} ended on its bound ({theta[i]:.4g} {UNITS[name]}): no ± "
+                           "is given for it")
     if not sol.success:
         out.append(f"the optimiser stopped without converging: {sol.message}")
     n_sat = sum(int(np.sum(s.saturated)) for s in sims)
