@@ -208,16 +208,16 @@ def _png_size(data: bytes) -> tuple[int, int]:
 
 def test_plot_writes_a_png(tmp_path):
     """The figure is 9 in wide and 2.2 in per panel + 0.6 in, saved at 120 dpi: 1080 px wide,
-    (2.2·4 + 0.6)·120 = 1128 px high with the force panel, 864 px without. Four panels of
-    curves (antialiased lines, legends, text) compress to well over 30 kB; an empty canvas of
-    that size is under 10 kB."""
+    (2.2·4 + 0.6)·120 = 1128 px high with the force panel, 864 px without. The same four
+    panels with their axes and ticks but no curves are 29 kB (matplotlib 3.x, Agg), the drawn
+    figure about 200 kB: over 80 kB, the curves are there."""
     t, x, r, v = _record()
     u = np.sin(3 * W * t)
     val = validate_tracking(t, x, r, _sim(t, x + 1e-6 * np.sin(7 * W * t), v, 1.01 * u), u=u)
     out = plot_tracking(val, tmp_path / "fig" / "tracking.png")
     data = Path(out).read_bytes()
     assert _png_size(data) == (1080, 1128)
-    assert len(data) > 30_000
+    assert len(data) > 80_000
     with pytest.raises(OutputError):
         plot_tracking(val, tmp_path / "fig" / "tracking.png")
     assert val.plot(tmp_path / "fig" / "tracking.png", overwrite=True) == out
