@@ -64,7 +64,7 @@ def test_hac_matches_the_direct_sum():
     J = rng.standard_normal((3000, 3))
     e = np.cumsum(rng.standard_normal(3000)) * 0.01  # strongly autocorrelated
     for L in (0, 1, 7, 150):
-        got = hac_covariance([J], [e], bandwidth=L).robust
+        got = hac_covariance([J], [e], bandwidth=L, prewhiten=False).robust
         want = _hac_direct(J, e, L)
         # FFT against direct sums: rounding of a few hundred terms, ≈1e-13 relative; margin 100×
         assert np.allclose(got, want, rtol=1e-10, atol=1e-14 * np.abs(want).max())
@@ -74,7 +74,7 @@ def test_hac_of_independent_records_adds_their_long_run_variances():
     rng = np.random.default_rng(2)
     J1, J2 = rng.standard_normal((500, 2)), rng.standard_normal((700, 2))
     e1, e2 = rng.standard_normal(500), rng.standard_normal(700)
-    both = hac_covariance([J1, J2], [e1, e2], bandwidth=5).robust
+    both = hac_covariance([J1, J2], [e1, e2], bandwidth=5, prewhiten=False).robust
     B = np.linalg.inv(J1.T @ J1 + J2.T @ J2)
     S = sum(np.linalg.inv(B0) @ _hac_direct(J, e, 5) @ np.linalg.inv(B0)
             for J, e, B0 in ((J1, e1, np.linalg.inv(J1.T @ J1)),
@@ -90,22 +90,26 @@ def test_andrews_bandwidth_grows_with_the_autocorrelation():
     for n in range(1, white.shape[0]):
         ar[n] = 0.95 * ar[n - 1] + white[n]
     # Andrews (1991) for AR(1), Bartlett: L = 1.1447 (α n)^{1/3}, α = 4ρ²/((1−ρ)²(1+ρ)²);
-    # ρ = 0.95, n = 4000: α ≈ 1517, L ≈ 208; ρ ≈ 0 for white noise: L ≤ a few lags
+    # ρ = 0.95, n = 4000: α ≈ 380, L ≈ 132; ρ ≈ 0 for white noise: L ≤ a few lags.
+    # ρ̂ scatters by sqrt((1 − ρ²)/n) ≈ 0.005, which moves ln α by ≈ 0.2 and L by ≈ 7 %:
+    # bounds at ±20 %
     assert andrews_bandwidth(white) <= 5
-    assert 150 <= andrews_bandwidth(ar) <= 280  # ρ̂ scatters by ≈ 0.005 around 0.95
+    assert 105 <= andrews_bandwidth(ar) <= 160
 
 
 def test_hac_stderrs_are_honest_for_autocorrelated_noise():
-    """|error| < 3·stderr in ≥ 97 % of 300 regressions with AR(1) noise (ρ = 0.9), where the
-    white-noise stderr would fail badly. 3σ covers 99.7 % for a Gaussian; Newey–West undercovers
-    slightly at n = 2000 (its long-run variance is biased low by the kernel), hence 97 %; the
-    white-noise one covers ≈ 60 % here (the variance is ≈ (1 + ρ)/(1 − ρ) = 19 times larger)."""
+    """|error| < 3·stderr for each coefficient in ≥ 98 % of 300 regressions with AR(1) noise
+    (ρ = 0.9, n = 2000), where the white-noise stderr fails badly. Measured: 99.0 % for each
+    coefficient with prewhitening over 400 regressions (97.5–98.5 % without); 98 % leaves room
+    for the binomial scatter of 300 draws (sd ≈ 0.6 %). The white-noise stderr covers ≈ 60 %
+    here (the variance is ≈ (1 + ρ)/(1 − ρ) = 19 times larger)."""
     rng = np.random.default_rng(4)
     n, reps = 2000, 300
     t = np.linspace(0, 1, n)
     X = np.column_stack([np.ones(n), np.sin(2 * np.pi * 3 * t), t])
     beta = np.array([1.0, -2.0, 0.5])
-    hits_hac = hits_white = 0
+    hits_hac = np.zeros(3)
+    hits_white = np.zeros(3)
     for _ in range(reps):
         w = rng.standard_normal(n)
         noise = np.empty(n)
@@ -117,10 +121,10 @@ def test_hac_stderrs_are_honest_for_autocorrelated_noise():
         e = y - X @ b
         cov = hac_covariance([-X], [e])  # residual e = y − Xb: ∂e/∂b = −X
         err = np.abs(b - beta)
-        hits_hac += np.all(err < 3 * np.sqrt(np.diag(cov.robust)))
-        hits_white += np.all(err < 3 * np.sqrt(np.diag(cov.white)))
-    assert hits_hac >= 0.97 * reps
-    assert hits_white < 0.8 * reps
+        hits_hac += err < 3 * np.sqrt(np.diag(cov.robust))
+        hits_white += err < 3 * np.sqrt(np.diag(cov.white))
+    assert np.all(hits_hac >= 0.98 * reps), hits_hac / reps
+    assert np.all(hits_white < 0.8 * reps), hits_white / reps
 
 
 def test_hac_refuses_a_singular_fit():
@@ -171,7 +175,7 @@ def test_stderrs_cover_the_truth_under_sensor_noise():
 
 
 def test_replay_starts_from_the_recorded_state():
-    x, r, sim = _record()
+    x, r, _ = _record()
     rec = TrackingRecord(x=x, r=r, controller=_controller())
     plant = Plant(m=TRUTH["m"], c=TRUTH["c"], k=0.0, fc=TRUTH["fc"])
     again = replay(rec, plant, offset=TRUTH["offset"])

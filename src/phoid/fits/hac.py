@@ -11,6 +11,14 @@ residuals it tends to the usual σ²(JᵀJ)⁻¹. When the residual is mostly mo
 real record, it is strongly autocorrelated and σ²(JᵀJ)⁻¹ understates the uncertainty by the
 factor the autocorrelation adds; the sandwich does not.
 
+Prewhitening (Andrews and Monahan, 1992; the default). A strongly autocorrelated score series
+makes the kernel estimate of S biased low (the Bartlett weights cut the long tail of Γ_l), and
+the stderrs under-cover. A VAR(1) fit gₙ = A gₙ₋₁ + uₙ removes most of the autocorrelation; S
+is estimated from the nearly white uₙ and recoloured, S = (I − A)⁻¹ S_u (I − A)⁻ᵀ. So that the
+recolouring cannot blow up, A is shrunk to spectral radius 0.97 when it is larger. On AR(1)
+noise with ρ = 0.9 and n = 2000 this lifts the 3σ coverage of a regression's coefficients from
+97.5–98.5 % to 99 % (tests/test_tracking_fit.py).
+
 The lag window L is chosen by Andrews' (1991) plug-in rule for the Bartlett kernel from an
 AR(1) fit to each score series: α = Σ_a 4ρ_a²σ_a⁴/((1 − ρ_a)⁶(1 + ρ_a)²) / Σ_a σ_a⁴/(1 − ρ_a)⁴,
 L = ⌈1.1447 (α n)^{1/3}⌉, capped at n/4. The autocovariances of all lags are computed at once
@@ -101,8 +109,21 @@ def _long_run(scores: np.ndarray, L: int) -> np.ndarray:
     return 0.5 * (S + S.T)
 
 
+def _prewhiten(g: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """VAR(1) residuals uₙ = gₙ − A gₙ₋₁ and the recolouring matrix (I − A)⁻¹."""
+    X, Y = g[:-1], g[1:]
+    A = np.linalg.lstsq(X, Y, rcond=None)[0].T
+    radius = float(np.max(np.abs(np.linalg.eigvals(A))))
+    if radius > _MAX_RADIUS:
+        A *= _MAX_RADIUS / radius
+    return Y - X @ A.T, np.linalg.inv(np.eye(A.shape[0]) - A)
+
+
+_MAX_RADIUS = 0.97  # prewhitening VAR(1): largest spectral radius kept (Andrews–Monahan)
+
+
 def hac_covariance(jacobians: Sequence[np.ndarray], residuals: Sequence[np.ndarray],
-                   *, bandwidth: int | None = None) -> HACCovariance:
+                   *, bandwidth: int | None = None, prewhiten: bool = True) -> HACCovariance:
     """Newey–West covariance of a least-squares fit over one or more independent records.
 
     Parameters
@@ -112,7 +133,10 @@ def hac_covariance(jacobians: Sequence[np.ndarray], residuals: Sequence[np.ndarr
     residuals : sequence of numpy.ndarray, each (nᵢ,)
         The residuals eₙ at the estimate (same units as the fitted signal).
     bandwidth : int, optional
-        The lag window L (≥ 0); default Andrews' plug-in rule on all records' scores.
+        The lag window L (≥ 0); default Andrews' plug-in rule on all records' (prewhitened)
+        scores.
+    prewhiten : bool, default True
+        VAR(1) prewhitening and recolouring (module docstring).
 
     Returns
     -------
@@ -140,12 +164,20 @@ def hac_covariance(jacobians: Sequence[np.ndarray], residuals: Sequence[np.ndarr
         raise ValueError("the fit's JᵀJ is singular: the data do not determine every parameter") \
             from None
     scores = [J * e[:, None] for J, e in zip(Js, es, strict=True)]
+    colour = [None] * len(scores)
+    if prewhiten:
+        pairs = [_prewhiten(g) if g.shape[0] > 4 * p else (g, None) for g in scores]
+        scores = [u for u, _ in pairs]
+        colour = [M for _, M in pairs]
     if bandwidth is None:
         bandwidth = max(andrews_bandwidth(g) for g in scores)
     L = int(bandwidth)
     if L < 0:
         raise ValueError(f"`bandwidth` must be ≥ 0; got {bandwidth}")
-    S = sum(_long_run(g, min(L, g.shape[0] - 1)) for g in scores)
+    S = np.zeros((p, p))
+    for g, M in zip(scores, colour, strict=True):
+        Sg = _long_run(g, min(L, g.shape[0] - 1))
+        S += Sg if M is None else M @ Sg @ M.T
     robust = bread @ S @ bread
     n = sum(e.size for e in es)
     rss = sum(float(e @ e) for e in es)

@@ -106,6 +106,21 @@ class TrackingRecord:
         """First simulated instant: the estimator's taps of recorded history before it."""
         return max(self.controller.taps, 1)
 
+    @property
+    def start_state(self) -> tuple[float, float]:
+        """The recorded state at :attr:`start`: x_s (m) and (x_{s+1} − x_{s−1})/(2T) (m/s)."""
+        s = self.start
+        return (float(self.x[s]),
+                float(self.x[s + 1] - self.x[s - 1]) / (2.0 * self.controller.sample_time))
+
+    @property
+    def state_scales(self) -> tuple[float, float]:
+        """Typical sizes of the start state's uncertainty: the sample-to-sample scatter of x
+        (m) and that over 2T (m/s), for the fit's scaling."""
+        dx = np.diff(self.x[: min(self.x.size, 200)])
+        sx = max(float(np.std(dx)), 1e-9 * float(np.max(np.abs(self.x))), 1e-15)
+        return sx, sx / self.controller.sample_time
+
 
 @dataclass(frozen=True, eq=False)
 class TrackingFit:
@@ -201,28 +216,32 @@ def controller_commands(x: np.ndarray, r: np.ndarray, ctrl: SampledController,
 
 
 def replay(record: TrackingRecord, plant: Plant, *, offset: float = 0.0,
-           controller: SampledController | None = None) -> TrackingSimulation:
+           controller: SampledController | None = None, x0: float | None = None,
+           v0: float | None = None) -> TrackingSimulation:
     """Simulate a record's loop with given parameters, driven by its reference, from its state.
 
-    The simulation starts at :attr:`TrackingRecord.start` with the recorded positions before it
-    as the estimator's history, the velocity (x_{s+1} − x_{s−1})/(2T) and, for the delay, the
-    recorded commands before it (or those the controller computes from the record).
+    The simulation starts at :attr:`TrackingRecord.start` s with the recorded positions before
+    it as the estimator's history and, for the delay, the recorded commands before it (or those
+    the controller computes from the record). The plant's state at the start is (x0, v0),
+    by default the recorded x_s and (x_{s+1} − x_{s−1})/(2T).
 
     Returns
     -------
     TrackingSimulation
-        Covering the instants start … N − 1.
+        Covering the instants s … N − 1.
     """
     ctrl = record.controller if controller is None else controller
+    x0_rec, v0_rec = record.start_state
     s = record.start
-    T = ctrl.sample_time
-    x = record.x
-    v0 = (x[s + 1] - x[s - 1]) / (2.0 * T)
-    u_hist = record.u if record.u is not None else controller_commands(x, record.r, ctrl)
+    x_init = record.x[: s + 1].copy()
+    x_init[-1] = x0_rec if x0 is None else x0
+    u_hist = (record.u if record.u is not None
+              else controller_commands(record.x, record.r, ctrl))
     return simulate_tracking(
         plant, ctrl, record.r[s:], offset=offset,
         w=None if record.w is None else record.w[s:],
-        x_init=x[: s + 1], v0=v0, u_init=u_hist[:s], t0=record.t0 + s * T,
+        x_init=x_init, v0=v0_rec if v0 is None else v0, u_init=u_hist[:s],
+        t0=record.t0 + s * ctrl.sample_time,
     )
 
 
@@ -282,24 +301,31 @@ def fit_tracking_runs(records: Sequence[TrackingRecord], *,
     if not names:
         raise ValueError("every parameter is fixed: nothing to fit")
     start = _start_values(records, fixed)
-    theta0 = np.array([start[p] for p in names])
     T = min(rec.controller.sample_time for rec in records)
-    lower = np.array([_LOWER[p](T) for p in names])
-    upper = np.array([_UPPER[p](T) for p in names])
+    P = len(names)
+    # the start state (x_s, v_s) of each run is a nuisance parameter: the recorded one carries
+    # the sensor's noise, and its transient would otherwise bias the fit
+    theta0 = np.array([start[p] for p in names]
+                      + [q for rec in records for q in rec.start_state])
+    lower = np.array([_LOWER[p](T) for p in names] + [-np.inf] * 2 * len(records))
+    upper = np.array([_UPPER[p](T) for p in names] + [np.inf] * 2 * len(records))
     theta0 = np.clip(theta0, lower + 1e-12 * np.abs(theta0), upper)
-    scale = np.array([_scale(p, start, T) for p in names])
+    scale = np.array([_scale(p, start, T) for p in names]
+                     + [q for rec in records for q in rec.state_scales])
     _check_stable(records, {**start, **fixed}, "the start values")
 
     def params(theta) -> dict[str, float]:
-        return {**start, **fixed, **dict(zip(names, (float(q) for q in theta), strict=True))}
+        return {**start, **fixed,
+                **dict(zip(names, (float(q) for q in theta[:P]), strict=True))}
 
     def simulate_all(theta):
         p = params(theta)
         plant = Plant(m=p["m"], c=p["c"], k=p["k"], fc=p["fc"])
         sims = []
-        for rec in records:
+        for i, rec in enumerate(records):
             ctrl = rec.controller.with_delay(p["delay"]) if estimate_delay else rec.controller
-            sims.append(replay(rec, plant, offset=p["offset"], controller=ctrl))
+            sims.append(replay(rec, plant, offset=p["offset"], controller=ctrl,
+                               x0=float(theta[P + 2 * i]), v0=float(theta[P + 2 * i + 1])))
         return sims
 
     def residual(theta):
@@ -319,10 +345,12 @@ def fit_tracking_runs(records: Sequence[TrackingRecord], *,
     J = _jacobian(residual, theta, e, 1e-4 * scale, lower, upper)
     cut = np.cumsum([rec.x.size - rec.start for rec in records])[:-1]
     cov = hac_covariance(np.split(J, cut), np.split(e, cut))
-    stderr = np.sqrt(np.clip(np.diag(cov.robust), 0.0, None))
-    white = np.sqrt(np.clip(np.diag(cov.white), 0.0, None))
+    robust = cov.robust[:P, :P]
+    stderr = np.sqrt(np.clip(np.diag(robust), 0.0, None))
+    white = np.sqrt(np.clip(np.diag(cov.white)[:P], 0.0, None))
     dsd = np.where(stderr > 0, stderr, 1.0)
-    corr = cov.robust / np.outer(dsd, dsd)
+    corr = robust / np.outer(dsd, dsd)
+    theta, lower, upper, scale = theta[:P], lower[:P], upper[:P], scale[:P]
     p = params(theta)
     delay_status = "given"
     if estimate_delay:
@@ -347,7 +375,7 @@ def fit_tracking_runs(records: Sequence[TrackingRecord], *,
                                                                       strict=True)],
                          corr, stderr, cov, sims, sol)
     return TrackingFit(
-        estimates=estimates, free=names, covariance=cov.robust,
+        estimates=estimates, free=names, covariance=robust,
         white_stderr=dict(zip(names, (float(q) for q in white), strict=True)),
         correlation=corr, bandwidth=cov.bandwidth, lag1_autocorrelation=cov.lag1,
         rms_residual=float(np.sqrt(np.mean(e**2))), relative_error=rel,
