@@ -18,7 +18,7 @@ from phoid._output import save_figure
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
-__all__ = ["plot_tracking", "tracking_text", "validation_lines"]
+__all__ = ["identification_text", "plot_tracking", "tracking_text", "validation_lines"]
 
 
 def _validation_of(result: Any) -> Any:
@@ -160,3 +160,59 @@ def plot_tracking(result: Any, path: str | Path | None = None, *,
     if path is None:
         return fig
     return save_figure(fig, path, overwrite=overwrite)
+
+
+def identification_text(result: Any) -> str:
+    """Plain-text report of a tracking set's identification and validation.
+
+    Parameters
+    ----------
+    result : phoid.methods.tracking_identification.TrackingIdentification or alike
+        Read: ``estimator``, ``estimates`` (name → value, stderr, unit), ``delay_source``,
+        ``fit.summary()`` (the estimator's statistics), ``run_names``, ``validations`` (each read
+        as by :func:`validation_lines`), ``warnings``, ``path``.
+
+    Returns
+    -------
+    str
+    """
+    labels = {"m": "mass m", "c": "viscous c (Fv)", "k": "stiffness k", "fc": "Coulomb fc (Fc)",
+              "offset": "offset force (OF)", "delay": "command delay"}
+    title = {"idim": "inverse dynamics least squares (IDIM-LS)",
+             "output-error": "output error through the simulated loop"}
+    fit = result.fit.summary()
+    lines = [f"phoid tracking identification: {result.path}",
+             f"  estimator: {title.get(result.estimator, result.estimator)}", ""]
+    for key, est in result.estimates.items():
+        value, se, unit = est.value, est.stderr, est.unit
+        if key == "delay":
+            value, se, unit = value * 1e3, None if se is None else se * 1e3, "ms"
+        if se is None:
+            spread = "  (no ±: see the warnings)"
+        elif se == 0.0:
+            spread = "  (given)" if key == "delay" else "  (fixed)"
+        else:
+            spread = f" ± {se:.4g}"
+        lines.append(f"  {labels.get(key, key):<20}{value:>12.6g}{spread} {unit}")
+    lines.append(f"  delay: {result.delay_source}")
+    lines.append("")
+    if result.estimator == "idim":
+        lines.append(f"  force relative error {fit['relative_error_percent']:.4f} %, condition "
+                     f"number {fit['condition_number']:.4g}, residual lag-1 autocorrelation "
+                     f"{fit['lag1_autocorrelation']:.3f}, {fit['n_samples']} rows")
+    else:
+        white = ", ".join(f"{k} {v:.3g}" for k, v in fit["white_noise_stderr"].items())
+        lines.append(f"  tracking-error relative error {fit['relative_error_percent']:.4f} %, "
+                     f"rms residual {fit['rms_residual']:.3g} m, residual lag-1 "
+                     f"autocorrelation {fit['lag1_autocorrelation']:.4f}")
+        lines.append(f"  stderrs: Newey–West, lag window {fit['hac_bandwidth']} samples; the "
+                     f"white-noise ones (invalid here) would be {white}")
+        free = fit["free"]
+        if "delay" in free and "m" in free:
+            c = fit["correlation"][free.index("m")][free.index("delay")]
+            lines.append(f"  corr(m, delay) = {c:.4f}")
+    for name, v in zip(result.run_names, result.validations, strict=True):
+        lines += ["", f"validation, {name}:", *validation_lines(v)]
+    if result.warnings:
+        lines += ["", "warnings:"] + [f"  - {w}" for w in result.warnings]
+    return "\n".join(lines)
