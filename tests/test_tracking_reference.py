@@ -67,7 +67,7 @@ def test_coulomb_oscillator_matches_closed_form(T: float) -> None:
     points −17.5, 7.5, 2.5 mm, stuck from t = 3π/10 s on. Periods T up to 0.5 s, longer than a
     half-cycle (π/10 s), check that every reversal inside a long piece is found. The closed form
     is float64 (a cosine of ωt, a few ulps of 27.5 mm), hence 1e-16 m."""
-    N = int(round(1.3 / T)) + 1
+    N = round(1.3 / T) + 1
     ref = reference_tracking(1.0, 0.0, 100.0, 0.5, T=T, P=0.0, D=0.0, r=np.zeros(N),
                              x_init=[0.0275])
     exact = np.array([_coulomb_oscillator(n * T, 0.0275, 10.0, 0.005) for n in range(N)])
