@@ -23,6 +23,7 @@ if TYPE_CHECKING:  # the real imports, for type checkers and IDEs; at run time s
         DigitalRoots,
         LoopModes,
         Plant,
+        SampledController,
         alphas,
         characteristic_roots,
         digital_modes,
@@ -65,7 +66,7 @@ if TYPE_CHECKING:  # the real imports, for type checkers and IDEs; at run time s
         two_frequency,
     )
     from phoid.planning import CramerRao, Design, DesignError, PlannedRun, cramer_rao, design
-    from phoid.simulation import Simulation, simulate
+    from phoid.simulation import Simulation, TrackingSimulation, simulate, simulate_tracking
 
 __version__ = "0.1.0"
 
@@ -129,6 +130,9 @@ _LAZY: dict[str, str] = {
     "design": "phoid.planning",
     "Simulation": "phoid.simulation",
     "simulate": "phoid.simulation",
+    "SampledController": "phoid.dynamics",
+    "TrackingSimulation": "phoid.simulation",
+    "simulate_tracking": "phoid.simulation",
 }
 
 __all__ = [
@@ -158,7 +162,9 @@ __all__ = [
     "ResponseFit",
     "Run",
     "RunMode",
+    "SampledController",
     "Simulation",
+    "TrackingSimulation",
     "__version__",
     "alphas",
     "characteristic_roots",
@@ -188,6 +194,7 @@ __all__ = [
     "run_from_arrays",
     "simulate",
     "simulate_forced",
+    "simulate_tracking",
     "two_frequency",
     "write_experiment",
 ]
