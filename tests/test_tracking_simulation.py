@@ -316,7 +316,7 @@ def test_emps_record_matches_reference(delay: float) -> None:
     """The whole record (24 839 steps from sample 2) against the plain-float reference (the same
     independent algorithm in float64; test_tracking_reference checks it against 40 digits), and
     the first 2000 steps against the 40-digit one: |x_sim − x_ref| ≤ 1e-9 m (the issue's
-    acceptance bound; the N·ε·scale rule gives 8·24839·ε·0.6 m ≈ 2.6e-11 m)."""
+    acceptance bound; the N·ε·scale rule gives 8·24839·ε·0.25 m ≈ 1.1e-11 m)."""
     rec = _emps()
     sim, _, loop, start, r = _emps_case(rec, delay)
     plant = EMPS_IDIM
