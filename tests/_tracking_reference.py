@@ -60,6 +60,7 @@ class Reference:
     saturated: np.ndarray
     reversals: int  # velocity reversals (zeros of ẋ inside a slip piece) met
     stuck_pieces: int  # constant-force pieces spent (partly) stuck
+    plant: tuple  # (m, c, k, f_c, f0) simulated
 
 
 class _Float:
@@ -282,4 +283,20 @@ def _run(ar, m, c, k, fc, T, P, D, r, K, G, velocity, cutoff, delay, saturation,
     arr = {key: np.array([float(val) for val in vals]) for key, vals in out.items()}
     return Reference(t=np.array(t), x=arr["x"], v=arr["v"], command=arr["u"], force=arr["F"],
                      saturated=np.array(out["sat"], dtype=bool), reversals=plant.reversals,
-                     stuck_pieces=plant.stuck_pieces)
+                     stuck_pieces=plant.stuck_pieces, plant=(m, c, k, fc, offset))
+
+
+def coulomb_oscillator(t: float, x0: float, omega: float, band: float) -> float:
+    """Closed form of m ẍ + k x + f_c sign(ẋ) = 0 released at rest from x0 > band = f_c/k (m):
+    half-cycle i is harmonic about (−1)^i·band (the friction opposes the motion), the amplitude
+    shrinking by 2·band a half-cycle; the mass sticks at the first turning point inside
+    |x| ≤ band. omega = √(k/m), rad/s."""
+    half = math.pi / omega
+    x_turn, i = x0, 0
+    while abs(x_turn) > band:
+        centre = band if x_turn > 0 else -band
+        if t <= (i + 1) * half:
+            return centre + (x_turn - centre) * math.cos(omega * (t - i * half))
+        x_turn = 2 * centre - x_turn
+        i += 1
+    return x_turn

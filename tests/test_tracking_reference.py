@@ -11,7 +11,7 @@ from __future__ import annotations
 import mpmath
 import numpy as np
 import pytest
-from _tracking_reference import reference_tracking
+from _tracking_reference import coulomb_oscillator, reference_tracking
 
 from phoid import Plant, simulate
 
@@ -45,21 +45,6 @@ def test_free_damped_oscillator_matches_closed_form() -> None:
     assert ref.reversals == np.count_nonzero(np.diff(np.sign(speed))) == 3
 
 
-def _coulomb_oscillator(t: float, x0: float, omega: float, band: float) -> float:
-    """m ẍ + k x + f_c sign(ẋ) = 0 released at rest from x0 > band = f_c/k: half-cycle i is
-    harmonic about (−1)^i·band (the friction opposes the motion), amplitude |x0| − (2i+1)·band;
-    it sticks at the first turning point inside |x| ≤ band."""
-    half = np.pi / omega
-    x_turn = x0
-    i = 0
-    while abs(x_turn) > band:
-        centre = band if x_turn > 0 else -band
-        if t <= (i + 1) * half:
-            return centre + (x_turn - centre) * np.cos(omega * (t - i * half))
-        x_turn = 2 * centre - x_turn
-        i += 1
-    return x_turn
-
 
 @pytest.mark.parametrize("T", [1e-3, 0.13, 0.5])
 def test_coulomb_oscillator_matches_closed_form(T: float) -> None:
@@ -70,7 +55,7 @@ def test_coulomb_oscillator_matches_closed_form(T: float) -> None:
     N = round(1.3 / T) + 1
     ref = reference_tracking(1.0, 0.0, 100.0, 0.5, T=T, P=0.0, D=0.0, r=np.zeros(N),
                              x_init=[0.0275])
-    exact = np.array([_coulomb_oscillator(n * T, 0.0275, 10.0, 0.005) for n in range(N)])
+    exact = np.array([coulomb_oscillator(n * T, 0.0275, 10.0, 0.005) for n in range(N)])
     assert np.max(np.abs(ref.x - exact)) <= 1e-16
     assert ref.x[-1] == pytest.approx(0.0025, abs=1e-17) and ref.v[-1] == 0.0
     assert ref.reversals == 3

@@ -6,14 +6,17 @@ reversal by Newton's method to that precision, so its numbers are exact to float
 simulate_tracking propagates with 2×2 matrix exponentials in float64.
 
 Tolerances: float64 propagation makes a few roundings per step of relative size ε, on a state of
-size ``scale``; in the worst case they add up linearly over the N steps (a stable loop does not
-amplify them by more than its impulse response's ℓ1 norm, a few for these loops), so the
-position is allowed 8·N·ε·max|x| (≈ 5e-14 m for 1500 steps at 20 mm: the ~1e-12 m accuracy of
-the contract with room to spare; measured ≈ 2e-17 m). The command and the force see the
-position through the controller's gain from x to u, |K|(|P| + |D|·Σ|b_j|) (Σ|b_j| the
-estimator's ℓ1 gain: 1/T for the central difference, 2/T for the backward one and the filtered
-one), plus their own 4 roundings. The velocity: the same N·ε bound on max|v| + max|x|/T (the
-loop moves a position error into the velocity at most at the sampled loop's rates, < 1/T).
+size ``scale`` = max|x| + T·max|v| (m); in the worst case they add up linearly over the N steps
+(a stable loop does not amplify them by more than its impulse response's ℓ1 norm, a few for
+these loops), and a float64 matrix exponential of A·T is itself accurate to about
+ε·(1 + ‖AT‖), ‖AT‖ ≈ ω_n T + cT/m in the plant's natural scaling (≈ 1 for millisecond periods),
+so the position is allowed 8·N·ε·scale·(1 + ω_n T + cT/m) (≈ 5e-14 m for 1500 steps at
+20 mm: the ~1e-12 m accuracy of the contract with room to spare; measured ≈ 2e-17 m). The
+command and the force see the position through the controller's gain from x to u,
+|K|(|P| + |D|·Σ|b_j|) (Σ|b_j| the estimator's ℓ1 gain: 1/T for the central difference, 2/T for
+the backward one and the filtered one), plus their own 4 roundings. The velocity: the
+position's bound over T (the loop moves a position error into the velocity at most at the
+sampled loop's rates, < 1/T).
 """
 
 from __future__ import annotations
@@ -22,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from _tracking_reference import Reference, reference_tracking
+from _tracking_reference import Reference, coulomb_oscillator, reference_tracking
 
 from phoid import Plant, simulate
 from phoid.dynamics.controller import SampledController
@@ -70,12 +73,15 @@ def _both(plant: dict, loop: dict, r: np.ndarray, **kwargs):
 
 
 def _assert_close(sim, ref: Reference, ctrl: SampledController, velocity) -> None:
-    n = len(ref.x)
-    tol_x = 8 * n * EPS * np.max(np.abs(ref.x))
+    n, period = len(ref.x), ctrl.sample_time
+    m, c, k = ref.plant[:3]
+    stiff = 1 + np.sqrt(abs(k) / m) * period + abs(c) / m * period
+    scale = np.max(np.abs(ref.x)) + period * np.max(np.abs(ref.v))
+    tol_x = 8 * n * EPS * scale * stiff
     gain_u = abs(ctrl.gain) * (abs(ctrl.P) + abs(ctrl.D) * _l1_gain(velocity, ctrl.sample_time))
     tol_u = gain_u * tol_x + 4 * EPS * np.max(np.abs(ref.command))
     tol_f = abs(ctrl.command_gain) * tol_u + 4 * EPS * np.max(np.abs(ref.force))
-    tol_v = 8 * n * EPS * (np.max(np.abs(ref.v)) + np.max(np.abs(ref.x)) / ctrl.sample_time)
+    tol_v = tol_x / period
     assert sim.x.shape == sim.v.shape == sim.force.shape == sim.command.shape == (n,)
     assert np.max(np.abs(sim.t - ref.t)) <= 2 * np.spacing(np.max(np.abs(ref.t)))
     assert np.max(np.abs(sim.x - ref.x)) <= tol_x
@@ -339,3 +345,35 @@ def test_emps_record_matches_reference(delay: float) -> None:
     track = 100 * np.linalg.norm(e_meas - (sim.x - r)) / np.linalg.norm(e_meas)
     force = 100 * np.linalg.norm(f_meas - sim.force) / np.linalg.norm(f_meas)
     print(f"EMPS, τ = {delay * 1e3:g} ms: tracking {track:.4f} %, force {force:.4f} %")
+
+
+# --------------------------------------------------------------------------------------------
+# controller periods long against the plant's motion
+
+
+
+@pytest.mark.parametrize("period", [0.13, 0.5])
+def test_coulomb_oscillator_with_long_periods(period: float) -> None:
+    """No control (P = D = 0): m = 1 kg, k = 100 N/m, c = 0, f_c = 0.5 N from 27.5 mm at rest,
+    turning points −17.5, 7.5, 2.5 mm (stuck from 3π/10 s on), closed form. Periods of 0.13 s
+    and 0.5 s (longer than the half-cycle π/10 s: two reversals and the final stick inside one
+    period). Tolerance: the N·ε·scale·(1 + ω_n T) rule of the module docstring."""
+    n = round(1.3 / period) + 1
+    sim = simulate_tracking(Plant(1.0, 0.0, 100.0, 0.5), SampledController(period, 0.0, 0.0),
+                            np.zeros(n), x_init=[0.0275])
+    exact = np.array([coulomb_oscillator(i * period, 0.0275, 10.0, 0.005) for i in range(n)])
+    tol = 8 * n * EPS * 0.0275 * (1 + 10.0 * period) + 4 * EPS * 0.0275  # + the closed form's
+    assert np.max(np.abs(sim.x - exact)) <= tol
+    assert sim.v[-1] == 0.0
+
+
+@pytest.mark.parametrize("period", [0.2, 0.45])
+def test_loop_with_long_periods(period: float) -> None:
+    """A spring plant (ω_n = 10 rad/s, ζ = 0.01, f_c = 0.3 N) under a slow controller, T = 0.2 s
+    and 0.45 s (longer than the damped half-period ≈ 0.314 s: several reversals inside a
+    period), τ = 0.3 T, tracking a 10 cm sine."""
+    r = 0.1 * np.sin(0.7 * np.arange(40) * period)
+    loop = {"sample_time": period, "P": 50.0, "D": 0.5, "delay": 0.3 * period}
+    sim, ref, ctrl = _both({"m": 1.0, "c": 0.2, "k": 100.0, "fc": 0.3}, loop, r, offset=0.05)
+    assert ref.reversals >= 9
+    _assert_close(sim, ref, ctrl, "backward-difference")
