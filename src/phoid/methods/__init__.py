@@ -3,7 +3,8 @@
 ``pho`` (eq. 35 lines), the PHO pipeline (``identification``, ``pho_measure``, ``pho_release``,
 ``pho_checks``, ``pho_result``), the delay from a recorded force (``udelay``), ``friction``,
 ``forced``, ``free`` (sharing ``_modal``), ``diagnose`` and the inverse dynamics least squares of
-a tracking record (``idim``). The names below are imported from
+a tracking record (``idim``) and the validation of a simulated tracking record against the
+recorded one (``tracking_validation``). The names below are imported from
 their modules on first use (:mod:`phoid._lazy`), so that the PHO path does not load the forced
 and friction methods.
 """
@@ -54,6 +55,11 @@ if TYPE_CHECKING:  # the real imports, for type checkers and IDEs
     from phoid.methods.pho_checks import DIGITAL_KEYS, read_digital_loop, refuse_bias
     from phoid.methods.pho_measure import measure_modes
     from phoid.methods.pho_result import Identification, RunMode
+    from phoid.methods.tracking_validation import (
+        SignalError,
+        TrackingValidation,
+        validate_tracking,
+    )
     from phoid.methods.udelay import (
         UDelayFit,
         URun,
@@ -101,6 +107,9 @@ _EXPORTS = {
     "measure_modes": "phoid.methods.pho_measure",
     "Identification": "phoid.methods.pho_result",
     "RunMode": "phoid.methods.pho_result",
+    "SignalError": "phoid.methods.tracking_validation",
+    "TrackingValidation": "phoid.methods.tracking_validation",
+    "validate_tracking": "phoid.methods.tracking_validation",
     "UDelayFit": "phoid.methods.udelay",
     "URun": "phoid.methods.udelay",
     "check_u": "phoid.methods.udelay",
@@ -129,6 +138,8 @@ __all__ = [
     "MCKFit",
     "ResponseFit",
     "RunMode",
+    "SignalError",
+    "TrackingValidation",
     "UDelayFit",
     "URun",
     "check_u",
@@ -155,5 +166,6 @@ __all__ = [
     "simulate_forced",
     "two_frequency",
     "u_skip",
+    "validate_tracking",
     "with_u",
 ]
