@@ -196,16 +196,11 @@ def test_unstable_loop_is_simulated() -> None:
     assert np.all(np.abs(sim.x - ref.x) <= 8 * 3000 * EPS * growth)
 
 
-@pytest.mark.xfail(strict=True, reason="an overflowing unstable loop returns NaN without a word "
-                   "(simulate_tracking should raise, naming the loop, rather than return NaN)")
 def test_overflowing_loop_is_not_silent() -> None:
     """An unstable loop simulated until float64 overflows: an error, never a NaN record."""
     ctrl = SampledController(T, -1e4, 0.0)
-    try:
-        sim = simulate_tracking(Plant(1.0, 1.0, 0.0), ctrl, np.zeros(20000), x_init=[1e-3])
-    except ValueError:
-        return
-    assert np.all(np.isfinite(sim.x))
+    with pytest.raises(ValueError, match=r"diverged.*unstable"):
+        simulate_tracking(Plant(1.0, 1.0, 0.0), ctrl, np.zeros(20000), x_init=[1e-3])
 
 
 # --------------------------------------------------------------------------------------------

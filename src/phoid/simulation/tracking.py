@@ -149,12 +149,11 @@ def simulate_tracking(
     G, K, P, D = ctrl.command_gain, ctrl.gain, ctrl.P, ctrl.D
     umax = math.inf if ctrl.saturation is None else ctrl.saturation
 
-    # history: x taps (oldest repeated) and the estimator's own past outputs
-    pad = max(nb, na) + 1
+    # history: the x taps before x₀ (the oldest repeated) and the estimator's own past outputs
+    pad = nb + na
     xhist = np.concatenate((np.full(pad, xh[0]), xh))
-    vh = _filter_history(b, a, xhist, na - 1)
-    xs = [float(q) for q in xhist[-(nb - 1):]] if nb > 1 else []
-    vhat_hist = [float(q) for q in vh]
+    xs = [float(q) for q in xhist[-nb:-1]]  # x_{−nb+1}, …, x_{−1}
+    vhat_hist = _filter_history(b, a, xhist[:-1], na - 1)  # v̂_{−na+1}, …, v̂_{−1}
 
     def first_command() -> float:
         acc = b[0] * xhist[-1] + sum(b[j] * xhist[-1 - j] for j in range(1, nb))
@@ -170,9 +169,15 @@ def simulate_tracking(
     Fpast = [G * min(max(float(q), -umax), umax) for q in uh[-(d + 1):]]
 
     pieces = [phi, T - phi] if phi > 0 else [T]
-    Phi, Gam = zoh_pieces(m, c, k, pieces)
+    # an underdamped plant: sub-pieces of at most a quarter damped period, so that the
+    # velocity has at most one extremum in each and no double reversal is missed
+    wd2 = k / m - (c / (2 * m)) ** 2
+    quarter = math.pi / (2 * math.sqrt(wd2)) if wd2 > 0 else math.inf
+    split = [max(1, math.ceil(h / quarter)) for h in pieces]
+    Phi, Gam = zoh_pieces(m, c, k, [h / q for h, q in zip(pieces, split, strict=True)])
     maps = [(float(P_[0, 0]), float(P_[0, 1]), float(P_[1, 0]), float(P_[1, 1]),
-             float(g[0]), float(g[1]), h) for P_, g, h in zip(Phi, Gam, pieces, strict=True)]
+             float(g[0]), float(g[1]), h / q, q)
+            for P_, g, h, q in zip(Phi, Gam, pieces, split, strict=True)]
     flow = _Flow(m, c, k, f0, fc)
 
     x_out = np.empty(N)
@@ -194,6 +199,11 @@ def simulate_tracking(
     reversals = 0
     friction = fc > 0
     for n in range(N):
+        if not -_BIG < x < _BIG:  # also NaN
+            raise ValueError(
+                f"the simulated loop diverged: |x| > {_BIG:g} m at t = {t0 + n * T:g} s (sample "
+                f"{n}); the loop is unstable for these parameters and gains"
+            )
         x_out[n] = x
         v_out[n] = vel
         acc = b0 * x
@@ -227,27 +237,31 @@ def simulate_tracking(
         forces = (queue[-d - 2], queue[-d - 1]) if phi > 0 else (queue[-d - 1],)
         del queue[0]
         stuck_here = False
-        for (p00, p01, p10, p11, g0, g1, h), Fa in zip(maps, forces, strict=True):
-            if not friction:
-                fn = Fa - f0
-                x, vel = p00 * x + p01 * vel + g0 * fn, p10 * x + p11 * vel + g1 * fn
-                continue
-            if s == 0:
-                g = Fa - f0 - k * x
-                if -fc <= g <= fc:
-                    stuck_here = True
+        for (p00, p01, p10, p11, g0, g1, h, reps), Fa in zip(maps, forces, strict=True):
+            for _ in range(reps):
+                if not friction:
+                    fn = Fa - f0
+                    x, vel = p00 * x + p01 * vel + g0 * fn, p10 * x + p11 * vel + g1 * fn
                     continue
-                s = 1 if g > 0 else -1
-            fn = Fa - f0 - fc * s
-            x1 = p00 * x + p01 * vel + g0 * fn
-            v1 = p10 * x + p11 * vel + g1 * fn
-            if s * v1 > 0 and (k == 0.0 or not flow.may_cross(x, vel, x1, v1, fn, s)):
-                x, vel = x1, v1
-                continue
-            x, vel, s, events, stuck = flow.piece(x, vel, s, Fa, h)
-            reversals += events
-            stuck_here |= stuck
+                if s == 0:
+                    g = Fa - f0 - k * x
+                    if -fc <= g <= fc:
+                        stuck_here = True
+                        continue
+                    s = 1 if g > 0 else -1
+                fn = Fa - f0 - fc * s
+                x1 = p00 * x + p01 * vel + g0 * fn
+                v1 = p10 * x + p11 * vel + g1 * fn
+                if s * v1 > 0 and (k == 0.0 or not flow.may_cross(x, vel, x1, v1, fn, s)):
+                    x, vel = x1, v1
+                    continue
+                x, vel, s, events, stuck = flow.piece(x, vel, s, Fa, h)
+                reversals += events
+                stuck_here |= stuck
         stuck_periods += stuck_here
+    if not np.all(np.isfinite(x_out)) or not np.all(np.isfinite(F_out)):
+        raise ValueError("the simulated loop diverged (non-finite values): the loop is unstable "
+                         "for these parameters and gains")
     t = t0 + T * np.arange(N)
     return TrackingSimulation(
         t=t, x=x_out, v=v_out, command=u_out, force=F_out, saturated=sat, r=r,
@@ -358,16 +372,24 @@ class _Flow:
         raise RuntimeError("more than 64 friction events in one piece")  # pragma: no cover
 
 
-def _filter_history(b, a, x, keep):
-    """The estimator's last ``keep`` outputs over the history x (zero initial filter state)."""
+def _filter_history(b, a, x, keep) -> list[float]:
+    """The estimator's ``keep`` outputs before the start, v̂_{−keep}, …, v̂_{−1}.
+
+    Each is the filter's DC-normalised FIR value on the history, Σ_j b_j x_{−i−j} / Σ a (for
+    ``"filtered"`` the backward difference (x_{−i} − x_{−i−1})/T); x before the history repeats
+    its oldest value, so a history at rest gives v̂ = 0.
+    """
     if keep <= 0:
-        return np.empty(0)
-    y = np.zeros(x.size)
-    for n in range(x.size):  # the history is a handful of samples
-        acc = sum(b[j] * x[n - j] for j in range(b.size) if n - j >= 0)
-        acc -= sum(a[i] * y[n - i] for i in range(1, a.size) if n - i >= 0)
-        y[n] = acc / a[0]
-    return y[-keep:]
+        return []
+    dc = float(np.sum(a))
+    out = []
+    for i in range(keep, 0, -1):
+        n = x.size - i  # index of x_{−i} in x (x ends with x_{−1})
+        out.append(float(sum(b[j] * x[max(n - j, 0)] for j in range(b.size))) / dc)
+    return out
+
+
+_BIG = 1e150  # m: a simulated position beyond this is a diverging loop, not a machine
 
 
 def _vector(name, value, size=None) -> np.ndarray:
