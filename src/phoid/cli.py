@@ -114,11 +114,15 @@ def identify(
         "--plots", help="Write per-run fits with residuals and the eq. (35) lines (pho) or "
                         "eq. (20) lines (forced) with error bars as PNG files into this "
                         "folder.")] = None,
-    estimator: Annotated[str, typer.Option(
-        help="'gls': weighted fit of m, c, k through the exact loop roots (efficient, default); "
-             "'ols': the paper's eq. (35) lines by ordinary least squares.")] = "gls",
+    estimator: Annotated[str | None, typer.Option(
+        help="pho: 'gls', weighted fit of m, c, k through the exact loop roots (efficient, "
+             "default), or 'ols', the paper's eq. (35) lines by ordinary least squares. "
+             "tracking: 'idim' (inverse dynamics least squares on the recorded command), "
+             "'output-error' (x and r only, through the simulated loop) or 'auto' (default: "
+             "the manifest's estimator).")] = None,
     delay: Annotated[float | None, typer.Option(
-        help="Loop delay in s, overriding the manifest's [loop] delay.")] = None,
+        help="Loop delay in s, overriding the manifest's [loop] delay (tracking: the command "
+             "delay).")] = None,
     no_compensation: Annotated[bool, typer.Option(
         "--no-compensation", help="Ignore the loop delay (the paper's uncompensated column; "
                                   "only with --estimator ols).")] = False,
@@ -150,6 +154,16 @@ def identify(
         if no_compensation and estimator != "ols":
             raise ValueError("--no-compensation needs --estimator ols (the eq. (35) lines)")
         exp = read_experiment(experiment)
+        if exp.method == "tracking":
+            if mass is not None or friction or no_compensation:
+                raise ValueError("--mass, --friction and --no-compensation do not apply to "
+                                 f"tracking sets; {exp.path} is one (its [fixed] table holds "
+                                 "known parameters)")
+            result = _identify(exp, delay=delay, estimator=estimator)
+            written = result.plot(plots, overwrite=overwrite) if plots is not None else []
+            _print_result(result, as_json, written, plots)
+            return
+        estimator = "gls" if estimator is None else estimator
         if friction and (exp.method != "pho" or estimator != "gls" or no_compensation
                          or plots is not None):
             raise ValueError("--friction applies to pho sets, without --estimator ols, "
@@ -174,6 +188,11 @@ def identify(
         written = result.plot(plots, overwrite=overwrite) if plots is not None else []
     except (ValueError, OSError) as exc:
         _fail(str(exc))
+    _print_result(result, as_json, written, plots)
+
+
+def _print_result(result, as_json: bool, written, plots) -> None:
+    """The result as JSON (warnings also on stderr) or as the text report; figures written."""
     if as_json:
         typer.echo(json.dumps(result.summary(), indent=1))
         for w in result.warnings:
@@ -186,7 +205,8 @@ def identify(
 
 def _identify_other(exp, *, mass, delay, estimator, no_compensation):
     """Identify a forced or free-decay set (the PHO-only options are refused)."""
-    for flag, given in (("--delay", delay is not None), ("--estimator", estimator != "gls"),
+    for flag, given in (("--delay", delay is not None),
+                        ("--estimator", estimator not in (None, "gls")),
                         ("--no-compensation", no_compensation)):
         if given:
             raise ValueError(f"{flag} applies to pho sets only; {exp.path} is a "

@@ -41,7 +41,13 @@ from phoid.methods.tracking import (
 )
 from phoid.methods.tracking_validation import validate_tracking
 
-__all__ = ["TrackingIdentification", "identify_tracking", "run_controller"]
+__all__ = [
+    "TrackingIdentification",
+    "TrackingReplay",
+    "identify_tracking",
+    "replay_set",
+    "run_controller",
+]
 
 ESTIMATORS = ("auto", "idim", "output-error")
 _IDIM_NAMES = {"m": "M", "c": "Fv", "fc": "Fc", "offset": "OF", "k": "k"}
@@ -208,14 +214,8 @@ def identify_tracking(experiment: Any, *, delay: float | None = None,
             estimates, fit, source = _idim(where, records, fixed, given)
         else:
             estimates, fit, source = _output_error(where, records, fixed, given)
-        plant = Plant(m=estimates["m"].value, c=estimates["c"].value, k=estimates["k"].value,
-                      fc=estimates["fc"].value)
-        tau = estimates["delay"].value
-        validations = []
-        for rec in records:
-            ctrl = rec.controller.with_delay(tau)
-            sim = replay(rec, plant, offset=estimates["offset"].value, controller=ctrl)
-            validations.append(_validate(rec, sim))
+        values = {k: e.value for k, e in estimates.items()}
+        validations = [v for _, v in _replay_all(records, values)]
     except ValueError as exc:
         raise IdentificationError(f"{where}: {exc}") from None
     warnings += list(fit.warnings)
@@ -229,6 +229,131 @@ def identify_tracking(experiment: Any, *, delay: float | None = None,
         validations=tuple(validations), run_names=tuple(rec.name for rec in records),
         path=getattr(experiment, "path", None), warnings=tuple(warnings),
     )
+
+
+@dataclass(frozen=True, eq=False)
+class TrackingReplay:
+    """The result of :func:`replay_set`: each run simulated with given parameters and compared.
+
+    Attributes
+    ----------
+    parameters : Mapping[str, float]
+        m (kg), c (N s/m), k (N/m), fc (N), offset (N), delay (s) simulated.
+    simulations : tuple of TrackingSimulation
+    validations : tuple of TrackingValidation
+    run_names : tuple of str
+    path : Path or None
+    warnings : tuple of str
+    """
+
+    parameters: Mapping[str, float]
+    simulations: tuple[Any, ...]
+    validations: tuple[Any, ...]
+    run_names: tuple[str, ...]
+    path: Path | None
+    warnings: tuple[str, ...]
+
+    @property
+    def validation(self) -> Any:
+        """The first run's validation."""
+        return self.validations[0]
+
+    def summary(self) -> dict[str, Any]:
+        """JSON-ready dict: the parameters and each run's validation."""
+        return {
+            "parameters": {k: float(v) for k, v in self.parameters.items()},
+            "validation": [{"run": n, **v.summary()}
+                           for n, v in zip(self.run_names, self.validations, strict=True)],
+            "warnings": list(self.warnings),
+        }
+
+    def report(self) -> str:
+        """Plain text: the parameters and each run's relative errors."""
+        from phoid.reports.tracking import validation_lines
+
+        p = self.parameters
+        lines = [f"phoid replay of {self.path}: the loop simulated with m = {p['m']:.6g} kg, "
+                 f"c = {p['c']:.6g} N s/m, k = {p['k']:.6g} N/m, fc = {p['fc']:.6g} N, offset = "
+                 f"{p['offset']:.6g} N, delay = {p['delay'] * 1e3:.6g} ms, driven by the "
+                 "recorded reference from the recorded state"]
+        for name, v in zip(self.run_names, self.validations, strict=True):
+            lines += ["", f"{name}:", *validation_lines(v)]
+        if self.warnings:
+            lines += ["", "warnings:"] + [f"  - {w}" for w in self.warnings]
+        return "\n".join(lines)
+
+    def plot(self, folder: str | Path, *, overwrite: bool = False) -> list[Path]:
+        """One PNG per run (measured vs simulated, residual, force) into ``folder``."""
+        from phoid.reports.tracking import plot_tracking
+
+        folder = Path(folder)
+        return [plot_tracking(v, folder / f"tracking_run{i:02d}.png", overwrite=overwrite)
+                for i, v in enumerate(self.validations, start=1)]
+
+
+def replay_set(experiment: Any, parameters: Mapping[str, float]) -> TrackingReplay:
+    """Simulate every run of a tracking set with given parameters and compare with the record.
+
+    Each run's loop (its gains, the set's ``[loop]``) is driven by the recorded reference from
+    the recorded state (:func:`~phoid.methods.tracking.replay`) and validated
+    (:func:`~phoid.methods.tracking_validation.validate_tracking`: the benchmark's relative
+    errors). Use it to validate a model identified on another record of the same axis.
+
+    Parameters
+    ----------
+    experiment : phoid.io.ExperimentSet
+        A ``method = "tracking"`` set.
+    parameters : mapping
+        ``m`` (kg, required), ``c`` (N s/m), ``k`` (N/m), ``fc`` (N), ``offset`` (N), each 0 when
+        absent, and ``delay`` (s; absent: the set's ``[loop] delay``, else 0).
+
+    Returns
+    -------
+    TrackingReplay
+
+    Raises
+    ------
+    IdentificationError
+        One line naming the set: an unknown parameter, a loop that diverges, …
+    """
+    where = str(experiment.path)
+    unknown = sorted(set(parameters) - set(PARAMETERS))
+    if unknown:
+        raise IdentificationError(f"{where}: unknown parameter(s) {', '.join(unknown)}; the "
+                                  f"parameters are {', '.join(PARAMETERS)}")
+    if "m" not in parameters:
+        raise IdentificationError(f"{where}: the mass m is needed to simulate the loop")
+    delay = parameters.get("delay", experiment.loop.get("delay")) or 0.0
+    values = {"c": 0.0, "k": 0.0, "fc": 0.0, "offset": 0.0, **parameters,
+              "delay": float(delay)}
+    runs = experiment.runs
+    try:
+        records = [
+            TrackingRecord(x=r.x, r=r.r, controller=run_controller(experiment, r, delay=delay),
+                           u=r.u, w=r.w, t0=float(r.t[0]), name=f"run {r.index} ({r.file})")
+            for r in runs
+        ]
+        pairs = _replay_all(records, values)
+    except ValueError as exc:
+        raise IdentificationError(f"{where}: {exc}") from None
+    warnings = [f"{rec.name}: {w}" for rec, (_, v) in zip(records, pairs, strict=True)
+                for w in v.warnings]
+    return TrackingReplay(
+        parameters=values, simulations=tuple(s for s, _ in pairs),
+        validations=tuple(v for _, v in pairs), run_names=tuple(r.name for r in records),
+        path=getattr(experiment, "path", None), warnings=tuple(warnings),
+    )
+
+
+def _replay_all(records, values):
+    """(simulation, validation) of each record with the parameter values given."""
+    plant = Plant(m=values["m"], c=values["c"], k=values["k"], fc=values["fc"])
+    out = []
+    for rec in records:
+        ctrl = rec.controller.with_delay(values["delay"])
+        sim = replay(rec, plant, offset=values["offset"], controller=ctrl)
+        out.append((sim, _validate(rec, sim)))
+    return out
 
 
 def _idim(where, records, fixed, given):
