@@ -222,6 +222,46 @@ def _identify_other(exp, *, mass, delay, estimator, no_compensation):
     return identify_free(exp, mass=mass)
 
 
+_REPLAY_OPTIONS = {"m", "c", "k", "fc", "offset_force", "delay", "gzip", "overwrite", "plots",
+                   "as_json", "replay"}
+
+
+def _simulate_replay(ctx, out, replay, *, m, c, k, fc, offset_force, delay, gzip, overwrite,
+                     plots, as_json) -> None:
+    """``phoid simulate OUT --replay SET``: the set's loop with given parameters, validated."""
+    from phoid.io import read_experiment
+    from phoid.methods.tracking_identification import replay_set
+
+    def given(name: str) -> bool:
+        return getattr(ctx.get_parameter_source(name), "name", "") != "DEFAULT"
+
+    stray = sorted(n for n in ctx.params if given(n) and n not in _REPLAY_OPTIONS)
+    if stray:
+        _fail(f"--{stray[0].replace('_', '-')} does not apply to --replay (the recorded set "
+              "gives the loop, the reference and the timing)")
+    if not given("m"):
+        _fail("--replay needs the mass: give --m (and --c, --k, --fc, --offset-force, which "
+              "are 0 when not given)")
+    params = {"m": m, "c": c if given("c") else 0.0, "k": k if given("k") else 0.0,
+              "fc": fc if given("fc") else 0.0, "offset": offset_force}
+    if given("delay"):
+        params["delay"] = delay
+    written = []
+    try:
+        exp = read_experiment(replay)
+        if exp.method != "tracking":
+            raise ValueError(f"{exp.path}: --replay needs a tracking set (method = "
+                             f"\"tracking\"); this one is {exp.method!r}")
+        result = replay_set(exp, params)
+        manifest = result.write(out, gzip=gzip, overwrite=overwrite)
+        if plots is not None:
+            written = result.plot(plots, overwrite=overwrite)
+    except (ValueError, OSError) as exc:
+        _fail(str(exc))
+    _print_result(result, as_json, written, plots)
+    typer.echo(f"simulated set written to {manifest}", err=as_json)
+
+
 def _numbers(name: str, text: str) -> list[float]:
     """Parse '1,2,3' or 'start:stop:count' (inclusive linspace) into floats."""
     import numpy as np
@@ -315,6 +355,20 @@ def simulate(
     write_mass: Annotated[bool, typer.Option(
         "--write-mass", help="free: write the mass into the manifest as the known mass.")
     ] = False,
+    replay: Annotated[Path | None, typer.Option(
+        "--replay", help="A recorded tracking set: simulate its loop with --m, --c, --k, --fc, "
+                         "--offset-force (and --delay, else the set's) driven by each run's "
+                         "recorded reference from its recorded state, write the simulated "
+                         "set into OUT and print the benchmark's relative errors against the "
+                         "record (position, tracking error, velocity, force).")] = None,
+    offset_force: Annotated[float, typer.Option(
+        "--offset-force", help="--replay: constant offset force f0 of the plant, N "
+                               "(m x'' + c x' + k x + fc sign(x') + f0 = F).")] = 0.0,
+    plots: Annotated[Path | None, typer.Option(
+        "--plots", help="--replay: write measured-vs-simulated figures (PNG) into this "
+                        "folder.")] = None,
+    as_json: Annotated[bool, typer.Option(
+        "--json", help="--replay: print the validation as one JSON object.")] = False,
 ) -> None:
     """Simulate a PHO experiment and write it as a phoid/1 experiment set.
 
@@ -337,6 +391,15 @@ def simulate(
     from phoid.io import run_from_arrays, write_experiment
     from phoid.simulation import simulate as _simulate
 
+    if replay is not None:
+        _simulate_replay(ctx, out, replay, m=m, c=c, k=k, fc=fc, offset_force=offset_force,
+                         delay=delay, gzip=gzip, overwrite=overwrite, plots=plots,
+                         as_json=as_json)
+        return
+    for flag, given in (("--offset-force", offset_force != 0.0), ("--plots", plots is not None),
+                        ("--json", as_json)):
+        if given:
+            _fail(f"{flag} applies to --replay only")
     if not (math.isfinite(u_noise) and u_noise >= 0.0):
         _fail(f"--u-noise must be finite and ≥ 0 N; got {u_noise}")
     if method != "pho":

@@ -252,6 +252,7 @@ class TrackingReplay:
     run_names: tuple[str, ...]
     path: Path | None
     warnings: tuple[str, ...]
+    _inputs: tuple[Any, ...] = ()
 
     @property
     def validation(self) -> Any:
@@ -289,6 +290,38 @@ class TrackingReplay:
         folder = Path(folder)
         return [plot_tracking(v, folder / f"tracking_run{i:02d}.png", overwrite=overwrite)
                 for i, v in enumerate(self.validations, start=1)]
+
+    def write(self, folder: str | Path, *, gzip: bool = True, overwrite: bool = False) -> Path:
+        """Write the simulated runs as a tracking set (``phoid/1``) into ``folder``.
+
+        Columns t, x (simulated), r, u (the simulated command, before saturation) and w; each
+        run's gains and the loop as simulated; the parameters as the table ``[simulated]``
+        (with ``replay_of``, the recorded set's manifest). Returns the manifest's path.
+        """
+        from phoid.io import run_from_arrays, write_experiment
+
+        runs = []
+        for i, (sim, w) in enumerate(zip(self.simulations, self._inputs, strict=True), start=1):
+            ctrl = sim.controller
+            runs.append(run_from_arrays(sim.t, sim.x, r=sim.r, u=sim.command, w=w, P=ctrl.P,
+                                        D=ctrl.D, gain=ctrl.gain, command_gain=ctrl.command_gain,
+                                        index=i))
+        ctrl = self.simulations[0].controller
+        loop = {"sample_time": ctrl.sample_time, "delay": ctrl.delay,
+                "velocity": (ctrl.velocity if isinstance(ctrl.velocity, str)
+                             else list(ctrl.velocity))}
+        if ctrl.cutoff is not None:
+            loop["cutoff"] = ctrl.cutoff
+        if ctrl.saturation is not None:
+            loop["saturation"] = ctrl.saturation
+        simulated = {k: float(v) for k, v in self.parameters.items()}
+        if self.path is not None:
+            simulated["replay_of"] = str(self.path)
+        return write_experiment(folder, runs, method="tracking", loop=loop,
+                                extra={"simulated": simulated}, gzip=gzip,
+                                overwrite=overwrite,
+                                title="phoid simulate --replay: the loop simulated with given "
+                                      "parameters, driven by a recorded reference")
 
 
 def replay_set(experiment: Any, parameters: Mapping[str, float]) -> TrackingReplay:
@@ -342,6 +375,7 @@ def replay_set(experiment: Any, parameters: Mapping[str, float]) -> TrackingRepl
         parameters=values, simulations=tuple(s for s, _ in pairs),
         validations=tuple(v for _, v in pairs), run_names=tuple(r.name for r in records),
         path=getattr(experiment, "path", None), warnings=tuple(warnings),
+        _inputs=tuple(None if rec.w is None else rec.w[rec.start:] for rec in records),
     )
 
 
