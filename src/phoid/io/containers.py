@@ -30,8 +30,10 @@ from typing import Any, BinaryIO
 import numpy as np
 
 import phoid.io.limits as limits
+from phoid.errors import ExperimentError
 from phoid.io._files import open_regular
 from phoid.io._format import fail, show
+from phoid.io._mat5 import check_mat5
 
 __all__ = ["CONTAINER_SUFFIXES", "container_suffix", "read_container"]
 
@@ -110,6 +112,7 @@ def read_container(
         _check_claim(where, suffix, kind)
         try:
             if kind == "mat5":
+                check_mat5(where, f, st.st_size)
                 source: _Source = _Mat5(where, f)
             elif kind == "parquet":
                 source = _Parquet(where, f)
@@ -119,6 +122,10 @@ def read_container(
                 return _read(where, source, columns, required, scalars, max_rows)
         except MemoryError:
             fail(where, "not enough memory to hold the data file's variables")
+        except ExperimentError:
+            raise
+        except Exception as exc:  # hostile input: what the libraries raise unforeseen
+            fail(where, f"cannot read the data file: {_exc(exc)}")
 
 
 def _sniff(where: str, f: BinaryIO, size: int) -> str | None:
@@ -301,6 +308,11 @@ def _read(where: str, source: _Source, columns: Mapping[str, str], required: Seq
     return signals, values, digest.digest()
 
 
+def _exc(exc: BaseException) -> str:
+    """A library's exception, for a message: its type and its text on one line."""
+    return f"{type(exc).__name__}: {' '.join(str(exc).split())}"
+
+
 def _missing_package(package: str, what: str) -> str:
     return (f"reading {what} needs the Python package {package}, which is not installed: "
             "pip install 'phoid[io]'")
@@ -321,7 +333,7 @@ class _Mat5(_Source):
         try:
             listed = whosmat(f)
         except Exception as exc:  # hostile input: scipy raises many kinds
-            fail(where, f"cannot read the MATLAB file: {type(exc).__name__}: {exc}")
+            fail(where, f"cannot read the MATLAB file: {_exc(exc)}")
         self.vars = {name: (tuple(int(d) for d in shape), cls) for name, shape, cls in listed}
         self.cache: dict[str, np.ndarray] = {}
 
@@ -346,7 +358,7 @@ class _Mat5(_Source):
                 data = loadmat(self.f, variable_names=[name], squeeze_me=False)
             except Exception as exc:  # hostile input: scipy raises many kinds
                 fail(self.where, f"cannot read variable {show(name, 60)} of the MATLAB file: "
-                                  f"{type(exc).__name__}: {exc}")
+                                  f"{_exc(exc)}")
             value = data.get(name)
             if not isinstance(value, np.ndarray) or value.dtype.kind not in "fiu":
                 fail(self.where, f"variable {show(name, 60)} is not an array of real numbers "
@@ -377,7 +389,7 @@ class _Hdf5(_Source):
         try:
             self.file = h5py.File(f, "r")
         except Exception as exc:  # hostile input: HDF5 raises many kinds
-            fail(where, f"cannot open the HDF5 file: {type(exc).__name__}: {exc}")
+            fail(where, f"cannot open the HDF5 file: {_exc(exc)}")
 
     def close(self) -> None:
         self.file.close()
@@ -423,7 +435,7 @@ class _Hdf5(_Source):
             try:
                 obj = group[part]
             except Exception as exc:
-                fail(self.where, f"cannot open {show(name, 60)}: {type(exc).__name__}: {exc}")
+                fail(self.where, f"cannot open {show(name, 60)}: {_exc(exc)}")
             if i < len(parts) - 1:
                 if not isinstance(obj, h5py.Group):
                     return None
@@ -463,7 +475,7 @@ class _Hdf5(_Source):
             return np.asarray(self._dataset(name)[()])
         except Exception as exc:  # hostile input: a corrupt chunk, a failing filter
             fail(self.where, f"cannot read {self.what} {show(name, 60)}: "
-                              f"{type(exc).__name__}: {exc}")
+                              f"{_exc(exc)}")
 
 
 # --------------------------------------------------------------------------------------------
@@ -487,7 +499,7 @@ class _Parquet(_Source):
             self.rows = int(self.file.metadata.num_rows)
             raw = self.file.metadata.metadata or {}
         except Exception as exc:  # hostile input: pyarrow raises many kinds
-            fail(where, f"cannot read the Parquet file: {type(exc).__name__}: {exc}")
+            fail(where, f"cannot read the Parquet file: {_exc(exc)}")
         self.meta = {k.decode("utf-8", "replace"): v for k, v in raw.items()
                      if k not in (b"ARROW:schema", b"pandas")}
 
@@ -515,8 +527,7 @@ class _Parquet(_Source):
         try:
             column = self.file.read(columns=[name]).column(0)
         except Exception as exc:  # hostile input
-            fail(self.where, f"cannot read column {show(name, 60)}: {type(exc).__name__}: "
-                              f"{exc}")
+            fail(self.where, f"cannot read column {show(name, 60)}: {_exc(exc)}")
         if column.null_count:
             i = int(np.flatnonzero(column.is_null().to_numpy(zero_copy_only=False))[0])
             fail(self.where, f"column {show(name, 60)} has a missing (null) value at index {i}")
