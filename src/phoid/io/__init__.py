@@ -8,7 +8,7 @@ file per run::
 
     title  = "Linear stage, PHO sweep"   # optional
     format = "phoid/1"                   # optional; when present it must be "phoid/1"
-    method = "pho"                       # "pho" (default) | "forced" | "free"
+    method = "pho"                       # "pho" (default) | "forced" | "free" | "tracking"
 
     [loop]
     delay = 0.1                          # s; omitted: to be estimated from the data
@@ -21,6 +21,12 @@ file per run::
 Each data file is comma-separated text whose first line names the columns: ``t`` (s, strictly
 increasing) and ``x`` (m) always, ``u`` (N, the feedback force actually applied) optionally,
 ``F`` (N, the external force) for forced runs. Extra columns are ignored.
+
+A tracking set (``method = "tracking"``: a sampled PD loop following a reference ``r``) also
+reads MATLAB (v5/v7 and v7.3), HDF5 and Parquet files, names the signals of each file in
+``[run.columns]``, and takes its gains as numbers or as the names of scalar variables of the
+run's file, resolved when the file is read (:mod:`phoid.io.tracking`,
+:mod:`phoid.io.containers`; h5py and pyarrow: ``pip install 'phoid[io]'``).
 
 The reader checks what can be checked without knowing the method's model: the keys, their
 types and ranges, their letter case (a key that differs from a known one only in letter case is
@@ -43,10 +49,13 @@ Modules: :mod:`phoid.io.records` (:class:`Run`, :class:`ExperimentSet`,
 :func:`run_from_arrays`), :mod:`phoid.io.reading` (:func:`read_experiment`),
 :mod:`phoid.io.manifest` (:func:`read_manifest`), :mod:`phoid.io.datafile` (the bounded CSV
 reader), :mod:`phoid.io.limits` (the limits), :mod:`phoid.io.writing`
-(:func:`write_experiment`); ``_format`` and ``_files`` hold what they share.
+(:func:`write_experiment`), :mod:`phoid.io.tracking` (a tracking set's keys),
+:mod:`phoid.io.containers` (the MATLAB, HDF5 and Parquet readers); ``_format`` and ``_files``
+hold what they share.
 """
 
 from phoid.io._format import FORMAT, MANIFEST, METHODS
+from phoid.io.containers import CONTAINER_SUFFIXES
 from phoid.io.limits import (
     MAX_DATA_BYTES,
     MAX_LINE_BYTES,
@@ -59,9 +68,20 @@ from phoid.io.limits import (
 from phoid.io.manifest import read_manifest
 from phoid.io.reading import read_experiment
 from phoid.io.records import ExperimentSet, Run, run_from_arrays
+from phoid.io.tracking import (
+    ESTIMATORS,
+    FIXED_KEYS,
+    MIN_TRACKING_SAMPLES,
+    TRACKING_COLUMNS,
+    TRACKING_LOOP_KEYS,
+    VELOCITY_PRESETS,
+)
 from phoid.io.writing import write_experiment
 
 __all__ = [
+    "CONTAINER_SUFFIXES",
+    "ESTIMATORS",
+    "FIXED_KEYS",
     "FORMAT",
     "MANIFEST",
     "MAX_DATA_BYTES",
@@ -72,6 +92,10 @@ __all__ = [
     "MAX_RUNS",
     "MAX_SET_ROWS",
     "METHODS",
+    "MIN_TRACKING_SAMPLES",
+    "TRACKING_COLUMNS",
+    "TRACKING_LOOP_KEYS",
+    "VELOCITY_PRESETS",
     "ExperimentSet",
     "Run",
     "read_experiment",

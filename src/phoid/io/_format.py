@@ -46,19 +46,22 @@ FORMAT = "phoid/1"
 """The value of the manifest's ``format`` key."""
 MANIFEST = "experiment.toml"
 """The manifest's file name inside an experiment-set folder."""
-METHODS = ("pho", "forced", "free")
+METHODS = ("pho", "forced", "free", "tracking")
 """The values of the manifest's ``method`` key."""
 
-TOP_KEYS = ("title", "format", "method", "loop", "run", "mass")
-"""The manifest's top-level keys."""
-RUN_KEYS = ("file", "P", "D", "B", "omega", "added_mass", "bias")
-"""The keys of a ``[[run]]`` table."""
+TOP_KEYS = ("title", "format", "method", "loop", "run", "mass", "estimator", "fixed")
+"""The manifest's top-level keys (``estimator`` and ``fixed``: tracking sets only)."""
+RUN_KEYS = ("file", "P", "D", "B", "omega", "added_mass", "bias", "gain", "command_gain",
+            "columns")
+"""The keys of a ``[[run]]`` table (``gain``, ``command_gain``, ``columns``: tracking sets
+only)."""
 LOOP_KEYS = ("delay",)
 """The ``[loop]`` keys this package checks (the identification checks the others)."""
 COLUMNS = ("t", "x", "u", "F")
 """The data files' known columns, in the order they are kept."""
 UNITS = {"P": "N/m", "D": "N·s/m", "B": "N", "omega": "rad/s", "added_mass": "kg",
-         "bias": "N", "delay": "s", "mass": "kg"}
+         "bias": "N", "delay": "s", "mass": "kg", "sample_time": "s", "cutoff": "rad/s",
+         "m": "kg", "fc": "N"}
 """The unit of each numeric key, for messages."""
 MAX_MESSAGE = 2000
 """Longest error message, characters."""

@@ -15,7 +15,7 @@ import io as _io
 import itertools
 import re
 import zlib
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import BinaryIO
 
@@ -178,11 +178,17 @@ def _clean_name(name: str) -> str:
 
 
 def read_csv(where: str, real: Path, file: str, *, need_F: bool = False,
-              max_rows: int = limits.MAX_SET_ROWS) -> tuple[dict[str, np.ndarray], bytes]:
+              max_rows: int = limits.MAX_SET_ROWS, columns: Mapping[str, str] | None = None,
+              required: Sequence[str] = ()) -> tuple[dict[str, np.ndarray], bytes]:
     """Read, decompress and parse one phoid/1 CSV data file, streaming.
 
     Returns the known columns it has (read-only float64 arrays) and a BLAKE2b digest of its
     decompressed content. At most ``max_rows`` data rows are accepted.
+
+    ``columns`` (a tracking set's ``[run.columns]``) maps each phoid name to the header name
+    that holds it, in the order the columns are kept; the columns in ``required`` and ``t``,
+    ``x`` must be there, the others are read when present. ``None``: the known columns
+    :data:`~phoid.io._format.COLUMNS` under their own names.
     """
     digest = hashlib.blake2b(digest_size=32)
 
@@ -193,14 +199,15 @@ def read_csv(where: str, real: Path, file: str, *, need_F: bool = False,
 
     try:
         cols = _parse_csv(where, _line_chunks(where, hashed()), need_F=need_F,
-                          max_rows=max_rows)
+                          max_rows=max_rows, columns=columns, required=required)
     except MemoryError:
         fail(where, "not enough memory to hold the data file's columns")
     return cols, digest.digest()
 
 
 def _parse_csv(where: str, chunks: Iterator[tuple[int, bytes]], *, need_F: bool = False,
-               max_rows: int = limits.MAX_SET_ROWS) -> dict[str, np.ndarray]:
+               max_rows: int = limits.MAX_SET_ROWS, columns: Mapping[str, str] | None = None,
+               required: Sequence[str] = ()) -> dict[str, np.ndarray]:
     """Parse a phoid/1 CSV, given as chunks of whole LF-terminated lines, into the known
     columns it has."""
     first = next(chunks, None)
@@ -231,11 +238,15 @@ def _parse_csv(where: str, chunks: Iterator[tuple[int, bytes]], *, need_F: bool 
             fail(where, f"the header names column {show(n)} twice "
                          f"(columns {position[n] + 1} and {j + 1})")
         position[n] = j
-    for key in ("t", "x") + (("F",) if need_F else ()):
-        if key not in position:
-            fail(where, _missing_column(key, names, header, need_F))
-    wanted = [k for k in COLUMNS if k in position]
-    usecols = [position[k] for k in wanted]
+    mapping = dict(columns) if columns is not None else {k: k for k in COLUMNS}
+    needed = ("t", "x") + (("F",) if need_F else ()) + tuple(required)
+    for key in dict.fromkeys(needed):
+        if mapping[key] not in position:
+            fail(where, _missing_column(key, names, header, need_F, mapping[key]))
+    keys = [k for k in mapping if mapping[k] in position]
+    usecols = [position[mapping[k]] for k in keys]
+    # messages name a column as the header does, and its phoid name where that differs
+    wanted = [show(k) if mapping[k] == k else f"{show(mapping[k], 40)} ({k})" for k in keys]
     ncols = len(names)
 
     parts: list[np.ndarray] = []   # per chunk: rows × wanted columns
@@ -265,7 +276,7 @@ def _parse_csv(where: str, chunks: Iterator[tuple[int, bytes]], *, need_F: bool 
         return int(lines[row - first_row]) if lines is not None else line0 + row - first_row
 
     cols: dict[str, np.ndarray] = {}
-    for i, key in enumerate(wanted):
+    for i, key in enumerate(keys):
         col = np.concatenate([p[:, i] for p in parts]) if len(parts) > 1 \
             else np.ascontiguousarray(parts[0][:, i])
         col.flags.writeable = False
@@ -275,7 +286,7 @@ def _parse_csv(where: str, chunks: Iterator[tuple[int, bytes]], *, need_F: bool 
     up = t[1:] > t[:-1]
     if not up.all():
         r = int(np.argmin(up)) + 1
-        fail(where, f"column 't' is not strictly increasing at line {line_of(r)}: "
+        fail(where, f"column {wanted[0]} is not strictly increasing at line {line_of(r)}: "
                      f"{float(t[r])!r} s follows {float(t[r - 1])!r} s (line {line_of(r - 1)})")
     return cols
 
@@ -320,18 +331,20 @@ def _parse_chunk(where: str, body: bytes, line0: int, ncols: int, position: dict
         r = int(np.argmin(finite[:, i]))
         line = int(lines[r]) if lines is not None else line0 + r
         cell = _cell_text(body, r, usecols[i])
-        fail(where, f"column {wanted[i]!r} has a non-finite value at line {line}: "
+        fail(where, f"column {wanted[i]} has a non-finite value at line {line}: "
                      f"{show(cell)}")
     return table, lines
 
 
-def _missing_column(key: str, names: list[str], header: str, need_F: bool) -> str:
+def _missing_column(key: str, names: list[str], header: str, need_F: bool,
+                    name: str | None = None) -> str:
     shown = ", ".join(show(n, 40) for n in names[:12]) + (", …" if len(names) > 12 else "")
-    text = f"missing column {key!r}"
+    name = key if name is None else name
+    text = f"missing column {show(name, 40)}" + (f" for {key}" if name != key else "")
     if key == "F" and need_F:
         text += " (a forced run needs the external force F)"
     text += f"; the header names {shown}"
-    if any(n.lower() == key.lower() for n in names):
+    if any(n.lower() == name.lower() for n in names):
         text += " (column names are case-sensitive)"
     elif len(names) == 1 and any(c in header for c in ";\t "):
         text += " (columns must be separated by commas)"
@@ -376,9 +389,9 @@ def _diagnose_cells(where: str, body: bytes, rows: np.ndarray, wanted: list[str]
         for key, j in zip(wanted, usecols, strict=True):
             cell = cells[j].strip()
             if not cell:
-                fail(where, f"column {key!r} has an empty cell at line {int(rows[r])}")
+                fail(where, f"column {key} has an empty cell at line {int(rows[r])}")
             if not _NUMBER_RE.fullmatch(cell):
-                fail(where, f"column {key!r} has a non-numeric cell at line {int(rows[r])}: "
+                fail(where, f"column {key} has a non-numeric cell at line {int(rows[r])}: "
                              f"{show(cell)}")
 
 

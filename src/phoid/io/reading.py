@@ -33,9 +33,20 @@ from phoid.io._format import (
     show,
     unknown_hint,
 )
+from phoid.io.containers import CONTAINER_SUFFIXES, container_suffix, read_container
 from phoid.io.datafile import read_csv
 from phoid.io.manifest import read_manifest
 from phoid.io.records import ExperimentSet, Run
+from phoid.io.tracking import (
+    TRACKING_LOOP_KEYS,
+    check_estimator,
+    check_fixed,
+    check_tracking_loop,
+    tracking_run_spec,
+)
+
+_TRACKING_ONLY_TOP = ("estimator", "fixed")
+_TRACKING_ONLY_RUN = ("gain", "command_gain", "columns")
 
 __all__ = ["read_experiment"]
 
@@ -94,11 +105,22 @@ def read_experiment(path: str | os.PathLike[str]) -> ExperimentSet:
     title = doc.get("title")
     if title is not None and not isinstance(title, str):
         fail(where, f"key 'title' must be a string; got {show(title)} ({kind_of(title)})")
+    tracking = method == "tracking"
+    for key in _TRACKING_ONLY_TOP:
+        if key in doc and not tracking:
+            fail(where, _tracking_only(key, method))
+    if tracking and "mass" in doc:
+        fail(where, "key 'mass' is not read in a tracking set: give the known mass as "
+                     "[fixed] m")
+    estimator = check_estimator(where, doc.get("estimator")) if tracking else None
+    fixed = check_fixed(where, doc.get("fixed")) if tracking else {}
     mass = optional_number(where, "mass", doc.get("mass"), minimum=0.0, strict=True)
     loop = doc.get("loop", {})
     if not isinstance(loop, dict):
         fail(where, f"'loop' must be a table ([loop]); got {kind_of(loop)}")
-    case_clash(f"{where}: [loop]", loop, LOOP_KEYS, "[loop]")
+    case_clash(f"{where}: [loop]", loop, TRACKING_LOOP_KEYS if tracking else LOOP_KEYS,
+               "[loop]")
+    loop_gains = check_tracking_loop(where, loop)[1] if tracking else {}
     delay = optional_number(f"{where}: [loop]", "delay", loop.get("delay"), minimum=0.0)
 
     tables = doc.get("run")
@@ -110,31 +132,35 @@ def read_experiment(path: str | os.PathLike[str]) -> ExperimentSet:
     if not tables:
         fail(where, "no runs: 'run' is empty")
 
-    specs = [_run_spec(where, i, table, method) for i, table in enumerate(tables, start=1)]
+    specs = [_run_spec(where, i, table, method, loop_gains)
+             for i, table in enumerate(tables, start=1)]
     folder = manifest.parent
     root = _resolve(where, folder)
-    seen: dict[Path, str] = {}
-    inodes: dict[tuple[int, int], dict[str, Any]] = {}
+    seen: dict[Any, str] = {}
+    inodes: dict[Any, dict[str, Any]] = {}
     for spec in specs:
         rwhere = f"{where}: {spec['name']}"
-        real, st = _data_path(rwhere, folder, root, spec["file"])
-        if real in seen:
-            fail(rwhere, f"file {show(spec['file'], 100)} is already used by {seen[real]}")
-        other = inodes.get((st.st_dev, st.st_ino))
+        real, st = _data_path(rwhere, folder, root, spec["file"], tracking)
+        # one container file may hold several runs, each under its own variable names
+        part = tuple(spec["columns"].items()) if spec["container"] else ()
+        if (real, part) in seen:
+            fail(rwhere, f"file {show(spec['file'], 100)} is already used by "
+                          f"{seen[(real, part)]}" + (" with the same [run.columns]" if part
+                                                     else ""))
+        other = inodes.get((st.st_dev, st.st_ino, part))
         if other is not None:
             fail(rwhere, f"file {show(spec['file'], 100)} is a hard link to "
                           f"{show(other['file'], 100)} of {other['name']}: the same recording "
                           "would be counted twice; list each recording once")
-        seen[real] = spec["name"]
-        inodes[(st.st_dev, st.st_ino)] = spec
+        seen[(real, part)] = spec["name"]
+        inodes[(st.st_dev, st.st_ino, part)] = spec
         spec["where"], spec["real"] = rwhere, real
 
     runs = []
     digests: dict[bytes, dict[str, Any]] = {}
     budget = limits.MAX_SET_ROWS
     for spec in specs:
-        cols, digest = read_csv(spec["where"], spec["real"], spec["file"],
-                                 need_F=(method == "forced"), max_rows=budget)
+        cols, digest = _read_data(spec, method, budget)
         budget -= cols["t"].size
         other = digests.get(digest)
         if other is not None:
@@ -146,17 +172,49 @@ def read_experiment(path: str | os.PathLike[str]) -> ExperimentSet:
         try:
             runs.append(Run(file=spec["file"], index=spec["index"], extra=spec["extra"],
                             P=spec["P"], D=spec["D"], B=spec["B"], omega=spec["omega"],
-                            added_mass=spec["added_mass"], bias=spec["bias"], **cols))
+                            added_mass=spec["added_mass"], bias=spec["bias"],
+                            gain=spec["gain"], command_gain=spec["command_gain"], **cols))
         except ExperimentError as exc:  # pragma: no cover - the reader checks first
             fail(where, str(exc))
     try:
+        # the set checks what needs every run: a tracking run's samples against its loop
         return ExperimentSet(path=manifest, runs=tuple(runs), method=method, delay=delay,
                              title=title, mass=mass, loop=loop,
-                             extra={k: v for k, v in doc.items() if k not in TOP_KEYS})
-    except ExperimentError as exc:  # pragma: no cover - the reader checks first
+                             extra={k: v for k, v in doc.items() if k not in TOP_KEYS},
+                             estimator=estimator, fixed=fixed)
+    except ExperimentError as exc:
         raise ExperimentError(str(exc)) from None
 
-def _run_spec(where: str, index: int, table: dict[str, Any], method: str) -> dict[str, Any]:
+
+def _tracking_only(key: str, method: str) -> str:
+    return (f"key {key!r} belongs to tracking sets (method = \"tracking\"); this set's "
+            f"method is {method!r}")
+
+
+def _read_data(spec: dict[str, Any], method: str, budget: int
+               ) -> tuple[dict[str, Any], bytes]:
+    """Read one run's data file; for a tracking run, resolve its gains (into ``spec``)."""
+    if method != "tracking":
+        return read_csv(spec["where"], spec["real"], spec["file"], need_F=(method == "forced"),
+                        max_rows=budget)
+    required = ("t", "x", "r", *spec["explicit"])
+    gains = spec["gains"]
+    if spec["container"]:
+        names = {k: v[0] for k, v in gains.items() if isinstance(v, tuple)}
+        cols, values, digest = read_container(
+            spec["where"], spec["real"], spec["file"], columns=spec["columns"],
+            required=required, scalars=names, max_rows=budget)
+    else:
+        cols, digest = read_csv(spec["where"], spec["real"], spec["file"], max_rows=budget,
+                                columns=spec["columns"], required=required)
+        values = {}
+    for key in ("P", "D", "gain", "command_gain"):
+        value = gains.get(key, 1.0)
+        spec[key] = values[key] if isinstance(value, tuple) else value
+    return cols, digest
+
+def _run_spec(where: str, index: int, table: dict[str, Any], method: str,
+              loop_gains: dict[str, Any]) -> dict[str, Any]:
     """Check one [[run]] table (before any data is read)."""
     file = table.get("file")
     name = f"run {index}" + (f" ({printable(file, 80)})" if isinstance(file, str) and file
@@ -169,12 +227,22 @@ def _run_spec(where: str, index: int, table: dict[str, Any], method: str) -> dic
         fail(rwhere, f"key 'file' must be a string; got {show(file)} ({kind_of(file)})")
     if not file.strip():
         fail(rwhere, "key 'file' is empty")
+    if method == "tracking":
+        container = container_suffix(file) is not None
+        spec = tracking_run_spec(rwhere, table, loop_gains, container)
+        spec.update(file=file, index=index, name=name, container=container, B=None,
+                    omega=None, added_mass=0.0, bias=0.0)
+        return spec
+    for key in _TRACKING_ONLY_RUN:
+        if key in table:
+            fail(rwhere, _tracking_only(key, method))
     if method == "pho":
         for key in ("P", "D"):
             if key not in table:
                 fail(rwhere, f"missing key '{key}': a pho run needs the gains P (N/m) and "
                               f"D (N·s/m){unknown_hint(table, RUN_KEYS)}")
-    spec: dict[str, Any] = {"file": file, "index": index, "name": name}
+    spec: dict[str, Any] = {"file": file, "index": index, "name": name, "container": False,
+                            "gain": None, "command_gain": None}
     for key in ("P", "D", "B"):
         spec[key] = optional_number(rwhere, key, table.get(key))
     spec["omega"] = optional_number(rwhere, "omega", table.get("omega"), minimum=0.0,
@@ -193,9 +261,10 @@ def _resolve(where: str, path: Path) -> Path:
         fail(where, f"cannot resolve {show(str(path), 200)}: {exc}")
 
 
-def _data_path(where: str, folder: Path, root: Path, file: str) -> tuple[Path, os.stat_result]:
+def _data_path(where: str, folder: Path, root: Path, file: str, tracking: bool = False
+               ) -> tuple[Path, os.stat_result]:
     """The data file's resolved path and status, after checking that it stays inside the set's
-    folder and is a regular file."""
+    folder and is a regular file (a tracking set's may be a container, .mat/.h5/.parquet)."""
     shown = show(file, 100)
     if "\x00" in file:
         fail(where, "key 'file' contains a NUL character")
@@ -207,8 +276,14 @@ def _data_path(where: str, folder: Path, root: Path, file: str) -> tuple[Path, o
                      f"got the absolute path {shown}")
     if ".." in posix.parts:
         fail(where, f"file {shown} escapes the set's folder ('..' is not allowed)")
-    if not file.lower().endswith((".csv", ".csv.gz")):
-        fail(where, f"file {shown} must end in .csv or .csv.gz")
+    if tracking and container_suffix(file) is None \
+            and not file.lower().endswith((".csv", ".csv.gz")):
+        fail(where, f"file {shown} must end in .csv, .csv.gz, "
+                     f"{', '.join(CONTAINER_SUFFIXES)} (the format it holds)")
+    if not tracking and not file.lower().endswith((".csv", ".csv.gz")):
+        hint = (" (MATLAB, HDF5 and Parquet files are read in tracking sets only)"
+                if container_suffix(file) else "")
+        fail(where, f"file {shown} must end in .csv or .csv.gz{hint}")
     real = _resolve(where, folder / file)
     if not real.is_relative_to(root):
         fail(where, f"file {shown} escapes the set's folder (it resolves to "

@@ -31,13 +31,15 @@ from phoid.io._format import (
     show,
     unknown_hint,
 )
+from phoid.io.tracking import check_estimator, check_fixed, check_tracking_loop, min_samples
 
 __all__ = ["ExperimentSet", "Run", "run_from_arrays"]
 
 
 @dataclass(frozen=True, eq=False, repr=False)
 class Run:
-    """One recorded run: a free decay (``pho``, ``free``) or a forced response (``forced``).
+    """One recorded run: a free decay (``pho``, ``free``), a forced response (``forced``) or a
+    record of a loop tracking a reference (``tracking``).
 
     Arrays are stored as read-only float64 copies (an array that already is read-only, 1-D,
     C-contiguous float64 is kept as it is). Construction validates everything it can check
@@ -58,9 +60,11 @@ class Run:
     F : numpy.ndarray or None
         External (forcing) force (N); required for forced runs.
     P : float or None
-        Proportional gain of the run (N/m); required for ``pho`` runs.
+        Proportional gain of the run (N/m); required for ``pho`` runs. In a tracking run, the
+        controller's P (command units per m), resolved to a number; required.
     D : float or None
-        Derivative gain of the run (N·s/m); required for ``pho`` runs.
+        Derivative gain of the run (N·s/m); required for ``pho`` runs. In a tracking run, the
+        controller's D (command units per m/s), resolved to a number; required.
     B : float or None
         Forcing amplitude (N), forced runs, optional (else taken from ``F``).
     omega : float or None
@@ -74,6 +78,16 @@ class Run:
         1-based position of the run in the manifest (0: not from a manifest).
     extra : Mapping[str, Any]
         Keys of the run's table that phoid/1 does not define, kept as read.
+    r : numpy.ndarray or None
+        Tracking runs: the reference position (m) at the samples; required there.
+    w : numpy.ndarray or None
+        Tracking runs: the additive command input (command units), optional.
+    gain : float or None
+        Tracking runs: the controller's gain K (u = K·(P·(r − x) − D·v̂)), finite, non-zero;
+        the reader gives 1.0 when the manifest does not. None in other sets.
+    command_gain : float or None
+        Tracking runs: G, the force per command unit (N per command unit; F = G·(sat(u) + w)),
+        finite, non-zero; the reader gives 1.0 when the manifest does not. None in other sets.
     """
 
     file: str
@@ -89,6 +103,10 @@ class Run:
     bias: float = 0.0
     index: int = 0
     extra: Mapping[str, Any] = field(default_factory=FrozenMap)
+    r: np.ndarray | None = None
+    w: np.ndarray | None = None
+    gain: float | None = None
+    command_gain: float | None = None
 
     def __post_init__(self) -> None:
         if not isinstance(self.file, str):
@@ -109,7 +127,7 @@ class Run:
         set_ = object.__setattr__
         set_(self, "t", t)
         set_(self, "x", frozen_array(where, "x", self.x, t.size))
-        for name in ("u", "F"):
+        for name in ("u", "F", "r", "w"):
             value = getattr(self, name)
             if value is not None:
                 set_(self, name, frozen_array(where, name, value, t.size))
@@ -118,6 +136,11 @@ class Run:
         set_(self, "B", optional_number(where, "B", self.B))
         set_(self, "omega", optional_number(where, "omega", self.omega, minimum=0.0,
                                              strict=True))
+        for name in ("gain", "command_gain"):
+            value = optional_number(where, name, getattr(self, name))
+            if value == 0.0:
+                fail(where, f"key {name!r} is 0: the command would not reach the plant")
+            set_(self, name, value)
         set_(self, "added_mass", checked_number(where, "added_mass", self.added_mass, minimum=0.0))
         set_(self, "bias", checked_number(where, "bias", self.bias, minimum=0.0))
         set_(self, "extra", checked_extra(where, self.extra, RUN_KEYS, "the run's table"))
@@ -134,9 +157,11 @@ class Run:
         return int(self.t.size)
 
     def __repr__(self) -> str:
-        gains = ", ".join(f"{k}={getattr(self, k)!r}" for k in ("P", "D", "B", "omega")
+        gains = ", ".join(f"{k}={getattr(self, k)!r}" for k in ("P", "D", "B", "omega", "gain",
+                                                                 "command_gain")
                           if getattr(self, k) is not None)
-        cols = "t,x" + (",u" if self.u is not None else "") + (",F" if self.F is not None else "")
+        cols = "t,x" + "".join(f",{k}" for k in ("r", "u", "w", "F")
+                               if getattr(self, k) is not None)
         return (f"Run({self.name}: {self.n} samples of {cols}, t = {self.t[0]:g}…{self.t[-1]:g}"
                 f" s{', ' + gains if gains else ''})")
 
@@ -146,7 +171,8 @@ class ExperimentSet:
     """An experiment set: the manifest's settings and its runs, in manifest order.
 
     Construction checks the settings and what the method requires of every run (``pho``:
-    ``P`` and ``D``; ``forced``: an ``F`` column); raises
+    ``P`` and ``D``; ``forced``: an ``F`` column; ``tracking``: ``P``, ``D``, an ``r`` column,
+    the ``[loop]`` keys and enough samples for the velocity estimator); raises
     :class:`~phoid.errors.ExperimentError`.
 
     Attributes
@@ -155,7 +181,7 @@ class ExperimentSet:
         The manifest's path (as given, not resolved).
     runs : tuple of Run
         The runs, at least one.
-    method : {"pho", "forced", "free"}
+    method : {"pho", "forced", "free", "tracking"}
         How the runs were excited.
     delay : float or None
         Feedback-loop delay Δt (s, ≥ 0) from ``[loop] delay``; None when omitted (to be
@@ -165,9 +191,16 @@ class ExperimentSet:
     mass : float or None
         Known mass (kg, > 0), top-level ``mass`` key (format extension, for free decays).
     loop : Mapping[str, Any]
-        The whole ``[loop]`` table as read (future keys kept).
+        The whole ``[loop]`` table as read (future keys kept; a tracking set's gains as given,
+        numbers or variable names: each run carries them resolved).
     extra : Mapping[str, Any]
         Unknown top-level keys of the manifest, kept as read.
+    estimator : {"auto", "idim", "output-error"} or None
+        Tracking sets: the top-level ``estimator`` (default ``"auto"``); None in other sets.
+    fixed : Mapping[str, float]
+        Tracking sets: the ``[fixed]`` table, parameters known rather than estimated (any of
+        ``m`` (kg, > 0), ``c`` (N·s/m), ``k`` (N/m), ``fc`` (N, ≥ 0), ``offset`` (N)); empty
+        otherwise.
     """
 
     path: Path
@@ -178,6 +211,8 @@ class ExperimentSet:
     mass: float | None = None
     loop: Mapping[str, Any] = field(default_factory=FrozenMap)
     extra: Mapping[str, Any] = field(default_factory=FrozenMap)
+    estimator: str | None = None
+    fixed: Mapping[str, float] = field(default_factory=FrozenMap)
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__
@@ -213,6 +248,35 @@ class ExperimentSet:
                 fail(where, f"`runs` must hold Run objects; got {kind_of(r)}")
             _check_method_needs(f"{where}: {r.name}", r, self.method)
         set_(self, "runs", runs)
+        if self.method == "tracking":
+            self._check_tracking(where)
+        else:
+            for key, empty in (("estimator", self.estimator is None),
+                               ("fixed", not self.fixed)):
+                if not empty:
+                    fail(where, f"key {key!r} belongs to tracking sets (method = "
+                                 f"\"tracking\"); this set's method is {self.method!r}")
+
+    def _check_tracking(self, where: str) -> None:
+        set_ = object.__setattr__
+        set_(self, "estimator", check_estimator(where, self.estimator))
+        set_(self, "fixed", freeze(check_fixed(where, self.fixed)))
+        if self.mass is not None:
+            fail(where, "key 'mass' is not read in a tracking set: give the known mass as "
+                         "[fixed] m")
+        taps, _gains = check_tracking_loop(where, self.loop)
+        need = min_samples(taps)
+        for r in self.runs:
+            rwhere = f"{where}: {r.name}"
+            if r.n < need:
+                fail(rwhere, f"{r.n} samples; a tracking run needs at least {need}: the "
+                              f"velocity estimator uses {taps} earlier sample(s), so one "
+                              f"estimate takes {taps + 1}, and phoid reads no tracking run "
+                              f"shorter than {min_samples(0)}")
+            if self.estimator == "idim" and r.u is None:
+                fail(rwhere, "estimator = 'idim' needs the recorded command u in every run; "
+                              "this run has none (map it in [run.columns], or use "
+                              "'output-error')")
 
     @property
     def folder(self) -> Path:
@@ -229,7 +293,23 @@ class ExperimentSet:
 
 
 def _check_method_needs(where: str, run: Run, method: str) -> None:
-    if method == "pho":
+    if method != "tracking":
+        for key in ("r", "w", "gain", "command_gain"):
+            if getattr(run, key) is not None:
+                fail(where, f"{key!r} belongs to tracking runs (method = \"tracking\"); this "
+                             f"set's method is {method!r}")
+    if method == "tracking":
+        for key in ("P", "D"):
+            if getattr(run, key) is None:
+                fail(where, f"missing key '{key}': a tracking run needs the gains P and D")
+        if run.r is None:
+            fail(where, "missing column 'r': a tracking run needs the reference r (m)")
+        for key, unset in (("B", run.B is None), ("omega", run.omega is None),
+                           ("added_mass", run.added_mass == 0.0), ("bias", run.bias == 0.0)):
+            if not unset:
+                fail(where, f"key {key!r} has no meaning in a tracking set (method = "
+                             "\"tracking\")")
+    elif method == "pho":
         for key in ("P", "D"):
             if getattr(run, key) is None:
                 hint = unknown_hint(run.extra, ())
@@ -254,6 +334,10 @@ def run_from_arrays(
     file: str = "",
     index: int = 0,
     extra: Mapping[str, Any] | None = None,
+    r: Any = None,
+    w: Any = None,
+    gain: float | None = None,
+    command_gain: float | None = None,
 ) -> Run:
     """Make a :class:`Run` from arrays, checked as the reader checks a data file.
 
@@ -280,6 +364,12 @@ def run_from_arrays(
         1-based position in a set, for messages.
     extra : Mapping, optional
         Unknown run keys to keep.
+    r, w : array_like, optional
+        Tracking runs: the reference (m) and the additive command input (command units),
+        same length as ``t``.
+    gain, command_gain : float, optional
+        Tracking runs: the controller's gain K and the force per command unit G (N per
+        command unit), finite and non-zero.
 
     Returns
     -------
@@ -299,4 +389,5 @@ def run_from_arrays(
     """
     return Run(file=file, t=t, x=x, u=u, F=F, P=P, D=D, B=B, omega=omega,
                added_mass=added_mass, bias=bias, index=index,
-               extra=FrozenMap() if extra is None else extra)
+               extra=FrozenMap() if extra is None else extra, r=r, w=w, gain=gain,
+               command_gain=command_gain)

@@ -38,13 +38,15 @@ def write_experiment(
     gzip: bool = True,
     names: Sequence[str] | None = None,
     overwrite: bool = False,
+    estimator: str | None = None,
+    fixed: Mapping[str, float] | None = None,
 ) -> Path:
     """Write an experiment set in the ``phoid/1`` format.
 
-    Writes one data file per run (columns ``t,x`` and, where the run has them, ``u`` and
-    ``F``; every number in the shortest form that reads back to the same double) and then the
-    manifest ``experiment.toml``. :func:`read_experiment` on the result gives bitwise-equal
-    arrays.
+    Writes one data file per run (columns ``t,x`` and, where the run has them, ``r``, ``u``,
+    ``w`` and ``F``; every number in the shortest form that reads back to the same double) and
+    then the manifest ``experiment.toml``. :func:`read_experiment` on the result gives
+    bitwise-equal arrays.
 
     Parameters
     ----------
@@ -55,8 +57,10 @@ def write_experiment(
     runs : iterable of Run, or ExperimentSet
         The runs, in manifest order. With an :class:`ExperimentSet`, every keyword left at
         None below is taken from the set.
-    method : {"pho", "forced", "free"}, optional
-        Default ``"pho"``.
+    method : {"pho", "forced", "free", "tracking"}, optional
+        Default ``"pho"``. A tracking set is written with CSV data files and every run's
+        resolved gains (``P``, ``D``, ``gain``, ``command_gain``) in its ``[[run]]`` table;
+        ``[loop]`` keeps the loop's other keys.
     delay : float, optional
         Loop delay Δt (s, ≥ 0), written as ``[loop] delay``; omitted when None.
     title : str, optional
@@ -76,6 +80,10 @@ def write_experiment(
     overwrite : bool, default False
         Replace existing regular files; otherwise an existing manifest or data file is an
         error. Links are refused either way.
+    estimator : {"auto", "idim", "output-error"}, optional
+        Tracking sets: the top-level ``estimator``.
+    fixed : Mapping, optional
+        Tracking sets: the ``[fixed]`` table (known ``m``, ``c``, ``k``, ``fc``, ``offset``).
 
     Returns
     -------
@@ -101,13 +109,18 @@ def write_experiment(
         mass = src.mass if mass is None else mass
         loop = src.loop if loop is None else loop
         extra = src.extra if extra is None else extra
+        estimator = src.estimator if estimator is None else estimator
+        fixed = src.fixed if fixed is None else fixed
         runs = src.runs
     run_list = list(runs)
     for r in run_list:
         if not isinstance(r, Run):
             fail(where, f"`runs` must hold Run objects; got {kind_of(r)}")
     method = "pho" if method is None else method
-    loop_table = {k: v for k, v in (loop or {}).items() if k != "delay"}
+    # a tracking set's runs carry their gains resolved: the loop's (maybe variable names of
+    # another file format) are not written
+    dropped = ("delay", "P", "D", "gain", "command_gain") if method == "tracking" else ("delay",)
+    loop_table = {k: v for k, v in (loop or {}).items() if k not in dropped}
     if delay is not None:
         loop_table["delay"] = delay
     elif loop is not None and "delay" in loop:
@@ -144,7 +157,8 @@ def write_experiment(
     placed = tuple(dataclasses.replace(r, file=f, index=i)
                    for i, (r, f) in enumerate(zip(run_list, files, strict=True), start=1))
     exp = ExperimentSet(path=manifest, runs=placed, method=method, delay=None,
-                        title=title, mass=mass, loop=loop_table, extra=extra or {})
+                        title=title, mass=mass, loop=loop_table, extra=extra or {},
+                        estimator=estimator, fixed=fixed or {})
     # every target checked before the first is written: no links followed, nothing replaced
     # without `overwrite` (phoid._output)
     out = OutputFolder(folder, overwrite=overwrite, error=ExperimentError)
@@ -157,13 +171,17 @@ def write_experiment(
     doc["method"] = exp.method
     if exp.mass is not None:
         doc["mass"] = exp.mass
+    if exp.estimator is not None:
+        doc["estimator"] = exp.estimator
+    if exp.fixed:
+        doc["fixed"] = thaw(exp.fixed)
     doc.update(thaw(exp.extra))
     if exp.loop:
         doc["loop"] = thaw(exp.loop)
     tables = []
     for run in exp.runs:
         table: dict[str, Any] = {"file": run.file}
-        for key in ("P", "D", "B", "omega"):
+        for key in ("P", "D", "B", "omega", "gain", "command_gain"):
             if getattr(run, key) is not None:
                 table[key] = getattr(run, key)
         if run.added_mass != 0.0:
@@ -201,8 +219,8 @@ def _dump_manifest(doc: dict[str, Any], tables: list[dict[str, Any]]) -> str:
 
 
 def _csv_bytes(run: Run) -> bytes:
-    """The run's data file: header ``t,x[,u][,F]``, shortest round-trip numbers."""
-    names = ["t", "x"] + [k for k in ("u", "F") if getattr(run, k) is not None]
+    """The run's data file: header ``t,x[,r][,u][,w][,F]``, shortest round-trip numbers."""
+    names = ["t", "x"] + [k for k in ("r", "u", "w", "F") if getattr(run, k) is not None]
     table = np.column_stack([getattr(run, k) for k in names])
     cells = table.astype(str)  # numpy's shortest repr: parses back to the same double
     lines = "\n".join(map(",".join, cells.tolist()))

@@ -1,0 +1,132 @@
+"""A MATLAB v5 file's structure, checked before :func:`scipy.io.loadmat` reads its values.
+
+scipy's MAT v5 reader trusts the data type in the tag of a variable's values: a tag with an
+invalid type (one corrupted byte) makes it index past a table and crash the interpreter with a
+segmentation fault (scipy 1.17), where every other damage raises an exception. So, before
+scipy reads any value, this module walks the file's top-level elements as scipy does (from
+byte 128, each element's tag giving the next one's position), decodes the header of every
+numeric variable (decompressing at most :data:`HEAD` bytes of a compressed one) and checks the
+tags of its values: a numeric data type, as many bytes as its dimensions need. Documented in
+the MAT-file format (MathWorks, "MAT-File Format", version 7, chapter 1).
+"""
+
+from __future__ import annotations
+
+import struct
+import zlib
+from typing import BinaryIO
+
+from phoid.io._format import fail, show
+
+__all__ = ["HEAD", "check_mat5"]
+
+HEAD = 1 << 16
+"""Most bytes of one variable's header decoded (flags, dimensions, name, first value tags)."""
+
+_MI_MATRIX, _MI_COMPRESSED = 14, 15
+_ITEMSIZE = {1: 1, 2: 1, 3: 2, 4: 2, 5: 4, 6: 4, 7: 4, 9: 8, 12: 8, 13: 8}  # numeric mi types
+_NUMERIC_CLASSES = range(6, 16)  # mxDOUBLE … mxUINT64
+_MAX_DIMS = 32
+
+
+def check_mat5(where: str, f: BinaryIO, size: int) -> None:
+    """Refuse a MATLAB v5 file whose numeric variables' value tags scipy could not survive.
+
+    Raises :class:`~phoid.errors.ExperimentError` naming the variable (or the file offset)
+    at fault. Other damage (bad headers, cut files) is left to scipy, which raises on it.
+    """
+    f.seek(126)
+    endian = ">" if f.read(2) == b"MI" else "<"
+    pos = 128
+    while pos + 8 <= size:
+        f.seek(pos)
+        mdtype, nbytes = struct.unpack(endian + "II", f.read(8))
+        if nbytes == 0:
+            return  # scipy stops here with an error of its own
+        if mdtype == _MI_COMPRESSED:
+            body = _inflate(where, f, nbytes, pos)
+            if len(body) < 8:
+                return
+            mdtype = struct.unpack(endian + "I", body[:4])[0]
+            body = body[8:]
+        elif mdtype == _MI_MATRIX:
+            body = f.read(min(nbytes, HEAD))
+        else:
+            return  # scipy raises "Expecting miMATRIX type here"
+        if mdtype == _MI_MATRIX:
+            _check_matrix(where, body, endian, pos)
+        pos += 8 + nbytes
+
+
+def _inflate(where: str, f: BinaryIO, nbytes: int, pos: int) -> bytes:
+    """The first HEAD bytes (at most) of a compressed element, reading its input in blocks."""
+    d = zlib.decompressobj()
+    out = b""
+    left = nbytes
+    try:
+        while left and len(out) < HEAD:
+            chunk = f.read(min(left, 1 << 14))
+            if not chunk:
+                break
+            left -= len(chunk)
+            out += d.decompress(chunk, HEAD - len(out))
+            while d.unconsumed_tail and len(out) < HEAD:
+                out += d.decompress(d.unconsumed_tail, HEAD - len(out))
+            if d.eof:
+                break
+    except zlib.error as exc:
+        fail(where, f"the MATLAB file's compressed element at byte {pos} is damaged: {exc}")
+    return out
+
+
+def _element(body: bytes, at: int, endian: str) -> tuple[int, int, int, int] | None:
+    """(type, byte count, data offset, next offset) of the element at ``at``; None past the
+    decoded bytes. A small element (byte count in the tag's upper half) holds ≤ 4 bytes."""
+    if at + 8 > len(body):
+        return None
+    first, second = struct.unpack(endian + "II", body[at:at + 8])
+    if first >> 16:
+        return first & 0xFFFF, first >> 16, at + 4, at + 8
+    return first, second, at + 8, at + 8 + second + (-second) % 8
+
+
+def _check_matrix(where: str, body: bytes, endian: str, pos: int) -> None:
+    """Check the value tags of one numeric miMATRIX (``body`` follows its tag).
+
+    A numeric variable's header (flags, at most 32 dimensions, a name of at most 63
+    characters) takes a few hundred bytes; one that does not fit in its element, or in
+    :data:`HEAD` bytes, is damaged.
+    """
+    damaged = f"the MATLAB variable at byte {pos} has a damaged header: the file is damaged"
+    if len(body) < 16:
+        fail(where, damaged)
+    flags = struct.unpack(endian + "I", body[8:12])[0]
+    if (flags & 0xFF) not in _NUMERIC_CLASSES or flags & 0x0200:  # logical: refused later
+        return
+    dims = _element(body, 16, endian)
+    if dims is None or dims[0] != 5 or dims[1] > 4 * _MAX_DIMS or dims[2] + dims[1] > len(body):
+        fail(where, damaged)
+    shape = struct.unpack(endian + f"{dims[1] // 4}i", body[dims[2]:dims[2] + dims[1] // 4 * 4])
+    name_el = _element(body, dims[3], endian)
+    if name_el is None:
+        fail(where, damaged)
+    raw = body[name_el[2]:name_el[2] + name_el[1]]
+    name = show(raw.decode("utf-8", "replace"), 60)
+    count = 1
+    for d in shape:
+        count *= max(d, 0)
+    at = name_el[3]
+    for part in ("real", "imaginary") if flags & 0x0800 else ("real",):
+        values = _element(body, at, endian)
+        if values is None:
+            fail(where, f"variable {name}: the tag of its {part} values is missing: the file "
+                         "is damaged")
+        mdtype, nbytes = values[0], values[1]
+        if mdtype not in _ITEMSIZE:
+            fail(where, f"variable {name}: its {part} values have the invalid MATLAB data type "
+                         f"{mdtype} (byte {pos} of the file): the file is damaged")
+        if nbytes != count * _ITEMSIZE[mdtype]:
+            fail(where, f"variable {name}: its {part} values take {nbytes} bytes, but its "
+                         f"dimensions {'×'.join(map(str, shape))} need "
+                         f"{count * _ITEMSIZE[mdtype]}: the file is damaged")
+        at = values[3]
