@@ -486,8 +486,10 @@ def _check_stable(records, p, what) -> None:
 
 
 def _on_bound(value: float, lo: float, hi: float, scale: float) -> bool:
-    """Whether a fitted value sits on a (finite) bound, to 1e-9 of its scale."""
-    return bool(value <= lo + 1e-9 * scale or value >= hi - 1e-9 * scale)
+    """Whether a fitted value sits on a (finite) bound: within 1e-3 of its scale (for the
+    delay 1e-3·T, a microsecond at 1 kHz: no record resolves a delay that small, and the
+    optimiser stops short of an active bound by more than rounding)."""
+    return bool(value <= lo + 1e-3 * scale or value >= hi - 1e-3 * scale)
 
 
 def _warnings(names, theta, bound, corr, stderr, cov, sims, sol) -> list[str]:
@@ -510,7 +512,7 @@ def _warnings(names, theta, bound, corr, stderr, cov, sims, sol) -> list[str]:
         if bound[i]:
             if name == "delay":
                 out.append(
-                    f"the command delay ended on its bound ({theta[i] * 1e3:.4g} ms): the "
+                    f"the command delay ended on its bound ({theta[i] * 1e3:.3f} ms): the "
                     "record favours a delay outside [0, 5T], which the loop model cannot "
                     "take, so it does not determine the delay and no ± is given — give the "
                     "delay ([loop] delay, or --delay) if it is known"

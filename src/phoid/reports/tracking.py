@@ -193,7 +193,7 @@ def identification_text(result: Any) -> str:
             spread = "  (given)" if key == "delay" else "  (fixed)"
         else:
             spread = f" ± {se:.4g}"
-        lines.append(f"  {labels.get(key, key):<20}{value:>12.6g}{spread} {unit}")
+        lines.append(f"  {labels.get(key, key):<20}{value:>12.7g}{spread} {unit}")
     lines.append(f"  delay: {result.delay_source}")
     lines.append("")
     if result.estimator == "idim":
