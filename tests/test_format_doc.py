@@ -189,6 +189,60 @@ def test_the_json_example_shows_only_keys_that_identify_prints(outputs):
 
 
 # --------------------------------------------------------------------------------------------
+# tracking sets: a small record made here (a 1 kHz loop tracking a sine with reversals)
+
+
+@pytest.fixture(scope="module")
+def tracking(tmp_path_factory) -> dict[str, dict]:
+    import numpy as np
+
+    from phoid.dynamics.controller import SampledController
+    from phoid.dynamics.plant import Plant
+    from phoid.simulation.tracking import simulate_tracking
+
+    root = tmp_path_factory.mktemp("format-doc-tracking")
+    ctrl = SampledController(sample_time=1e-3, P=4000.0, D=60.0, velocity="central-difference",
+                             saturation=200.0)
+    t = 1e-3 * np.arange(1500)
+    r = 0.02 * np.sin(2 * np.pi * 1.3 * t)
+    sim = simulate_tracking(Plant(2.0, 15.0, 0.0, 1.5), ctrl, r, offset=-0.3, x_init=[0.0])
+    run = phoid.io.run_from_arrays(t, sim.x, r=r, u=sim.command, P=4000.0, D=60.0, index=1)
+    phoid.io.write_experiment(root / "set", [run], method="tracking", fixed={"k": 0.0},
+                              loop={"sample_time": 1e-3, "velocity": "central-difference",
+                                    "saturation": 200.0, "delay": 0.0})
+    out = {
+        "idim": json_of("identify", root / "set", "--json"),
+        "output-error": json_of("identify", root / "set", "--json", "--estimator",
+                                "output-error"),
+        "replay": json_of("simulate", root / "replay", "--replay", root / "set", "--m", "2",
+                          "--c", "15", "--fc", "1.5", "--offset-force", "-0.3", "--json"),
+    }
+    out["written"] = tomllib.loads((root / "replay" / "experiment.toml").read_text("utf-8"))
+    assert out["idim"]["estimator"] == "idim"
+    assert out["output-error"]["estimator"] == "output-error"
+    return out
+
+
+@pytest.mark.parametrize("name", ["idim", "output-error"])
+def test_tracking_json_keys_are_documented(tracking, name):
+    out = tracking[name]
+    sub = section("### `tracking` sets")
+    assert missing(out, sub) == [], name
+    assert missing(all_keys(out["fit"]), sub) == [], name
+    assert missing(all_keys(out["validation"]), sub) == [], name
+    # the estimate's shape (value, stderr, unit) is defined once for every method
+    assert missing(all_keys(out), section("## `phoid identify --json`")) == [], name
+
+
+def test_replay_json_and_written_keys_are_documented(tracking):
+    text = section("## What `phoid simulate` writes")
+    assert missing(tracking["replay"], text) == []
+    assert missing(all_keys(tracking["replay"]["validation"]),
+                   section("### `tracking` sets")) == []
+    assert missing(tracking["written"]["simulated"], text) == []
+
+
+# --------------------------------------------------------------------------------------------
 # what the reader recognises
 
 

@@ -151,8 +151,6 @@ def identify(
     from phoid.io import read_experiment
 
     try:
-        if no_compensation and estimator != "ols":
-            raise ValueError("--no-compensation needs --estimator ols (the eq. (35) lines)")
         exp = read_experiment(experiment)
         if exp.method == "tracking":
             if mass is not None or friction or no_compensation:
@@ -164,6 +162,8 @@ def identify(
             _print_result(result, as_json, written, plots)
             return
         estimator = "gls" if estimator is None else estimator
+        if no_compensation and estimator != "ols":
+            raise ValueError("--no-compensation needs --estimator ols (the eq. (35) lines)")
         if friction and (exp.method != "pho" or estimator != "gls" or no_compensation
                          or plots is not None):
             raise ValueError("--friction applies to pho sets, without --estimator ols, "
@@ -222,8 +222,8 @@ def _identify_other(exp, *, mass, delay, estimator, no_compensation):
     return identify_free(exp, mass=mass)
 
 
-_REPLAY_OPTIONS = {"m", "c", "k", "fc", "offset_force", "delay", "gzip", "overwrite", "plots",
-                   "as_json", "replay"}
+_REPLAY_OPTIONS = {"out", "m", "c", "k", "fc", "offset_force", "delay", "gzip", "overwrite",
+                   "plots", "as_json", "replay"}
 
 
 def _simulate_replay(ctx, out, replay, *, m, c, k, fc, offset_force, delay, gzip, overwrite,

@@ -24,6 +24,7 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
@@ -449,13 +450,24 @@ def _output_error(where, records, fixed, given):
 
 
 def _validate(rec: TrackingRecord, sim: Any) -> Any:
-    """The benchmark's validation over the simulated instants (its samples 50:end)."""
+    """The benchmark's validation (its samples 50:end) in the record's own sample numbering.
+
+    The simulation starts at the record's sample s (the estimator's taps); the s samples before
+    it are outside the compared window anyway (s ≤ 49 for every preset; a longer filter moves
+    the window's start to s).
+    """
     s = rec.start
     ctrl = rec.controller
-    t = sim.t
+    n = rec.x.size
+    t = rec.t0 + ctrl.sample_time * np.arange(n)
+    pad = np.zeros(s)
+    full = SimpleNamespace(
+        t=np.concatenate((t[:s], sim.t)), x=np.concatenate((rec.x[:s], sim.x)),
+        v=np.concatenate((pad, sim.v)), force=np.concatenate((pad, sim.force)),
+        saturated=np.concatenate((np.zeros(s, dtype=bool), sim.saturated)),
+    )
     return validate_tracking(
-        t, rec.x[s:], rec.r[s:], sim, u=None if rec.u is None else rec.u[s:],
-        w=None if rec.w is None or rec.u is None else rec.w[s:],
+        t, rec.x, rec.r, full, u=rec.u, w=None if rec.u is None else rec.w,
         command_gain=ctrl.command_gain, saturation=ctrl.saturation,
-        cutoff=min(100.0, 0.1 / ctrl.sample_time), trim=(max(49 - s, 0), 0),
+        cutoff=min(100.0, 0.1 / ctrl.sample_time), trim=(max(49, s), 0),
     )
