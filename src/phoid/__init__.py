@@ -23,6 +23,7 @@ if TYPE_CHECKING:  # the real imports, for type checkers and IDEs; at run time s
         DigitalRoots,
         LoopModes,
         Plant,
+        SampledController,
         alphas,
         characteristic_roots,
         digital_modes,
@@ -64,8 +65,12 @@ if TYPE_CHECKING:  # the real imports, for type checkers and IDEs; at run time s
         simulate_forced,
         two_frequency,
     )
+    from phoid.methods.idim import idim_ls
+    from phoid.methods.tracking import fit_tracking
+    from phoid.methods.tracking_identification import identify_tracking, replay_set
+    from phoid.methods.tracking_validation import validate_tracking
     from phoid.planning import CramerRao, Design, DesignError, PlannedRun, cramer_rao, design
-    from phoid.simulation import Simulation, simulate
+    from phoid.simulation import Simulation, TrackingSimulation, simulate, simulate_tracking
 
 __version__ = "0.1.0"
 
@@ -129,6 +134,14 @@ _LAZY: dict[str, str] = {
     "design": "phoid.planning",
     "Simulation": "phoid.simulation",
     "simulate": "phoid.simulation",
+    "SampledController": "phoid.dynamics",
+    "TrackingSimulation": "phoid.simulation",
+    "simulate_tracking": "phoid.simulation",
+    "fit_tracking": "phoid.methods",
+    "idim_ls": "phoid.methods",
+    "identify_tracking": "phoid.methods",
+    "replay_set": "phoid.methods",
+    "validate_tracking": "phoid.methods",
 }
 
 __all__ = [
@@ -158,7 +171,9 @@ __all__ = [
     "ResponseFit",
     "Run",
     "RunMode",
+    "SampledController",
     "Simulation",
+    "TrackingSimulation",
     "__version__",
     "alphas",
     "characteristic_roots",
@@ -171,6 +186,7 @@ __all__ = [
     "fit_lines",
     "fit_modes",
     "fit_response",
+    "fit_tracking",
     "forward_map",
     "free_response",
     "friction_evidence",
@@ -181,14 +197,19 @@ __all__ = [
     "identify_free",
     "identify_free_data",
     "identify_friction",
+    "identify_tracking",
+    "idim_ls",
     "inverse_map",
     "is_stable",
     "logdec",
     "read_experiment",
+    "replay_set",
     "run_from_arrays",
     "simulate",
     "simulate_forced",
+    "simulate_tracking",
     "two_frequency",
+    "validate_tracking",
     "write_experiment",
 ]
 

@@ -2,7 +2,8 @@
 
 :func:`identify` reads a set's ``method`` and hands it to the method's own pipeline: PHO sets
 to :func:`phoid.methods.identification.identify_pho`, forced and free sets to
-:func:`phoid.methods.forced.identify_forced` and :func:`phoid.methods.free.identify_free`.
+:func:`phoid.methods.forced.identify_forced` and :func:`phoid.methods.free.identify_free`,
+tracking sets to :func:`phoid.methods.tracking_identification.identify_tracking`.
 :func:`identify_data` is the PHO pipeline on plain arrays.
 """
 
@@ -18,6 +19,7 @@ from phoid.methods.pho_result import Identification
 if TYPE_CHECKING:
     from phoid.methods.forced import ForcedIdentification
     from phoid.methods.free import FreeIdentification
+    from phoid.methods.tracking_identification import TrackingIdentification
 
 __all__ = ["identify", "identify_data"]
 
@@ -26,9 +28,9 @@ def identify(
     experiment: Any,
     *,
     delay: float | None = None,
-    estimator: str = "gls",
+    estimator: str | None = None,
     compensate: bool = True,
-) -> Identification | ForcedIdentification | FreeIdentification:
+) -> Identification | ForcedIdentification | FreeIdentification | TrackingIdentification:
     """Identify m, c, k from a PHO experiment set.
 
     Parameters
@@ -37,10 +39,11 @@ def identify(
         The runs (t, x, P, D) and the loop delay (``[loop] delay``), as read by
         :func:`phoid.io.read_experiment`.
     delay : float, optional
-        Loop delay Δt (s), overriding the manifest's.
-    estimator : {"gls", "ols"}
-        ``"gls"``: the efficient weighted fit through the exact loop roots (default).
-        ``"ols"``: the paper's eq. (35) lines by ordinary least squares.
+        Loop delay Δt (s), overriding the manifest's (a tracking set: the command delay τ).
+    estimator : str, optional
+        PHO sets: ``"gls"``, the efficient weighted fit through the exact loop roots (the
+        default), or ``"ols"``, the paper's eq. (35) lines by ordinary least squares. Tracking
+        sets: ``"idim"``, ``"output-error"`` or ``"auto"`` (default: the set's ``estimator``).
     compensate : bool, default True
         Correct for the delay (eqs. 28–32). False reproduces the paper's uncompensated column
         (only with ``estimator="ols"``).
@@ -57,8 +60,15 @@ def identify(
     IdentificationError
         When the data cannot determine m, c, k (no usable runs, all gains equal, …).
     """
-    check_estimator(estimator, compensate)
     method = getattr(experiment, "method", "pho")
+    if method == "tracking":
+        if not compensate:
+            raise IdentificationError(f"{experiment.path}: `compensate` applies to PHO sets only")
+        from phoid.methods.tracking_identification import identify_tracking
+
+        return identify_tracking(experiment, delay=delay, estimator=estimator)
+    estimator = "gls" if estimator is None else estimator
+    check_estimator(estimator, compensate)
     refuse_bias(experiment, method)
     if method in ("forced", "free"):
         # the other methods of the format, with their own estimators; PHO-only options refused

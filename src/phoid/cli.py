@@ -114,11 +114,15 @@ def identify(
         "--plots", help="Write per-run fits with residuals and the eq. (35) lines (pho) or "
                         "eq. (20) lines (forced) with error bars as PNG files into this "
                         "folder.")] = None,
-    estimator: Annotated[str, typer.Option(
-        help="'gls': weighted fit of m, c, k through the exact loop roots (efficient, default); "
-             "'ols': the paper's eq. (35) lines by ordinary least squares.")] = "gls",
+    estimator: Annotated[str | None, typer.Option(
+        help="pho: 'gls', weighted fit of m, c, k through the exact loop roots (efficient, "
+             "default), or 'ols', the paper's eq. (35) lines by ordinary least squares. "
+             "tracking: 'idim' (inverse dynamics least squares on the recorded command), "
+             "'output-error' (x and r only, through the simulated loop) or 'auto' (default: "
+             "the manifest's estimator).")] = None,
     delay: Annotated[float | None, typer.Option(
-        help="Loop delay in s, overriding the manifest's [loop] delay.")] = None,
+        help="Loop delay in s, overriding the manifest's [loop] delay (tracking: the command "
+             "delay).")] = None,
     no_compensation: Annotated[bool, typer.Option(
         "--no-compensation", help="Ignore the loop delay (the paper's uncompensated column; "
                                   "only with --estimator ols).")] = False,
@@ -150,6 +154,16 @@ def identify(
         if no_compensation and estimator != "ols":
             raise ValueError("--no-compensation needs --estimator ols (the eq. (35) lines)")
         exp = read_experiment(experiment)
+        if exp.method == "tracking":
+            if mass is not None or friction or no_compensation:
+                raise ValueError("--mass, --friction and --no-compensation do not apply to "
+                                 f"tracking sets; {exp.path} is one (its [fixed] table holds "
+                                 "known parameters)")
+            result = _identify(exp, delay=delay, estimator=estimator)
+            written = result.plot(plots, overwrite=overwrite) if plots is not None else []
+            _print_result(result, as_json, written, plots)
+            return
+        estimator = "gls" if estimator is None else estimator
         if friction and (exp.method != "pho" or estimator != "gls" or no_compensation
                          or plots is not None):
             raise ValueError("--friction applies to pho sets, without --estimator ols, "
@@ -174,6 +188,11 @@ def identify(
         written = result.plot(plots, overwrite=overwrite) if plots is not None else []
     except (ValueError, OSError) as exc:
         _fail(str(exc))
+    _print_result(result, as_json, written, plots)
+
+
+def _print_result(result, as_json: bool, written, plots) -> None:
+    """The result as JSON (warnings also on stderr) or as the text report; figures written."""
     if as_json:
         typer.echo(json.dumps(result.summary(), indent=1))
         for w in result.warnings:
@@ -186,7 +205,8 @@ def identify(
 
 def _identify_other(exp, *, mass, delay, estimator, no_compensation):
     """Identify a forced or free-decay set (the PHO-only options are refused)."""
-    for flag, given in (("--delay", delay is not None), ("--estimator", estimator != "gls"),
+    for flag, given in (("--delay", delay is not None),
+                        ("--estimator", estimator not in (None, "gls")),
                         ("--no-compensation", no_compensation)):
         if given:
             raise ValueError(f"{flag} applies to pho sets only; {exp.path} is a "
@@ -200,6 +220,46 @@ def _identify_other(exp, *, mass, delay, estimator, no_compensation):
     from phoid.methods.free import identify_free
 
     return identify_free(exp, mass=mass)
+
+
+_REPLAY_OPTIONS = {"m", "c", "k", "fc", "offset_force", "delay", "gzip", "overwrite", "plots",
+                   "as_json", "replay"}
+
+
+def _simulate_replay(ctx, out, replay, *, m, c, k, fc, offset_force, delay, gzip, overwrite,
+                     plots, as_json) -> None:
+    """``phoid simulate OUT --replay SET``: the set's loop with given parameters, validated."""
+    from phoid.io import read_experiment
+    from phoid.methods.tracking_identification import replay_set
+
+    def given(name: str) -> bool:
+        return getattr(ctx.get_parameter_source(name), "name", "") != "DEFAULT"
+
+    stray = sorted(n for n in ctx.params if given(n) and n not in _REPLAY_OPTIONS)
+    if stray:
+        _fail(f"--{stray[0].replace('_', '-')} does not apply to --replay (the recorded set "
+              "gives the loop, the reference and the timing)")
+    if not given("m"):
+        _fail("--replay needs the mass: give --m (and --c, --k, --fc, --offset-force, which "
+              "are 0 when not given)")
+    params = {"m": m, "c": c if given("c") else 0.0, "k": k if given("k") else 0.0,
+              "fc": fc if given("fc") else 0.0, "offset": offset_force}
+    if given("delay"):
+        params["delay"] = delay
+    written = []
+    try:
+        exp = read_experiment(replay)
+        if exp.method != "tracking":
+            raise ValueError(f"{exp.path}: --replay needs a tracking set (method = "
+                             f"\"tracking\"); this one is {exp.method!r}")
+        result = replay_set(exp, params)
+        manifest = result.write(out, gzip=gzip, overwrite=overwrite)
+        if plots is not None:
+            written = result.plot(plots, overwrite=overwrite)
+    except (ValueError, OSError) as exc:
+        _fail(str(exc))
+    _print_result(result, as_json, written, plots)
+    typer.echo(f"simulated set written to {manifest}", err=as_json)
 
 
 def _numbers(name: str, text: str) -> list[float]:
@@ -295,6 +355,20 @@ def simulate(
     write_mass: Annotated[bool, typer.Option(
         "--write-mass", help="free: write the mass into the manifest as the known mass.")
     ] = False,
+    replay: Annotated[Path | None, typer.Option(
+        "--replay", help="A recorded tracking set: simulate its loop with --m, --c, --k, --fc, "
+                         "--offset-force (and --delay, else the set's) driven by each run's "
+                         "recorded reference from its recorded state, write the simulated "
+                         "set into OUT and print the benchmark's relative errors against the "
+                         "record (position, tracking error, velocity, force).")] = None,
+    offset_force: Annotated[float, typer.Option(
+        "--offset-force", help="--replay: constant offset force f0 of the plant, N "
+                               "(m x'' + c x' + k x + fc sign(x') + f0 = F).")] = 0.0,
+    plots: Annotated[Path | None, typer.Option(
+        "--plots", help="--replay: write measured-vs-simulated figures (PNG) into this "
+                        "folder.")] = None,
+    as_json: Annotated[bool, typer.Option(
+        "--json", help="--replay: print the validation as one JSON object.")] = False,
 ) -> None:
     """Simulate a PHO experiment and write it as a phoid/1 experiment set.
 
@@ -317,6 +391,15 @@ def simulate(
     from phoid.io import run_from_arrays, write_experiment
     from phoid.simulation import simulate as _simulate
 
+    if replay is not None:
+        _simulate_replay(ctx, out, replay, m=m, c=c, k=k, fc=fc, offset_force=offset_force,
+                         delay=delay, gzip=gzip, overwrite=overwrite, plots=plots,
+                         as_json=as_json)
+        return
+    for flag, given in (("--offset-force", offset_force != 0.0), ("--plots", plots is not None),
+                        ("--json", as_json)):
+        if given:
+            _fail(f"{flag} applies to --replay only")
     if not (math.isfinite(u_noise) and u_noise >= 0.0):
         _fail(f"--u-noise must be finite and ≥ 0 N; got {u_noise}")
     if method != "pho":

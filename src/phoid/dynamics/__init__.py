@@ -14,8 +14,17 @@ loop
     The delayed PD loop (eq. 23): gains, roots, α₁, α₂ and the forward and inverse maps.
 digital
     The sampled (digital) PD loop: exact characteristic polynomial, roots and modes.
+controller
+    The industrial sampled PD controller (reference, any velocity filter, fractional delay,
+    saturation, command gain) and its linear closed-loop poles.
 """
 
+from phoid.dynamics.controller import (
+    VELOCITY_PRESETS,
+    SampledController,
+    closed_loop_poles,
+    zoh_pieces,
+)
 from phoid.dynamics.counting import count_roots_right_of, count_roots_right_of_many
 from phoid.dynamics.digital import (
     VELOCITY_ESTIMATORS,
@@ -53,16 +62,19 @@ from phoid.dynamics.rightmost import dominant_roots, rightmost_roots, rightmost_
 
 __all__ = [
     "VELOCITY_ESTIMATORS",
+    "VELOCITY_PRESETS",
     "DelayedPD",
     "DigitalPD",
     "DigitalRoots",
     "LoopModes",
     "Plant",
+    "SampledController",
     "ZOHPlant",
     "alphas",
     "characteristic",
     "characteristic_coefficients",
     "characteristic_roots",
+    "closed_loop_poles",
     "count_roots_right_of",
     "count_roots_right_of_many",
     "digital_characteristic",
@@ -82,5 +94,6 @@ __all__ = [
     "quadratic_roots",
     "rightmost_roots",
     "rightmost_roots_many",
+    "zoh_pieces",
     "zoh_plant",
 ]

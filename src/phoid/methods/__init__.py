@@ -3,9 +3,11 @@
 ``pho`` (eq. 35 lines), the PHO pipeline (``identification``, ``pho_measure``, ``pho_release``,
 ``pho_checks``, ``pho_result``), the delay from a recorded force (``udelay``), ``friction``,
 ``forced``, ``free`` (sharing ``_modal``), ``diagnose`` and the inverse dynamics least squares of
-a tracking record (``idim``). The names below are imported from
-their modules on first use (:mod:`phoid._lazy`), so that the PHO path does not load the forced
-and friction methods.
+a tracking record (``idim``), the output-error fit of a tracking record through the simulated
+loop (``tracking``), the identification of a tracking set (``tracking_identification``) and the
+validation of a simulated tracking record against the recorded one (``tracking_validation``).
+The names below are imported from their modules on first use (:mod:`phoid._lazy`), so that the
+PHO path does not load the forced and friction methods.
 """
 
 from typing import TYPE_CHECKING
@@ -42,7 +44,7 @@ if TYPE_CHECKING:  # the real imports, for type checkers and IDEs
         identify_friction_set,
     )
     from phoid.methods.identification import identify_pho, identify_pho_data
-    from phoid.methods.idim import IDIMFit, idim_ls
+    from phoid.methods.idim import IDIMFit, idim_ls, idim_ls_runs
     from phoid.methods.pho import (
         Estimate,
         LineFit,
@@ -54,6 +56,26 @@ if TYPE_CHECKING:  # the real imports, for type checkers and IDEs
     from phoid.methods.pho_checks import DIGITAL_KEYS, read_digital_loop, refuse_bias
     from phoid.methods.pho_measure import measure_modes
     from phoid.methods.pho_result import Identification, RunMode
+    from phoid.methods.tracking import (
+        TrackingFit,
+        TrackingRecord,
+        controller_commands,
+        fit_tracking,
+        fit_tracking_runs,
+        replay,
+    )
+    from phoid.methods.tracking_identification import (
+        TrackingIdentification,
+        TrackingReplay,
+        identify_tracking,
+        replay_set,
+        run_controller,
+    )
+    from phoid.methods.tracking_validation import (
+        SignalError,
+        TrackingValidation,
+        validate_tracking,
+    )
     from phoid.methods.udelay import (
         UDelayFit,
         URun,
@@ -89,6 +111,18 @@ _EXPORTS = {
     "identify_pho_data": "phoid.methods.identification",
     "IDIMFit": "phoid.methods.idim",
     "idim_ls": "phoid.methods.idim",
+    "idim_ls_runs": "phoid.methods.idim",
+    "TrackingFit": "phoid.methods.tracking",
+    "TrackingRecord": "phoid.methods.tracking",
+    "controller_commands": "phoid.methods.tracking",
+    "fit_tracking": "phoid.methods.tracking",
+    "fit_tracking_runs": "phoid.methods.tracking",
+    "replay": "phoid.methods.tracking",
+    "TrackingIdentification": "phoid.methods.tracking_identification",
+    "TrackingReplay": "phoid.methods.tracking_identification",
+    "identify_tracking": "phoid.methods.tracking_identification",
+    "replay_set": "phoid.methods.tracking_identification",
+    "run_controller": "phoid.methods.tracking_identification",
     "Estimate": "phoid.methods.pho",
     "LineFit": "phoid.methods.pho",
     "MCKFit": "phoid.methods.pho",
@@ -101,6 +135,9 @@ _EXPORTS = {
     "measure_modes": "phoid.methods.pho_measure",
     "Identification": "phoid.methods.pho_result",
     "RunMode": "phoid.methods.pho_result",
+    "SignalError": "phoid.methods.tracking_validation",
+    "TrackingValidation": "phoid.methods.tracking_validation",
+    "validate_tracking": "phoid.methods.tracking_validation",
     "UDelayFit": "phoid.methods.udelay",
     "URun": "phoid.methods.udelay",
     "check_u": "phoid.methods.udelay",
@@ -129,15 +166,24 @@ __all__ = [
     "MCKFit",
     "ResponseFit",
     "RunMode",
+    "SignalError",
+    "TrackingFit",
+    "TrackingIdentification",
+    "TrackingRecord",
+    "TrackingReplay",
+    "TrackingValidation",
     "UDelayFit",
     "URun",
     "check_u",
     "combine",
+    "controller_commands",
     "delay_profile",
     "fit_lines",
     "fit_modes",
     "fit_response",
     "fit_run",
+    "fit_tracking",
+    "fit_tracking_runs",
     "friction_evidence",
     "identify_forced",
     "identify_forced_data",
@@ -147,13 +193,19 @@ __all__ = [
     "identify_friction_set",
     "identify_pho",
     "identify_pho_data",
+    "identify_tracking",
     "idim_ls",
+    "idim_ls_runs",
     "measure_modes",
     "probable_cause",
     "read_digital_loop",
     "refuse_bias",
+    "replay",
+    "replay_set",
+    "run_controller",
     "simulate_forced",
     "two_frequency",
     "u_skip",
+    "validate_tracking",
     "with_u",
 ]

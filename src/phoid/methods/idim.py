@@ -23,10 +23,12 @@ import numpy as np
 
 from phoid.methods.pho import Estimate
 
-__all__ = ["IDIMFit", "idim_ls"]
+__all__ = ["IDIMFit", "idim_ls", "idim_ls_runs"]
 
 _NAMES = ("M", "Fv", "Fc", "OF")
 _UNITS = ("kg", "N s/m", "N", "N")
+_ALL_UNITS = {"M": "kg", "Fv": "N s/m", "Fc": "N", "OF": "N", "k": "N/m"}
+_ALIASES = {"m": "M", "c": "Fv", "fc": "Fc", "offset": "OF"}  # phoid's names of the parameters
 _DECIMATE_ORDER = 8  # MATLAB decimate's default Chebyshev I order
 _DECIMATE_RIPPLE = 0.05  # dB
 _UNIFORM_RTOL = 1e-3  # largest |Δt − mean Δt| / mean Δt accepted as a uniform grid
@@ -59,6 +61,11 @@ class IDIMFit:
         Rows of the decimated regression.
     warnings : tuple of str
         What the user must know to read the stderrs.
+    k : Estimate or None
+        Stiffness, N/m, when fitted or fixed (:func:`idim_ls_runs`); None in the four-column
+        regression.
+    free : tuple of str
+        The fitted parameters, in the order of ``covariance``.
     """
 
     M: Estimate
@@ -71,12 +78,16 @@ class IDIMFit:
     lag1_autocorrelation: float
     n_samples: int
     warnings: tuple[str, ...] = ()
+    k: Estimate | None = None
+    free: tuple[str, ...] = _NAMES
 
     def summary(self) -> dict[str, Any]:
         """JSON-ready dict: the four estimates, the fit statistics and the warnings."""
         return {
             "method": "idim-ls",
-            "parameters": {name: getattr(self, name).to_dict() for name in _NAMES},
+            "parameters": {name: getattr(self, name).to_dict() for name in _NAMES}
+            | ({"k": self.k.to_dict()} if self.k is not None else {}),
+            "free": list(self.free),
             "covariance": np.asarray(self.covariance, dtype=float).tolist(),
             "relative_error_percent": float(self.relative_error),
             "condition_number": float(self.condition_number),
@@ -263,22 +274,31 @@ def idim_ls(t: np.ndarray, q: np.ndarray, u: np.ndarray, *, gain: float, cutoff:
     >>> [round(e.value, 2) for e in (fit.M, fit.Fv, fit.Fc, fit.OF)]
     [95.0, 200.0, 20.0, -3.0]
     """
+    t, q, u, dt, (start, end) = _check(t, q, u, gain, cutoff, order, decimation, trim, sigma)
+    X, y = _regression(t, q, gain * u, dt, cutoff, order, decimation, start, end)
+    return _solve(X[:, :4], y, sigma, _NAMES, _UNITS, fixed={})
+
+
+def _regression(t, q, force, dt, cutoff, order, decimation, start, end):
+    """The decimated regressor [q̈, q̇, sign q̇, 1, q] and force of one record (steps 1–4)."""
     from scipy import signal
 
-    t, q, u, dt, (start, end) = _check(t, q, u, gain, cutoff, order, decimation, trim, sigma)
     b, a = signal.butter(order, cutoff / (0.5 / dt))
     qf = _filtfilt(b, a, q)
     qd = np.gradient(qf, dt)
     qdd = np.gradient(qd, dt)
     keep = slice(start, t.size - end)
-    columns = np.column_stack([qdd[keep], qd[keep], np.sign(qd[keep]), np.ones(t.size)[keep]])
-    x = _decimate(columns, decimation)
-    y = _decimate(gain * u[keep], decimation)
+    columns = np.column_stack([qdd[keep], qd[keep], np.sign(qd[keep]), np.ones(t.size)[keep],
+                               qf[keep]])
+    return _decimate(columns, decimation), _decimate(force[keep], decimation)
 
+
+def _solve(x, y, sigma, names, units, fixed) -> IDIMFit:
+    """Step 5: ordinary least squares and the fit's statistics."""
     theta, _, rank, sv = np.linalg.lstsq(x, y, rcond=None)
     n, p = x.shape
     if rank < p:
-        raise ValueError("q: the record does not excite all of M, Fv, Fc, OF "
+        raise ValueError(f"q: the record does not excite all of {', '.join(names)} "
                          f"(regressor rank {rank} < {p})")
     residual = y - x @ theta
     rss = float(residual @ residual)
@@ -293,8 +313,61 @@ def idim_ls(t: np.ndarray, q: np.ndarray, u: np.ndarray, *, gain: float, cutoff:
         f"residual's lag-1 autocorrelation is {rho1:.3f}, and where it is far from 0 the "
         f"stderrs understate the real uncertainty",
     )
-    estimates = [Estimate(float(v), float(s), unit)
-                 for v, s, unit in zip(theta, stderr, _UNITS, strict=True)]
-    return IDIMFit(*estimates, covariance=covariance, relative_error=relative_error,
-                   condition_number=condition, lag1_autocorrelation=rho1, n_samples=n,
-                   warnings=warnings)
+    est = {name: Estimate(float(v), float(s), unit)
+           for name, v, s, unit in zip(names, theta, stderr, units, strict=True)}
+    for name, value in fixed.items():
+        est[name] = Estimate(float(value), 0.0, _ALL_UNITS[name])
+    return IDIMFit(est["M"], est["Fv"], est["Fc"], est["OF"], covariance=covariance,
+                   relative_error=relative_error, condition_number=condition,
+                   lag1_autocorrelation=rho1, n_samples=n, warnings=warnings,
+                   k=est.get("k"), free=tuple(names))
+
+
+def idim_ls_runs(records, *, fixed=None, cutoff: float = 100.0, order: int = 4,
+                 decimation: int = 10, trim: int | tuple[int, int] = 50,
+                 sigma: str = "ols") -> IDIMFit:
+    """IDIM-LS over several records of one axis, with known parameters held fixed.
+
+    The regressor of each record (the recipe of :func:`idim_ls`) is stacked; the model is
+    ``force = M q̈ + Fv q̇ + Fc sign(q̇) + OF + k q``, and the columns of the parameters in
+    ``fixed`` move to the left-hand side (force − value·column). The stiffness column k·q is
+    fitted only when ``k`` is not fixed (a positioning axis has none: fix ``k = 0`` to get the
+    benchmark's four-column regression).
+
+    Parameters
+    ----------
+    records : sequence of (t, q, force)
+        Sample times (s, uniform), position (m) and applied force (N) of each record.
+    fixed : mapping, optional
+        Known parameters by name: ``m``/``M`` (kg), ``c``/``Fv`` (N s/m), ``fc``/``Fc`` (N),
+        ``offset``/``OF`` (N), ``k`` (N/m).
+    cutoff, order, decimation, trim, sigma
+        As in :func:`idim_ls`.
+
+    Returns
+    -------
+    IDIMFit
+        A fixed parameter has its value and stderr 0; ``k`` is None unless fitted or fixed.
+    """
+    fixed = {_ALIASES.get(k, k): float(v) for k, v in (fixed or {}).items()}
+    for key in fixed:
+        if key not in _ALL_UNITS:
+            raise ValueError(f"fixed: unknown parameter {key!r}")
+    fixed_cols = dict(fixed)
+    Xs, ys = [], []
+    for t, q, force in records:
+        t, q, force, dt, (start, end) = _check(t, q, force, 1.0, cutoff, order, decimation,
+                                               trim, sigma)
+        X, y = _regression(t, q, force, dt, cutoff, order, decimation, start, end)
+        Xs.append(X)
+        ys.append(y)
+    X = np.vstack(Xs)
+    y = np.concatenate(ys)
+    cols = [*_NAMES, "k"]
+    for name, value in fixed_cols.items():
+        y = y - value * X[:, cols.index(name)]
+    free = [name for name in cols if name not in fixed_cols]
+    if not free:
+        raise ValueError("fixed: every parameter is fixed; nothing to fit")
+    X = X[:, [cols.index(name) for name in free]]
+    return _solve(X, y, sigma, free, [_ALL_UNITS[name] for name in free], fixed_cols)

@@ -1,5 +1,6 @@
 """phoid.reports: plain-text reports (:mod:`~phoid.reports.text`) and figures
-(:mod:`~phoid.reports.figures`, matplotlib imported only when drawing) of results.
+(:mod:`~phoid.reports.figures`, matplotlib imported only when drawing) of results, and both for
+a tracking validation (:mod:`~phoid.reports.tracking`).
 
 Results are taken by duck typing: nothing here imports the methods, planning or paper modules.
 """
@@ -18,6 +19,7 @@ from phoid.reports.text import (
     friction_text,
     identification_text,
 )
+from phoid.reports.tracking import plot_tracking, tracking_text, validation_lines
 
 __all__ = [
     "figure1",
@@ -29,5 +31,8 @@ __all__ = [
     "plot_forced",
     "plot_free",
     "plot_identification",
+    "plot_tracking",
     "save_png",
+    "tracking_text",
+    "validation_lines",
 ]

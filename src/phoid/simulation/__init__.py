@@ -17,16 +17,21 @@ _sampled
     The sampled (digital) control loop.
 _stickslip
     Coulomb friction (stick–slip) on the exact propagation.
+tracking
+    The industrial sampled PD loop tracking a reference (:func:`simulate_tracking`), exact.
 """
 
 from phoid.simulation._checks import MAX_SAMPLES, MAX_STEPS
 from phoid.simulation.response import release_response, simulate
 from phoid.simulation.result import Simulation
+from phoid.simulation.tracking import TrackingSimulation, simulate_tracking
 
 __all__ = [
     "MAX_SAMPLES",
     "MAX_STEPS",
     "Simulation",
+    "TrackingSimulation",
     "release_response",
     "simulate",
+    "simulate_tracking",
 ]

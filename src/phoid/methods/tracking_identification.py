@@ -1,0 +1,461 @@
+r"""Identification of a tracking set (``method = "tracking"``): estimate, then validate.
+
+A tracking set holds records of a PD-controlled axis following a reference (the EMPS
+benchmark's kind of data). Two estimators, chosen by the set's ``estimator`` (or the caller):
+
+* ``"idim"`` — inverse dynamics least squares (:func:`~phoid.methods.idim.idim_ls_runs`), the
+  robotics standard, when every run records the controller's output u: the force is
+  G·(u + w) (the command delayed by the loop's τ, as the plant sees it on average over a
+  period), the parameters M, Fv, Fc, OF (and k unless fixed) by ordinary least squares;
+* ``"output-error"`` — from x and r alone (:func:`~phoid.methods.tracking.fit_tracking_runs`):
+  the loop simulated exactly and fitted to the recorded x, Newey–West stderrs, the delay
+  estimated when the set does not give it;
+* ``"auto"`` (the default) — ``"idim"`` when every run records u, else ``"output-error"``.
+
+Either way each run is then **validated**: the loop simulated with the estimates, driven by the
+recorded reference from the recorded state (:func:`~phoid.methods.tracking.replay`), compared
+with the record by :func:`~phoid.methods.tracking_validation.validate_tracking` (the
+benchmark's relative errors of position, tracking error, velocity and force).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from phoid.dynamics.controller import SampledController
+from phoid.dynamics.plant import Plant
+from phoid.errors import IdentificationError
+from phoid.methods.pho import Estimate
+from phoid.methods.tracking import (
+    PARAMETERS,
+    UNITS,
+    TrackingRecord,
+    fit_tracking_runs,
+    replay,
+)
+from phoid.methods.tracking_validation import validate_tracking
+
+__all__ = [
+    "TrackingIdentification",
+    "TrackingReplay",
+    "identify_tracking",
+    "replay_set",
+    "run_controller",
+]
+
+ESTIMATORS = ("auto", "idim", "output-error")
+_IDIM_NAMES = {"m": "M", "c": "Fv", "fc": "Fc", "offset": "OF", "k": "k"}
+
+
+@dataclass(frozen=True, eq=False)
+class TrackingIdentification:
+    """The result of :func:`identify_tracking`.
+
+    Attributes
+    ----------
+    estimator : str
+        ``"idim"`` or ``"output-error"``.
+    estimates : Mapping[str, Estimate]
+        ``m`` (kg), ``c`` (N s/m), ``k`` (N/m), ``fc`` (N), ``offset`` (N), ``delay`` (s); a fixed
+        or given parameter has stderr 0.
+    delay_source : str
+        ``"given"`` (manifest or caller), ``"estimated"``, ``"confounded"`` (estimated, nearly
+        confounded with m) or ``"assumed-zero"`` (IDIM without a given delay: validation with 0).
+    fit : IDIMFit or TrackingFit
+        The estimator's own result (its statistics and warnings).
+    validations : tuple of TrackingValidation
+        One per run, with the estimates.
+    run_names : tuple of str
+    path : Path or None
+        The set's manifest.
+    warnings : tuple of str
+    """
+
+    estimator: str
+    estimates: Mapping[str, Estimate]
+    delay_source: str
+    fit: Any
+    validations: tuple[Any, ...]
+    run_names: tuple[str, ...]
+    path: Path | None
+    warnings: tuple[str, ...]
+
+    @property
+    def validation(self) -> Any:
+        """The first run's validation (the reports' default)."""
+        return self.validations[0]
+
+    def summary(self) -> dict[str, Any]:
+        """JSON-ready dict (docs/format.md, "tracking sets")."""
+        fit = self.fit.summary()
+        fit.pop("warnings", None)
+        fit.pop("parameters", None)
+        return {
+            "method": "tracking",
+            "estimator": self.estimator,
+            "parameters": {k: e.to_dict() for k, e in self.estimates.items()},
+            "delay_source": self.delay_source,
+            "fit": fit,
+            "validation": [
+                {"run": name, **v.summary()}
+                for name, v in zip(self.run_names, self.validations, strict=True)
+            ],
+            "warnings": list(self.warnings),
+        }
+
+    def report(self) -> str:
+        """Plain-text report: estimates ± stderr, the fit's statistics, the validation."""
+        from phoid.reports.tracking import identification_text
+
+        return identification_text(self)
+
+    def plot(self, folder: str | Path, *, overwrite: bool = False) -> list[Path]:
+        """One PNG per run (measured vs simulated, residual, force) into ``folder``."""
+        from phoid.reports.tracking import plot_tracking
+
+        folder = Path(folder)
+        written = []
+        for i, v in enumerate(self.validations, start=1):
+            written.append(plot_tracking(v, folder / f"tracking_run{i:02d}.png",
+                                         overwrite=overwrite))
+        return written
+
+
+def run_controller(experiment: Any, run: Any, *, delay: float | None = None) -> SampledController:
+    """The :class:`SampledController` of one run of a tracking set (loop keys, run's gains).
+
+    Parameters
+    ----------
+    experiment : phoid.io.ExperimentSet
+        A tracking set (``[loop]``: sample_time, velocity, cutoff, delay, saturation).
+    run : phoid.io.Run
+        Its run (P, D, gain, command_gain resolved to numbers by the reader).
+    delay : float, optional
+        Command delay τ (s) overriding the set's (None: the set's, or 0 when it has none).
+    """
+    loop = experiment.loop
+    T = loop.get("sample_time")
+    if T is None:
+        steps = np.diff(run.t)
+        T = float((run.t[-1] - run.t[0]) / (run.t.size - 1))
+        if np.max(np.abs(steps - T)) > 1e-3 * T:
+            raise IdentificationError(
+                f"{experiment.path}: run {run.index} ({run.file}): t is not uniformly sampled "
+                "and [loop] sample_time is not given"
+            )
+    velocity = loop.get("velocity", "backward-difference")
+    if isinstance(velocity, list):
+        velocity = tuple(velocity)
+    tau = loop.get("delay") if delay is None else delay
+    try:
+        return SampledController(
+            sample_time=T, P=run.P, D=run.D,
+            gain=1.0 if run.gain is None else run.gain,
+            command_gain=1.0 if run.command_gain is None else run.command_gain,
+            velocity=velocity, cutoff=loop.get("cutoff"),
+            delay=0.0 if tau is None else tau, saturation=loop.get("saturation"),
+        )
+    except ValueError as exc:
+        raise IdentificationError(f"{experiment.path}: run {run.index} ({run.file}): {exc}") \
+            from None
+
+
+def identify_tracking(experiment: Any, *, delay: float | None = None,
+                      estimator: str | None = None) -> TrackingIdentification:
+    """Identify m, c, k, f_c, f₀ (and τ) from a tracking set, and validate on every run.
+
+    Parameters
+    ----------
+    experiment : phoid.io.ExperimentSet
+        A ``method = "tracking"`` set as read by :func:`phoid.io.read_experiment`.
+    delay : float, optional
+        Command delay τ (s), overriding ``[loop] delay``. With neither, output error estimates it
+        (and refuses when the record does not determine it); IDIM validates with τ = 0.
+    estimator : {"auto", "idim", "output-error"}, optional
+        Overrides the set's ``estimator``.
+
+    Returns
+    -------
+    TrackingIdentification
+
+    Raises
+    ------
+    IdentificationError
+        One line naming the set (and run): a saturated recorded command (IDIM), an unstable
+        loop, a delay the record cannot determine, too short a record, …
+    """
+    where = str(experiment.path)
+    choice = estimator or getattr(experiment, "estimator", None) or "auto"
+    if choice not in ESTIMATORS:
+        raise IdentificationError(f"{where}: estimator must be one of "
+                                  f"{', '.join(map(repr, ESTIMATORS))}; got {choice!r}")
+    runs = experiment.runs
+    if choice == "auto":
+        choice = "idim" if all(r.u is not None for r in runs) else "output-error"
+    fixed = dict(getattr(experiment, "fixed", {}) or {})
+    given = delay if delay is not None else experiment.loop.get("delay")
+    if delay is not None and not (math.isfinite(delay) and delay >= 0):
+        raise IdentificationError(f"{where}: --delay must be a finite number ≥ 0 s; got {delay}")
+    ctrls = [run_controller(experiment, r, delay=given) for r in runs]
+    records = tuple(
+        TrackingRecord(x=r.x, r=r.r, controller=c, u=r.u, w=r.w, t0=float(r.t[0]),
+                       name=f"run {r.index} ({r.file})")
+        for r, c in zip(runs, ctrls, strict=True)
+    )
+    warnings: list[str] = []
+    try:
+        if choice == "idim":
+            estimates, fit, source = _idim(where, records, fixed, given)
+        else:
+            estimates, fit, source = _output_error(where, records, fixed, given)
+        values = {k: e.value for k, e in estimates.items()}
+        validations = [v for _, v in _replay_all(records, values)]
+    except ValueError as exc:
+        raise IdentificationError(f"{where}: {exc}") from None
+    warnings += list(fit.warnings)
+    if source == "assumed-zero":
+        warnings.append("no command delay given ([loop] delay): the validation simulates the "
+                        "loop with delay 0")
+    for name, v in zip((rec.name for rec in records), validations, strict=True):
+        warnings += [f"{name}: {w}" for w in v.warnings]
+    return TrackingIdentification(
+        estimator=choice, estimates=estimates, delay_source=source, fit=fit,
+        validations=tuple(validations), run_names=tuple(rec.name for rec in records),
+        path=getattr(experiment, "path", None), warnings=tuple(warnings),
+    )
+
+
+@dataclass(frozen=True, eq=False)
+class TrackingReplay:
+    """The result of :func:`replay_set`: each run simulated with given parameters and compared.
+
+    Attributes
+    ----------
+    parameters : Mapping[str, float]
+        m (kg), c (N s/m), k (N/m), fc (N), offset (N), delay (s) simulated.
+    simulations : tuple of TrackingSimulation
+    validations : tuple of TrackingValidation
+    run_names : tuple of str
+    path : Path or None
+    warnings : tuple of str
+    """
+
+    parameters: Mapping[str, float]
+    simulations: tuple[Any, ...]
+    validations: tuple[Any, ...]
+    run_names: tuple[str, ...]
+    path: Path | None
+    warnings: tuple[str, ...]
+    _inputs: tuple[Any, ...] = ()
+
+    @property
+    def validation(self) -> Any:
+        """The first run's validation."""
+        return self.validations[0]
+
+    def summary(self) -> dict[str, Any]:
+        """JSON-ready dict: the parameters and each run's validation."""
+        return {
+            "parameters": {k: float(v) for k, v in self.parameters.items()},
+            "validation": [{"run": n, **v.summary()}
+                           for n, v in zip(self.run_names, self.validations, strict=True)],
+            "warnings": list(self.warnings),
+        }
+
+    def report(self) -> str:
+        """Plain text: the parameters and each run's relative errors."""
+        from phoid.reports.tracking import validation_lines
+
+        p = self.parameters
+        lines = [f"phoid replay of {self.path}: the loop simulated with m = {p['m']:.6g} kg, "
+                 f"c = {p['c']:.6g} N s/m, k = {p['k']:.6g} N/m, fc = {p['fc']:.6g} N, offset = "
+                 f"{p['offset']:.6g} N, delay = {p['delay'] * 1e3:.6g} ms, driven by the "
+                 "recorded reference from the recorded state"]
+        for name, v in zip(self.run_names, self.validations, strict=True):
+            lines += ["", f"{name}:", *validation_lines(v)]
+        if self.warnings:
+            lines += ["", "warnings:"] + [f"  - {w}" for w in self.warnings]
+        return "\n".join(lines)
+
+    def plot(self, folder: str | Path, *, overwrite: bool = False) -> list[Path]:
+        """One PNG per run (measured vs simulated, residual, force) into ``folder``."""
+        from phoid.reports.tracking import plot_tracking
+
+        folder = Path(folder)
+        return [plot_tracking(v, folder / f"tracking_run{i:02d}.png", overwrite=overwrite)
+                for i, v in enumerate(self.validations, start=1)]
+
+    def write(self, folder: str | Path, *, gzip: bool = True, overwrite: bool = False) -> Path:
+        """Write the simulated runs as a tracking set (``phoid/1``) into ``folder``.
+
+        Columns t, x (simulated), r, u (the simulated command, before saturation) and w; each
+        run's gains and the loop as simulated; the parameters as the table ``[simulated]``
+        (with ``replay_of``, the recorded set's manifest). Returns the manifest's path.
+        """
+        from phoid.io import run_from_arrays, write_experiment
+
+        runs = []
+        for i, (sim, w) in enumerate(zip(self.simulations, self._inputs, strict=True), start=1):
+            ctrl = sim.controller
+            runs.append(run_from_arrays(sim.t, sim.x, r=sim.r, u=sim.command, w=w, P=ctrl.P,
+                                        D=ctrl.D, gain=ctrl.gain, command_gain=ctrl.command_gain,
+                                        index=i))
+        ctrl = self.simulations[0].controller
+        loop = {"sample_time": ctrl.sample_time, "delay": ctrl.delay,
+                "velocity": (ctrl.velocity if isinstance(ctrl.velocity, str)
+                             else list(ctrl.velocity))}
+        if ctrl.cutoff is not None:
+            loop["cutoff"] = ctrl.cutoff
+        if ctrl.saturation is not None:
+            loop["saturation"] = ctrl.saturation
+        simulated = {k: float(v) for k, v in self.parameters.items()}
+        if self.path is not None:
+            simulated["replay_of"] = str(self.path)
+        return write_experiment(folder, runs, method="tracking", loop=loop,
+                                extra={"simulated": simulated}, gzip=gzip,
+                                overwrite=overwrite,
+                                title="phoid simulate --replay: the loop simulated with given "
+                                      "parameters, driven by a recorded reference")
+
+
+def replay_set(experiment: Any, parameters: Mapping[str, float]) -> TrackingReplay:
+    """Simulate every run of a tracking set with given parameters and compare with the record.
+
+    Each run's loop (its gains, the set's ``[loop]``) is driven by the recorded reference from
+    the recorded state (:func:`~phoid.methods.tracking.replay`) and validated
+    (:func:`~phoid.methods.tracking_validation.validate_tracking`: the benchmark's relative
+    errors). Use it to validate a model identified on another record of the same axis.
+
+    Parameters
+    ----------
+    experiment : phoid.io.ExperimentSet
+        A ``method = "tracking"`` set.
+    parameters : mapping
+        ``m`` (kg, required), ``c`` (N s/m), ``k`` (N/m), ``fc`` (N), ``offset`` (N), each 0 when
+        absent, and ``delay`` (s; absent: the set's ``[loop] delay``, else 0).
+
+    Returns
+    -------
+    TrackingReplay
+
+    Raises
+    ------
+    IdentificationError
+        One line naming the set: an unknown parameter, a loop that diverges, …
+    """
+    where = str(experiment.path)
+    unknown = sorted(set(parameters) - set(PARAMETERS))
+    if unknown:
+        raise IdentificationError(f"{where}: unknown parameter(s) {', '.join(unknown)}; the "
+                                  f"parameters are {', '.join(PARAMETERS)}")
+    if "m" not in parameters:
+        raise IdentificationError(f"{where}: the mass m is needed to simulate the loop")
+    delay = parameters.get("delay", experiment.loop.get("delay")) or 0.0
+    values = {"c": 0.0, "k": 0.0, "fc": 0.0, "offset": 0.0, **parameters,
+              "delay": float(delay)}
+    runs = experiment.runs
+    try:
+        records = [
+            TrackingRecord(x=r.x, r=r.r, controller=run_controller(experiment, r, delay=delay),
+                           u=r.u, w=r.w, t0=float(r.t[0]), name=f"run {r.index} ({r.file})")
+            for r in runs
+        ]
+        pairs = _replay_all(records, values)
+    except ValueError as exc:
+        raise IdentificationError(f"{where}: {exc}") from None
+    warnings = [f"{rec.name}: {w}" for rec, (_, v) in zip(records, pairs, strict=True)
+                for w in v.warnings]
+    return TrackingReplay(
+        parameters=values, simulations=tuple(s for s, _ in pairs),
+        validations=tuple(v for _, v in pairs), run_names=tuple(r.name for r in records),
+        path=getattr(experiment, "path", None), warnings=tuple(warnings),
+        _inputs=tuple(None if rec.w is None else rec.w[rec.start:] for rec in records),
+    )
+
+
+def _replay_all(records, values):
+    """(simulation, validation) of each record with the parameter values given."""
+    plant = Plant(m=values["m"], c=values["c"], k=values["k"], fc=values["fc"])
+    out = []
+    for rec in records:
+        ctrl = rec.controller.with_delay(values["delay"])
+        sim = replay(rec, plant, offset=values["offset"], controller=ctrl)
+        out.append((sim, _validate(rec, sim)))
+    return out
+
+
+def _idim(where, records, fixed, given):
+    from phoid.methods.idim import idim_ls_runs
+
+    rows = []
+    for rec in records:
+        if rec.u is None:
+            raise ValueError(f"{rec.name}: estimator 'idim' needs the recorded command u")
+        ctrl = rec.controller
+        if ctrl.saturation is not None:
+            clipped = int(np.sum(np.abs(rec.u) >= ctrl.saturation))
+            if clipped:
+                raise ValueError(
+                    f"{rec.name}: u: the recorded command reaches the saturation ±"
+                    f"{ctrl.saturation:g} at {clipped} sample(s), where the force is not "
+                    "G·u; IDIM cannot use such a record (use estimator = 'output-error', "
+                    "which models the saturation)"
+                )
+        force = ctrl.command_gain * (rec.u + (0.0 if rec.w is None else rec.w))
+        force = _delayed(force, ctrl)
+        t = rec.t0 + ctrl.sample_time * np.arange(rec.x.size)
+        rows.append((t, rec.x, force))
+    # the benchmark's own script's conventions (samples 50:end, std of the residual), so that
+    # a published IDIM-LS is reproduced to its printed digits (design-notes/idim.md)
+    fit = idim_ls_runs(rows, fixed={_IDIM_NAMES[k]: v for k, v in fixed.items()
+                                    if k in _IDIM_NAMES},
+                       cutoff=min(100.0, 0.1 / records[0].controller.sample_time),
+                       trim=(49, 0), sigma="sample-std")
+    by_name = {"m": fit.M, "c": fit.Fv, "fc": fit.Fc, "offset": fit.OF}
+    by_name["k"] = fit.k if fit.k is not None else Estimate(0.0, 0.0, UNITS["k"])
+    source = "given" if given is not None else "assumed-zero"
+    by_name["delay"] = Estimate(0.0 if given is None else float(given), 0.0, UNITS["delay"])
+    return {k: by_name[k] for k in PARAMETERS}, fit, source
+
+
+def _delayed(force: np.ndarray, ctrl: SampledController) -> np.ndarray:
+    """The force the plant sees on average over each period: τ = dT + φ → (φ/T)·F_{n−d−1} +
+    (1 − φ/T)·F_{n−d} (the first samples repeat the first force)."""
+    d, phi = ctrl.delay_split
+    frac = phi / ctrl.sample_time
+    pad = np.concatenate((np.full(d + 1, force[0]), force))
+    now = pad[1: 1 + force.size]  # F_{n−d}
+    before = pad[: force.size]  # F_{n−d−1}
+    return frac * before + (1.0 - frac) * now
+
+
+def _output_error(where, records, fixed, given):
+    fit = fit_tracking_runs(records, fixed=fixed, estimate_delay=given is None)
+    if given is None and fit.delay_status == "on-bound":
+        m = fit.estimates["m"]
+        raise ValueError(
+            "the command delay cannot be estimated from this record: the best fit puts it on "
+            f"its bound, {fit.estimates['delay'].value * 1e3:.3f} ms, where no ± exists (there, "
+            f"m = {m.value:.4g} kg) — give it as [loop] delay (s) or --delay"
+        )
+    source = "given" if given is not None else fit.delay_status
+    return dict(fit.estimates), fit, source
+
+
+def _validate(rec: TrackingRecord, sim: Any) -> Any:
+    """The benchmark's validation over the simulated instants (its samples 50:end)."""
+    s = rec.start
+    ctrl = rec.controller
+    t = sim.t
+    return validate_tracking(
+        t, rec.x[s:], rec.r[s:], sim, u=None if rec.u is None else rec.u[s:],
+        w=None if rec.w is None or rec.u is None else rec.w[s:],
+        command_gain=ctrl.command_gain, saturation=ctrl.saturation,
+        cutoff=min(100.0, 0.1 / ctrl.sample_time), trim=(max(49 - s, 0), 0),
+    )
