@@ -1,5 +1,6 @@
 #!/usr/bin/env python3
-"""Fuzz phoid's readers: the manifest (TOML) and the data files (CSV, gzip).
+"""Fuzz phoid's readers: the manifest (TOML) and the data files (CSV, gzip, MATLAB, HDF5,
+Parquet).
 
 Each input is one byte that picks the target, then the bytes the target gets:
 
@@ -7,13 +8,17 @@ Each input is one byte that picks the target, then the bytes the target gets:
 - 1: the bytes are a run's data file ``run02.csv`` (plain);
 - 2: the bytes are a run's data file ``run02.csv.gz``, gzip-compressed here;
 - 3: the bytes are a run's data file ``run02.csv.gz`` as they are (raw gzip streams);
-- 4: the bytes are a schedule read by ``phoid.planning.read_schedule``.
+- 4: the bytes are a schedule read by ``phoid.planning.read_schedule``;
+- 5, 6, 7: the bytes are the data file of a tracking set's run, ``run01.mat``, ``run01.h5``
+  or ``run01.parquet`` (its gain ``P`` the file's scalar ``kp``; needs h5py and pyarrow for
+  6 and 7, and the v7.3 ``.mat`` files).
 
 The target writes the files into a temporary folder and reads the set with
 :func:`phoid.read_experiment`. Refusing the input with :class:`phoid.errors.PhoidError` (one
 printable line naming the manifest) is the expected outcome for bad input; any other exception,
 a multi-line or non-printable message, or a set that reads but breaks the reader's own
-invariants (read-only float64 columns of equal length, t strictly increasing) is a finding.
+invariants (read-only float64 columns of equal length, t strictly increasing) is a finding,
+and so is a crash of the interpreter (a library's segmentation fault).
 
 Run with atheris (coverage-guided libFuzzer, Linux x86-64 wheels)::
 
@@ -82,6 +87,15 @@ def _csv(amplitude: float) -> bytes:
     return ("t,x,u\n" + "".join(f"{a!r},{amplitude * (1 - a)!r},{-a!r}\n" for a in t)).encode()
 
 
+TRACKING = {5: ".mat", 6: ".h5", 7: ".parquet"}
+MODES = 8
+
+
+def _tracking_manifest(suffix: str) -> bytes:
+    return (f'method = "tracking"\n[[run]]\nfile = "run01{suffix}"\nP = "kp"\nD = 0.5\n'
+            ).encode()
+
+
 GOOD = {"run01.csv": _csv(1.0), "run02.csv": _csv(2.0),
         "run03.csv.gz": gzip.compress(_csv(3.0), mtime=0)}
 WORK = Path(tempfile.mkdtemp(prefix="phoid-fuzz-"))
@@ -98,7 +112,7 @@ def _check_message(exc: BaseException) -> None:
 def _check_set(exp: pio.ExperimentSet) -> None:
     for run in exp.runs:
         n = run.t.size
-        for a in (run.t, run.x, run.u, run.F):
+        for a in (run.t, run.x, run.u, run.F, run.r, run.w):
             if a is None:
                 continue
             assert a.dtype == np.float64 and a.ndim == 1 and a.size == n
@@ -111,14 +125,17 @@ def one_input(data: bytes) -> None:
     """The fuzz target: one input, as described in the module docstring."""
     if not data:
         return
-    mode, body = data[0] % 5, data[1:]
+    mode, body = data[0] % MODES, data[1:]
     folder = WORK / "set"
     if folder.exists():
         shutil.rmtree(folder)
     folder.mkdir()
     files = dict(GOOD)
     manifest = MANIFEST
-    if mode in (0, 4):
+    if mode in TRACKING:
+        manifest = _tracking_manifest(TRACKING[mode])
+        files = {f"run01{TRACKING[mode]}": body}
+    elif mode in (0, 4):
         manifest = body
     elif mode == 1:
         files["run02.csv"] = body
@@ -164,7 +181,7 @@ def mutate(rng: random.Random, data: bytes, pool: list[bytes]) -> bytes:
             j = rng.randrange(len(other) + 1)
             b[i:] = other[j:]
         elif op == 5 and len(b) > 1:
-            b[0] = rng.randrange(5)
+            b[0] = rng.randrange(MODES)
         else:
             b[i:i] = rng.choice([b"nan", b"inf", b"1e400", b"\n\n", b"[[run]]\n", b"t,x\n",
                                  b"\xef\xbb\xbf", b"\r\n", b"=[[[[", b"{a={b=", b"..", b"/"])
