@@ -118,9 +118,22 @@ def test_an_unstable_loop_for_the_given_gains_is_refused(tmp_path):
     manifest = folder / "experiment.toml"
     text = manifest.read_text(encoding="utf-8")
     manifest.write_text(re.sub(r"\nP = [^\n]+", "\nP = -4000.0", text), encoding="utf-8")
-    r = cli("identify", folder, "--estimator", "output-error", code=2)
-    assert "unstable for the given gains" in r.output
-    assert r.output.count("\n") == 1
+    for estimator in ("output-error", "idim"):
+        r = cli("identify", folder, "--estimator", estimator, code=2)
+        assert "unstable for the given gains" in r.output, estimator
+        assert r.output.count("\n") == 1
+
+
+def test_a_clipped_command_without_a_declared_saturation_is_refused_by_idim(tmp_path):
+    folder = _write_set(tmp_path / "set", saturation=5.0)
+    run = phoid.io.read_experiment(folder).runs[0]
+    clipped = phoid.io.run_from_arrays(run.t, run.x, r=run.r, u=np.clip(run.u, -5.0, 5.0),
+                                       P=run.P, D=run.D, index=1)
+    loop = {k: v for k, v in LOOP.items() if k != "saturation"}  # not declared
+    phoid.io.write_experiment(tmp_path / "clip", [clipped], method="tracking",
+                              fixed={"k": 0.0}, loop=loop)
+    r = cli("identify", tmp_path / "clip", "--estimator", "idim", code=2)
+    assert "sits on its extreme value" in r.output and "saturation" in r.output
 
 
 def test_tracking_options_that_do_not_apply_are_refused(tmp_path):

@@ -44,6 +44,7 @@ __all__ = [
     "PARAMETERS",
     "TrackingFit",
     "TrackingRecord",
+    "check_stable",
     "controller_commands",
     "fit_tracking",
     "fit_tracking_runs",
@@ -312,7 +313,7 @@ def fit_tracking_runs(records: Sequence[TrackingRecord], *,
     theta0 = np.clip(theta0, lower + 1e-12 * np.abs(theta0), upper)
     scale = np.array([_scale(p, start, T) for p in names]
                      + [q for rec in records for q in rec.state_scales])
-    _check_stable(records, {**start, **fixed}, "the start values")
+    check_stable(records, {**start, **fixed}, "the start values")
 
     def params(theta) -> dict[str, float]:
         return {**start, **fixed,
@@ -472,7 +473,8 @@ def _start_values(records: Sequence[TrackingRecord], fixed: Mapping[str, float])
     return start
 
 
-def _check_stable(records, p, what) -> None:
+def check_stable(records: Sequence[TrackingRecord], p: Mapping[str, float], what: str) -> None:
+    """A one-line ValueError when a record's linear loop is unstable for the parameters p."""
     for rec in records:
         poles = closed_loop_poles(p["m"], p["c"], p["k"], rec.controller)
         rho = float(np.max(np.abs(poles), initial=0.0))

@@ -37,6 +37,7 @@ from phoid.methods.tracking import (
     PARAMETERS,
     UNITS,
     TrackingRecord,
+    check_stable,
     fit_tracking_runs,
     replay,
 )
@@ -216,6 +217,7 @@ def identify_tracking(experiment: Any, *, delay: float | None = None,
         else:
             estimates, fit, source = _output_error(where, records, fixed, given)
         values = {k: e.value for k, e in estimates.items()}
+        check_stable(records, values, "the estimates")
         validations = [v for _, v in _replay_all(records, values)]
     except ValueError as exc:
         raise IdentificationError(f"{where}: {exc}") from None
@@ -391,6 +393,19 @@ def _replay_all(records, values):
     return out
 
 
+def _clipped(rec: TrackingRecord) -> int:
+    """Samples of a recorded command u that sit on its extreme value in runs of ≥ 3 (a clipped
+    command: the amplifier's limit, undeclared), or 0."""
+    if rec.u is None:
+        return 0
+    top = float(np.max(np.abs(rec.u)))
+    if top == 0.0:
+        return 0
+    at = np.abs(rec.u) >= top * (1.0 - 1e-9)
+    runs = np.diff(np.flatnonzero(np.diff(np.concatenate(([0], at.view(np.int8), [0])))))[::2]
+    return int(np.sum(runs[runs >= 3]))
+
+
 def _idim(where, records, fixed, given):
     from phoid.methods.idim import idim_ls_runs
 
@@ -399,6 +414,14 @@ def _idim(where, records, fixed, given):
         if rec.u is None:
             raise ValueError(f"{rec.name}: estimator 'idim' needs the recorded command u")
         ctrl = rec.controller
+        flat = _clipped(rec) if ctrl.saturation is None else 0
+        if flat:
+            raise ValueError(
+                f"{rec.name}: u: the recorded command sits on its extreme value "
+                f"±{np.max(np.abs(rec.u)):.6g} for {flat} samples, as a saturated command "
+                "does; declare the saturation ([loop] saturation) and use estimator = "
+                "'output-error', which models it"
+            )
         if ctrl.saturation is not None:
             clipped = int(np.sum(np.abs(rec.u) >= ctrl.saturation))
             if clipped:
