@@ -34,6 +34,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from phoid import _validate as v
 from phoid.dynamics.controller import SampledController, zoh_pieces
 from phoid.simulation._checks import plant_params
 
@@ -139,9 +140,9 @@ def simulate_tracking(
     N = r.size
     w = np.zeros(N) if w is None else _vector("w", w, N)
     xh = np.array([r[0]]) if x_init is None else _vector("x_init", x_init)
-    v0 = _finite("v0", v0)
-    f0 = _finite("offset", offset)
-    t0 = _finite("t0", t0)
+    v0 = v.finite("v0", v0, "m/s")
+    f0 = v.finite("offset", offset, "N")
+    t0 = v.finite("t0", t0, "s")
     T = ctrl.sample_time
     d, phi = ctrl.delay_split
     b, a = ctrl.velocity_filter()
@@ -402,13 +403,3 @@ def _vector(name, value, size=None) -> np.ndarray:
         raise ValueError(f"`{name}` must be finite; it has {int(np.sum(~np.isfinite(arr)))} "
                          "non-finite values")
     return arr
-
-
-def _finite(name, value) -> float:
-    try:
-        out = float(value)
-    except (TypeError, ValueError):
-        raise ValueError(f"`{name}` must be a finite number; got {value!r}") from None
-    if not math.isfinite(out):
-        raise ValueError(f"`{name}` must be a finite number; got {value!r}")
-    return out
