@@ -136,6 +136,16 @@ def test_replay_with_parameters_that_overflow_is_one_line(tmp_path):
     assert "overflows" in r.output and "run 1" in r.output
 
 
+@pytest.mark.parametrize(("option", "value"), [("--k", "1e300"), ("--k", "1e18")])
+def test_replay_of_a_plant_far_too_stiff_for_the_loop_is_refused(tmp_path, option, value):
+    # before: the simulator steps each period in quarter damped periods, ceil(2ω_d T/π) of
+    # them: k = 1e18 N/m on 2 kg took 40 s for this 1 s record, k = 1e300 never ended
+    folder = _set(tmp_path / "set")
+    r = cli("simulate", tmp_path / "sim", "--replay", folder, "--m", "2", option, value,
+            code=2)
+    assert "quarter periods per controller period" in r.output and "run 1" in r.output
+
+
 def test_idim_ls_with_an_unstable_filter_order_says_so():
     # before: "SVD did not converge" (and LAPACK's own lines on stderr): a 50th-order
     # Butterworth at 100 Hz, 1 kHz, in (b, a) form blows up

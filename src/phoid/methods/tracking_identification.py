@@ -444,11 +444,16 @@ def _simulable(estimates: Mapping[str, Estimate], warnings: list[str]) -> dict[s
     return values
 
 
+# the most sub-steps per controller period that a replay accepts (below)
+_MAX_STEPS_PER_PERIOD = 1000
+
+
 def _replay_all(records, values):
     """(simulation, validation) of each record with the parameter values given."""
     plant = Plant(m=values["m"], c=values["c"], k=values["k"], fc=values["fc"])
     out = []
     for rec in records:
+        _check_resolvable(rec, values)
         ctrl = rec.controller.with_delay(values["delay"])
         try:
             sim = replay(rec, plant, offset=values["offset"], controller=ctrl)
@@ -461,6 +466,26 @@ def _replay_all(records, values):
             ) from None
         out.append((sim, _validate(rec, sim)))
     return out
+
+
+def _check_resolvable(rec: TrackingRecord, values: Mapping[str, float]) -> None:
+    """A ValueError when the plant oscillates so much faster than the loop samples that the
+    exact simulator, which steps each period in quarter damped periods π/(2ω_d), ω_d² = k/m −
+    (c/2m)², would need more than ``_MAX_STEPS_PER_PERIOD`` steps per period (a stiffness of
+    1e18 N/m on 2 kg at 1 kHz: 5·10⁵ per period, minutes per record; 1e300: never ending)."""
+    T = rec.controller.sample_time
+    with np.errstate(over="ignore", invalid="ignore"):
+        m, c, k = np.float64(values["m"]), np.float64(values["c"]), np.float64(values["k"])
+        wd2 = k / m - (c / (2.0 * m)) ** 2
+        steps = 2.0 * np.sqrt(wd2) * T / math.pi if wd2 > 0 else 0.0
+    if not steps <= _MAX_STEPS_PER_PERIOD:
+        raise ValueError(
+            f"{rec.name}: the plant with m = {values['m']:.4g} kg, c = {values['c']:.4g} N s/m, "
+            f"k = {values['k']:.4g} N/m oscillates at ω_d = {math.sqrt(wd2):.4g} rad/s, "
+            f"{steps:.3g} quarter periods per controller period T = {T:g} s (at most "
+            f"{_MAX_STEPS_PER_PERIOD} are simulated): the parameters are out of any range this "
+            "loop can show"
+        )
 
 
 def _clipped(rec: TrackingRecord) -> int:
