@@ -146,6 +146,16 @@ def test_replay_of_a_plant_far_too_stiff_for_the_loop_is_refused(tmp_path, optio
     assert "quarter periods per controller period" in r.output and "run 1" in r.output
 
 
+def test_replay_into_the_replayed_set_is_refused(tmp_path):
+    # before: `phoid simulate SET --replay SET --overwrite` replaced the recording with its own
+    # simulation (exit 0)
+    folder = _set(tmp_path / "set")
+    recorded = (folder / "run01.csv.gz").read_bytes()
+    r = cli("simulate", folder, "--replay", folder, "--m", "5", "--overwrite", code=2)
+    assert "is the folder of the replayed set" in r.output
+    assert (folder / "run01.csv.gz").read_bytes() == recorded
+
+
 def test_idim_ls_with_an_unstable_filter_order_says_so():
     # before: "SVD did not converge" (and LAPACK's own lines on stderr): a 50th-order
     # Butterworth at 100 Hz, 1 kHz, in (b, a) form blows up

@@ -252,6 +252,10 @@ def _simulate_replay(ctx, out, replay, *, m, c, k, fc, offset_force, delay, gzip
         if exp.method != "tracking":
             raise ValueError(f"{exp.path}: --replay needs a tracking set (method = "
                              f"\"tracking\"); this one is {exp.method!r}")
+        if exp.path is not None and Path(out).resolve() == Path(exp.path).parent.resolve():
+            # --overwrite there would replace the recording with its own simulation
+            raise ValueError(f"{out}: is the folder of the replayed set {exp.path}; write the "
+                             "simulated set to another folder")
         result = replay_set(exp, params)
         manifest = result.write(out, gzip=gzip, overwrite=overwrite)
         if plots is not None:
