@@ -74,9 +74,11 @@ def check_estimator(where: str, value: Any) -> str:
 
 
 def check_fixed(where: str, table: Any) -> dict[str, float]:
-    """The ``[fixed]`` table: known m (kg, > 0), c (N·s/m), k (N/m), fc (N, ≥ 0), offset (N).
+    """The ``[fixed]`` table: known m (kg, > 0), c (N·s/m, ≥ 0), k (N/m, ≥ 0), fc (N, ≥ 0),
+    offset (N).
 
-    Every value a finite number; an unknown key is an error (it would be silently ignored).
+    Every value a finite number, within the plant model's range (a negative c or k cannot be
+    simulated); an unknown key is an error (it would be silently ignored).
     """
     if table is None:
         return {}
@@ -89,7 +91,7 @@ def check_fixed(where: str, table: Any) -> dict[str, float]:
         if key not in FIXED_KEYS:
             fail(fwhere, f"unknown key {show(key)}: [fixed] holds only "
                           f"{', '.join(map(repr, FIXED_KEYS))}")
-        minimum = {"m": 0.0, "fc": 0.0}.get(key)
+        minimum = {"m": 0.0, "c": 0.0, "k": 0.0, "fc": 0.0}.get(key)
         out[key] = checked_number(fwhere, key, value, minimum=minimum, strict=(key == "m"))
     return out
 
