@@ -240,7 +240,8 @@ def identify_tracking(experiment: Any, *, delay: float | None = None,
         else:
             estimates, fit, source = _output_error(where, records, fixed, given)
         values = _simulable(estimates, warnings)
-        check_stable(records, values, "the estimates")
+        # the loop as estimated (a negative c or k as it is: the message shows the estimates)
+        check_stable(records, {k: e.value for k, e in estimates.items()}, "the estimates")
         validations = [v for _, v in _replay_all(records, values)]
     except ValueError as exc:
         raise IdentificationError(f"{where}: {exc}") from None
