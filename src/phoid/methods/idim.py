@@ -285,6 +285,12 @@ def _regression(t, q, force, dt, cutoff, order, decimation, start, end):
 
     b, a = signal.butter(order, cutoff / (0.5 / dt))
     qf = _filtfilt(b, a, q)
+    if not np.all(np.isfinite(qf)):
+        # a high-order Butterworth in (b, a) form is numerically unstable (its poles crowd at
+        # z = 1 for a low cut-off): the filtered position blows up
+        raise ValueError(f"order: the Butterworth filter of order {order} at {cutoff:g} Hz is "
+                         "numerically unstable at this sampling rate (the filtered position "
+                         "is not finite); use a lower order")
     qd = np.gradient(qf, dt)
     qdd = np.gradient(qd, dt)
     keep = slice(start, t.size - end)
@@ -300,14 +306,20 @@ def _solve(x, y, sigma, names, units, fixed) -> IDIMFit:
     if rank < p:
         raise ValueError(f"q: the record does not excite all of {', '.join(names)} "
                          f"(regressor rank {rank} < {p})")
-    residual = y - x @ theta
-    rss = float(residual @ residual)
-    sigma2 = rss / (n - p) if sigma == "ols" else float(np.var(residual, ddof=1))
-    covariance = sigma2 * np.linalg.inv(x.T @ x)
-    stderr = np.sqrt(np.diag(covariance))
-    relative_error = 100.0 * math.sqrt(rss) / float(np.linalg.norm(y))
-    condition = float(sv[0] / sv[-1])
-    rho1 = float(residual[1:] @ residual[:-1] / rss) if rss > 0 else 0.0
+    if not np.any(y):
+        raise ValueError("force: the force to fit is zero at every sample (a recorded command "
+                         "u of zeros?): it cannot determine " + ", ".join(names))
+    # values near the float range (a force of 1e300 N) overflow the statistics to inf/nan,
+    # which the results report as undefined (null in JSON), not as a numpy warning
+    with np.errstate(over="ignore", invalid="ignore"):
+        residual = y - x @ theta
+        rss = float(residual @ residual)
+        sigma2 = rss / (n - p) if sigma == "ols" else float(np.var(residual, ddof=1))
+        covariance = sigma2 * np.linalg.inv(x.T @ x)
+        stderr = np.sqrt(np.diag(covariance))
+        relative_error = 100.0 * math.sqrt(rss) / float(np.linalg.norm(y))
+        condition = float(sv[0] / sv[-1])
+        rho1 = float(residual[1:] @ residual[:-1] / rss) if rss > 0 else 0.0
     warnings = (
         f"the stderrs are ordinary least squares ones, which assume a white residual; the "
         f"residual's lag-1 autocorrelation is {rho1:.3f}, and where it is far from 0 the "

@@ -99,7 +99,7 @@ class TrackingIdentification:
         fit = self.fit.summary()
         fit.pop("warnings", None)
         fit.pop("parameters", None)
-        return {
+        return _json_safe({
             "method": "tracking",
             "estimator": self.estimator,
             "parameters": {k: e.to_dict() for k, e in self.estimates.items()},
@@ -110,7 +110,7 @@ class TrackingIdentification:
                 for name, v in zip(self.run_names, self.validations, strict=True)
             ],
             "warnings": list(self.warnings),
-        }
+        })
 
     def report(self) -> str:
         """Plain-text report: estimates ± stderr, the fit's statistics, the validation."""
@@ -130,6 +130,18 @@ class TrackingIdentification:
         return written
 
 
+def _json_safe(value: Any) -> Any:
+    """``value`` with every float that is not finite (an overflowed statistic) as None: the
+    output is strict JSON (docs/format.md, "phoid identify --json")."""
+    if isinstance(value, dict):
+        return {k: _json_safe(q) for k, q in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_json_safe(q) for q in value]
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
+
+
 def run_controller(experiment: Any, run: Any, *, delay: float | None = None) -> SampledController:
     """The :class:`SampledController` of one run of a tracking set (loop keys, run's gains).
 
@@ -143,19 +155,35 @@ def run_controller(experiment: Any, run: Any, *, delay: float | None = None) -> 
         Command delay τ (s) overriding the set's (None: the set's, or 0 when it has none).
     """
     loop = experiment.loop
+    where = f"{experiment.path}: run {run.index} ({run.file})"
     T = loop.get("sample_time")
+    mean_step = float((run.t[-1] - run.t[0]) / (run.t.size - 1))
     if T is None:
         steps = np.diff(run.t)
-        T = float((run.t[-1] - run.t[0]) / (run.t.size - 1))
+        T = mean_step
         if np.max(np.abs(steps - T)) > 1e-3 * T:
             raise IdentificationError(
-                f"{experiment.path}: run {run.index} ({run.file}): t is not uniformly sampled "
-                "and [loop] sample_time is not given"
+                f"{where}: t is not uniformly sampled and [loop] sample_time is not given"
             )
+    elif isinstance(T, (int, float)) and T > 0 and abs(mean_step - T) > 1e-3 * T:
+        # the record holds one sample per controller instant: a period that does not match
+        # t's spacing would scale every time derivative, silently
+        raise IdentificationError(
+            f"{where}: t: the samples are {mean_step:.6g} s apart on average but [loop] "
+            f"sample_time is {T:g} s; the record must hold one sample per controller period"
+        )
     velocity = loop.get("velocity", "backward-difference")
     if isinstance(velocity, list):
         velocity = tuple(velocity)
     tau = loop.get("delay") if delay is None else delay
+    span = float(run.t[-1] - run.t[0])
+    if isinstance(tau, (int, float)) and math.isfinite(tau) and tau > span:
+        # a command that reaches the plant only after the record ends: nothing to fit, and
+        # the simulator would hold a history of τ/T commands
+        raise IdentificationError(
+            f"{where}: the command delay {tau:g} s exceeds the record's length {span:g} s: "
+            "the plant would not see the controller's command within the record"
+        )
     try:
         return SampledController(
             sample_time=T, P=run.P, D=run.D,
@@ -165,8 +193,7 @@ def run_controller(experiment: Any, run: Any, *, delay: float | None = None) -> 
             delay=0.0 if tau is None else tau, saturation=loop.get("saturation"),
         )
     except ValueError as exc:
-        raise IdentificationError(f"{experiment.path}: run {run.index} ({run.file}): {exc}") \
-            from None
+        raise IdentificationError(f"{where}: {exc}") from None
 
 
 def command_input(experiment: Any, run: Any, ctrl: SampledController) -> np.ndarray | None:
@@ -217,23 +244,19 @@ def identify_tracking(experiment: Any, *, delay: float | None = None,
     if delay is not None and not (math.isfinite(delay) and delay >= 0):
         raise IdentificationError(f"{where}: --delay must be a finite number ≥ 0 s; got {delay}")
     ctrls = [run_controller(experiment, r, delay=given) for r in runs]
-    records = tuple(
-        TrackingRecord(x=r.x, r=r.r, controller=c, u=r.u, w=command_input(experiment, r, c),
-                       t0=float(r.t[0]), name=f"run {r.index} ({r.file})")
-        for r, c in zip(runs, ctrls, strict=True)
-    )
     warnings: list[str] = []
     try:
+        records = _records(experiment, runs, ctrls)
         if choice == "idim":
             estimates, fit, source = _idim(where, records, fixed, given)
         else:
             estimates, fit, source = _output_error(where, records, fixed, given)
-        values = {k: e.value for k, e in estimates.items()}
+        values = _simulable(estimates, warnings)
         check_stable(records, values, "the estimates")
         validations = [v for _, v in _replay_all(records, values)]
     except ValueError as exc:
         raise IdentificationError(f"{where}: {exc}") from None
-    warnings += list(fit.warnings)
+    warnings = [*fit.warnings, *warnings]  # the estimator's first, then the simulation's
     if source == "assumed-zero":
         warnings.append("no command delay given ([loop] delay): the validation simulates the "
                         "loop with delay 0")
@@ -276,12 +299,12 @@ class TrackingReplay:
 
     def summary(self) -> dict[str, Any]:
         """JSON-ready dict: the parameters and each run's validation."""
-        return {
+        return _json_safe({
             "parameters": {k: float(v) for k, v in self.parameters.items()},
             "validation": [{"run": n, **v.summary()}
                            for n, v in zip(self.run_names, self.validations, strict=True)],
             "warnings": list(self.warnings),
-        }
+        })
 
     def report(self) -> str:
         """Plain text: the parameters and each run's relative errors."""
@@ -375,13 +398,9 @@ def replay_set(experiment: Any, parameters: Mapping[str, float]) -> TrackingRepl
     values = {"c": 0.0, "k": 0.0, "fc": 0.0, "offset": 0.0, **parameters,
               "delay": float(delay)}
     runs = experiment.runs
+    ctrls = [run_controller(experiment, r, delay=delay) for r in runs]  # errors name the run
     try:
-        records = []
-        for r in runs:
-            ctrl = run_controller(experiment, r, delay=delay)
-            records.append(TrackingRecord(
-                x=r.x, r=r.r, controller=ctrl, u=r.u, w=command_input(experiment, r, ctrl),
-                t0=float(r.t[0]), name=f"run {r.index} ({r.file})"))
+        records = _records(experiment, runs, ctrls)
         pairs = _replay_all(records, values)
     except ValueError as exc:
         raise IdentificationError(f"{where}: {exc}") from None
@@ -395,13 +414,63 @@ def replay_set(experiment: Any, parameters: Mapping[str, float]) -> TrackingRepl
     )
 
 
+def _records(experiment, runs, ctrls) -> tuple[TrackingRecord, ...]:
+    """The runs as :class:`TrackingRecord` (a ValueError names the run)."""
+    return tuple(
+        TrackingRecord(x=r.x, r=r.r, controller=c, u=r.u, w=command_input(experiment, r, c),
+                       t0=float(r.t[0]), name=f"run {r.index} ({r.file})")
+        for r, c in zip(runs, ctrls, strict=True)
+    )
+
+
+def _simulable(estimates: Mapping[str, Estimate], warnings: list[str]) -> dict[str, float]:
+    """The estimates' values for the validation's simulation.
+
+    The plant model needs m > 0 and c, k, f_c ≥ 0. An estimate of m ≤ 0 is refused (the record
+    does not determine the mass); a negative c, k or f_c (the least-squares value of a
+    parameter near 0, or one the record does not determine) is simulated as 0, and a warning
+    says so: the estimate itself is reported as it is.
+    """
+    values = {k: e.value for k, e in estimates.items()}
+    for key, e in estimates.items():
+        if e.stderr is not None and not math.isfinite(e.stderr):
+            warnings.append(f"the stderr of {key} is not finite (the arithmetic overflowed: "
+                            "are the signals' units and the gains right?); it is reported as "
+                            "null")
+    m = estimates["m"]
+    if not m.value > 0:
+        se = "" if m.stderr is None else f" ± {m.stderr:.3g}"
+        raise ValueError(f"the estimate of the mass is m = {m.value:.4g}{se} kg, not > 0: the "
+                         "record does not determine the mass (does it move, and does the "
+                         "command u vary?)")
+    for key in ("c", "k", "fc"):
+        e = estimates[key]
+        if e.value < 0:
+            se = "" if e.stderr is None else f" ± {e.stderr:.3g}"
+            warnings.append(
+                f"{key} = {e.value:.4g}{se} {e.unit} is negative, which the plant model "
+                f"cannot take: the validation simulates {key} = 0 (if {key} is known, give it "
+                "in [fixed])"
+            )
+            values[key] = 0.0
+    return values
+
+
 def _replay_all(records, values):
     """(simulation, validation) of each record with the parameter values given."""
     plant = Plant(m=values["m"], c=values["c"], k=values["k"], fc=values["fc"])
     out = []
     for rec in records:
         ctrl = rec.controller.with_delay(values["delay"])
-        sim = replay(rec, plant, offset=values["offset"], controller=ctrl)
+        try:
+            sim = replay(rec, plant, offset=values["offset"], controller=ctrl)
+        except (OverflowError, FloatingPointError) as exc:
+            raise ValueError(
+                f"{rec.name}: the loop cannot be simulated with m = {values['m']:.4g} kg, c = "
+                f"{values['c']:.4g} N s/m, k = {values['k']:.4g} N/m, fc = {values['fc']:.4g} N "
+                f"(the arithmetic overflows: {exc}); the parameters are out of any physical "
+                "range for this loop"
+            ) from None
         out.append((sim, _validate(rec, sim)))
     return out
 

@@ -217,14 +217,23 @@ def _signal_error(name: str, unit: str, y: np.ndarray, y_sim: np.ndarray,
     """Relative error and RMS residual of ``y_sim`` against ``y`` over ``sel``."""
     y, y_sim = y[sel], y_sim[sel]
     n = y.size
-    norm_y = float(np.linalg.norm(y))
+    norm_y = _norm(y)
     if not np.all(np.isfinite(y_sim)):
         rms = rel = math.inf
     else:
-        norm_r = float(np.linalg.norm(y - y_sim))
+        norm_r = _norm(y - y_sim)
         rms = norm_r / math.sqrt(n)
         rel = 100.0 * norm_r / norm_y if norm_y > 0 else math.nan
     return SignalError(name, unit, rel, rms, norm_y / math.sqrt(n))
+
+
+def _norm(y: np.ndarray) -> float:
+    """‖y‖₂ computed as s·‖y/s‖₂ with s = max |y|, so that it does not overflow for large
+    values (numpy's sqrt(y·y) does from |y| ≈ 1e154)."""
+    s = float(np.max(np.abs(y), initial=0.0))
+    if s == 0.0 or not math.isfinite(s):
+        return s
+    return s * float(np.linalg.norm(y / s))
 
 
 def _check_scalars(command_gain: Any, saturation: Any, velocity: Any, cutoff: Any,
