@@ -257,6 +257,23 @@ def test_reader_keys_are_documented():
     assert named(phoid.io.FORMAT, manifest) and named(phoid.io.MANIFEST, DOC)
 
 
+def test_tracking_keys_are_documented():
+    from phoid.io.tracking import (
+        ESTIMATORS,
+        FIXED_KEYS,
+        TRACKING_COLUMNS,
+        TRACKING_LOOP_KEYS,
+        TRACKING_RUN_KEYS,
+        VELOCITY_PRESETS,
+        W_UNITS,
+    )
+
+    text = section("## Tracking sets")
+    for keys in (ESTIMATORS, FIXED_KEYS, TRACKING_COLUMNS, TRACKING_LOOP_KEYS, TRACKING_RUN_KEYS,
+                 VELOCITY_PRESETS, W_UNITS):
+        assert missing(keys, text) == [], keys
+
+
 def test_reader_limits_are_documented():
     # the reader's documented limits (constants MAX_… of phoid.io), each named in
     # "Limits"

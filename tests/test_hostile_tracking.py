@@ -4,9 +4,9 @@ Each test reproduces an input that once made ``phoid identify`` / ``phoid simula
 the Python API) crash with a traceback, allocate without bound, print non-JSON or a silently
 wrong number. The sets are made here from the exact loop simulator on a small axis (m = 2 kg,
 c = 15 N s/m, k = 0, f_c = 1.5 N, f₀ = −0.3 N, the values of tests/test_tracking_cli.py) under a
-1 kHz PD loop, 1000 samples, so each test runs in well under a second or two. Tests marked
-xfail(strict=True) document faults in the output-error fit and the simulator that are left to
-their owner; they fail loudly once fixed.
+1 kHz PD loop, 1000 samples, so each test runs in well under a second or two.
+The test marked xfail(strict=True) documents a fault of the output-error fit left to its
+owner; it fails loudly once fixed.
 """
 
 from __future__ import annotations
@@ -270,13 +270,9 @@ def test_bad_gains_of_the_second_run_name_it(tmp_path, key, value, message):
 
 
 # ---------------------------------------------------------------------------------------------
-# not fixed here (the output-error fit's internals and the simulator): strict xfails
+# the output-error fit's bounds and scales, and the simulator's delay
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "fit_tracking_runs bounds c and k below by -inf (_LOWER) but Plant refuses c < 0 and "
-    "k < 0: with k free and the truth k = 0, the optimiser's first step to k < 0 ends the fit "
-    "with ValueError '`k` must be ≥ 0 N/m'"))
 def test_output_error_with_k_free_on_an_axis_without_a_spring():
     # a 2 Hz, 10 mm sine without saturation or delay (whether the optimiser steps to k < 0
     # depends on the record: with 20 mm it does not)
@@ -289,10 +285,6 @@ def test_output_error_with_k_free_on_an_axis_without_a_spring():
     assert fit.estimates["m"].value == pytest.approx(2.0, rel=1e-4)
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "the output-error fit evaluates Plant(c < 0) (its c bound is -inf, and the IDIM start "
-    "value of c is not clipped), so a record it cannot fit ends in '`c` must be ≥ 0 N·s/m; got "
-    "-1e-10' instead of a message about the record"))
 @pytest.mark.parametrize("case", ["still", "reference-equals-x", "u-zero"])
 def test_output_error_on_records_it_cannot_fit_says_why(tmp_path, case):
     _, r, sim = _record()
@@ -308,9 +300,6 @@ def test_output_error_on_records_it_cannot_fit_says_why(tmp_path, case):
     assert "` must be ≥ 0" not in r.output, r.output
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "TrackingRecord.state_scales: np.std of a position of 1e200 m overflows to inf, and "
-    "scipy's least_squares refuses the scale: the user sees scipy's '`x_scale` must be …'"))
 def test_output_error_on_a_huge_position_scale_is_a_phoid_message(tmp_path):
     _, r, sim = _record()
     folder = _set(tmp_path / "set", x=sim.x * 1e200, r=r * 1e200, u=None)
@@ -330,10 +319,6 @@ def test_output_error_survives_a_diverging_trial_point(tmp_path):
     assert r.exit_code == 0, r.output
 
 
-@pytest.mark.xfail(strict=True, raises=MemoryError, reason=(
-    "simulate_tracking (and fit_tracking's start values) allocate a command history of "
-    "round(τ/T) samples without checking τ against the record: τ = 1e12 s is a MemoryError, "
-    "not a ValueError; the CLI is guarded by run_controller"))
 def test_simulate_tracking_refuses_a_delay_longer_than_the_record():
     ctrl = SampledController(sample_time=T, P=4000.0, D=60.0, delay=1e12)
     with pytest.raises(ValueError):

@@ -235,3 +235,28 @@ def test_emps_output_error_and_the_delay(emps_set):
         assert "give it as [loop] delay" in r.output
     finally:
         manifest.write_text(text, encoding="utf-8")
+
+
+def test_an_input_in_newtons_is_the_same_input_in_command_units(tmp_path):
+    """[loop] w_unit = "N": w is a force added to the plant's input; the same pulses given in
+    command units (divided by G) must identify the same plant, to rounding."""
+    G = 2.5
+    ctrl = SampledController(sample_time=1e-3, P=1600.0, D=24.0, command_gain=G,
+                             velocity="central-difference")
+    t = 1e-3 * np.arange(2500)
+    r = 0.02 * np.sin(2 * np.pi * 0.9 * t)
+    w_cmd = np.where((np.arange(t.size) // 200) % 5 == 2, 0.8, 0.0)  # pulses, command units
+    sim = simulate_tracking(Plant(TRUTH["m"], TRUTH["c"], 0.0, TRUTH["fc"]), ctrl, r,
+                            offset=TRUTH["offset"], w=w_cmd, x_init=[0.0])
+    outs = []
+    for name, w, unit in (("cmd", w_cmd, "command"), ("newton", G * w_cmd, "N")):
+        run = phoid.io.run_from_arrays(t, sim.x, r=r, w=w, P=1600.0, D=24.0, command_gain=G,
+                                       index=1)
+        phoid.io.write_experiment(tmp_path / name, [run], method="tracking", fixed={"k": 0.0},
+                                  loop={**LOOP, "saturation": 1e3, "delay": 0.0,
+                                        "w_unit": unit})
+        outs.append(json.loads(cli("identify", tmp_path / name, "--json").stdout))
+    for key, value in TRUTH.items():
+        a, b = (o["parameters"][key]["value"] for o in outs)
+        assert a == pytest.approx(value, rel=1e-5, abs=1e-6)  # noise free, the exact model
+        assert a == pytest.approx(b, rel=1e-9, abs=1e-12)  # the same data, another unit

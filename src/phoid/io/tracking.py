@@ -31,6 +31,7 @@ __all__ = [
     "TRACKING_LOOP_KEYS",
     "TRACKING_RUN_KEYS",
     "VELOCITY_PRESETS",
+    "W_UNITS",
     "check_estimator",
     "check_fixed",
     "check_tracking_loop",
@@ -44,8 +45,11 @@ ESTIMATORS = ("auto", "idim", "output-error")
 FIXED_KEYS = ("m", "c", "k", "fc", "offset")
 """The keys of a tracking set's ``[fixed]`` table: parameters known, not estimated."""
 TRACKING_LOOP_KEYS = ("sample_time", "velocity", "cutoff", "delay", "saturation", "P", "D",
-                      "gain", "command_gain")
+                      "gain", "command_gain", "w_unit")
 """The ``[loop]`` keys of a tracking set."""
+W_UNITS = ("command", "N")
+"""``[loop] w_unit``: the additive input w in command units (F = G·(sat(u) + w), the default) or
+in newtons, added to the force (F = G·sat(u) + w)."""
 RUN_GAINS = ("P", "D", "gain", "command_gain")
 """The gains: a number, or the name of a scalar variable of the run's file."""
 TRACKING_RUN_KEYS = ("file", *RUN_GAINS, "columns")
@@ -160,6 +164,9 @@ def check_tracking_loop(where: str, loop: Mapping[str, Any]) -> tuple[int, dict[
         checked_number(lwhere, "delay", loop["delay"], minimum=0.0)
     if "saturation" in loop:
         checked_number(lwhere, "saturation", loop["saturation"], minimum=0.0, strict=True)
+    if "w_unit" in loop and loop["w_unit"] not in W_UNITS:
+        fail(lwhere, f"key 'w_unit' must be one of {', '.join(map(repr, W_UNITS))}; got "
+                      f"{show(loop['w_unit'])}")
     taps = velocity_taps(where, loop.get("velocity"), loop.get("cutoff"))
     gains = {k: _gain(lwhere, k, loop[k]) for k in RUN_GAINS if k in loop}
     return taps, gains

@@ -41,6 +41,7 @@ from phoid.methods.pho import Estimate
 from phoid.simulation.tracking import TrackingSimulation, simulate_tracking
 
 __all__ = [
+    "MAX_POSITION",
     "PARAMETERS",
     "TrackingFit",
     "TrackingRecord",
@@ -54,6 +55,7 @@ __all__ = [
 PARAMETERS = ("m", "c", "k", "fc", "offset", "delay")
 UNITS = {"m": "kg", "c": "N s/m", "k": "N/m", "fc": "N", "offset": "N", "delay": "s"}
 CONFOUNDED = 0.95  # |corr(m, τ)| above which the delay is reported as not separable
+MAX_POSITION = 1e6  # m: a record beyond this is in another unit (or broken), not a machine
 
 
 @dataclass(frozen=True, eq=False)
@@ -95,6 +97,13 @@ class TrackingRecord:
                 object.__setattr__(self, key, _vector(self.name, key, getattr(self, key), x.size))
         if not isinstance(self.controller, SampledController):
             raise ValueError(f"{self.name}: `controller` must be a SampledController")
+        for key in ("x", "r"):
+            top = float(np.max(np.abs(getattr(self, key))))
+            if top > MAX_POSITION:
+                raise ValueError(
+                    f"{self.name}: {key}: values up to {top:.3g} m; phoid takes positions within "
+                    f"±{MAX_POSITION:g} m (check the unit of the record)"
+                )
         need = self.controller.taps + 8
         if x.size < need:
             raise ValueError(
@@ -310,9 +319,10 @@ def fit_tracking_runs(records: Sequence[TrackingRecord], *,
                       + [q for rec in records for q in rec.start_state])
     lower = np.array([_LOWER[p](T) for p in names] + [-np.inf] * 2 * len(records))
     upper = np.array([_UPPER[p](T) for p in names] + [np.inf] * 2 * len(records))
-    theta0 = np.clip(theta0, lower + 1e-12 * np.abs(theta0), upper)
     scale = np.array([_scale(p, start, T) for p in names]
                      + [q for rec in records for q in rec.state_scales])
+    # strictly inside the bounds (an IDIM start may be negative where the bound is 0)
+    theta0 = np.minimum(np.maximum(theta0, lower + 1e-3 * scale), upper - 1e-3 * scale)
     check_stable(records, {**start, **fixed}, "the start values")
 
     def params(theta) -> dict[str, float]:
@@ -398,7 +408,8 @@ def _jacobian(fun, theta, f0, steps, lower, upper) -> np.ndarray:
     return np.column_stack(cols)
 
 
-_LOWER = {"m": lambda T: 1e-9, "c": lambda T: -np.inf, "k": lambda T: -np.inf,
+# the plant model (phoid.Plant) takes m > 0 and c, k, f_c ≥ 0
+_LOWER = {"m": lambda T: 1e-9, "c": lambda T: 0.0, "k": lambda T: 0.0,
           "fc": lambda T: 0.0, "offset": lambda T: -np.inf, "delay": lambda T: 0.0}
 _UPPER = {"m": lambda T: np.inf, "c": lambda T: np.inf, "k": lambda T: np.inf,
           "fc": lambda T: np.inf, "offset": lambda T: np.inf, "delay": lambda T: 5.0 * T}

@@ -46,6 +46,7 @@ from phoid.methods.tracking_validation import validate_tracking
 __all__ = [
     "TrackingIdentification",
     "TrackingReplay",
+    "command_input",
     "identify_tracking",
     "replay_set",
     "run_controller",
@@ -195,6 +196,17 @@ def run_controller(experiment: Any, run: Any, *, delay: float | None = None) -> 
         raise IdentificationError(f"{where}: {exc}") from None
 
 
+def command_input(experiment: Any, run: Any, ctrl: SampledController) -> np.ndarray | None:
+    """A run's additive input w in command units: as recorded, or, with ``[loop] w_unit =
+    "N"`` (a force added to the plant's input, like the EMPS benchmark's ``pulses_N``), divided
+    by the command gain G (F = G·(sat(u) + w/G))."""
+    if run.w is None:
+        return None
+    if experiment.loop.get("w_unit", "command") == "N":
+        return run.w / ctrl.command_gain
+    return run.w
+
+
 def identify_tracking(experiment: Any, *, delay: float | None = None,
                       estimator: str | None = None) -> TrackingIdentification:
     """Identify m, c, k, f_c, f₀ (and τ) from a tracking set, and validate on every run.
@@ -234,7 +246,7 @@ def identify_tracking(experiment: Any, *, delay: float | None = None,
     ctrls = [run_controller(experiment, r, delay=given) for r in runs]
     warnings: list[str] = []
     try:
-        records = _records(runs, ctrls)
+        records = _records(experiment, runs, ctrls)
         if choice == "idim":
             estimates, fit, source = _idim(where, records, fixed, given)
         else:
@@ -389,7 +401,7 @@ def replay_set(experiment: Any, parameters: Mapping[str, float]) -> TrackingRepl
     runs = experiment.runs
     ctrls = [run_controller(experiment, r, delay=delay) for r in runs]  # errors name the run
     try:
-        records = _records(runs, ctrls)
+        records = _records(experiment, runs, ctrls)
         pairs = _replay_all(records, values)
     except ValueError as exc:
         raise IdentificationError(f"{where}: {exc}") from None
@@ -403,11 +415,11 @@ def replay_set(experiment: Any, parameters: Mapping[str, float]) -> TrackingRepl
     )
 
 
-def _records(runs, ctrls) -> tuple[TrackingRecord, ...]:
+def _records(experiment, runs, ctrls) -> tuple[TrackingRecord, ...]:
     """The runs as :class:`TrackingRecord` (a ValueError names the run)."""
     return tuple(
-        TrackingRecord(x=r.x, r=r.r, controller=c, u=r.u, w=r.w, t0=float(r.t[0]),
-                       name=f"run {r.index} ({r.file})")
+        TrackingRecord(x=r.x, r=r.r, controller=c, u=r.u, w=command_input(experiment, r, c),
+                       t0=float(r.t[0]), name=f"run {r.index} ({r.file})")
         for r, c in zip(runs, ctrls, strict=True)
     )
 

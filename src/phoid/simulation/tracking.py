@@ -161,6 +161,11 @@ def simulate_tracking(
         acc -= sum(a[i] * vhat_hist[-i] for i in range(1, na))
         return K * (P * (r[0] - xhist[-1]) - D * acc / a[0])
 
+    if d >= N + (0 if u_init is None else np.size(u_init)):
+        raise ValueError(
+            f"the command delay τ = {ctrl.delay:g} s is {d} periods, longer than the record and "
+            f"its command history ({N} instants of {T:g} s): no command would reach the plant"
+        )
     if u_init is None:
         uh = np.full(d + 1, first_command())
     else:
