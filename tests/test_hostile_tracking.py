@@ -308,11 +308,6 @@ def test_output_error_on_a_huge_position_scale_is_a_phoid_message(tmp_path):
     assert "x_scale" not in res.output, res.output
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "fit_tracking_runs: a trial point where the simulated loop diverges raises ValueError out "
-    "of least_squares' residual, which ends the whole fit with 'the simulated loop diverged … "
-    "unstable for these parameters' (the optimiser's trial, not named) instead of counting as "
-    "a poor point; here the model is wrong ([fixed] c ≈ 0, the truth 15 N s/m)"))
 def test_output_error_survives_a_diverging_trial_point(tmp_path):
     folder = _set(tmp_path / "set", fixed={"c": 1e-300, "k": 0.0})
     r = runner.invoke(app, ["identify", str(folder), "--json", "--estimator", "output-error"])
@@ -323,3 +318,11 @@ def test_simulate_tracking_refuses_a_delay_longer_than_the_record():
     ctrl = SampledController(sample_time=T, P=4000.0, D=60.0, delay=1e12)
     with pytest.raises(ValueError):
         simulate_tracking(PLANT, ctrl, np.zeros(100))
+
+
+def test_simulate_tracking_refuses_a_plant_far_faster_than_the_loop():
+    """k = 1e18 N/m on 2 kg at T = 1 ms: ω_d ≈ 7e8 rad/s, ≈ 4.5e5 quarter periods per period
+    (minutes per record, and without end for larger k): refused at once, naming ω_d."""
+    ctrl = SampledController(sample_time=T, P=4000.0, D=60.0)
+    with pytest.raises(ValueError, match="quarter periods per controller period"):
+        simulate_tracking(Plant(2.0, 0.0, 1e18, 0.0), ctrl, np.zeros(10))

@@ -339,8 +339,20 @@ def fit_tracking_runs(records: Sequence[TrackingRecord], *,
                                x0=float(theta[P + 2 * i]), v0=float(theta[P + 2 * i + 1])))
         return sims
 
+    n_res = sum(rec.x.size - rec.start for rec in records)
+    # a trial point where the loop diverges (the optimiser's step beyond the stable region)
+    # counts as a very poor fit, not as the end of the fit: a residual far above any the
+    # record can give, so that the trust region rejects the step and shrinks
+    penalty = 1e3 * max(float(np.max(np.abs(rec.x - rec.r))) + rec.state_scales[0]
+                        for rec in records)
+    diverged = [0]
+
     def residual(theta):
-        sims = simulate_all(theta)
+        try:
+            sims = simulate_all(theta)
+        except (ValueError, OverflowError, FloatingPointError):
+            diverged[0] += 1
+            return np.full(n_res, penalty)
         return np.concatenate([rec.x[rec.start:] - s.x for rec, s in zip(records, sims,
                                                                           strict=True)])
 
@@ -385,6 +397,10 @@ def fit_tracking_runs(records: Sequence[TrackingRecord], *,
     warnings = _warnings(names, theta, [_on_bound(*q) for q in zip(theta, lower, upper, scale,
                                                                       strict=True)],
                          corr, stderr, cov, sims, sol)
+    if diverged[0]:
+        warnings.append(f"{diverged[0]} of the optimiser's trial points made the simulated loop "
+                        "diverge (rejected as very poor fits); the estimates are at a stable "
+                        "point")
     return TrackingFit(
         estimates=estimates, free=names, covariance=robust,
         white_stderr=dict(zip(names, (float(q) for q in white), strict=True)),

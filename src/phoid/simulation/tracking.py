@@ -180,6 +180,12 @@ def simulate_tracking(
     wd2 = k / m - (c / (2 * m)) ** 2
     quarter = math.pi / (2 * math.sqrt(wd2)) if wd2 > 0 else math.inf
     split = [max(1, math.ceil(h / quarter)) for h in pieces]
+    if max(split) > MAX_SUBSTEPS:
+        raise ValueError(
+            f"the plant oscillates at ω_d = {math.sqrt(wd2):.4g} rad/s, {max(split)} quarter "
+            f"periods per controller period T = {T:g} s (at most {MAX_SUBSTEPS}): far faster than "
+            "the loop can sample; check m, c, k"
+        )
     Phi, Gam = zoh_pieces(m, c, k, [h / q for h, q in zip(pieces, split, strict=True)])
     maps = [(float(P_[0, 0]), float(P_[0, 1]), float(P_[1, 0]), float(P_[1, 1]),
              float(g[0]), float(g[1]), h / q, q)
@@ -395,6 +401,7 @@ def _filter_history(b, a, x, keep) -> list[float]:
     return out
 
 
+MAX_SUBSTEPS = 1000  # quarter damped periods per piece: a plant this much faster than T is an error
 _BIG = 1e150  # m: a simulated position beyond this is a diverging loop, not a machine
 
 
