@@ -260,3 +260,12 @@ def test_an_input_in_newtons_is_the_same_input_in_command_units(tmp_path):
         a, b = (o["parameters"][key]["value"] for o in outs)
         assert a == pytest.approx(value, rel=1e-5, abs=1e-6)  # noise free, the exact model
         assert a == pytest.approx(b, rel=1e-9, abs=1e-12)  # the same data, another unit
+
+
+def test_replay_of_an_unstable_loop_is_shown_with_a_warning(tmp_path):
+    """The user asked for this loop: it is simulated, and the warning says it is unstable
+    (m = 0.01 kg under D = 60 N s/m at 1 kHz: the derivative term over-corrects each period)."""
+    folder = _write_set(tmp_path / "set")
+    r = cli("simulate", tmp_path / "o", "--replay", folder, "--m", "0.01", "--json")
+    out = json.loads(r.stdout)
+    assert any("unstable for the given gains" in w for w in out["warnings"])

@@ -503,8 +503,18 @@ def _start_values(records: Sequence[TrackingRecord], fixed: Mapping[str, float])
 def check_stable(records: Sequence[TrackingRecord], p: Mapping[str, float], what: str) -> None:
     """A one-line ValueError when a record's linear loop is unstable for the parameters p."""
     for rec in records:
-        poles = closed_loop_poles(p["m"], p["c"], p["k"], rec.controller)
+        with np.errstate(all="ignore"):  # absurd parameters overflow: no poles, said below
+            try:
+                poles = closed_loop_poles(p["m"], p["c"], p["k"], rec.controller)
+            except (ValueError, np.linalg.LinAlgError):
+                poles = np.array([np.nan])
         rho = float(np.max(np.abs(poles), initial=0.0))
+        if not np.isfinite(rho):
+            raise ValueError(
+                f"{rec.name}: the loop's poles cannot be computed with {what} (m = "
+                f"{p['m']:.4g} kg, c = {p['c']:.4g} N s/m, k = {p['k']:.4g} N/m): the arithmetic "
+                "overflows; the parameters are out of any physical range for this loop"
+            )
         if rho >= 1.0:
             raise ValueError(
                 f"{rec.name}: the loop is unstable for the given gains with {what} (m = "

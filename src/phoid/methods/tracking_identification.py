@@ -400,13 +400,18 @@ def replay_set(experiment: Any, parameters: Mapping[str, float]) -> TrackingRepl
               "delay": float(delay)}
     runs = experiment.runs
     ctrls = [run_controller(experiment, r, delay=delay) for r in runs]  # errors name the run
+    unstable: list[str] = []
     try:
         records = _records(experiment, runs, ctrls)
+        try:
+            check_stable(records, values, "these parameters")
+        except ValueError as exc:  # simulated all the same: the user asked for this loop
+            unstable.append(f"{exc}; the replay shows it")
         pairs = _replay_all(records, values)
     except ValueError as exc:
         raise IdentificationError(f"{where}: {exc}") from None
-    warnings = [f"{rec.name}: {w}" for rec, (_, v) in zip(records, pairs, strict=True)
-                for w in v.warnings]
+    warnings = unstable + [f"{rec.name}: {w}" for rec, (_, v) in zip(records, pairs, strict=True)
+                           for w in v.warnings]
     return TrackingReplay(
         parameters=values, simulations=tuple(s for s, _ in pairs),
         validations=tuple(v for _, v in pairs), run_names=tuple(r.name for r in records),
