@@ -139,8 +139,10 @@ def identify(
     """Identify m, c, k (with standard errors) from a recorded experiment set.
 
     The set's method decides how: "pho" (below), "forced" (a sine sweep: R and rho per
-    frequency, then m, c, k from eq. 20) or "free" (free releases: sigma, omega0, zeta, the two
-    roots, c/m and k/m; c and k too with --mass).
+    frequency, then m, c, k from eq. 20), "free" (free releases: sigma, omega0, zeta, the two
+    roots, c/m and k/m; c and k too with --mass) or "tracking" (a PD loop following a
+    reference: m, c, k, fc, the offset force and the command delay by IDIM-LS or output error,
+    then every run validated against its simulation).
 
     Each run's free decay is fitted for its dominant mode (decay rate sigma and damped frequency
     omega_d with their uncertainty); the delay-corrected modes of all runs then give m, c, k.
