@@ -24,11 +24,12 @@ tracking
 from phoid.simulation._checks import MAX_SAMPLES, MAX_STEPS
 from phoid.simulation.response import release_response, simulate
 from phoid.simulation.result import Simulation
-from phoid.simulation.tracking import TrackingSimulation, simulate_tracking
+from phoid.simulation.tracking import ExactPlant, TrackingSimulation, simulate_tracking
 
 __all__ = [
     "MAX_SAMPLES",
     "MAX_STEPS",
+    "ExactPlant",
     "Simulation",
     "TrackingSimulation",
     "release_response",

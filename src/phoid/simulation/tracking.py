@@ -38,7 +38,7 @@ from phoid import _validate as v
 from phoid.dynamics.controller import SampledController, zoh_pieces
 from phoid.simulation._checks import plant_params
 
-__all__ = ["TrackingSimulation", "simulate_tracking"]
+__all__ = ["ExactPlant", "TrackingSimulation", "simulate_tracking"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -175,30 +175,15 @@ def simulate_tracking(
     Fpast = [G * min(max(float(q), -umax), umax) for q in uh[-(d + 1):]]
 
     pieces = [phi, T - phi] if phi > 0 else [T]
-    # an underdamped plant: sub-pieces of at most a quarter damped period, so that the
-    # velocity has at most one extremum in each and no double reversal is missed
-    wd2 = k / m - (c / (2 * m)) ** 2
-    quarter = math.pi / (2 * math.sqrt(wd2)) if wd2 > 0 else math.inf
-    split = [max(1, math.ceil(h / quarter)) for h in pieces]
-    if max(split) > MAX_SUBSTEPS:
-        raise ValueError(
-            f"the plant oscillates at ω_d = {math.sqrt(wd2):.4g} rad/s, {max(split)} quarter "
-            f"periods per controller period T = {T:g} s (at most {MAX_SUBSTEPS}): far faster than "
-            "the loop can sample; check m, c, k"
-        )
-    Phi, Gam = zoh_pieces(m, c, k, [h / q for h, q in zip(pieces, split, strict=True)])
-    maps = [(float(P_[0, 0]), float(P_[0, 1]), float(P_[1, 0]), float(P_[1, 1]),
-             float(g[0]), float(g[1]), h / q, q)
-            for P_, g, h, q in zip(Phi, Gam, pieces, split, strict=True)]
-    flow = _Flow(m, c, k, f0, fc)
+    body = ExactPlant(plant, offset=f0, x0=float(xh[-1]), v0=v0)
+    maps = [body.zoh_map(h) for h in pieces]
 
     x_out = np.empty(N)
     v_out = np.empty(N)
     u_out = np.empty(N)
     F_out = np.empty(N)
     sat = np.zeros(N, dtype=bool)
-    x, vel = float(xh[-1]), v0
-    s = 0 if vel == 0.0 else (1 if vel > 0 else -1)  # 0: stuck
+    x, vel = body.x, body.v
     # applied-force queue: F_{n−d−1}, …, F_{n−1} before F_n is issued
     queue = list(Fpast)
     rl = r.tolist()
@@ -208,8 +193,6 @@ def simulate_tracking(
     al = [float(q) / float(a[0]) for q in a[1:]]
     inv_a0 = 1.0 / float(a[0])
     stuck_periods = 0
-    reversals = 0
-    friction = fc > 0
     for n in range(N):
         if not -_BIG < x < _BIG:  # also NaN
             raise ValueError(
@@ -249,27 +232,9 @@ def simulate_tracking(
         forces = (queue[-d - 2], queue[-d - 1]) if phi > 0 else (queue[-d - 1],)
         del queue[0]
         stuck_here = False
-        for (p00, p01, p10, p11, g0, g1, h, reps), Fa in zip(maps, forces, strict=True):
-            for _ in range(reps):
-                if not friction:
-                    fn = Fa - f0
-                    x, vel = p00 * x + p01 * vel + g0 * fn, p10 * x + p11 * vel + g1 * fn
-                    continue
-                if s == 0:
-                    g = Fa - f0 - k * x
-                    if -fc <= g <= fc:
-                        stuck_here = True
-                        continue
-                    s = 1 if g > 0 else -1
-                fn = Fa - f0 - fc * s
-                x1 = p00 * x + p01 * vel + g0 * fn
-                v1 = p10 * x + p11 * vel + g1 * fn
-                if s * v1 > 0 and (k == 0.0 or not flow.may_cross(x, vel, x1, v1, fn, s)):
-                    x, vel = x1, v1
-                    continue
-                x, vel, s, events, stuck = flow.piece(x, vel, s, Fa, h)
-                reversals += events
-                stuck_here |= stuck
+        for mp, Fa in zip(maps, forces, strict=True):
+            stuck_here |= body.hold(mp, Fa)
+        x, vel = body.x, body.v
         stuck_periods += stuck_here
     if not np.all(np.isfinite(x_out)) or not np.all(np.isfinite(F_out)):
         raise ValueError("the simulated loop diverged (non-finite values): the loop is unstable "
@@ -277,9 +242,106 @@ def simulate_tracking(
     t = t0 + T * np.arange(N)
     return TrackingSimulation(
         t=t, x=x_out, v=v_out, command=u_out, force=F_out, saturated=sat, r=r,
-        stuck=int(stuck_periods), reversals=int(reversals), controller=ctrl,
+        stuck=int(stuck_periods), reversals=int(body.reversals), controller=ctrl,
         plant=(m, c, k, fc, f0),
     )
+
+
+class ExactPlant:
+    """The plant m ẍ + c ẋ + k x + f_c sign(ẋ) + f₀ = F advanced exactly under held forces.
+
+    The state (x, v) moves through intervals of constant applied force F by the zero-order-hold
+    maps of :func:`~phoid.dynamics.controller.zoh_pieces`, with Coulomb friction's stick and
+    slip located inside an interval (module docstring); an underdamped plant's intervals are cut
+    into at most quarter damped periods. :func:`simulate_tracking` drives one with its
+    controller; a rig simulator or a test drives one sample by sample.
+
+    Parameters
+    ----------
+    plant : phoid.Plant
+        m (kg), c (N·s/m), k (N/m), f_c (N).
+    offset : float, default 0
+        Constant offset force f₀, N (resisting side).
+    x0, v0 : float, default 0
+        Initial position (m) and velocity (m/s).
+
+    Attributes
+    ----------
+    x, v : float
+        The current position (m) and velocity (m/s).
+    reversals : int
+        Velocity reversals so far (zero crossings that did not stick).
+    """
+
+    def __init__(self, plant, *, offset: float = 0.0, x0: float = 0.0, v0: float = 0.0):
+        m, c, k, fc = plant_params(plant)
+        self._m, self._c, self._k, self._fc = m, c, k, fc
+        self._f0 = v.finite("offset", offset, "N")
+        self.x = v.finite("x0", x0, "m")
+        self.v = v.finite("v0", v0, "m/s")
+        self._s = 0 if self.v == 0.0 else (1 if self.v > 0 else -1)  # 0: stuck
+        self._flow = _Flow(m, c, k, self._f0, fc)
+        wd2 = k / m - (c / (2 * m)) ** 2
+        self._wd = math.sqrt(wd2) if wd2 > 0 else 0.0
+        self._maps: dict[float, tuple] = {}
+        self.reversals = 0
+
+    def zoh_map(self, h: float) -> tuple:
+        """The map of an interval of length h (s), cached: Φ, Γ of its sub-pieces and their
+        count (at most a quarter damped period each)."""
+        mp = self._maps.get(h)
+        if mp is not None:
+            return mp
+        quarter = math.pi / (2 * self._wd) if self._wd > 0 else math.inf
+        reps = max(1, math.ceil(h / quarter))
+        if reps > MAX_SUBSTEPS:
+            raise ValueError(
+                f"the plant oscillates at ω_d = {self._wd:.4g} rad/s, {reps} quarter periods in "
+                f"an interval of {h:g} s (at most {MAX_SUBSTEPS}): far faster than the loop can "
+                "sample; check m, c, k"
+            )
+        Phi, Gam = zoh_pieces(self._m, self._c, self._k, [h / reps])
+        P_, g = Phi[0], Gam[0]
+        mp = (float(P_[0, 0]), float(P_[0, 1]), float(P_[1, 0]), float(P_[1, 1]),
+              float(g[0]), float(g[1]), h / reps, reps)
+        self._maps[h] = mp
+        return mp
+
+    def advance(self, force: float, duration: float) -> bool:
+        """Hold the applied force ``force`` (N) for ``duration`` (s); True if the mass stuck."""
+        if duration <= 0:
+            return False
+        return self.hold(self.zoh_map(duration), float(force))
+
+    def hold(self, mp: tuple, Fa: float) -> bool:
+        """:meth:`advance` with a map from :meth:`zoh_map` (the simulator's inner loop)."""
+        p00, p01, p10, p11, g0, g1, h, reps = mp
+        x, vel, s = self.x, self.v, self._s
+        fc, f0, k = self._fc, self._f0, self._k
+        flow = self._flow
+        stuck_here = False
+        for _ in range(reps):
+            if fc == 0.0:
+                fn = Fa - f0
+                x, vel = p00 * x + p01 * vel + g0 * fn, p10 * x + p11 * vel + g1 * fn
+                continue
+            if s == 0:
+                g = Fa - f0 - k * x
+                if -fc <= g <= fc:
+                    stuck_here = True
+                    continue
+                s = 1 if g > 0 else -1
+            fn = Fa - f0 - fc * s
+            x1 = p00 * x + p01 * vel + g0 * fn
+            v1 = p10 * x + p11 * vel + g1 * fn
+            if s * v1 > 0 and (k == 0.0 or not flow.may_cross(x, vel, x1, v1, fn, s)):
+                x, vel = x1, v1
+                continue
+            x, vel, s, events, stuck = flow.piece(x, vel, s, Fa, h)
+            self.reversals += events
+            stuck_here |= stuck
+        self.x, self.v, self._s = x, vel, s
+        return stuck_here
 
 
 class _Flow:
