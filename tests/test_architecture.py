@@ -178,7 +178,8 @@ LAYERS: dict[str, set[str]] = {
     "phoid.methods": BASE | {"phoid.fits", "phoid.dynamics", "phoid.simulation", "phoid.io",
                              "phoid.reports"},
     "phoid.planning": BASE | {"phoid.methods", "phoid.fits", "phoid.dynamics", "phoid.io",
-                              "phoid.reports"},    "phoid.rig": BASE | {"phoid.dynamics", "phoid.simulation"},
+                              "phoid.reports"},
+    "phoid.rig": BASE | {"phoid.dynamics", "phoid.simulation"},
 }
 
 

@@ -152,7 +152,7 @@ def test_hold_and_run_are_phoids_sampled_loop(lib_dir, case, velocity, d):
     assert dev_u <= TOL * np.max(np.abs(sim_r.command))
     # DONE: command 0 from the sample after the last run sample
     assert ctrl.state == "done" and np.all(us[rel + n_run:] == 0.0)
-    print(f"{velocity} d={d}: hold {dev_h:.2e}, run {dev_r:.2e} of the amplitude")
+    print(f"{'paper' if case is PAPER else 'overdamped'} {velocity} d={d}: hold {dev_h:.2e}, run {dev_r:.2e} of the amplitude")
 
 
 def test_run_with_a_reference_gain_and_clipping_is_phoids_loop(lib_dir):
@@ -170,19 +170,29 @@ def test_run_with_a_reference_gain_and_clipping_is_phoids_loop(lib_dir):
                        hold_samples=n_hold, run_samples=n_run)
     xs, vs, us, vh = _drive(ctrl, case, n_idle, n, r=r, G=G)
     rel = n_idle + n_hold
-    assert ctrl.clips > 0
-    names = [name for name, _ in _events(ctrl)]
-    assert "clip" in names
+    plant = Plant(m=case["m"], c=case["c"], k=case["k"])
+    hold = SampledController(sample_time=T, P=case["hold_P"], D=case["hold_D"], gain=K,
+                             command_gain=G, velocity=velocity, delay=d * T, saturation=umax)
+    sim_h = simulate_tracking(plant, hold, np.full(n_hold, case["x_start"]),
+                              x_init=xs[:n_idle + 1], u_init=np.zeros(d))
     run = SampledController(sample_time=T, P=case["P"], D=case["D"], gain=K, command_gain=G,
                             velocity=velocity, delay=d * T, saturation=umax)
-    sim = simulate_tracking(Plant(m=case["m"], c=case["c"], k=case["k"]), run, r[rel:],
-                            x_init=_history(xs, vh, rel, velocity, T), v0=vs[rel],
-                            u_init=us[rel:rel + d])
+    sim = simulate_tracking(plant, run, r[rel:], x_init=_history(xs, vh, rel, velocity, T),
+                            v0=vs[rel], u_init=us[rel:rel + d])
     amp = max(abs(case["x_start"] - r[rel]), abs(xs[rel] - r[rel]))
-    assert np.sum(sim.saturated) > 0  # the run itself clips
+    assert np.max(np.abs(xs[n_idle:rel] - sim_h.x)) / case["x_start"] <= TOL
     assert np.max(np.abs(xs[rel:] - sim.x)) / amp <= TOL
-    # the clips counted: every command beyond ±u_max, in the hold and in the run
+    # the clips counted: every command of the hold and of the run beyond ±u_max (phoid's
+    # model flags the same samples as saturated), and both phases do clip
+    n_h, n_r = int(np.sum(sim_h.saturated)), int(np.sum(sim.saturated))
+    assert n_h > 0 and n_r > 0
+    assert ctrl.clips == n_h + n_r
     assert np.all(np.abs(us) <= umax)
+    # one `clip` event at the start of each clipping episode
+    flags = np.concatenate((sim_h.saturated, sim.saturated))
+    episodes = int(flags[0]) + int(np.sum(flags[1:] & ~flags[:-1]))
+    clip_events = [i for name, i in _events(ctrl) if name == "clip"]
+    assert len(clip_events) == episodes and clip_events[0] == n_idle
 
 
 def test_explicit_release_and_restart(lib_dir):
@@ -330,3 +340,45 @@ def test_without_a_compiler_one_line_says_so(tmp_path, monkeypatch):
     with pytest.raises(CompilerNotFoundError, match=r"needs a C compiler.*rest of phoid works"):
         build_library(tmp_path)
     assert not any(tmp_path.iterdir())
+
+
+def test_the_readmes_example_compiles_and_runs_as_a_c_program(tmp_path):
+    # the README's first ```c block, as the body of main() with a simulated encoder and DAC
+    # (the exact ZOH plant of OVERDAMPED at T = 1 ms): it must build strictly and run a
+    # whole hold → run → done cycle without a fault
+    readme = (SOURCES[0].parent / "README.md").read_text(encoding="utf-8")
+    block = readme.split("```c\n", 1)[1].split("```", 1)[0]
+    setup, loop = block.split("/* in the timer interrupt", 1)
+    loop = loop.split("\n", 1)[1]
+    Phi, Gam = zoh_pieces(0.5, 40.0, 20.0, [0.001])
+    p, g = Phi[0].ravel().tolist(), Gam[0].tolist()
+    program = f"""#include "phoid_ctrl.h"
+static double xs = 0.0, vs = 0.0;
+static double read_encoder_m(void) {{ return xs; }}
+static void write_dac(double u) {{
+    double x = {p[0]!r} * xs + {p[1]!r} * vs + {g[0]!r} * u;
+    vs = {p[2]!r} * xs + {p[3]!r} * vs + {g[1]!r} * u;
+    xs = x;
+}}
+int main(void) {{
+{setup}
+    for (long i = 0; i < 8000; i++) {{
+{loop}
+    }}
+    {{
+        phoid_event e;
+        int n = 0, last = 0;
+        while (phoid_pop_event(&ctl, &e)) {{ n++; last = e.code; }}
+        return (phoid_state(&ctl) == PHOID_DONE && n == 3 && last == PHOID_EV_DONE) ? 0 : 1;
+    }}
+}}
+"""
+    (tmp_path / "main.c").write_text(program)
+    exe = tmp_path / "example"
+    cc = find_compiler()
+    flags = [f for f in CFLAGS if f not in ("-shared", "-fPIC")]
+    build = subprocess.run([*cc, *flags, "-pedantic", f"-I{SOURCES[0].parent}", "-o", str(exe),
+                            str(tmp_path / "main.c"), str(SOURCES[1])],
+                           capture_output=True, text=True, check=False)
+    assert build.returncode == 0, build.stderr
+    assert subprocess.run([str(exe)], check=False).returncode == 0

@@ -1,16 +1,16 @@
 /*
- * phoid_ctrl.c — the portable PD controller of a phoid rig (see phoid_ctrl.h for the contract).
+ * phoid_ctrl.c -- the portable PD controller of a phoid rig (see phoid_ctrl.h for the contract).
  *
  * C99, no heap, no stdio, no libm. The arithmetic of the RUN phase follows phoid's model
  * (phoid.simulation.tracking.simulate_tracking) operation by operation, so that a plant
  * simulated exactly and driven by this step gives phoid's records to rounding:
- *   v̂ = b0·x_n + b1·x_{n−1} (+ b2·x_{n−2}) − a1·v̂_{n−1},   u = K·(P·(r − x) − D·v̂).
+ *   vhat = b0*x_n + b1*x_{n-1} (+ b2*x_{n-2}) - a1*vhat_{n-1},   u = K*(P*(r - x) - D*vhat).
  */
 #include "phoid_ctrl.h"
 
 #define PHOID_NO_LIMIT 1e300
 
-/* finite: false for NaN and ±inf (x − x is NaN for both); needs IEEE arithmetic, so do not
+/* finite: false for NaN and +/-inf (x - x is NaN for both); needs IEEE arithmetic, so do not
  * compile with -ffast-math. */
 static int finite_(double x) { return (x - x) == 0.0; }
 
@@ -158,7 +158,7 @@ int phoid_init(phoid_ctrl *c, const phoid_config *cfg)
     return PHOID_OK;
 }
 
-/* v̂_n from x_n and the history, in simulate_tracking's order of operations */
+/* vhat_n from x_n and the history, in simulate_tracking's order of operations */
 static double estimate(phoid_ctrl *c, double x)
 {
     double acc;
@@ -230,7 +230,7 @@ double phoid_step(phoid_ctrl *c, double x, double r)
     }
     if (c->state == PHOID_RUN) {
         double dev = absd(x - r);
-        double step = absd(x - c->x2); /* x2 is x_{n−1} after estimate() */
+        double step = absd(x - c->x2); /* x2 is x_{n-1} after estimate() */
         if (g->growth_limit > 0.0 && dev > g->growth_limit * c->amplitude) {
             fault(c, PHOID_EV_FAULT_GROWTH, dev);
         } else if (g->stall_samples > 0) {
@@ -264,7 +264,7 @@ double phoid_step(phoid_ctrl *c, double x, double r)
     }
     c->clipping = clipped != 0;
 
-    /* the delay ring: store u_n, return u_{n−d} */
+    /* the delay ring: store u_n, return u_{n-d} */
     d = g->delay_samples;
     c->ring[c->head] = u;
     out = c->ring[(c->head + PHOID_MAX_DELAY + 1 - d) % (PHOID_MAX_DELAY + 1)];

@@ -1,5 +1,5 @@
 /*
- * phoid_ctrl.h — the portable PD controller of a phoid rig (C99, no heap, no OS, no libm).
+ * phoid_ctrl.h -- the portable PD controller of a phoid rig (C99, no heap, no OS, no libm).
  *
  * One fixed-rate step function closes the PD position loop that phoid models
  * (phoid.dynamics.controller.SampledController with a whole-sample delay) and runs one
@@ -8,17 +8,17 @@
  *
  * The loop, per sample n (period T, called once per sample at the fixed rate):
  *   1. x_n = the measured position (m); r_n = the reference (m);
- *   2. the velocity estimate v̂_n (m/s), one of
- *        PHOID_VEL_BACKWARD  v̂_n = (x_n − x_{n−1})/T,
- *        PHOID_VEL_CENTRAL   v̂_n = (x_n − x_{n−2})/(2T),
- *        PHOID_VEL_FILTERED  v̂_n = a·v̂_{n−1} + (1 − a)(x_n − x_{n−1})/T, a = exp(−ω_c T);
- *   3. the command u_n = K·(P·(r_n − x_n) − D·v̂_n) (command units; in HOLD
- *      u_n = K·(P_hold·(x_start − x_n) − D_hold·v̂_n)), clipped to ±u_max;
- *   4. the step returns u_{n−d} (d = delay_samples), to be applied at once and held until the
- *      next sample (zero-order hold); the plant sees the force G·u_{n−d}.
+ *   2. the velocity estimate vhat_n (m/s), one of
+ *        PHOID_VEL_BACKWARD  vhat_n = (x_n - x_{n-1})/T,
+ *        PHOID_VEL_CENTRAL   vhat_n = (x_n - x_{n-2})/(2T),
+ *        PHOID_VEL_FILTERED  vhat_n = a*vhat_{n-1} + (1 - a)(x_n - x_{n-1})/T, a = exp(-w_c T);
+ *   3. the command u_n = K*(P*(r_n - x_n) - D*vhat_n) (command units; in HOLD
+ *      u_n = K*(P_hold*(x_start - x_n) - D_hold*vhat_n)), clipped to +/-u_max;
+ *   4. the step returns u_{n-d} (d = delay_samples), to be applied at once and held until the
+ *      next sample (zero-order hold); the plant sees the force G*u_{n-d}.
  *
  * Sign convention: positive P pulls x towards r (it stiffens the loop), positive D damps.
- * With K = G = 1, P is in N/m and D in N·s/m.
+ * With K = G = 1, P is in N/m and D in N*s/m.
  *
  * State machine: IDLE --phoid_start--> HOLD --hold_samples or phoid_release--> RUN
  *   --run_samples--> DONE;  any safety trip --> FAULT (command 0, latched until
@@ -66,8 +66,8 @@ enum phoid_event_code {
     PHOID_EV_DONE = 3,            /**< RUN -> DONE; value: samples run */
     PHOID_EV_CLIP = 4,            /**< a clipping episode begins; value: the unclipped command */
     PHOID_EV_FAULT_POSITION = 5,  /**< x outside [x_min, x_max]; value: x (m) */
-    PHOID_EV_FAULT_GROWTH = 6,    /**< |x − r| > growth_limit·A; value: |x − r| (m) */
-    PHOID_EV_FAULT_STALL = 7,     /**< no motion for stall_samples; value: |x_n − x_{n−1}| (m) */
+    PHOID_EV_FAULT_GROWTH = 6,    /**< |x - r| > growth_limit*A; value: |x - r| (m) */
+    PHOID_EV_FAULT_STALL = 7,     /**< no motion for stall_samples; value: |x_n - x_{n-1}| (m) */
     PHOID_EV_FAULT_INPUT = 8,     /**< x or r not finite; value: 0 */
     PHOID_EV_FAULT_HOST = 9,      /**< phoid_abort; value: the host's reason */
     PHOID_EV_CLEAR = 10           /**< FAULT -> IDLE (phoid_clear_fault); value: 0 */
@@ -98,10 +98,10 @@ typedef struct phoid_config {
     double P;              /**< run proportional gain, command units per m (any sign) */
     double D;              /**< run derivative gain, command units per m/s (any sign) */
     double gain;           /**< K, dimensionless (finite; 1 for phoid's release loop) */
-    double command_gain;   /**< G, N per command unit (> 0): the force is G·u. Not used by the
+    double command_gain;   /**< G, N per command unit (> 0): the force is G*u. Not used by the
                                 step; kept so that one configuration describes the loop. */
     int velocity;          /**< enum phoid_velocity */
-    double filter_pole;    /**< a = exp(−ω_c·T) of PHOID_VEL_FILTERED, in [0, 1) */
+    double filter_pole;    /**< a = exp(-w_c*T) of PHOID_VEL_FILTERED, in [0, 1) */
     int delay_samples;     /**< d: the command computed at n is returned at n + d (0..max) */
     double hold_P;         /**< hold loop proportional gain, command units per m */
     double hold_D;         /**< hold loop derivative gain, command units per m/s */
@@ -111,9 +111,9 @@ typedef struct phoid_config {
     double x_min;          /**< lowest allowed position in HOLD and RUN, m */
     double x_max;          /**< highest allowed position in HOLD and RUN, m */
     double u_max;          /**< command limit, command units (> 0): commands are clipped */
-    double growth_limit;   /**< RUN aborts when |x − r| > growth_limit·A (0: off; else >= 1) */
+    double growth_limit;   /**< RUN aborts when |x - r| > growth_limit*A (0: off; else >= 1) */
     long stall_samples;    /**< RUN aborts after this many samples in a row with
-                                |x_n − x_{n−1}| < stall_epsilon (0: off) */
+                                |x_n - x_{n-1}| < stall_epsilon (0: off) */
     double stall_epsilon;  /**< m (>= 0) */
 } phoid_config;
 
@@ -130,8 +130,8 @@ typedef struct phoid_ctrl {
     int state;
     unsigned long n;           /* index of the next sample */
     /* estimator */
-    double x1, x2;             /* x_{n−1}, x_{n−2} */
-    double vhat;               /* v̂ of the last sample */
+    double x1, x2;             /* x_{n-1}, x_{n-2} */
+    double vhat;               /* vhat of the last sample */
     int history;               /* samples seen (saturates at 2) */
     double c0, c1;             /* estimator coefficients */
     /* delay ring: the last delay_samples + 1 commands */
@@ -150,7 +150,7 @@ typedef struct phoid_ctrl {
 } phoid_ctrl;
 
 /** Fill *cfg with defaults: K = G = 1, backward difference, no delay, zero gains, no limits
- * in effect (x_min = −1e300, x_max = 1e300, u_max = 1e300), growth and stall checks off,
+ * in effect (x_min = -1e300, x_max = 1e300, u_max = 1e300), growth and stall checks off,
  * hold_samples = 0 (hold until phoid_release), run_samples = 1. */
 void phoid_config_default(phoid_config *cfg);
 
@@ -184,10 +184,10 @@ int phoid_state(const phoid_ctrl *c);
 /** The index of the next sample (= samples stepped since phoid_init). */
 unsigned long phoid_sample_index(const phoid_ctrl *c);
 
-/** The velocity estimate v̂ of the last sample, m/s. */
+/** The velocity estimate vhat of the last sample, m/s. */
 double phoid_velocity(const phoid_ctrl *c);
 
-/** Commands clipped to ±u_max since phoid_init. */
+/** Commands clipped to +/-u_max since phoid_init. */
 unsigned long phoid_clips(const phoid_ctrl *c);
 
 /** Events overwritten in the log before they were popped. */
@@ -196,7 +196,7 @@ unsigned long phoid_events_lost(const phoid_ctrl *c);
 /** Pop the oldest event into *e: 1 if there was one, 0 if the log is empty. */
 int phoid_pop_event(phoid_ctrl *c, phoid_event *e);
 
-/** The name of an event code ("release", "fault-growth", …), "unknown" for others. */
+/** The name of an event code ("release", "fault-growth", ...), "unknown" for others. */
 const char *phoid_event_name(int code);
 
 /** The name of a state ("idle", "hold", "run", "done", "fault"), "unknown" for others. */
