@@ -152,7 +152,8 @@ def test_hold_and_run_are_phoids_sampled_loop(lib_dir, case, velocity, d):
     assert dev_u <= TOL * np.max(np.abs(sim_r.command))
     # DONE: command 0 from the sample after the last run sample
     assert ctrl.state == "done" and np.all(us[rel + n_run:] == 0.0)
-    print(f"{'paper' if case is PAPER else 'overdamped'} {velocity} d={d}: hold {dev_h:.2e}, run {dev_r:.2e} of the amplitude")
+    name = "paper" if case is PAPER else "overdamped"
+    print(f"{name} {velocity} d={d}: hold {dev_h:.2e}, run {dev_r:.2e} of the amplitude")
 
 
 def test_run_with_a_reference_gain_and_clipping_is_phoids_loop(lib_dir):
