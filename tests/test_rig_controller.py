@@ -28,9 +28,16 @@ from phoid.rig.native import (
 )
 from phoid.simulation.tracking import simulate_tracking
 
-pytestmark = pytest.mark.skipif(find_compiler() is None,
-                                reason="no C compiler (CC, cc, gcc, clang): the rig's "
-                                       "controller cannot be built")
+NO_CC = "no C compiler (CC, cc, gcc, clang): the rig's controller cannot be built"
+
+
+def _cc() -> list[str]:
+    """The compiler's command; the test is skipped without one."""
+    cc = find_compiler()
+    if cc is None:
+        pytest.skip(NO_CC)
+    return cc
+
 
 # the seed's plant and a Table 1 gain pair (paper.py: P = 0.25 + 1.375 i, D = 0.6 + 0.3 i, i = 9),
 # sampled at 100 Hz; the overdamped plant of the README (ζ ≈ 6.3) with a negative D at 500 Hz
@@ -43,6 +50,7 @@ TOL = 1e-12  # of the release amplitude (the issue's acceptance bound)
 
 @pytest.fixture(scope="module")
 def lib_dir(tmp_path_factory):
+    _cc()
     folder = tmp_path_factory.mktemp("rig-lib")
     build_library(folder)
     return folder
@@ -51,7 +59,7 @@ def lib_dir(tmp_path_factory):
 def _controller(lib_dir, case, velocity, d, **extra):
     cfg = dict(sample_time=case["T"], P=case["P"], D=case["D"], velocity=velocity,
                delay_samples=d, hold_P=case["hold_P"], hold_D=case["hold_D"],
-               x_start=case["x_start"], hold_samples=60, run_samples=1500)
+               x_start=case["x_start"], hold_samples=60, run_samples=1500, growth_limit=2.0)
     if velocity == "filtered":
         cfg["cutoff"] = 0.3 / case["T"]
     cfg.update(extra)
@@ -98,7 +106,7 @@ def _events(ctrl):
 
 def test_the_c_code_compiles_without_warnings(tmp_path):
     # -pedantic on top of the binding's flags: strict C99, no extensions
-    cc = find_compiler()
+    cc = _cc()
     out = tmp_path / "obj.o"
     flags = [f for f in CFLAGS if f != "-shared"]
     proc = subprocess.run([*cc, *flags, "-pedantic", "-c", "-o", str(out), str(SOURCES[1])],
@@ -329,6 +337,7 @@ def test_binding_refuses_unknown_fields_and_types(lib_dir):
 
 
 def test_library_is_built_inside_the_folder_and_reused(tmp_path):
+    _cc()
     folder = tmp_path / "lib"
     first = build_library(folder)
     assert first.parent == folder and first.is_file()
@@ -337,6 +346,7 @@ def test_library_is_built_inside_the_folder_and_reused(tmp_path):
 
 
 def test_without_a_compiler_one_line_says_so(tmp_path, monkeypatch):
+    # runs everywhere: CC names a compiler that does not exist (no fallback when CC is set)
     monkeypatch.setenv("CC", "no-such-compiler-phoid")
     with pytest.raises(CompilerNotFoundError, match=r"needs a C compiler.*rest of phoid works"):
         build_library(tmp_path)
@@ -376,10 +386,22 @@ int main(void) {{
 """
     (tmp_path / "main.c").write_text(program)
     exe = tmp_path / "example"
-    cc = find_compiler()
+    cc = _cc()
     flags = [f for f in CFLAGS if f not in ("-shared", "-fPIC")]
     build = subprocess.run([*cc, *flags, "-pedantic", f"-I{SOURCES[0].parent}", "-o", str(exe),
                             str(tmp_path / "main.c"), str(SOURCES[1])],
                            capture_output=True, text=True, check=False)
     assert build.returncode == 0, build.stderr
     assert subprocess.run([str(exe)], check=False).returncode == 0
+
+
+def test_a_full_event_log_drops_the_oldest_and_counts_them(lib_dir):
+    ctrl = _controller(lib_dir, PAPER, "backward-difference", 0)
+    for i in range(20):  # 60 events into a log of 32 (PHOID_EVENT_LOG)
+        ctrl.start()
+        ctrl.abort(float(i))
+        ctrl.clear_fault()
+    events = ctrl.events()
+    assert len(events) == 32 and ctrl.events_lost == 28
+    assert [e.name for e in events[-3:]] == ["start", "fault-host", "clear"]
+    assert events[-2].value == 19.0
