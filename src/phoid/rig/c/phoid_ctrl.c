@@ -162,10 +162,8 @@ int phoid_init(phoid_ctrl *c, const phoid_config *cfg)
 static double estimate(phoid_ctrl *c, double x)
 {
     double acc;
-    if (c->history == 0) { /* the first sample: at rest before it */
+    if (c->history == 0) { /* the first sample: at rest before it, x_{-1} = x_{-2} = x_0 */
         c->x1 = c->x2 = x;
-    } else if (c->history == 1) {
-        c->x2 = c->x1;
     }
     if (c->cfg.velocity == PHOID_VEL_CENTRAL) {
         acc = c->c0 * x;
@@ -180,9 +178,7 @@ static double estimate(phoid_ctrl *c, double x)
     }
     c->x2 = c->x1;
     c->x1 = x;
-    if (c->history < 2) {
-        c->history++;
-    }
+    c->history = 1;
     c->vhat = acc;
     return acc;
 }

@@ -132,7 +132,7 @@ typedef struct phoid_ctrl {
     /* estimator */
     double x1, x2;             /* x_{n-1}, x_{n-2} */
     double vhat;               /* vhat of the last sample */
-    int history;               /* samples seen (saturates at 2) */
+    int history;               /* 0 before the first sample, then 1 */
     double c0, c1;             /* estimator coefficients */
     /* delay ring: the last delay_samples + 1 commands */
     double ring[PHOID_MAX_DELAY + 1];
