@@ -1,0 +1,24 @@
+"""The rig: phoid's PD controller in portable C, compiled with the machine's compiler and bound.
+
+Public: :class:`Controller`, :class:`Event`, :class:`CompilerNotFoundError`,
+:func:`build_library`, :func:`load_library`, :func:`find_compiler` (:mod:`phoid.rig.native`).
+The C sources and their README are in ``phoid/rig/c``.
+"""
+
+from phoid.rig.native import (
+    CompilerNotFoundError,
+    Controller,
+    Event,
+    build_library,
+    find_compiler,
+    load_library,
+)
+
+__all__ = [
+    "CompilerNotFoundError",
+    "Controller",
+    "Event",
+    "build_library",
+    "find_compiler",
+    "load_library",
+]

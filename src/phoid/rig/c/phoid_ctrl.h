@@ -1,0 +1,213 @@
+/*
+ * phoid_ctrl.h -- the portable PD controller of a phoid rig (C99, no heap, no OS, no libm).
+ *
+ * One fixed-rate step function closes the PD position loop that phoid models
+ * (phoid.dynamics.controller.SampledController with a whole-sample delay) and runs one
+ * parametric-harmonic-oscillation run: hold the start position with a stiff loop, release,
+ * run the run's gains for a fixed number of samples, stop. Safety checks run inside the step.
+ *
+ * The loop, per sample n (period T, called once per sample at the fixed rate):
+ *   1. x_n = the measured position (m); r_n = the reference (m);
+ *   2. the velocity estimate vhat_n (m/s), one of
+ *        PHOID_VEL_BACKWARD  vhat_n = (x_n - x_{n-1})/T,
+ *        PHOID_VEL_CENTRAL   vhat_n = (x_n - x_{n-2})/(2T),
+ *        PHOID_VEL_FILTERED  vhat_n = a*vhat_{n-1} + (1 - a)(x_n - x_{n-1})/T, a = exp(-w_c T);
+ *   3. the command u_n = K*(P*(r_n - x_n) - D*vhat_n) (command units; in HOLD
+ *      u_n = K*(P_hold*(x_start - x_n) - D_hold*vhat_n)), clipped to +/-u_max;
+ *   4. the step returns u_{n-d} (d = delay_samples), to be applied at once and held until the
+ *      next sample (zero-order hold); the plant sees the force G*u_{n-d}.
+ *
+ * Sign convention: positive P pulls x towards r (it stiffens the loop), positive D damps.
+ * With K = G = 1, P is in N/m and D in N*s/m.
+ *
+ * State machine: IDLE --phoid_start--> HOLD --hold_samples or phoid_release--> RUN
+ *   --run_samples--> DONE;  any safety trip --> FAULT (command 0, latched until
+ *   phoid_clear_fault, which returns to IDLE). phoid_start is accepted in IDLE and DONE.
+ * Every state change and fault is pushed into a fixed-size event log with its sample index.
+ */
+#ifndef PHOID_CTRL_H
+#define PHOID_CTRL_H
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+/** Largest command delay, in samples (the delay ring has PHOID_MAX_DELAY + 1 entries). */
+#ifndef PHOID_MAX_DELAY
+#define PHOID_MAX_DELAY 64
+#endif
+
+/** Entries of the event log ring (the oldest is overwritten when it is full). */
+#ifndef PHOID_EVENT_LOG
+#define PHOID_EVENT_LOG 32
+#endif
+
+/** Velocity estimators (phoid's presets "backward-difference", "central-difference",
+ * "filtered"). */
+enum phoid_velocity {
+    PHOID_VEL_BACKWARD = 0,
+    PHOID_VEL_CENTRAL = 1,
+    PHOID_VEL_FILTERED = 2
+};
+
+/** States of the run state machine. */
+enum phoid_state {
+    PHOID_IDLE = 0,  /**< command 0; the estimator follows x */
+    PHOID_HOLD = 1,  /**< the hold loop pulls x to x_start */
+    PHOID_RUN = 2,   /**< the run's gains, from the release on */
+    PHOID_DONE = 3,  /**< run_samples recorded; command 0 */
+    PHOID_FAULT = 4  /**< a safety trip; command 0 until phoid_clear_fault */
+};
+
+/** Event codes of the log (phoid_event_name gives their names). */
+enum phoid_event_code {
+    PHOID_EV_START = 1,           /**< IDLE/DONE -> HOLD; value: x_start (m) */
+    PHOID_EV_RELEASE = 2,         /**< HOLD -> RUN; value: x at the release (m) */
+    PHOID_EV_DONE = 3,            /**< RUN -> DONE; value: samples run */
+    PHOID_EV_CLIP = 4,            /**< a clipping episode begins; value: the unclipped command */
+    PHOID_EV_FAULT_POSITION = 5,  /**< x outside [x_min, x_max]; value: x (m) */
+    PHOID_EV_FAULT_GROWTH = 6,    /**< |x - r| > growth_limit*A; value: |x - r| (m) */
+    PHOID_EV_FAULT_STALL = 7,     /**< no motion for stall_samples; value: |x_n - x_{n-1}| (m) */
+    PHOID_EV_FAULT_INPUT = 8,     /**< x or r not finite; value: 0 */
+    PHOID_EV_FAULT_HOST = 9,      /**< phoid_abort; value: the host's reason */
+    PHOID_EV_CLEAR = 10           /**< FAULT -> IDLE (phoid_clear_fault); value: 0 */
+};
+
+/** Error codes of phoid_init (0 is success); each names the field that is wrong. */
+enum phoid_error {
+    PHOID_OK = 0,
+    PHOID_E_NULL = -1,           /**< a NULL pointer */
+    PHOID_E_SAMPLE_TIME = -2,    /**< sample_time not finite and > 0 */
+    PHOID_E_VELOCITY = -3,       /**< unknown velocity estimator */
+    PHOID_E_FILTER_POLE = -4,    /**< filter_pole not in [0, 1) (filtered estimator) */
+    PHOID_E_DELAY = -5,          /**< delay_samples < 0 or > PHOID_MAX_DELAY */
+    PHOID_E_GAIN = -6,           /**< P, D, gain, hold_P or hold_D not finite */
+    PHOID_E_COMMAND_GAIN = -7,   /**< command_gain not finite and > 0 */
+    PHOID_E_LIMITS = -8,         /**< x_min < x_max does not hold (or a NaN) */
+    PHOID_E_START = -9,          /**< x_start not finite or outside [x_min, x_max] */
+    PHOID_E_COMMAND_LIMIT = -10, /**< u_max not > 0 (or a NaN) */
+    PHOID_E_GROWTH = -11,        /**< growth_limit neither 0 (off) nor finite and >= 1 */
+    PHOID_E_STALL = -12,         /**< stall_samples < 0, or stall_epsilon not finite and >= 0 */
+    PHOID_E_SAMPLES = -13,       /**< hold_samples < 0 or run_samples < 1 */
+    PHOID_E_STATE = -14          /**< (phoid_start, phoid_release) not allowed in this state */
+};
+
+/** The configuration of one run. Units: SI (m, s) and the command's own units. */
+typedef struct phoid_config {
+    double sample_time;    /**< T, s (> 0): the period at which phoid_step is called */
+    double P;              /**< run proportional gain, command units per m (any sign) */
+    double D;              /**< run derivative gain, command units per m/s (any sign) */
+    double gain;           /**< K, dimensionless (finite; 1 for phoid's release loop) */
+    double command_gain;   /**< G, N per command unit (> 0): the force is G*u. Not used by the
+                                step; kept so that one configuration describes the loop. */
+    int velocity;          /**< enum phoid_velocity */
+    double filter_pole;    /**< a = exp(-w_c*T) of PHOID_VEL_FILTERED, in [0, 1) */
+    int delay_samples;     /**< d: the command computed at n is returned at n + d (0..max) */
+    double hold_P;         /**< hold loop proportional gain, command units per m */
+    double hold_D;         /**< hold loop derivative gain, command units per m/s */
+    double x_start;        /**< hold position, m */
+    long hold_samples;     /**< samples held before the release (0: until phoid_release) */
+    long run_samples;      /**< samples run from the release on (>= 1), then DONE */
+    double x_min;          /**< lowest allowed position in HOLD and RUN, m */
+    double x_max;          /**< highest allowed position in HOLD and RUN, m */
+    double u_max;          /**< command limit, command units (> 0): commands are clipped */
+    double growth_limit;   /**< RUN aborts when |x - r| > growth_limit*A (0: off; else >= 1) */
+    long stall_samples;    /**< RUN aborts after this many samples in a row with
+                                |x_n - x_{n-1}| < stall_epsilon (0: off) */
+    double stall_epsilon;  /**< m (>= 0) */
+} phoid_config;
+
+/** One entry of the event log. */
+typedef struct phoid_event {
+    unsigned long index;  /**< sample index at which it took effect */
+    int code;             /**< enum phoid_event_code */
+    double value;         /**< the code's value (see enum phoid_event_code) */
+} phoid_event;
+
+/** The controller's whole state. Treat as opaque; read it through the functions below. */
+typedef struct phoid_ctrl {
+    phoid_config cfg;
+    int state;
+    unsigned long n;           /* index of the next sample */
+    /* estimator */
+    double x1, x2;             /* x_{n-1}, x_{n-2} */
+    double vhat;               /* vhat of the last sample */
+    int history;               /* 0 before the first sample, then 1 */
+    double c0, c1;             /* estimator coefficients */
+    /* delay ring: the last delay_samples + 1 commands */
+    double ring[PHOID_MAX_DELAY + 1];
+    int head;
+    /* run bookkeeping */
+    long held, ran, still;
+    int release_pending;
+    double amplitude;          /* A of the growth bound, m */
+    int clipping;              /* the last command was clipped */
+    unsigned long clips;       /* commands clipped since phoid_init */
+    /* event log */
+    phoid_event log[PHOID_EVENT_LOG];
+    int log_head, log_count;
+    unsigned long events_lost;
+} phoid_ctrl;
+
+/** Fill *cfg with defaults: K = G = 1, backward difference, no delay, zero gains, no limits
+ * in effect (x_min = -1e300, x_max = 1e300, u_max = 1e300), growth and stall checks off,
+ * hold_samples = 0 (hold until phoid_release), run_samples = 1. */
+void phoid_config_default(phoid_config *cfg);
+
+/** Check *cfg and reset *c to IDLE at sample index 0 (estimator at rest at the first x,
+ * delay ring and log empty). Returns PHOID_OK or a negative enum phoid_error naming the
+ * first field that is wrong; *c is left untouched on error. */
+int phoid_init(phoid_ctrl *c, const phoid_config *cfg);
+
+/** One sample: take the position x (m) and reference r (m; used in RUN only), return the
+ * command to apply now (command units; already delayed by delay_samples, already clipped).
+ * Call exactly once per sample period. Returns 0 in IDLE, DONE and FAULT (and while the
+ * delay still brings out the zeros issued in IDLE). */
+double phoid_step(phoid_ctrl *c, double x, double r);
+
+/** IDLE or DONE -> HOLD from the next sample on. PHOID_OK or PHOID_E_STATE. */
+int phoid_start(phoid_ctrl *c);
+
+/** Release at the next sample (HOLD only): the next sample is the first of RUN.
+ * PHOID_OK or PHOID_E_STATE. */
+int phoid_release(phoid_ctrl *c);
+
+/** Abort from the host: FAULT (PHOID_EV_FAULT_HOST with value `reason`) unless already. */
+void phoid_abort(phoid_ctrl *c, double reason);
+
+/** FAULT -> IDLE (other states: no effect). */
+void phoid_clear_fault(phoid_ctrl *c);
+
+/** The current state (enum phoid_state). */
+int phoid_state(const phoid_ctrl *c);
+
+/** The index of the next sample (= samples stepped since phoid_init). */
+unsigned long phoid_sample_index(const phoid_ctrl *c);
+
+/** The velocity estimate vhat of the last sample, m/s. */
+double phoid_velocity(const phoid_ctrl *c);
+
+/** Commands clipped to +/-u_max since phoid_init. */
+unsigned long phoid_clips(const phoid_ctrl *c);
+
+/** Events overwritten in the log before they were popped. */
+unsigned long phoid_events_lost(const phoid_ctrl *c);
+
+/** Pop the oldest event into *e: 1 if there was one, 0 if the log is empty. */
+int phoid_pop_event(phoid_ctrl *c, phoid_event *e);
+
+/** The name of an event code ("release", "fault-growth", ...), "unknown" for others. */
+const char *phoid_event_name(int code);
+
+/** The name of a state ("idle", "hold", "run", "done", "fault"), "unknown" for others. */
+const char *phoid_state_name(int state);
+
+/** sizeof(phoid_config) and sizeof(phoid_ctrl), for bindings that allocate them. */
+unsigned long phoid_config_size(void);
+unsigned long phoid_ctrl_size(void);
+
+#ifdef __cplusplus
+}
+#endif
+
+#endif /* PHOID_CTRL_H */

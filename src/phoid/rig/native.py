@@ -1,0 +1,358 @@
+r"""The rig's C controller (``phoid/rig/c``), compiled with the machine's C compiler and bound.
+
+The controller is C99 (``phoid_ctrl.h``, ``phoid_ctrl.c``; their README is the contract): a
+fixed-rate step u = K·(P·(r − x) − D·v̂) with phoid's velocity estimators, a whole-sample command
+delay and the run state machine IDLE → HOLD → RUN → DONE (FAULT on a safety trip). This module
+compiles the two files into a shared library inside a folder the caller names (the compiler's
+own temporary files too), loads it with :mod:`ctypes` and wraps it thinly: :class:`Controller`
+steps one sample at a time, exactly as a microcontroller would.
+
+The compiler is ``$CC`` when set, else the first of ``cc``, ``gcc``, ``clang`` on the PATH;
+flags ``-std=c99 -O2 -fPIC -shared -Wall -Wextra -Werror``. Without one,
+:class:`CompilerNotFoundError` says so in one line; nothing else in phoid needs a compiler.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import hashlib
+import math
+import os
+import shlex
+import shutil
+import subprocess
+import sys
+import tempfile
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+
+from phoid._output import OutputFolder
+from phoid.errors import PhoidError
+
+__all__ = [
+    "CFLAGS",
+    "SOURCES",
+    "CompilerNotFoundError",
+    "Controller",
+    "Event",
+    "build_library",
+    "find_compiler",
+    "load_library",
+]
+
+C_DIR = Path(__file__).parent / "c"
+SOURCES = (C_DIR / "phoid_ctrl.h", C_DIR / "phoid_ctrl.c")
+CFLAGS = ("-std=c99", "-O2", "-fPIC", "-shared", "-Wall", "-Wextra", "-Werror")
+
+STATES = ("idle", "hold", "run", "done", "fault")
+VELOCITIES = {"backward-difference": 0, "central-difference": 1, "filtered": 2}
+
+# phoid_init's error codes (phoid_ctrl.h, enum phoid_error): the field and what it must be
+_ERRORS = {
+    -2: ("sample_time", "must be finite and > 0 (s)"),
+    -3: ("velocity", "must be 'backward-difference', 'central-difference' or 'filtered' "
+                     "(0, 1, 2)"),
+    -4: ("filter_pole", "must be in [0, 1) (a = exp(-cutoff·T))"),
+    -5: ("delay_samples", "must be a whole number from 0 to the controller's PHOID_MAX_DELAY"),
+    -6: ("P, D, gain, hold_P, hold_D", "must be finite"),
+    -7: ("command_gain", "must be finite and > 0 (N per command unit)"),
+    -8: ("x_min, x_max", "must satisfy x_min < x_max (m)"),
+    -9: ("x_start", "must be finite and within [x_min, x_max] (m)"),
+    -10: ("u_max", "must be > 0 (command units)"),
+    -11: ("growth_limit", "must be 0 (off) or finite and >= 1"),
+    -12: ("stall_samples, stall_epsilon", "must be >= 0 (stall_epsilon finite, m)"),
+    -13: ("hold_samples, run_samples", "must be hold_samples >= 0 and run_samples >= 1"),
+}
+
+
+class CompilerNotFoundError(PhoidError):
+    """No C compiler: the rig's controller cannot be built (the rest of phoid works)."""
+
+
+class _Config(ctypes.Structure):
+    """ctypes mirror of ``phoid_config`` (checked against ``phoid_config_size()``)."""
+
+    _fields_ = [
+        ("sample_time", ctypes.c_double),
+        ("P", ctypes.c_double),
+        ("D", ctypes.c_double),
+        ("gain", ctypes.c_double),
+        ("command_gain", ctypes.c_double),
+        ("velocity", ctypes.c_int),
+        ("filter_pole", ctypes.c_double),
+        ("delay_samples", ctypes.c_int),
+        ("hold_P", ctypes.c_double),
+        ("hold_D", ctypes.c_double),
+        ("x_start", ctypes.c_double),
+        ("hold_samples", ctypes.c_long),
+        ("run_samples", ctypes.c_long),
+        ("x_min", ctypes.c_double),
+        ("x_max", ctypes.c_double),
+        ("u_max", ctypes.c_double),
+        ("growth_limit", ctypes.c_double),
+        ("stall_samples", ctypes.c_long),
+        ("stall_epsilon", ctypes.c_double),
+    ]
+
+
+class _Event(ctypes.Structure):
+    _fields_ = [("index", ctypes.c_ulong), ("code", ctypes.c_int), ("value", ctypes.c_double)]
+
+
+_INT_FIELDS = {"velocity", "delay_samples", "hold_samples", "run_samples", "stall_samples"}
+
+
+@dataclass(frozen=True)
+class Event:
+    """One entry of the controller's event log.
+
+    Attributes
+    ----------
+    index : int
+        Sample index at which it took effect (the first sample of the new state; for a fault,
+        the sample at which it tripped and from which the command is 0).
+    code : int
+        The C event code (``enum phoid_event_code``).
+    name : str
+        Its name: ``"start"``, ``"release"``, ``"done"``, ``"clip"``, ``"fault-position"``,
+        ``"fault-growth"``, ``"fault-stall"``, ``"fault-input"``, ``"fault-host"``, ``"clear"``.
+    value : float
+        The code's value (the position at a release, m; the unclipped command of a clip, …).
+    """
+
+    index: int
+    code: int
+    name: str
+    value: float
+
+
+def find_compiler() -> list[str] | None:
+    """The C compiler's command: ``$CC`` (split like a shell) or cc, gcc, clang on the PATH."""
+    env = os.environ.get("CC", "").strip()
+    if env:
+        cmd = shlex.split(env)
+        return cmd if shutil.which(cmd[0]) else None
+    for name in ("cc", "gcc", "clang"):
+        path = shutil.which(name)
+        if path:
+            return [path]
+    return None
+
+
+def _suffix() -> str:
+    if sys.platform == "darwin":
+        return ".dylib"
+    return ".dll" if os.name == "nt" else ".so"
+
+
+def build_library(folder: str | Path) -> Path:
+    """Compile the controller into a shared library inside ``folder``; its path.
+
+    The file is named after a hash of the sources, the compiler command and the flags, so an
+    existing library of the same build is reused. The compiler writes only inside ``folder``
+    (its temporary files go to a temporary subfolder there, ``TMPDIR``), and the library is
+    put in place atomically (:class:`phoid._output.OutputFolder`).
+
+    Raises
+    ------
+    CompilerNotFoundError
+        When no C compiler is found.
+    PhoidError
+        When the compiler fails (its first error line), or the folder is not writable.
+    """
+    cc = find_compiler()
+    if cc is None:
+        raise CompilerNotFoundError(
+            "the rig's controller needs a C compiler (set CC, or install cc, gcc or clang); "
+            "the rest of phoid works without one"
+        )
+    key = hashlib.sha256()
+    for part in (*cc, *CFLAGS):
+        key.update(part.encode() + b"\0")
+    for src in SOURCES:
+        key.update(src.read_bytes())
+    name = f"phoid_ctrl-{key.hexdigest()[:16]}{_suffix()}"
+    out = OutputFolder(folder, overwrite=True)
+    target = out.path(name)
+    if target.is_file() and not target.is_symlink():
+        return target
+    out.check([name])
+    os.makedirs(out.folder, exist_ok=True)
+    with tempfile.TemporaryDirectory(dir=out.folder, prefix=".phoid-cc-") as tmp:
+        lib = Path(tmp) / f"lib{_suffix()}"
+        cmd = [*cc, *CFLAGS, "-o", str(lib), str(SOURCES[1])]
+        env = {**os.environ, "TMPDIR": tmp, "TMP": tmp, "TEMP": tmp}
+        proc = subprocess.run(cmd, capture_output=True, text=True, env=env, check=False)
+        if proc.returncode != 0 or not lib.is_file():
+            first = next((ln for ln in (proc.stderr or proc.stdout).splitlines()
+                          if "error" in ln), (proc.stderr or "no output").strip()[:200])
+            raise PhoidError(f"compiling the rig's controller with {cc[0]} failed: {first}")
+        return out.write(name, lib.read_bytes())
+
+
+_LIBRARIES: dict[str, ctypes.CDLL] = {}
+
+
+def load_library(folder: str | Path) -> ctypes.CDLL:
+    """Build (when needed) and load the controller library in ``folder``, with its signatures."""
+    path = build_library(folder)
+    key = os.path.realpath(path)
+    if key in _LIBRARIES:
+        return _LIBRARIES[key]
+    lib = ctypes.CDLL(key)
+    P = ctypes.c_void_p
+    sig = {
+        "phoid_config_default": (None, [ctypes.POINTER(_Config)]),
+        "phoid_init": (ctypes.c_int, [P, ctypes.POINTER(_Config)]),
+        "phoid_step": (ctypes.c_double, [P, ctypes.c_double, ctypes.c_double]),
+        "phoid_start": (ctypes.c_int, [P]),
+        "phoid_release": (ctypes.c_int, [P]),
+        "phoid_abort": (None, [P, ctypes.c_double]),
+        "phoid_clear_fault": (None, [P]),
+        "phoid_state": (ctypes.c_int, [P]),
+        "phoid_sample_index": (ctypes.c_ulong, [P]),
+        "phoid_velocity": (ctypes.c_double, [P]),
+        "phoid_clips": (ctypes.c_ulong, [P]),
+        "phoid_events_lost": (ctypes.c_ulong, [P]),
+        "phoid_pop_event": (ctypes.c_int, [P, ctypes.POINTER(_Event)]),
+        "phoid_event_name": (ctypes.c_char_p, [ctypes.c_int]),
+        "phoid_config_size": (ctypes.c_ulong, []),
+        "phoid_ctrl_size": (ctypes.c_ulong, []),
+    }
+    for fname, (res, args) in sig.items():
+        fn = getattr(lib, fname)
+        fn.restype = res
+        fn.argtypes = args
+    if lib.phoid_config_size() != ctypes.sizeof(_Config):
+        raise PhoidError(f"{path}: phoid_config has {lib.phoid_config_size()} bytes, the "
+                         f"binding expects {ctypes.sizeof(_Config)}; rebuild the library")
+    _LIBRARIES[key] = lib
+    return lib
+
+
+class Controller:
+    """The compiled C controller, one instance (``phoid_ctrl``), stepped from Python.
+
+    Parameters
+    ----------
+    config : mapping
+        Fields of ``phoid_config`` (phoid_ctrl.h; unnamed fields keep
+        ``phoid_config_default``'s values): ``sample_time`` (s), ``P`` (command units/m),
+        ``D`` (command units/(m/s)), ``gain`` K, ``command_gain`` G, ``velocity`` (a preset
+        name of :data:`phoid.dynamics.controller.VELOCITY_PRESETS` or 0, 1, 2),
+        ``filter_pole`` a = exp(−ω_c T) or ``cutoff`` ω_c (rad/s, converted), ``delay_samples``,
+        ``hold_P``, ``hold_D``, ``x_start`` (m), ``hold_samples``, ``run_samples``, ``x_min``,
+        ``x_max`` (m), ``u_max`` (command units), ``growth_limit``, ``stall_samples``,
+        ``stall_epsilon`` (m).
+    folder : str or Path
+        Where the library is built (or found, when built before).
+
+    Raises
+    ------
+    ValueError
+        For an unknown field or a value of the wrong type, or when ``phoid_init`` refuses the
+        configuration (the message names the field).
+    CompilerNotFoundError
+        When no C compiler is found.
+    """
+
+    def __init__(self, config: Mapping[str, object], folder: str | Path) -> None:
+        self._lib = load_library(folder)
+        cfg = _Config()
+        self._lib.phoid_config_default(ctypes.byref(cfg))
+        names = {f[0] for f in _Config._fields_}
+        items = dict(config)
+        if "cutoff" in items:
+            if "filter_pole" in items:
+                raise ValueError("give `cutoff` (rad/s) or `filter_pole`, not both")
+            cutoff = float(items.pop("cutoff"))
+            T = float(items.get("sample_time", cfg.sample_time))
+            items["filter_pole"] = math.exp(-cutoff * T) if cutoff > 0 else -1.0
+        for key, value in items.items():
+            if key not in names:
+                raise ValueError(f"unknown controller field `{key}`; the fields are "
+                                 f"{', '.join(sorted(names | {'cutoff'}))}")
+            if key == "velocity" and isinstance(value, str):
+                if value not in VELOCITIES:
+                    raise ValueError(f"`velocity` must be one of {', '.join(VELOCITIES)}; "
+                                     f"got {value!r}")
+                value = VELOCITIES[value]
+            try:
+                if key in _INT_FIELDS:
+                    if isinstance(value, bool) or int(value) != value:
+                        raise TypeError
+                    value = int(value)
+                else:
+                    value = float(value)
+            except (TypeError, ValueError, OverflowError):
+                raise ValueError(f"controller field `{key}` must be a "
+                                 f"{'whole number' if key in _INT_FIELDS else 'number'}; "
+                                 f"got {value!r}") from None
+            setattr(cfg, key, value)
+        self.config = cfg
+        self._buf = ctypes.create_string_buffer(int(self._lib.phoid_ctrl_size()))
+        self._ptr = ctypes.cast(self._buf, ctypes.c_void_p)
+        err = self._lib.phoid_init(self._ptr, ctypes.byref(cfg))
+        if err != 0:
+            field, what = _ERRORS.get(err, ("config", "is refused"))
+            shown = ", ".join(f"{f.strip()}={getattr(cfg, f.strip())!r}"
+                              for f in field.split(","))
+            raise ValueError(f"controller config: `{field}` {what}; got {shown} "
+                             f"(phoid_init error {err})")
+
+    def step(self, x: float, r: float = 0.0) -> float:
+        """One sample: position x (m), reference r (m) → the command to apply now."""
+        return self._lib.phoid_step(self._ptr, x, r)
+
+    def start(self) -> None:
+        """IDLE or DONE → HOLD from the next sample on (ValueError in another state)."""
+        if self._lib.phoid_start(self._ptr) != 0:
+            raise ValueError(f"the controller cannot start in state {self.state!r}")
+
+    def release(self) -> None:
+        """Release at the next sample (HOLD only; ValueError in another state)."""
+        if self._lib.phoid_release(self._ptr) != 0:
+            raise ValueError(f"the controller cannot release in state {self.state!r}")
+
+    def abort(self, reason: float = 0.0) -> None:
+        """Abort from the host: FAULT with the event ``fault-host`` (value ``reason``)."""
+        self._lib.phoid_abort(self._ptr, reason)
+
+    def clear_fault(self) -> None:
+        """FAULT → IDLE (no effect in another state)."""
+        self._lib.phoid_clear_fault(self._ptr)
+
+    @property
+    def state(self) -> str:
+        """``"idle"``, ``"hold"``, ``"run"``, ``"done"`` or ``"fault"``."""
+        return STATES[self._lib.phoid_state(self._ptr)]
+
+    @property
+    def index(self) -> int:
+        """The index of the next sample (samples stepped since the start)."""
+        return int(self._lib.phoid_sample_index(self._ptr))
+
+    @property
+    def velocity(self) -> float:
+        """The velocity estimate v̂ of the last sample, m/s."""
+        return float(self._lib.phoid_velocity(self._ptr))
+
+    @property
+    def clips(self) -> int:
+        """Commands clipped to ±u_max so far."""
+        return int(self._lib.phoid_clips(self._ptr))
+
+    @property
+    def events_lost(self) -> int:
+        """Events overwritten in the log before they were read."""
+        return int(self._lib.phoid_events_lost(self._ptr))
+
+    def events(self) -> list[Event]:
+        """Pop the logged events, oldest first."""
+        out = []
+        ev = _Event()
+        while self._lib.phoid_pop_event(self._ptr, ctypes.byref(ev)):
+            out.append(Event(int(ev.index), int(ev.code),
+                             self._lib.phoid_event_name(ev.code).decode(), float(ev.value)))
+        return out
