@@ -269,3 +269,41 @@ def test_replay_of_an_unstable_loop_is_shown_with_a_warning(tmp_path):
     r = cli("simulate", tmp_path / "o", "--replay", folder, "--m", "0.01", "--json")
     out = json.loads(r.stdout)
     assert any("unstable for the given gains" in w for w in out["warnings"])
+
+
+def test_a_dropped_sample_is_refused(tmp_path):
+    """Samples 1000–1003 removed: t jumps by 5 periods. One sample per controller instant is
+    the model; a gap would be taken for dynamics (m off by ≈ 5 % on such a record)."""
+    folder = _write_set(tmp_path / "set")
+    run = phoid.io.read_experiment(folder).runs[0]
+    keep = np.r_[0:1000, 1004:run.t.size]
+    gap = phoid.io.run_from_arrays(run.t[keep], run.x[keep], r=run.r[keep], u=run.u[keep],
+                                   P=run.P, D=run.D, index=1)
+    phoid.io.write_experiment(tmp_path / "gap", [gap], method="tracking", fixed={"k": 0.0},
+                              loop={**LOOP, "delay": 0.4e-3})
+    r = cli("identify", tmp_path / "gap", code=2)
+    assert "samples 1000 and 1001" in r.output and "dropped" in r.output
+
+
+def test_a_short_record_is_validated_from_its_first_quarter(tmp_path):
+    """120 samples: the benchmark's window 50:end would leave 70; a record under 200 samples is
+    compared from its first quarter on (here sample 31)."""
+    folder = _write_set(tmp_path / "set", n=120)
+    out = json.loads(cli("identify", folder, "--json", "--estimator", "output-error").stdout)
+    assert out["validation"][0]["window"]["start"] == 30
+
+
+def test_a_known_delay_given_as_fixed_is_used():
+    """fit_tracking(fixed={"delay": τ}) with a controller of another delay: the runs are
+    simulated with τ (the truth here), not ignored."""
+    from phoid.methods.tracking import fit_tracking
+
+    ctrl = SampledController(sample_time=1e-3, P=4000.0, D=60.0, velocity="central-difference",
+                             saturation=200.0, delay=1e-3)
+    t = 1e-3 * np.arange(3000)
+    r = 0.02 * np.sin(2 * np.pi * 0.7 * t) + 0.01 * np.sin(2 * np.pi * 1.9 * t + 0.3)
+    sim = simulate_tracking(Plant(TRUTH["m"], TRUTH["c"], 0.0, TRUTH["fc"]), ctrl, r,
+                            offset=TRUTH["offset"], x_init=[0.0])
+    fit = fit_tracking(sim.x, r, ctrl.with_delay(0.0), fixed={"k": 0.0, "delay": 1e-3})
+    assert fit.estimates["delay"].value == 1e-3
+    assert fit.estimates["m"].value == pytest.approx(TRUTH["m"], rel=1e-5)

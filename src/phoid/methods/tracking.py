@@ -29,7 +29,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -305,6 +305,11 @@ def fit_tracking_runs(records: Sequence[TrackingRecord], *,
     fixed = _check_fixed(fixed)
     if estimate_delay and "delay" in fixed:
         raise ValueError("`fixed` holds 'delay' while estimate_delay=True")
+    if "delay" in fixed:  # a known delay: the runs' controllers take it
+        if fixed["delay"] < 0:
+            raise ValueError(f"`fixed`: delay must be ≥ 0 s; got {fixed['delay']}")
+        records = tuple(replace(rec, controller=rec.controller.with_delay(fixed["delay"]))
+                        for rec in records)
     names = tuple(p for p in PARAMETERS[:5] if p not in fixed)
     if estimate_delay:
         names += ("delay",)
@@ -480,10 +485,10 @@ def _start_values(records: Sequence[TrackingRecord], fixed: Mapping[str, float])
             force = np.concatenate((np.full(d, force[0]), force[:-d]))
         qs.append(rec.x)
         fs.append(force)
-    rec = records[0]
-    T = rec.controller.sample_time
-    n = max(q.size for q in qs)
     i = int(np.argmax([q.size for q in qs]))
+    rec = records[i]
+    T = rec.controller.sample_time
+    n = qs[i].size
     decimation = int(min(10, max(1, n // 2000)))
     cutoff = 0.1 / T
     try:

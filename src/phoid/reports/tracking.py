@@ -190,7 +190,8 @@ def identification_text(result: Any) -> str:
         if se is None:
             spread = "  (no ±: see the warnings)"
         elif se == 0.0:
-            spread = "  (given)" if key == "delay" else "  (fixed)"
+            spread = ("  (assumed)" if result.delay_source == "assumed-zero" else "  (given)") \
+                if key == "delay" else "  (fixed)"
         else:
             spread = f" ± {se:.4g}"
         lines.append(f"  {labels.get(key, key):<20}{value:>12.7g}{spread} {unit}")
