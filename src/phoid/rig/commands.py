@@ -29,6 +29,10 @@ def virtual_rig(
         "--offset-force", help="Constant offset force, N.")] = 0.0,
     noise: Annotated[float, typer.Option(help="Position sensor noise sd, m.")] = 0.0,
     seed: Annotated[int | None, typer.Option(help="Seed of the noise.")] = None,
+    noise_outside_loop: Annotated[bool, typer.Option(
+        "--noise-outside-loop", help="Add the noise to the streamed x only; the controller "
+                                     "reads the exact position (phoid simulate's model).")
+    ] = False,
     listen: Annotated[str, typer.Option(
         help="Address to serve on, HOST:PORT.")] = "127.0.0.1:8765",
     realtime: Annotated[bool, typer.Option(
@@ -50,7 +54,8 @@ def virtual_rig(
     try:
         host, port = parse_port(listen) if not listen.endswith(":0") else (listen[:-2], 0)
         rig = VirtualRig(Plant(m=m, c=c, k=k, fc=fc), offset_force=offset_force, noise=noise,
-                         seed=seed, realtime=realtime, build=build, max_rate=max_rate)
+                         seed=seed, realtime=realtime, build=build, max_rate=max_rate,
+                         noise_in_loop=not noise_outside_loop)
     except (ValueError, OSError) as exc:
         _fail(str(exc))
     try:

@@ -9,8 +9,10 @@ last ``CONFIG`` and steps it sample by sample against
     m ẍ + c ẋ + k x + f_c sign(ẋ) + f₀ = G·uₙ   on [nT, (n + 1)T)
 
 starting at rest at x = 0: per sample n the measured position x̃ₙ = x(nT) + εₙ (εₙ white
-Gaussian, standard deviation ``noise``) goes into ``phoid_step``, whose returned command uₙ
-(the controller's own delay ring has already delayed it) is held for one period. Each step is
+Gaussian, standard deviation ``noise``) goes into ``phoid_step`` (or, with
+``noise_in_loop=False``, the exact x(nT) does and only the streamed x̃ₙ is noisy), whose
+returned command uₙ (the controller's own delay ring has already delayed it) is held for one
+period. Each step is
 streamed as ``SAMPLE n nT x̃ₙ uₙ state``; at the end come the controller's events and
 ``END``. It runs as fast as it can, or paced to the wall clock with ``realtime``.
 
@@ -66,6 +68,10 @@ class VirtualRig:
         is refused (``ERROR``).
     faults : mapping, optional
         Injected faults (module docstring).
+    noise_in_loop : bool, default True
+        The controller reads the noisy position, as on a rig (the noise then also drives the
+        plant through the loop). False: the controller reads the exact position and only the
+        streamed x carries the noise (phoid's simulate model: pure measurement noise).
 
     Raises
     ------
@@ -76,7 +82,8 @@ class VirtualRig:
     def __init__(self, plant, *, offset_force: float = 0.0, noise: float = 0.0,
                  seed: int | None = None, realtime: bool = False,
                  build: str | Path | None = None, max_rate: float = 20000.0,
-                 faults: Mapping[str, tuple[int, int]] | None = None) -> None:
+                 faults: Mapping[str, tuple[int, int]] | None = None,
+                 noise_in_loop: bool = True) -> None:
         if not (math.isfinite(noise) and noise >= 0):
             raise ValueError(f"noise must be a finite number ≥ 0 m; got {noise!r}")
         if not (math.isfinite(max_rate) and max_rate > 0):
@@ -86,6 +93,7 @@ class VirtualRig:
         self.rng = np.random.default_rng(seed)
         self.realtime, self.max_rate = bool(realtime), float(max_rate)
         self.faults = dict(faults or {})
+        self.noise_in_loop = bool(noise_in_loop)
         self._tmp = None if build is not None else tempfile.mkdtemp(prefix="phoid-rig-")
         self.folder = Path(build if build is not None else self._tmp)
         build_library(self.folder)
@@ -195,7 +203,7 @@ class VirtualRig:
         while True:
             x = plant.x + (self.noise * float(self.rng.standard_normal()) if self.noise else 0.0)
             before = ctrl.state
-            u = ctrl.step(x, 0.0)
+            u = ctrl.step(x if self.noise_in_loop else plant.x, 0.0)
             state = ctrl.state
             if before == "run" and state == "done":
                 state = "run"  # the last run sample (the controller is done after it)
