@@ -340,3 +340,50 @@ def test_an_unstable_run_is_aborted_kept_and_named(build, tmp_path):
     assert 0 < bad["samples"] < 400
     assert [run["file"] for run in doc["run"]] == ["run01.csv", "run03.csv"]
     assert doc["rig"]["complete"] is False
+
+
+def test_a_host_abort_stops_a_real_time_run(build):
+    # paced to the wall clock, a 10 s run is still running when ABORT comes after 10 samples;
+    # the controller faults (fault-host, C README) and the rig ends the run at once
+    rig, port = _rig(build, PAPER, realtime=True)
+    host, num = port[6:].split(":")
+    with rig, socket.create_connection((host, int(num)), timeout=10) as sock:
+        f = sock.makefile("rb")
+        sock.sendall(hello())
+        assert parse(f.readline()).kind == "HELLO"
+        sock.sendall(encode_config({"sample_time": 0.01, "P": 12.625, "D": 3.3,
+                                    "hold_P": 150.0, "hold_D": 25.0, "x_start": 0.01,
+                                    "hold_samples": 20, "run_samples": 1000}))
+        assert parse(f.readline()).kind == "OK"
+        sock.sendall(encode("START"))
+        for _ in range(10):
+            assert parse(f.readline()).kind == "SAMPLE"
+        sock.sendall(encode("ABORT", 5.0))
+        last, events = None, []
+        while True:
+            msg = parse(f.readline())
+            if msg.kind == "SAMPLE":
+                last = msg.fields
+            elif msg.kind == "EVENT":
+                events.append((msg.fields["name"], msg.fields["value"]))
+            else:
+                break
+        assert msg.kind == "END" and msg.fields["reason"] == "fault-host"
+        assert ("fault-host", 5.0) in events
+        assert last["state"] == "fault" and last["u"] == 0.0 and last["index"] < 1020
+
+
+def test_resume_refuses_a_set_of_another_plan(build, tmp_path):
+    plan = _design(tmp_path, PAPER, runs=2)
+    rig, port = _rig(build, PAPER)
+    with rig:
+        assert _cli("run", plan, "--port", port, "--out", tmp_path / "set").exit_code == 0
+        other = tmp_path / "other"
+        other.mkdir()
+        (other / "experiment.toml").write_text((plan / "experiment.toml").read_text())
+        line = _fail_line(_cli("run", other, "--port", port, "--out", tmp_path / "set",
+                               "--resume"))
+    assert "was run from another plan" in line
+    # the set is untouched: both runs still complete
+    assert [a["status"] for a in _manifest(tmp_path / "set")["rig"]["attempt"]] == [
+        "complete", "complete"]

@@ -98,6 +98,7 @@ class VirtualRig:
         self.folder = Path(build if build is not None else self._tmp)
         build_library(self.folder)
         self.starts = 0
+        self._closing = threading.Event()
         self._server: socketserver.TCPServer | None = None
         self._thread: threading.Thread | None = None
 
@@ -125,6 +126,7 @@ class VirtualRig:
 
     def close(self) -> None:
         """Stop serving and remove the temporary build folder."""
+        self._closing.set()  # a session waiting for the host's next line gives up within 1 s
         if self._server is not None:
             self._server.shutdown()
             self._server.server_close()
@@ -144,14 +146,18 @@ class VirtualRig:
         """Serve one connection: hello, then CONFIG/START/CLEAR/ABORT until BYE or the end."""
         try:
             try:
-                check_hello(parse(link.readline(30.0) or b""), "the host")
+                check_hello(parse(link.readline(10.0) or b""), "the host")
             except ProtocolError as exc:
                 link.send(encode("ERROR", str(exc)))
                 return
             link.send(hello())
             config: dict[str, object] | None = None
             while True:
-                line = link.readline(None)
+                line = link.readline(1.0)
+                if line is None:
+                    if self._closing.is_set():
+                        return
+                    continue
                 try:
                     msg = parse(line or b"")
                 except ProtocolError as exc:
