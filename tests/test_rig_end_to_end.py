@@ -156,8 +156,9 @@ def test_the_cli_serves_a_virtual_rig(build, tmp_path):
         assert "2 of 2 runs complete" in r.stdout
     finally:
         proc.terminate()
-        proc.wait(timeout=30)
+        rc = proc.wait(timeout=30)
         proc.stderr.close()
+    assert rc == 0  # SIGTERM stops it cleanly (the server closed, its build folder removed)
 
 
 def test_the_virtual_rig_speaks_the_protocol(build):
@@ -387,3 +388,43 @@ def test_resume_refuses_a_set_of_another_plan(build, tmp_path):
     # the set is untouched: both runs still complete
     assert [a["status"] for a in _manifest(tmp_path / "set")["rig"]["attempt"]] == [
         "complete", "complete"]
+
+
+def test_an_interrupted_host_keeps_the_samples_and_the_record(build, tmp_path):
+    from phoid.rig.host import run_plan
+
+    plan = _design(tmp_path, PAPER, runs=2)
+
+    def progress(run, n, total):  # Ctrl-C on the host during run 2, after sample 300
+        if run == 2 and n >= 300:
+            raise KeyboardInterrupt
+
+    rig, port = _rig(build, PAPER)
+    with rig, pytest.raises(KeyboardInterrupt):
+        run_plan(plan, port, tmp_path / "set", progress=progress)
+    doc = _manifest(tmp_path / "set")
+    bad = doc["rig"]["attempt"][1]
+    assert bad["status"] == "incomplete" and "interrupted" in bad["reason"]
+    rows = (tmp_path / "set" / bad["file"]).read_text().splitlines()
+    assert len(rows) - 1 == bad["samples"] > 0
+    assert [run["file"] for run in doc["run"]] == ["run01.csv"]
+
+
+def test_a_silent_rig_is_reported_within_the_timeout(build, tmp_path):
+    # a rig that says hello and then never answers CONFIG: one line, exit 2, after --timeout
+    plan = _design(tmp_path, PAPER, runs=2)
+    srv = socket.create_server(("127.0.0.1", 0))
+
+    def serve():
+        conn, _ = srv.accept()
+        with conn:
+            conn.recv(100)
+            conn.sendall(hello())
+            time.sleep(3)
+
+    threading.Thread(target=serve, daemon=True).start()
+    line = _fail_line(_cli("run", plan, "--port", f"tcp://127.0.0.1:{srv.getsockname()[1]}",
+                           "--out", tmp_path / "set", "--timeout", 1))
+    srv.close()
+    assert "sent nothing for 1 s (waiting for the reply to CONFIG)" in line
+    assert not (tmp_path / "set").exists()

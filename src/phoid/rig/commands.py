@@ -6,6 +6,7 @@ Errors a user can cause print one line ``phoid: error: …`` and exit with statu
 from __future__ import annotations
 
 import sys
+import threading
 import time
 from pathlib import Path
 from typing import Annotated
@@ -45,8 +46,11 @@ def virtual_rig(
     """Serve a simulated rig: the compiled C controller against phoid's exact plant.
 
     Speaks the rig protocol PHOID-RIG 1 (docs/rig-protocol.md) on --listen, one connection at a
-    time, until interrupted (Ctrl-C). Needs a C compiler.
+    time, until interrupted (Ctrl-C or SIGTERM: it then stops serving and removes its temporary
+    build folder). Needs a C compiler.
     """
+    import signal
+
     from phoid.dynamics.plant import Plant
     from phoid.rig.host import parse_port
     from phoid.rig.virtual import VirtualRig
@@ -63,6 +67,8 @@ def virtual_rig(
             host, port = rig.listen(host, port)
         except ValueError as exc:
             _fail(str(exc))
+        if threading.current_thread() is threading.main_thread():
+            signal.signal(signal.SIGTERM, lambda *_: sys.exit(0))  # runs the `finally` below
         typer.echo(f"virtual rig (m={m:g} kg, c={c:g} N s/m, k={k:g} N/m, fc={fc:g} N) "
                    f"listening on tcp://{host}:{port}; Ctrl-C stops it", err=True)
         while True:
@@ -110,9 +116,10 @@ def run(
     show = sys.stderr.isatty()
     try:
         if show:
+            from rich.console import Console
             from rich.progress import Progress
 
-            with Progress(transient=True) as bar:
+            with Progress(console=Console(stderr=True), transient=True) as bar:
                 task = bar.add_task("run", total=None)
 
                 def progress(i: int, n: int, total: int) -> None:

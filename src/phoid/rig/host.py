@@ -291,10 +291,12 @@ def run_plan(plan: str | Path, port: str, out: str | Path, *, resume: bool = Fal
                                f"{reply.fields['message']}")
             if reply.kind != "OK":
                 raise RigError(f"the rig answered CONFIG with {reply.kind}, not OK")
-            attempt, msg = _one_run(link, folder, i, files[i], cfg, timeout, progress)
+            attempt, msg, stop = _one_run(link, folder, i, files[i], cfg, timeout, progress)
             attempts.append(attempt)
-            status[i] = attempt["status"] if attempt["status"] != "incomplete" else "incomplete"
+            status[i] = attempt["status"]
             _write_manifest(folder, sched, configs, attempts, status)
+            if stop is not None:  # Ctrl-C: the samples and the manifest are on disk first
+                raise stop
             if msg:
                 messages.append(msg)
             if attempt["status"] == "incomplete":
@@ -316,12 +318,18 @@ def _line(link: Link, timeout: float, what: str) -> bytes:
 
 
 def _one_run(link: Link, folder: OutputFolder, i: int, name: str, cfg: Mapping[str, Any],
-             timeout: float, progress: Callable | None) -> tuple[dict[str, Any], str]:
-    """START one run and stream it; (the attempt's record, a message when it did not complete)."""
+             timeout: float, progress: Callable | None
+             ) -> tuple[dict[str, Any], str, BaseException | None]:
+    """START one run and stream it.
+
+    Returns the attempt's record, a message when it did not complete, and an interruption
+    (KeyboardInterrupt, …) to raise once the record is written.
+    """
     run = _Run(folder, name)
     total = int(cfg["hold_samples"]) + int(cfg["run_samples"]) + 1
     link.send(encode("START"))
     reason, end = "", ""
+    stop: BaseException | None = None
     try:
         while True:
             line = link.readline(timeout)
@@ -354,6 +362,9 @@ def _one_run(link: Link, folder: OutputFolder, i: int, name: str, cfg: Mapping[s
         reason = str(exc)
     except ProtocolError as exc:
         reason = f"{exc} (after sample {run.last_index})"
+    except BaseException as exc:  # Ctrl-C: keep what arrived, then re-raise
+        reason = f"interrupted on the host ({type(exc).__name__})"
+        stop = exc
     if reason:  # the link failed: ask the rig to stop, keep what arrived
         try:
             link.send(encode("ABORT", 1.0))
@@ -366,8 +377,11 @@ def _one_run(link: Link, folder: OutputFolder, i: int, name: str, cfg: Mapping[s
         status, target = "aborted", f"{Path(name).stem}.aborted.csv"
         fault = next((e for e in run.events if e.startswith(end)), end)
         reason = f"the controller aborted: {fault}"
-    if progress is not None:
-        progress(i + 1, run.last_index + 1, total)
+    if progress is not None and stop is None:
+        try:
+            progress(i + 1, run.last_index + 1, total)
+        except BaseException as exc:  # Ctrl-C here too: record the run first
+            stop = exc
     written = run.finish(target)
     attempt = {"run": i + 1, "file": written, "P": cfg["P"], "D": cfg["D"], "status": status,
                "samples": run.samples, "received": run.last_index + 1,
@@ -377,7 +391,7 @@ def _one_run(link: Link, folder: OutputFolder, i: int, name: str, cfg: Mapping[s
         attempt["reason"] = reason
     msg = "" if status == "complete" else (
         f"run {i + 1} ({name}) {status}: {reason}; its {run.samples} samples are in {written}")
-    return attempt, msg
+    return attempt, msg, stop
 
 
 def _write_manifest(folder: OutputFolder, sched: Mapping[str, Any],
