@@ -301,6 +301,12 @@ def run_plan(plan: str | Path, port: str, out: str | Path, *, resume: bool = Fal
                 messages.append(msg)
             if attempt["status"] == "incomplete":
                 break  # the link failed: stop; --resume runs the rest
+            if attempt["status"] == "aborted":  # the controller's fault is latched: clear it
+                link.send(encode("CLEAR"))
+                reply = parse(_line(link, timeout, "the reply to CLEAR"))
+                if reply.kind != "OK":
+                    raise RigError(f"the rig did not clear its fault after run {i + 1}: "
+                                   f"{reply.fields.get('message', reply.kind)}")
         with contextlib.suppress(LinkClosed):  # the link may be gone after a failed run
             link.send(encode("BYE"))
     except LinkClosed as exc:
