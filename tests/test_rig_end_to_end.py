@@ -428,3 +428,42 @@ def test_a_silent_rig_is_reported_within_the_timeout(build, tmp_path):
     srv.close()
     assert "sent nothing for 1 s (waiting for the reply to CONFIG)" in line
     assert not (tmp_path / "set").exists()
+
+
+def test_a_rig_that_misses_its_sample_time_is_reported(build, tmp_path):
+    # a scripted rig whose clock runs 2 % slow (intervals 1.02 T): the run completes, the host
+    # says so in one line (its bound: the mean interval within 0.1 % of T) and records them
+    plan = _design(tmp_path, PAPER, runs=2)
+    srv = socket.create_server(("127.0.0.1", 0))
+
+    def serve():
+        conn, _ = srv.accept()
+        with conn:
+            f = conn.makefile("rb")
+            f.readline()
+            conn.sendall(hello())
+            while True:
+                msg = parse(f.readline())
+                if msg.kind == "CONFIG":
+                    cfg = msg.fields
+                    conn.sendall(encode("OK"))
+                elif msg.kind == "START":
+                    T, n_hold = cfg["sample_time"], cfg["hold_samples"]
+                    n_run = cfg["run_samples"]
+                    out = b""
+                    for n in range(n_hold + n_run + 1):
+                        state = "hold" if n < n_hold else "run" if n < n_hold + n_run else "done"
+                        out += encode("SAMPLE", n, 1.02 * T * n, 0.001, 0.0, state)
+                    conn.sendall(out + encode("END", "done"))
+                else:
+                    return
+
+    threading.Thread(target=serve, daemon=True).start()
+    r = _cli("run", plan, "--port", f"tcp://127.0.0.1:{srv.getsockname()[1]}", "--out",
+             tmp_path / "set")
+    srv.close()
+    assert r.exit_code == 0, r.output
+    assert r.stderr.count("the rig's sample intervals were") == 2
+    assert "not T = 0.005 s" in r.stderr
+    doc = _manifest(tmp_path / "set")
+    assert doc["run"][0]["rig_sample_time_mean"] == pytest.approx(0.0051, rel=1e-9)

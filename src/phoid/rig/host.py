@@ -397,6 +397,15 @@ def _one_run(link: Link, folder: OutputFolder, i: int, name: str, cfg: Mapping[s
         attempt["reason"] = reason
     msg = "" if status == "complete" else (
         f"run {i + 1} ({name}) {status}: {reason}; its {run.samples} samples are in {written}")
+    T = float(cfg["sample_time"])
+    if "sample_time_mean" in attempt and (
+            abs(attempt["sample_time_mean"] - T) > 1e-3 * T
+            or max(T - attempt["sample_time_min"], attempt["sample_time_max"] - T) > 0.1 * T):
+        late = (f"run {i + 1} ({name}): the rig's sample intervals were "
+                f"{attempt['sample_time_min']:.6g}–{attempt['sample_time_max']:.6g} s (mean "
+                f"{attempt['sample_time_mean']:.6g} s), not T = {T:g} s; the digital loop's "
+                "model assumes a fixed period")
+        msg = f"{msg}; {late}" if msg else late
     return attempt, msg, stop
 
 
