@@ -467,3 +467,25 @@ def test_a_rig_that_misses_its_sample_time_is_reported(build, tmp_path):
     assert "not T = 0.005 s" in r.stderr
     doc = _manifest(tmp_path / "set")
     assert doc["run"][0]["rig_sample_time_mean"] == pytest.approx(0.0051, rel=1e-9)
+
+
+def test_the_progress_display_runs_on_a_terminal_and_keeps_stdout_clean(build, tmp_path,
+                                                                         monkeypatch):
+    # `phoid run` shows a rich progress bar when standard error is a terminal; here the
+    # command is made to believe it is, and stdout must still hold just the summary line
+    import types
+
+    import phoid.rig.commands as commands
+
+    class TTY:
+        def isatty(self):
+            return True
+
+    monkeypatch.setattr(commands, "sys", types.SimpleNamespace(stderr=TTY()))
+    plan = _design(tmp_path, PAPER, runs=2)
+    rig, port = _rig(build, PAPER)
+    with rig:
+        r = _cli("run", plan, "--port", port, "--out", tmp_path / "set")
+    assert r.exit_code == 0, r.output
+    assert r.stdout.strip().splitlines() == [
+        f"2 of 2 runs complete; set written to {tmp_path / 'set' / 'experiment.toml'}"]
