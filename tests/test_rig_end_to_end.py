@@ -489,3 +489,54 @@ def test_the_progress_display_runs_on_a_terminal_and_keeps_stdout_clean(build, t
     assert r.exit_code == 0, r.output
     assert r.stdout.strip().splitlines() == [
         f"2 of 2 runs complete; set written to {tmp_path / 'set' / 'experiment.toml'}"]
+
+
+@pytest.mark.skipif(not hasattr(__import__("os"), "openpty"), reason="no pseudo-terminals")
+def test_a_plan_runs_over_a_serial_line(build, tmp_path):
+    # the host on a serial line: a pseudo-terminal whose other end is bridged to the virtual
+    # rig's TCP port (the bytes are the same lines either way)
+    import os
+    import select
+
+    plan = _design(tmp_path, PAPER, runs=2)
+    rig, port = _rig(build, PAPER, noise=1e-5, seed=5)
+    master, slave = os.openpty()
+    host, num = port[6:].split(":")
+
+    def bridge():
+        with socket.create_connection((host, int(num))) as sock:
+            while True:
+                ready, _, _ = select.select([master, sock], [], [], 5.0)
+                if not ready:
+                    return
+                if master in ready:
+                    try:
+                        data = os.read(master, 65536)
+                    except OSError:
+                        return
+                    sock.sendall(data)
+                if sock in ready:
+                    data = sock.recv(65536)
+                    if not data:
+                        return
+                    os.write(master, data)
+
+    th = threading.Thread(target=bridge, daemon=True)
+    th.start()
+    try:
+        with rig:
+            r = _cli("run", plan, "--port", f"serial://{os.ttyname(slave)}?baud=115200",
+                     "--out", tmp_path / "set")
+            th.join(timeout=10)
+    finally:
+        os.close(slave)
+        os.close(master)
+    assert r.exit_code == 0, r.output
+    assert [a["status"] for a in _manifest(tmp_path / "set")["rig"]["attempt"]] == [
+        "complete", "complete"]
+    line = _fail_line(_cli("run", plan, "--port", "serial:///dev/no-such-tty", "--out",
+                           tmp_path / "set2"))
+    assert "cannot open the rig's serial port /dev/no-such-tty" in line
+    assert "--port must be serial:" in _fail_line(_cli("run", plan, "--port",
+                                                       "serial:///dev/x?speed=9", "--out",
+                                                       tmp_path / "set2"))

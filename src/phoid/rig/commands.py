@@ -80,7 +80,8 @@ def virtual_rig(
 def run(
     plan: Annotated[Path, typer.Argument(help="The plan: a folder (or experiment.toml) "
                                               "written by `phoid design --out`.")],
-    port: Annotated[str, typer.Option(help="The rig, tcp://HOST:PORT.")],
+    port: Annotated[str, typer.Option(
+        help="The rig: tcp://HOST:PORT or serial:///dev/DEVICE[?baud=N] (POSIX; 115200).")],
     out: Annotated[Path | None, typer.Option(
         "--out", "-o", help="The set's folder [PLAN-run beside the plan].")] = None,
     resume: Annotated[bool, typer.Option(

@@ -36,10 +36,10 @@ from phoid._output import OutputFolder
 from phoid.errors import ExperimentError, PhoidError
 from phoid.io.manifest import read_manifest
 from phoid.planning.schedule import read_schedule
-from phoid.rig.link import Link, LinkClosed, connect
+from phoid.rig.link import Link, LinkClosed, connect, open_serial
 from phoid.rig.protocol import ProtocolError, check_hello, encode, encode_config, hello, parse
 
-__all__ = ["RigError", "RunPlanResult", "parse_port", "plan_configs", "run_plan"]
+__all__ = ["RigError", "RunPlanResult", "open_port", "parse_port", "plan_configs", "run_plan"]
 
 MANIFEST = "experiment.toml"
 
@@ -77,8 +77,22 @@ def parse_port(port: str) -> tuple[str, int]:
     text = port[6:] if port.startswith("tcp://") else port
     host, sep, num = text.rpartition(":")
     if "://" in text or not sep or not host or not num.isdigit() or not 0 < int(num) < 65536:
-        raise RigError(f"--port must be tcp://HOST:PORT (port 1 to 65535); got {port!r}")
+        raise RigError(f"--port must be tcp://HOST:PORT or serial:///dev/DEVICE[?baud=N] "
+                       f"(port 1 to 65535); got {port!r}")
     return host.strip("[]"), int(num)
+
+
+def open_port(port: str, timeout: float) -> Link:
+    """Connect to the rig: ``tcp://HOST:PORT`` or ``serial:///dev/DEVICE[?baud=N]`` (115200)."""
+    if port.startswith("serial://"):
+        path, _, query = port[len("serial://"):].partition("?")
+        key, _, val = query.partition("=")
+        if not path or (query and (key != "baud" or not val.isdigit())):
+            raise RigError(f"--port must be serial:///dev/DEVICE or serial:///dev/DEVICE?baud=N; "
+                           f"got {port!r}")
+        return open_serial(path, int(val) if query else 115200)
+    host, num = parse_port(port)
+    return connect(host, num, timeout)
 
 
 def _prior_value(prior: Mapping[str, Any], key: str, pick: Callable) -> float | None:
@@ -235,7 +249,7 @@ def run_plan(plan: str | Path, port: str, out: str | Path, *, resume: bool = Fal
     plan : str or Path
         The plan (``phoid design --out``): its folder or manifest.
     port : str
-        ``tcp://HOST:PORT`` of the rig.
+        The rig: ``tcp://HOST:PORT`` or ``serial:///dev/DEVICE[?baud=N]`` (POSIX).
     out : str or Path
         The set's folder (created); its ``experiment.toml`` is rewritten after every run.
     resume : bool
@@ -272,8 +286,10 @@ def run_plan(plan: str | Path, port: str, out: str | Path, *, resume: bool = Fal
         i = int(a.get("run", 0)) - 1
         if 0 <= i < len(files) and a.get("status") in ("complete", "aborted"):
             status[i] = a["status"]
-    host, num = parse_port(port)
-    link = connect(host, num, timeout)
+    try:
+        link = open_port(port, timeout)
+    except LinkClosed as exc:
+        raise RigError(str(exc)) from None
     messages: list[str] = []
     try:
         link.send(hello())

@@ -7,13 +7,15 @@ samples) or wait for one with a bounded timeout (the host).
 
 from __future__ import annotations
 
+import os
 import select
 import socket
+import sys
 import time
 
 from phoid.rig.protocol import MAX_LINE, ProtocolError
 
-__all__ = ["Link", "LinkClosed", "connect"]
+__all__ = ["FdStream", "Link", "LinkClosed", "connect", "open_serial"]
 
 
 class LinkClosed(ProtocolError):
@@ -25,8 +27,9 @@ class Link:
 
     Parameters
     ----------
-    sock : socket.socket
-        A connected stream socket (the link owns it and closes it in :meth:`close`).
+    sock : socket.socket or FdStream
+        A connected stream socket, or a serial line (:func:`open_serial`); the link owns it
+        and closes it in :meth:`close`.
     """
 
     def __init__(self, sock: socket.socket) -> None:
@@ -102,3 +105,60 @@ def connect(host: str, port: int, timeout: float) -> Link:
                          f"{exc.strerror or exc}") from None
     sock.settimeout(None)
     return Link(sock)
+
+
+class FdStream:
+    """A file descriptor (a serial line) with the socket methods :class:`Link` uses."""
+
+    def __init__(self, fd: int) -> None:
+        self.fd = fd
+
+    def fileno(self) -> int:
+        return self.fd
+
+    def sendall(self, data: bytes) -> None:
+        view = memoryview(data)
+        while view:
+            n = os.write(self.fd, view)
+            view = view[n:]
+
+    def recv(self, size: int) -> bytes:
+        return os.read(self.fd, size)
+
+    def shutdown(self, how: int) -> None:
+        pass
+
+    def close(self) -> None:
+        os.close(self.fd)
+
+
+def open_serial(path: str, baud: int) -> Link:
+    """Open a serial line (POSIX: a tty device) raw at ``baud``, 8 data bits, no parity.
+
+    Raises
+    ------
+    LinkClosed
+        One line naming the device when it cannot be opened or configured.
+    """
+    if sys.platform == "win32":
+        raise LinkClosed("serial ports are supported on POSIX systems only; use tcp://")
+    import termios
+    import tty
+
+    speed = getattr(termios, f"B{baud}", None)
+    if speed is None:
+        raise LinkClosed(f"serial://{path}: baud rate {baud} is not one this system knows")
+    try:
+        fd = os.open(path, os.O_RDWR | os.O_NOCTTY)
+    except OSError as exc:
+        raise LinkClosed(f"cannot open the rig's serial port {path}: {exc.strerror or exc}") \
+            from None
+    try:
+        tty.setraw(fd)
+        attrs = termios.tcgetattr(fd)
+        attrs[4] = attrs[5] = speed
+        termios.tcsetattr(fd, termios.TCSANOW, attrs)
+    except (OSError, termios.error) as exc:
+        os.close(fd)
+        raise LinkClosed(f"{path} is not a serial port that can be configured: {exc}") from None
+    return Link(FdStream(fd))  # type: ignore[arg-type]
