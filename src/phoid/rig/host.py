@@ -307,7 +307,8 @@ def run_plan(plan: str | Path, port: str, out: str | Path, *, resume: bool = Fal
                                f"{reply.fields['message']}")
             if reply.kind != "OK":
                 raise RigError(f"the rig answered CONFIG with {reply.kind}, not OK")
-            attempt, msg, stop = _one_run(link, folder, i, files[i], cfg, timeout, progress)
+            attempt, msg, stop, alive = _one_run(link, folder, i, files[i], cfg, timeout,
+                                                 progress)
             attempts.append(attempt)
             status[i] = attempt["status"]
             _write_manifest(folder, sched, configs, attempts, status)
@@ -315,9 +316,9 @@ def run_plan(plan: str | Path, port: str, out: str | Path, *, resume: bool = Fal
                 raise stop
             if msg:
                 messages.append(msg)
-            if attempt["status"] == "incomplete":
+            if not alive:
                 break  # the link failed: stop; --resume runs the rest
-            if attempt["status"] == "aborted":  # the controller's fault is latched: clear it
+            if any(e.startswith("fault-") for e in attempt["events"]):  # latched: clear it
                 link.send(encode("CLEAR"))
                 reply = parse(_line(link, timeout, "the reply to CLEAR"))
                 if reply.kind != "OK":
@@ -341,16 +342,19 @@ def _line(link: Link, timeout: float, what: str) -> bytes:
 
 def _one_run(link: Link, folder: OutputFolder, i: int, name: str, cfg: Mapping[str, Any],
              timeout: float, progress: Callable | None
-             ) -> tuple[dict[str, Any], str, BaseException | None]:
+             ) -> tuple[dict[str, Any], str, BaseException | None, bool]:
     """START one run and stream it.
 
-    Returns the attempt's record, a message when it did not complete, and an interruption
-    (KeyboardInterrupt, …) to raise once the record is written.
+    Returns the attempt's record, a message when it did not complete, an interruption
+    (KeyboardInterrupt, …) to raise once the record is written, and whether the link still
+    works (a damaged line or a sample gap leaves it working: the run's record is incomplete,
+    every other sample is kept; a dropped connection, a timeout or an error does not).
     """
     run = _Run(folder, name)
     total = int(cfg["hold_samples"]) + int(cfg["run_samples"]) + 1
     link.send(encode("START"))
     reason, end = "", ""
+    damaged = ""  # the first damaged line or gap: the run goes on, its record is incomplete
     stop: BaseException | None = None
     try:
         while True:
@@ -358,12 +362,15 @@ def _one_run(link: Link, folder: OutputFolder, i: int, name: str, cfg: Mapping[s
             if line is None:
                 reason = f"the rig sent nothing for {timeout:g} s"
                 break
-            msg = parse(line)
+            try:
+                msg = parse(line)
+            except ProtocolError as exc:  # keep reading: every later sample is kept
+                damaged = damaged or f"{exc} (after sample {run.last_index})"
+                continue
             if msg.kind == "SAMPLE":
                 idx = int(msg.fields["index"])
                 if idx != run.last_index + 1:
-                    reason = f"sample gap: index {idx} after {run.last_index}"
-                    break
+                    damaged = damaged or f"sample gap: index {idx} after {run.last_index}"
                 run.last_index = idx
                 run.sample(msg.fields)
                 if progress is not None and idx % 50 == 0:
@@ -382,16 +389,17 @@ def _one_run(link: Link, folder: OutputFolder, i: int, name: str, cfg: Mapping[s
                 break
     except LinkClosed as exc:
         reason = str(exc)
-    except ProtocolError as exc:
-        reason = f"{exc} (after sample {run.last_index})"
     except BaseException as exc:  # Ctrl-C: keep what arrived, then re-raise
         reason = f"interrupted on the host ({type(exc).__name__})"
         stop = exc
+    alive = not reason  # the link still works: the plan can go on
     if reason:  # the link failed: ask the rig to stop, keep what arrived
         try:
             link.send(encode("ABORT", 1.0))
         except LinkClosed:
             pass
+    if reason or damaged:
+        reason = reason if not damaged else (f"{damaged}; {reason}" if reason else damaged)
         status, target = "incomplete", f"{Path(name).stem}.incomplete.csv"
     elif end == "done":
         status, target = "complete", name
@@ -422,7 +430,7 @@ def _one_run(link: Link, folder: OutputFolder, i: int, name: str, cfg: Mapping[s
                 f"{attempt['sample_time_mean']:.6g} s), not T = {T:g} s; the digital loop's "
                 "model assumes a fixed period")
         msg = f"{msg}; {late}" if msg else late
-    return attempt, msg, stop
+    return attempt, msg, stop, alive
 
 
 def _write_manifest(folder: OutputFolder, sched: Mapping[str, Any],
@@ -430,7 +438,7 @@ def _write_manifest(folder: OutputFolder, sched: Mapping[str, Any],
                     status: list[str]) -> None:
     cfg0 = configs[0]
     runs = []
-    for a in attempts:
+    for a in sorted(attempts, key=lambda a: int(a["run"])):  # plan order
         if a["status"] == "complete":
             runs.append({"file": a["file"], "P": a["P"], "D": a["D"],
                          **{f"rig_{k}": a[k] for k in ("sample_time_mean", "sample_time_max")
