@@ -179,7 +179,7 @@ LAYERS: dict[str, set[str]] = {
                              "phoid.reports"},
     "phoid.planning": BASE | {"phoid.methods", "phoid.fits", "phoid.dynamics", "phoid.io",
                               "phoid.reports"},
-    "phoid.rig": BASE | {"phoid.dynamics", "phoid.simulation"},
+    "phoid.rig": BASE | {"phoid.dynamics", "phoid.simulation", "phoid.io", "phoid.planning"},
 }
 
 

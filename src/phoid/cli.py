@@ -705,6 +705,12 @@ def design(
         raise typer.Exit(1)
 
 
+from phoid.rig import commands as _rig_commands  # noqa: E402  (typer functions, lazy inside)
+
+app.command(name="virtual-rig")(_rig_commands.virtual_rig)
+app.command(name="run")(_rig_commands.run)
+
+
 def main() -> None:
     """Console entry point.
 

@@ -3,6 +3,10 @@
 Public: :class:`Controller`, :class:`Event`, :class:`CompilerNotFoundError`,
 :func:`build_library`, :func:`load_library`, :func:`find_compiler` (:mod:`phoid.rig.native`).
 The C sources and their README are in ``phoid/rig/c``.
+
+Around the controller: the line protocol ``PHOID-RIG 1`` (:mod:`phoid.rig.protocol`,
+docs/rig-protocol.md), the virtual rig (:mod:`phoid.rig.virtual`, ``phoid virtual-rig``) and
+the host driver (:mod:`phoid.rig.host`, ``phoid run``); import them from their modules.
 """
 
 from phoid.rig.native import (

@@ -1,0 +1,145 @@
+"""The rig's command-line commands (``phoid virtual-rig``, ``phoid run``), registered in cli.py.
+
+Errors a user can cause print one line ``phoid: error: …`` and exit with status 2.
+"""
+
+from __future__ import annotations
+
+import sys
+import threading
+import time
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+__all__ = ["run", "virtual_rig"]
+
+
+def _fail(message: str) -> None:
+    typer.echo(f"phoid: error: {' '.join(message.split())}", err=True)
+    raise typer.Exit(2)
+
+
+def virtual_rig(
+    m: Annotated[float, typer.Option("--m", help="Mass, kg.")],
+    c: Annotated[float, typer.Option("--c", help="Viscous damping, N s/m.")],
+    k: Annotated[float, typer.Option("--k", help="Stiffness, N/m.")],
+    fc: Annotated[float, typer.Option("--fc", help="Coulomb friction force, N.")] = 0.0,
+    offset_force: Annotated[float, typer.Option(
+        "--offset-force", help="Constant offset force, N.")] = 0.0,
+    noise: Annotated[float, typer.Option(help="Position sensor noise sd, m.")] = 0.0,
+    seed: Annotated[int | None, typer.Option(help="Seed of the noise.")] = None,
+    noise_outside_loop: Annotated[bool, typer.Option(
+        "--noise-outside-loop", help="Add the noise to the streamed x only; the controller "
+                                     "reads the exact position (phoid simulate's model).")
+    ] = False,
+    listen: Annotated[str, typer.Option(
+        help="Address to serve on, HOST:PORT.")] = "127.0.0.1:8765",
+    realtime: Annotated[bool, typer.Option(
+        "--realtime", help="Pace the samples to the wall clock.")] = False,
+    build: Annotated[Path | None, typer.Option(
+        help="Folder to build the C controller in [a temporary folder].")] = None,
+    max_rate: Annotated[float, typer.Option(
+        "--max-rate", help="Fastest sample rate the rig accepts, Hz.")] = 20000.0,
+) -> None:
+    """Serve a simulated rig: the compiled C controller against phoid's exact plant.
+
+    Speaks the rig protocol PHOID-RIG 1 (docs/rig-protocol.md) on --listen, one connection at a
+    time, until interrupted (Ctrl-C or SIGTERM: it then stops serving and removes its temporary
+    build folder). Needs a C compiler.
+    """
+    import signal
+
+    from phoid.dynamics.plant import Plant
+    from phoid.rig.host import parse_port
+    from phoid.rig.virtual import VirtualRig
+
+    try:
+        host, port = parse_port(listen) if not listen.endswith(":0") else (listen[:-2], 0)
+        rig = VirtualRig(Plant(m=m, c=c, k=k, fc=fc), offset_force=offset_force, noise=noise,
+                         seed=seed, realtime=realtime, build=build, max_rate=max_rate,
+                         noise_in_loop=not noise_outside_loop)
+    except (ValueError, OSError) as exc:
+        _fail(str(exc))
+    try:
+        try:
+            host, port = rig.listen(host, port)
+        except ValueError as exc:
+            _fail(str(exc))
+        if threading.current_thread() is threading.main_thread():
+            signal.signal(signal.SIGTERM, lambda *_: sys.exit(0))  # runs the `finally` below
+        typer.echo(f"virtual rig (m={m:g} kg, c={c:g} N s/m, k={k:g} N/m, fc={fc:g} N) "
+                   f"listening on tcp://{host}:{port}; Ctrl-C stops it", err=True)
+        while True:
+            time.sleep(3600)
+    finally:
+        rig.close()
+
+
+def run(
+    plan: Annotated[Path, typer.Argument(help="The plan: a folder (or experiment.toml) "
+                                              "written by `phoid design --out`.")],
+    port: Annotated[str, typer.Option(
+        help="The rig: tcp://HOST:PORT or serial:///dev/DEVICE[?baud=N] (POSIX; 115200).")],
+    out: Annotated[Path | None, typer.Option(
+        "--out", "-o", help="The set's folder [PLAN-run beside the plan].")] = None,
+    resume: Annotated[bool, typer.Option(
+        "--resume", help="Continue a set begun before: run the runs not done.")] = False,
+    pmax: Annotated[float | None, typer.Option(help="The rig's limit on |P|, N/m.")] = None,
+    dmax: Annotated[float | None, typer.Option(help="The rig's limit on |D|, N s/m.")] = None,
+    hold_p: Annotated[float | None, typer.Option(
+        "--hold-p", help="Hold loop P, N/m [3 k of the plan's prior].")] = None,
+    hold_d: Annotated[float | None, typer.Option(
+        "--hold-d", help="Hold loop D, N s/m [about critical damping].")] = None,
+    hold: Annotated[float | None, typer.Option(
+        help="Hold time before the release, s [7 time constants of the hold].")] = None,
+    x_limit: Annotated[float | None, typer.Option(
+        "--x-limit", help="Position limit |x|, m [3 x the release amplitude].")] = None,
+    u_max: Annotated[float | None, typer.Option(
+        "--u-max", help="Command limit, N [none].")] = None,
+    timeout: Annotated[float, typer.Option(
+        help="Seconds to wait for the rig (connection, each line).")] = 10.0,
+) -> None:
+    """Run a designed plan on a rig and write the phoid/1 set as the samples arrive.
+
+    Reads the plan, refuses gains beyond --pmax/--dmax before anything moves, then for each
+    run configures the rig, starts it and streams its samples into the run's CSV. The manifest
+    is rewritten after every run; a run the controller aborts is kept (runNN.aborted.csv) and
+    marked, a run cut off by the link (runNN.incomplete.csv) is run again by --resume. Exit
+    status 0 when every run completed, 1 when some did not, 2 on bad input.
+    """
+    from phoid.rig.host import RigError, run_plan
+
+    if out is None:
+        base = plan.parent if plan.suffix == ".toml" else plan
+        out = base.parent / f"{base.name}-run"
+    show = sys.stderr.isatty()
+    try:
+        if show:
+            from rich.console import Console
+            from rich.progress import Progress
+
+            with Progress(console=Console(stderr=True), transient=True) as bar:
+                task = bar.add_task("run", total=None)
+
+                def progress(i: int, n: int, total: int) -> None:
+                    bar.update(task, description=f"run {i}", completed=n, total=total)
+
+                result = run_plan(plan, port, out, resume=resume, timeout=timeout,
+                                  progress=progress, pmax=pmax, dmax=dmax, hold_p=hold_p,
+                                  hold_d=hold_d, hold=hold, x_limit=x_limit, u_max=u_max)
+        else:
+            result = run_plan(plan, port, out, resume=resume, timeout=timeout, pmax=pmax,
+                              dmax=dmax, hold_p=hold_p, hold_d=hold_d, hold=hold,
+                              x_limit=x_limit, u_max=u_max)
+    except (RigError, ValueError, OSError) as exc:
+        _fail(str(exc))
+    for msg in result.messages:
+        typer.echo(f"phoid: {msg}", err=True)
+    done = sum(s == "complete" for s in result.statuses)
+    typer.echo(f"{done} of {len(result.statuses)} runs complete; set written to "
+               f"{result.manifest}")
+    if not result.complete:
+        typer.echo("phoid: the plan is not complete (pass --resume to run the rest)", err=True)
+        raise typer.Exit(1)

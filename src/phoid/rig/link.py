@@ -1,0 +1,164 @@
+"""A line link over a socket: whole lines in, bytes out, with timeouts (both rig sides use it).
+
+:class:`Link` buffers what the socket delivers and hands out one line (LF included) at a time,
+so a caller can poll for a line without blocking (the virtual rig looks for ``ABORT`` between
+samples) or wait for one with a bounded timeout (the host).
+"""
+
+from __future__ import annotations
+
+import os
+import select
+import socket
+import sys
+import time
+
+from phoid.rig.protocol import MAX_LINE, ProtocolError
+
+__all__ = ["FdStream", "Link", "LinkClosed", "connect", "open_serial"]
+
+
+class LinkClosed(ProtocolError):
+    """The other side closed the connection (or it dropped)."""
+
+
+class Link:
+    """Lines over a connected socket.
+
+    Parameters
+    ----------
+    sock : socket.socket or FdStream
+        A connected stream socket, or a serial line (:func:`open_serial`); the link owns it
+        and closes it in :meth:`close`.
+    """
+
+    def __init__(self, sock: socket.socket) -> None:
+        self.sock = sock
+        self._buf = bytearray()
+        self._eof = False
+
+    def send(self, data: bytes) -> None:
+        """Send bytes (whole lines); a dropped connection raises :class:`LinkClosed`."""
+        try:
+            self.sock.sendall(data)
+        except OSError as exc:
+            raise LinkClosed(f"the connection dropped while sending ({exc.strerror or exc})") \
+                from None
+
+    def _fill(self, timeout: float) -> None:
+        ready, _, _ = select.select([self.sock], [], [], max(timeout, 0.0))
+        if not ready:
+            return
+        try:
+            chunk = self.sock.recv(65536)
+        except OSError as exc:
+            raise LinkClosed(f"the connection dropped ({exc.strerror or exc})") from None
+        if not chunk:
+            self._eof = True
+        self._buf += chunk
+
+    def readline(self, timeout: float | None) -> bytes | None:
+        """The next line (with its LF), or None when none came within ``timeout`` s.
+
+        ``timeout`` 0 polls; None waits for ever. At the end of the stream a last partial line
+        is returned as it is (without LF: the parser calls it truncated); after that
+        :class:`LinkClosed` is raised.
+        """
+        deadline = None if timeout is None else time.monotonic() + timeout
+        while True:
+            i = self._buf.find(b"\n")
+            if i >= 0:
+                line = bytes(self._buf[:i + 1])
+                del self._buf[:i + 1]
+                return line
+            if len(self._buf) > MAX_LINE:
+                line = bytes(self._buf[:MAX_LINE + 1])
+                del self._buf[:MAX_LINE + 1]
+                return line  # too long: the parser refuses it
+            if self._eof:
+                if self._buf:
+                    line = bytes(self._buf)
+                    self._buf.clear()
+                    return line
+                raise LinkClosed("the connection was closed by the other side")
+            left = 1.0 if deadline is None else deadline - time.monotonic()
+            if left <= 0 and timeout != 0:
+                return None
+            self._fill(max(left, 0.0) if deadline is not None else 1.0)
+            if timeout == 0 and b"\n" not in self._buf and not self._eof:
+                return None
+
+    def close(self) -> None:
+        """Close the socket (no error when it is closed already)."""
+        try:
+            self.sock.close()
+        except OSError:
+            pass
+
+
+def connect(host: str, port: int, timeout: float) -> Link:
+    """Connect to ``host:port`` within ``timeout`` s; a :class:`LinkClosed` names the address."""
+    try:
+        sock = socket.create_connection((host, port), timeout=timeout)
+    except OSError as exc:
+        raise LinkClosed(f"cannot connect to the rig at tcp://{host}:{port}: "
+                         f"{exc.strerror or exc}") from None
+    sock.settimeout(None)
+    return Link(sock)
+
+
+class FdStream:
+    """A file descriptor (a serial line) with the socket methods :class:`Link` uses."""
+
+    def __init__(self, fd: int) -> None:
+        self.fd = fd
+
+    def fileno(self) -> int:
+        return self.fd
+
+    def sendall(self, data: bytes) -> None:
+        view = memoryview(data)
+        while view:
+            n = os.write(self.fd, view)
+            view = view[n:]
+
+    def recv(self, size: int) -> bytes:
+        return os.read(self.fd, size)
+
+    def shutdown(self, how: int) -> None:
+        pass
+
+    def close(self) -> None:
+        os.close(self.fd)
+
+
+def open_serial(path: str, baud: int) -> Link:
+    """Open a serial line (POSIX: a tty device) raw at ``baud``, 8 data bits, no parity.
+
+    Raises
+    ------
+    LinkClosed
+        One line naming the device when it cannot be opened or configured.
+    """
+    if sys.platform == "win32":
+        raise LinkClosed("serial ports are supported on POSIX systems only; use tcp://")
+    import termios
+    import tty
+
+    speed = getattr(termios, f"B{baud}", None)
+    if speed is None:
+        raise LinkClosed(f"serial://{path}: baud rate {baud} is not one this system knows")
+    try:
+        fd = os.open(path, os.O_RDWR | os.O_NOCTTY)
+    except OSError as exc:
+        raise LinkClosed(f"cannot open the rig's serial port {path}: {exc.strerror or exc}") \
+            from None
+    try:
+        tty.setraw(fd)
+        attrs = termios.tcgetattr(fd)
+        attrs[4] = attrs[5] = speed
+        termios.tcsetattr(fd, termios.TCSANOW, attrs)
+    except (OSError, termios.error) as exc:
+        os.close(fd)
+        raise LinkClosed(f"{path} is not a serial port that can be configured: {exc}") from None
+    return Link(FdStream(fd))  # type: ignore[arg-type]
