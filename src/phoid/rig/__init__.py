@@ -9,14 +9,27 @@ docs/rig-protocol.md), the virtual rig (:mod:`phoid.rig.virtual`, ``phoid virtua
 the host driver (:mod:`phoid.rig.host`, ``phoid run``); import them from their modules.
 """
 
-from phoid.rig.native import (
-    CompilerNotFoundError,
-    Controller,
-    Event,
-    build_library,
-    find_compiler,
-    load_library,
-)
+from typing import TYPE_CHECKING
+
+from phoid._lazy import lazy_exports
+
+if TYPE_CHECKING:  # the real imports, for type checkers; at run time see __getattr__
+    from phoid.rig.native import (
+        CompilerNotFoundError,
+        Controller,
+        Event,
+        build_library,
+        find_compiler,
+        load_library,
+    )
+
+# imported on first use (PEP 562): `phoid --help` registers the rig's commands without loading
+# ctypes and the binding
+_EXPORTS = {name: "phoid.rig.native" for name in (
+    "CompilerNotFoundError", "Controller", "Event", "build_library", "find_compiler",
+    "load_library")}
+
+__getattr__, __dir__ = lazy_exports(__name__, globals(), _EXPORTS)
 
 __all__ = [
     "CompilerNotFoundError",
