@@ -97,12 +97,25 @@ class Link:
 
 
 def connect(host: str, port: int, timeout: float) -> Link:
-    """Connect to ``host:port`` within ``timeout`` s; a :class:`LinkClosed` names the address."""
-    try:
-        sock = socket.create_connection((host, port), timeout=timeout)
-    except OSError as exc:
-        raise LinkClosed(f"cannot connect to the rig at tcp://{host}:{port}: "
-                         f"{exc.strerror or exc}") from None
+    """Connect to ``host:port`` within ``timeout`` s; a :class:`LinkClosed` names the address.
+
+    A refused connection is retried every 0.1 s until the timeout: a rig just started (the
+    virtual rig compiles its controller first) listens a moment later.
+    """
+    deadline = time.monotonic() + timeout
+    while True:
+        try:
+            sock = socket.create_connection((host, port),
+                                            timeout=max(deadline - time.monotonic(), 0.05))
+            break
+        except ConnectionRefusedError as exc:
+            if time.monotonic() + 0.1 >= deadline:
+                raise LinkClosed(f"cannot connect to the rig at tcp://{host}:{port}: "
+                                 f"{exc.strerror or exc} (for {timeout:g} s)") from None
+            time.sleep(0.1)
+        except OSError as exc:
+            raise LinkClosed(f"cannot connect to the rig at tcp://{host}:{port}: "
+                             f"{exc.strerror or exc}") from None
     sock.settimeout(None)
     return Link(sock)
 
