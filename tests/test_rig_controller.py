@@ -302,6 +302,47 @@ def test_non_finite_input_faults(lib_dir):
     assert ctrl.state == "fault"
 
 
+def test_a_measured_force_is_stored_and_does_not_change_the_loop(lib_dir):
+    # phoid_step_force stores the force (phoid_force) but the loop is on x only: the same
+    # positions give bit-identical commands with and without forces; no sensor declared
+    # (has_force = 0), so a NaN force is stored without a fault
+    a = _controller(lib_dir, PAPER, "filtered", 2)
+    b = _controller(lib_dir, PAPER, "filtered", 2)
+    assert np.isnan(a.force)  # before the first sample: none given
+    a.start()
+    b.start()
+    rng = np.random.default_rng(3)
+    xs = PAPER["x_start"] + 1e-4 * rng.standard_normal(200)
+    forces = 5.0 * rng.standard_normal(200)
+    forces[17] = np.nan
+    for x, f in zip(xs, forces, strict=True):
+        assert a.step(x, 0.0, float(f)) == b.step(x)
+        assert a.force == f or (np.isnan(f) and np.isnan(a.force))
+        assert np.isnan(b.force)  # phoid_step gives no force
+    assert a.state == b.state == "run"
+    assert [e.name for e in a.events()] == [e.name for e in b.events()] == ["start", "release"]
+
+
+@pytest.mark.parametrize("bad", [float("nan"), float("inf"), None])
+def test_a_declared_force_sensor_without_a_finite_force_faults(lib_dir, bad):
+    # has_force = 1: a sample whose force is NaN, infinite or not given (phoid_step) is a
+    # fault-input with value 1 (the force; x or r give value 0), command 0 from that sample
+    ctrl = _controller(lib_dir, PAPER, "backward-difference", 0, has_force=1)
+    ctrl.start()
+    assert ctrl.step(PAPER["x_start"] + 1e-3, 0.0, 2.5) != 0.0  # hold pulls back: nonzero
+    assert ctrl.force == 2.5 and ctrl.state == "hold"
+    assert ctrl.step(PAPER["x_start"] + 1e-3, 0.0, bad) == 0.0
+    events = ctrl.events()
+    assert [(e.name, e.index, e.value) for e in events] == [
+        ("start", 0, PAPER["x_start"]), ("fault-input", 1, 1.0)]
+    assert ctrl.state == "fault"
+    ctrl.clear_fault()
+    ctrl2 = _controller(lib_dir, PAPER, "backward-difference", 0, has_force=1)
+    ctrl2.start()
+    ctrl2.step(float("nan"), 0.0, 1.0)
+    assert [(e.name, e.value) for e in ctrl2.events()][-1] == ("fault-input", 0.0)
+
+
 @pytest.mark.parametrize(("field", "value", "code"), [
     ("sample_time", 0.0, -2),
     ("sample_time", float("nan"), -2),
@@ -317,6 +358,7 @@ def test_non_finite_input_faults(lib_dir):
     ("growth_limit", 0.5, -11),
     ("stall_epsilon", -1.0, -12),
     ("run_samples", 0, -13),
+    ("has_force", 2, -15),
 ])
 def test_invalid_configs_are_refused_naming_the_field(lib_dir, field, value, code):
     cfg = dict(sample_time=0.01, x_min=-1.0, x_max=1.0)

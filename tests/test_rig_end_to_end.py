@@ -141,7 +141,7 @@ def test_the_cli_serves_a_virtual_rig(build, tmp_path):
     env = {**os.environ, "PYTHONPATH": f"{src}{os.pathsep}{os.environ.get('PYTHONPATH', '')}"}
     cmd = [sys.executable, "-c", "from phoid.cli import main; main()", "virtual-rig", "--m",
            "2", "--c", "1", "--k", "64", "--noise", "1e-5", "--seed", "1", "--listen",
-           "127.0.0.1:0", "--build", str(build)]
+           "127.0.0.1:0", "--build", str(build), "--force-noise", "0.001"]
     bad = subprocess.run([*cmd[:5], "-1", *cmd[6:]], capture_output=True, text=True, env=env,
                          timeout=60)
     assert bad.returncode == 2 and bad.stderr.count("\n") == 1 and "m" in bad.stderr
@@ -154,6 +154,8 @@ def test_the_cli_serves_a_virtual_rig(build, tmp_path):
         r = _cli("run", plan, "--port", port, "--out", tmp_path / "set")
         assert r.exit_code == 0, r.output
         assert "2 of 2 runs complete" in r.stdout
+        assert {a["u_source"] for a in _manifest(tmp_path / "set")["rig"]["attempt"]} == {
+            "measured"}
     finally:
         proc.terminate()
         rc = proc.wait(timeout=30)
@@ -545,3 +547,124 @@ def test_a_plan_runs_over_a_serial_line(build, tmp_path):
     assert "--port must be serial:" in _fail_line(_cli("run", plan, "--port",
                                                        "serial:///dev/x?speed=9", "--out",
                                                        tmp_path / "set2"))
+
+
+def _csv(path):
+    import numpy as np
+
+    return np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)
+
+
+def test_a_rig_with_a_force_sensor_records_the_measured_force(build, tmp_path):
+    # The virtual rig with --force-noise sd reports the force it applies over each sample,
+    # G·uₙ, plus white noise of sd (its own seeded stream, so the position noise — and with it
+    # the loop, which does not use the force — is the same as without the sensor). The same
+    # plan is run twice with the same seed: once without the sensor (u = the command, G = 1) and
+    # once with it. The x columns must then agree bit for bit, and u_with − u_without is the
+    # force noise alone: mean within 4 of its standard error sd/√N, sd within 4 of the sample
+    # sd's standard error sd/√(2N) (Gaussian; 4: a chance failure below 1e-4 per assert).
+    import numpy as np
+
+    sd = 0.01  # N; the commands are of order k·A = 64·0.01 = 0.6 N
+    plan = _design(tmp_path, PAPER, runs=2)
+    rig, port = _rig(build, PAPER, noise=1e-5, seed=5)
+    with rig:
+        r = _cli("run", plan, "--port", port, "--out", tmp_path / "cmd")
+    assert r.exit_code == 0, r.output
+    rig, port = _rig(build, PAPER, noise=1e-5, seed=5, force_noise=sd)
+    with rig:
+        r = _cli("run", plan, "--port", port, "--out", tmp_path / "meas")
+    assert r.exit_code == 0, r.output
+    cmd, meas = _manifest(tmp_path / "cmd"), _manifest(tmp_path / "meas")
+    assert [a["u_source"] for a in cmd["rig"]["attempt"]] == ["command", "command"]
+    assert [a["u_source"] for a in meas["rig"]["attempt"]] == ["measured", "measured"]
+    for run in meas["run"]:
+        a, b = _csv(tmp_path / "cmd" / run["file"]), _csv(tmp_path / "meas" / run["file"])
+        assert a.shape == b.shape and np.array_equal(a[:, :2], b[:, :2])
+        eta = b[:, 2] - a[:, 2]
+        n = eta.size
+        print(f"{run['file']}: force noise mean {eta.mean():.3g} N, sd {eta.std(ddof=1):.4g} N "
+              f"(sd {sd} N, N = {n})")
+        assert abs(eta.mean()) < 4 * sd / np.sqrt(n)
+        assert abs(eta.std(ddof=1) - sd) < 4 * sd / np.sqrt(2 * n)
+    _recovers(_identify(tmp_path / "meas"), PAPER)
+
+
+def test_the_virtual_rig_sends_a_force_only_with_force_noise(build):
+    # without --force-noise the SAMPLE lines are the five-field lines of a rig without a force
+    # sensor; with it every line carries the force field (docs/rig-protocol.md)
+    from phoid.rig.virtual import VirtualRig
+
+    cfg = {"sample_time": 0.01, "P": 12.625, "D": 3.3, "hold_P": 150.0, "hold_D": 25.0,
+           "x_start": 0.01, "hold_samples": 5, "run_samples": 10}
+    for force_noise in (None, 0.0):
+        rig = VirtualRig(Plant(m=2.0, c=1.0, k=64.0), build=build, force_noise=force_noise)
+        host, num = rig.listen("127.0.0.1", 0)
+        with rig, socket.create_connection((host, num), timeout=5) as sock:
+            f = sock.makefile("rb")
+            sock.sendall(hello())
+            parse(f.readline())
+            sock.sendall(encode_config(cfg))
+            assert parse(f.readline()).kind == "OK"
+            sock.sendall(encode("START"))
+            samples = []
+            while (msg := parse(f.readline())).kind != "END":
+                if msg.kind == "SAMPLE":
+                    samples.append(msg.fields)
+            sock.sendall(encode("BYE"))
+        assert len(samples) == 16
+        if force_noise is None:
+            assert all("force" not in s for s in samples)
+        else:  # no noise, G = 1: the measured force is the command applied, exactly
+            assert all(s["force"] == s["u"] for s in samples)
+    with pytest.raises(ValueError, match="force_noise"):
+        VirtualRig(Plant(m=2.0, c=1.0, k=64.0), build=build, force_noise=-1.0)
+
+
+def test_a_force_field_that_stops_midway_makes_the_run_incomplete(build, tmp_path):
+    # a scripted rig whose SAMPLE lines carry the force (u = 0.5 command units, force 0.25 N,
+    # so the file shows which one was recorded) and drop it from run sample 10 on: mixing the
+    # measured force and the command in one u column would be a silently wrong record, so the
+    # run is incomplete, the samples with a force are kept and the plan goes on
+    import numpy as np
+
+    plan = _design(tmp_path, PAPER, runs=2)
+    srv = socket.create_server(("127.0.0.1", 0))
+
+    def serve():
+        conn, _ = srv.accept()
+        with conn:
+            f = conn.makefile("rb")
+            f.readline()
+            conn.sendall(hello())
+            starts = 0
+            while True:
+                msg = parse(f.readline())
+                if msg.kind == "CONFIG":
+                    cfg = msg.fields
+                    conn.sendall(encode("OK"))
+                elif msg.kind == "START":
+                    starts += 1
+                    T, n_hold = cfg["sample_time"], cfg["hold_samples"]
+                    n_run = cfg["run_samples"]
+                    out = b""
+                    for n in range(n_hold + n_run + 1):
+                        state = "hold" if n < n_hold else "run" if n < n_hold + n_run else "done"
+                        force = () if starts == 1 and n >= n_hold + 10 else (0.25,)
+                        out += encode("SAMPLE", n, T * n, 0.001, 0.5, state, *force)
+                    conn.sendall(out + encode("END", "done"))
+                else:
+                    return
+
+    threading.Thread(target=serve, daemon=True).start()
+    r = _cli("run", plan, "--port", f"tcp://127.0.0.1:{srv.getsockname()[1]}", "--out",
+             tmp_path / "set")
+    srv.close()
+    assert r.exit_code == 1 and "1 of 2 runs complete" in r.stdout, r.output
+    doc = _manifest(tmp_path / "set")
+    first, second = doc["rig"]["attempt"]
+    assert first["status"] == "incomplete" and "force field is missing mid-run" in first["reason"]
+    assert first["u_source"] == "measured" and first["samples"] == 10
+    assert np.all(_csv(tmp_path / "set" / first["file"])[:, 2] == 0.25)
+    assert second["status"] == "complete" and second["u_source"] == "measured"
+    assert np.all(_csv(tmp_path / "set" / second["file"])[:, 2] == 0.25)

@@ -29,6 +29,7 @@ def test_a_line_is_payload_space_star_crc32():
 
 @pytest.mark.parametrize("kind, values", [
     ("SAMPLE", (12, 0.06, 0.0031234567891234567, -1.5e-7, "run")),
+    ("SAMPLE", (12, 0.06, 0.0031234567891234567, -1.5e-7, "run", -0.3141592653589793)),
     ("EVENT", (405, "fault-growth", 0.0251)),
     ("END", ("done",)),
     ("ABORT", (3.0,)),
@@ -83,7 +84,10 @@ def _framed(payload: bytes) -> bytes:
 
 
 @pytest.mark.parametrize("payload, match", [
-    (b"SAMPLE 1 0.1 0.2 0.3", "SAMPLE has 5 fields"),
+    (b"SAMPLE 1 0.1 0.2 0.3", "SAMPLE has 5 or 6 fields"),
+    (b"SAMPLE 1 0.1 0.2 0.3 run 0.4 0.5", "SAMPLE has 5 or 6 fields"),
+    (b"SAMPLE 1 0.1 0.2 0.3 run inf", "field `force` must be finite"),
+    (b"SAMPLE 1 0.1 0.2 0.3 run N/A", "field `force` must be a number"),
     (b"SAMPLE 1 0.1 nan 0.3 run", "field `x` must be finite"),
     (b"SAMPLE 1.5 0.1 0.2 0.3 run", "field `index` must be a whole number"),
     (b"SAMPLE 1 0.1 0.2 0.3 flying", "field `state` must be one of"),
@@ -100,9 +104,27 @@ def test_bad_fields_are_named(payload, match):
         parse(_framed(payload))
 
 
+def test_a_sample_line_of_a_rig_without_a_force_sensor_parses_as_before():
+    # an old-format line, framed by hand (docs/rig-protocol.md): five fields, no `force` key
+    msg = parse(_framed(b"SAMPLE 3 0.015 0.0042 -1.25 run"))
+    assert msg.kind == "SAMPLE"
+    assert msg.fields == {"index": 3, "t": 0.015, "x": 0.0042, "u": -1.25, "state": "run"}
+    # the same sample with the optional measured force: one more field, the rest unchanged
+    msg = parse(_framed(b"SAMPLE 3 0.015 0.0042 -1.25 run -1.2625"))
+    assert msg.fields == {"index": 3, "t": 0.015, "x": 0.0042, "u": -1.25, "state": "run",
+                          "force": -1.2625}
+    # encoding without a force writes the old five-field line, byte for byte
+    assert encode("SAMPLE", 3, 0.015, 0.0042, -1.25, "run") == _framed(
+        b"SAMPLE 3 0.015 0.0042 -1.25 run")
+
+
 def test_encoding_refuses_what_cannot_be_sent():
     with pytest.raises(ProtocolError, match="field `x` must be a finite number"):
         encode("SAMPLE", 1, 0.0, float("inf"), 0.0, "run")
+    with pytest.raises(ProtocolError, match="field `force` must be a finite number"):
+        encode("SAMPLE", 1, 0.0, 0.0, 0.0, "run", float("nan"))
+    with pytest.raises(ProtocolError, match="SAMPLE takes 5 or 6 fields"):
+        encode("SAMPLE", 1, 0.0, 0.0, 0.0)
     with pytest.raises(ProtocolError, match="CONFIG field `run_samples` must be a whole"):
         encode_config({"run_samples": 2.5})
     with pytest.raises(ProtocolError, match="unknown field `Kp`"):

@@ -42,6 +42,9 @@ def virtual_rig(
         help="Folder to build the C controller in [a temporary folder].")] = None,
     max_rate: Annotated[float, typer.Option(
         "--max-rate", help="Fastest sample rate the rig accepts, Hz.")] = 20000.0,
+    force_noise: Annotated[float | None, typer.Option(
+        "--force-noise", help="Report a measured force (the force applied plus white noise of "
+                              "this sd, N) in each sample; off by default.")] = None,
 ) -> None:
     """Serve a simulated rig: the compiled C controller against phoid's exact plant.
 
@@ -59,7 +62,7 @@ def virtual_rig(
         host, port = parse_port(listen) if not listen.endswith(":0") else (listen[:-2], 0)
         rig = VirtualRig(Plant(m=m, c=c, k=k, fc=fc), offset_force=offset_force, noise=noise,
                          seed=seed, realtime=realtime, build=build, max_rate=max_rate,
-                         noise_in_loop=not noise_outside_loop)
+                         noise_in_loop=not noise_outside_loop, force_noise=force_noise)
     except (ValueError, OSError) as exc:
         _fail(str(exc))
     try:

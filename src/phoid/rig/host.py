@@ -3,7 +3,9 @@ r"""The host driver: run a designed plan on a rig (``PHOID-RIG 1``), write the `
 :func:`run_plan` reads a plan (``phoid design --out``), checks every run's gains against the
 rig's limits before anything moves, connects, says hello, and for each run sends ``CONFIG`` and
 ``START`` and streams the samples into the run's CSV (``t, x, u``: the samples from the release
-on) as they arrive. After every run it rewrites the manifest ``experiment.toml`` (atomically):
+on) as they arrive; ``u`` is the measured force when the rig's SAMPLE lines carry one (a rig
+with a force sensor), else the command it applied (N with the command gain 1). After every run
+it rewrites the manifest ``experiment.toml`` (atomically):
 the complete runs as ``[[run]]`` tables with the digital loop in ``[loop]`` (``sample_time``,
 ``delay_samples``, ``velocity``), so that ``phoid identify`` reads the set as it stands, and
 every attempt — complete, aborted by the controller, or incomplete (the link failed) — in
@@ -196,14 +198,25 @@ class _Run:
         self.last_index = -1
         self.times: list[float] = []
         self.events: list[str] = []
+        self.u_source = ""  # "measured" (SAMPLE's force) or "command", from the first run sample
 
-    def sample(self, f: Mapping[str, Any]) -> None:
+    def sample(self, f: Mapping[str, Any]) -> str:
+        """Record one SAMPLE; a message when its force field breaks the run's (else "")."""
         self.times.append(float(f["t"]))
         if f["state"] == "run":
-            self.fh.write(f"{float(f['t'])!r},{float(f['x'])!r},{float(f['u'])!r}\n")
+            source = "measured" if "force" in f else "command"
+            if self.u_source and source != self.u_source:
+                return (f"sample {f['index']}: the force field "
+                        f"{'appears' if source == 'measured' else 'is missing'} mid-run (u "
+                        f"would mix the measured force and the command); the samples "
+                        f"{'with' if source == 'measured' else 'without'} it are left out")
+            self.u_source = source
+            u = float(f["force"] if source == "measured" else f["u"])
+            self.fh.write(f"{float(f['t'])!r},{float(f['x'])!r},{u!r}\n")
             self.samples += 1
             if self.samples % 100 == 0:
                 self.fh.flush()
+        return ""
 
     def finish(self, target: str) -> str:
         """Close the file and move it to ``target`` (a free name if that one is taken)."""
@@ -372,7 +385,8 @@ def _one_run(link: Link, folder: OutputFolder, i: int, name: str, cfg: Mapping[s
                 if idx != run.last_index + 1:
                     damaged = damaged or f"sample gap: index {idx} after {run.last_index}"
                 run.last_index = idx
-                run.sample(msg.fields)
+                mixed = run.sample(msg.fields)
+                damaged = damaged or mixed
                 if progress is not None and idx % 50 == 0:
                     progress(i + 1, idx, total)
             elif msg.kind == "EVENT":
@@ -415,6 +429,7 @@ def _one_run(link: Link, folder: OutputFolder, i: int, name: str, cfg: Mapping[s
     written = run.finish(target)
     attempt = {"run": i + 1, "file": written, "P": cfg["P"], "D": cfg["D"], "status": status,
                "samples": run.samples, "received": run.last_index + 1,
+               "u_source": run.u_source or "command",
                "events": run.events, "time": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
                **run.timing()}
     if reason:

@@ -63,6 +63,7 @@ _ERRORS = {
     -11: ("growth_limit", "must be 0 (off) or finite and >= 1"),
     -12: ("stall_samples, stall_epsilon", "must be >= 0 (stall_epsilon finite, m)"),
     -13: ("hold_samples, run_samples", "must be hold_samples >= 0 and run_samples >= 1"),
+    -15: ("has_force", "must be 0 (no force sensor) or 1 (a force with every sample)"),
 }
 
 
@@ -93,6 +94,7 @@ class _Config(ctypes.Structure):
         ("growth_limit", ctypes.c_double),
         ("stall_samples", ctypes.c_long),
         ("stall_epsilon", ctypes.c_double),
+        ("has_force", ctypes.c_int),
     ]
 
 
@@ -100,7 +102,8 @@ class _Event(ctypes.Structure):
     _fields_ = [("index", ctypes.c_ulong), ("code", ctypes.c_int), ("value", ctypes.c_double)]
 
 
-_INT_FIELDS = {"velocity", "delay_samples", "hold_samples", "run_samples", "stall_samples"}
+_INT_FIELDS = {"velocity", "delay_samples", "hold_samples", "run_samples", "stall_samples",
+               "has_force"}
 
 
 @dataclass(frozen=True)
@@ -206,6 +209,9 @@ def load_library(folder: str | Path) -> ctypes.CDLL:
         "phoid_config_default": (None, [ctypes.POINTER(_Config)]),
         "phoid_init": (ctypes.c_int, [P, ctypes.POINTER(_Config)]),
         "phoid_step": (ctypes.c_double, [P, ctypes.c_double, ctypes.c_double]),
+        "phoid_step_force": (ctypes.c_double,
+                             [P, ctypes.c_double, ctypes.c_double, ctypes.c_double]),
+        "phoid_force": (ctypes.c_double, [P]),
         "phoid_start": (ctypes.c_int, [P]),
         "phoid_release": (ctypes.c_int, [P]),
         "phoid_abort": (None, [P, ctypes.c_double]),
@@ -244,7 +250,8 @@ class Controller:
         ``filter_pole`` a = exp(−ω_c T) or ``cutoff`` ω_c (rad/s, converted), ``delay_samples``,
         ``hold_P``, ``hold_D``, ``x_start`` (m), ``hold_samples``, ``run_samples``, ``x_min``,
         ``x_max`` (m), ``u_max`` (command units), ``growth_limit``, ``stall_samples``,
-        ``stall_epsilon`` (m).
+        ``stall_epsilon`` (m), ``has_force`` (1: a force sensor is declared, every
+        :meth:`step` must bring a finite ``force``).
     folder : str or Path
         Where the library is built (or found, when built before).
 
@@ -301,9 +308,21 @@ class Controller:
             raise ValueError(f"controller config: `{field}` {what}; got {shown} "
                              f"(phoid_init error {err})")
 
-    def step(self, x: float, r: float = 0.0) -> float:
-        """One sample: position x (m), reference r (m) → the command to apply now."""
-        return self._lib.phoid_step(self._ptr, x, r)
+    def step(self, x: float, r: float = 0.0, force: float | None = None) -> float:
+        """One sample: position x (m), reference r (m) → the command to apply now.
+
+        ``force`` is the measured force on the plant, N (``phoid_step_force``): stored
+        (:attr:`force`), not used by the loop; with ``has_force`` = 1 a missing or non-finite
+        force faults the controller (``fault-input``, value 1). ``None``: ``phoid_step``.
+        """
+        if force is None:
+            return self._lib.phoid_step(self._ptr, x, r)
+        return self._lib.phoid_step_force(self._ptr, x, r, force)
+
+    @property
+    def force(self) -> float:
+        """The measured force given with the last sample, N (NaN when none was given)."""
+        return float(self._lib.phoid_force(self._ptr))
 
     def start(self) -> None:
         """IDLE or DONE → HOLD from the next sample on (ValueError in another state)."""

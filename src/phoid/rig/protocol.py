@@ -11,7 +11,7 @@ single spaces; numbers are written in the shortest form that reads back to the s
 
 Messages (host → rig): ``PHOID-RIG 1`` (hello), ``CONFIG key=value …``, ``START``,
 ``ABORT reason``, ``CLEAR``, ``BYE``. (rig → host): ``PHOID-RIG 1`` (hello), ``OK``,
-``SAMPLE index t x u state``, ``EVENT index name value``, ``END reason``, ``ERROR message``.
+``SAMPLE index t x u state [force]``, ``EVENT index name value``, ``END reason``, ``ERROR message``.
 """
 
 from __future__ import annotations
@@ -47,7 +47,7 @@ CONFIG_FIELDS: dict[str, bool] = {
     "velocity": True, "filter_pole": False, "delay_samples": True, "hold_P": False,
     "hold_D": False, "x_start": False, "hold_samples": True, "run_samples": True,
     "x_min": False, "x_max": False, "u_max": False, "growth_limit": False,
-    "stall_samples": True, "stall_epsilon": False,
+    "stall_samples": True, "stall_epsilon": False, "has_force": True,
 }
 STATES = ("idle", "hold", "run", "done", "fault")
 
@@ -59,11 +59,14 @@ _KINDS: dict[str, tuple[tuple[str, str], ...]] = {
     "CLEAR": (),
     "BYE": (),
     "ABORT": (("reason", "f"),),
-    "SAMPLE": (("index", "i"), ("t", "f"), ("x", "f"), ("u", "f"), ("state", "w")),
+    "SAMPLE": (("index", "i"), ("t", "f"), ("x", "f"), ("u", "f"), ("state", "w"),
+               ("force", "f")),
     "EVENT": (("index", "i"), ("name", "w"), ("value", "f")),
     "END": (("reason", "w"),),
     "ERROR": (("message", "r"),),
 }
+# trailing fields a line may leave out (SAMPLE's measured force: a rig without a force sensor)
+_OPTIONAL: dict[str, int] = {"SAMPLE": 1}
 
 
 class ProtocolError(PhoidError):
@@ -81,7 +84,8 @@ class Message:
         ``"SAMPLE"``, ``"EVENT"``, ``"END"`` or ``"ERROR"``.
     fields : dict
         The fields by name (SAMPLE: ``index`` int, ``t`` s, ``x`` m, ``u`` command units,
-        ``state``; EVENT: ``index``, ``name``, ``value``; END: ``reason``; ERROR: ``message``;
+        ``state``, and ``force`` N only when the line carries the measured force; EVENT:
+        ``index``, ``name``, ``value``; END: ``reason``; ERROR: ``message``;
         ABORT: ``reason``; HELLO: ``version``; CONFIG: the configuration's fields).
     """
 
@@ -98,6 +102,11 @@ def _num(value: float | int) -> str:
     if not math.isfinite(v):
         raise ProtocolError(f"numbers must be finite; got {v!r}")
     return repr(v)
+
+
+def _count(kind: str, spec: tuple[tuple[str, str], ...]) -> str:
+    opt = _OPTIONAL.get(kind, 0)
+    return f"{len(spec) - opt} or {len(spec)}" if opt else str(len(spec))
 
 
 def _frame(payload: str) -> bytes:
@@ -119,14 +128,17 @@ def encode(kind: str, *values: object) -> bytes:
     """One line of ``kind`` (not HELLO or CONFIG) with its fields in order.
 
     ``encode("SAMPLE", 12, 0.024, 0.0031, -1.5, "run")`` →
-    ``b"SAMPLE 12 0.024 0.0031 -1.5 run *xxxxxxxx\\n"``.
+    ``b"SAMPLE 12 0.024 0.0031 -1.5 run *xxxxxxxx\\n"``; a trailing optional field (SAMPLE's
+    ``force``) is written when given.
     """
     spec = _KINDS.get(kind)
     if spec is None:
         raise ProtocolError(f"unknown message kind {kind!r}")
-    if len(values) != len(spec):
-        raise ProtocolError(f"{kind} takes {len(spec)} fields "
+    least = len(spec) - _OPTIONAL.get(kind, 0)
+    if not least <= len(values) <= len(spec):
+        raise ProtocolError(f"{kind} takes {_count(kind, spec)} fields "
                             f"({', '.join(n for n, _ in spec) or 'none'}); got {len(values)}")
+    spec = spec[:len(values)]
     words = [kind]
     for (name, typ), val in zip(spec, values, strict=True):
         if typ == "i":
@@ -231,9 +243,11 @@ def parse(line: bytes | str) -> Message:
         raise ProtocolError(f"unknown message {kind!r}")
     if spec and spec[-1][1] == "r":
         return Message(kind, {spec[-1][0]: " ".join(words[1:])})
-    if len(words) - 1 != len(spec):
-        raise ProtocolError(f"{kind} has {len(spec)} fields "
+    least = len(spec) - _OPTIONAL.get(kind, 0)
+    if not least <= len(words) - 1 <= len(spec):
+        raise ProtocolError(f"{kind} has {_count(kind, spec)} fields "
                             f"({', '.join(n for n, _ in spec) or 'none'}); got {len(words) - 1}")
+    spec = spec[:len(words) - 1]
     fields = {name: _field(kind, name, typ, word)
               for (name, typ), word in zip(spec, words[1:], strict=True)}
     if kind == "SAMPLE" and fields["state"] not in STATES:

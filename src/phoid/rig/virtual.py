@@ -13,7 +13,11 @@ Gaussian, standard deviation ``noise``) goes into ``phoid_step`` (or, with
 ``noise_in_loop=False``, the exact x(nT) does and only the streamed x̃ₙ is noisy), whose
 returned command uₙ (the controller's own delay ring has already delayed it) is held for one
 period. Each step is
-streamed as ``SAMPLE n nT x̃ₙ uₙ state``; at the end come the controller's events and
+streamed as ``SAMPLE n nT x̃ₙ uₙ state``; with ``force_noise`` set, the rig also reports a
+measured force f̃ₙ = G·uₙ + ηₙ (N: the force applied to the plant over [nT, (n + 1)T), ηₙ white
+Gaussian of standard deviation ``force_noise``) as the line's ``force`` field, and steps the
+controller with the force measured at the previous sample (what a load cell reads at nT; 0 at
+the first sample) through ``phoid_step_force``. At the end come the controller's events and
 ``END``. It runs as fast as it can, or paced to the wall clock with ``realtime``.
 
 Fault injection (for tests, Python only): ``faults`` maps ``"drop"``, ``"corrupt"`` or
@@ -72,6 +76,9 @@ class VirtualRig:
         The controller reads the noisy position, as on a rig (the noise then also drives the
         plant through the loop). False: the controller reads the exact position and only the
         streamed x carries the noise (phoid's simulate model: pure measurement noise).
+    force_noise : float, optional
+        Standard deviation of the force sensor's white noise, N: the SAMPLE lines then carry
+        the measured force G·uₙ + ηₙ. None (default): no force sensor, no force field.
 
     Raises
     ------
@@ -83,14 +90,19 @@ class VirtualRig:
                  seed: int | None = None, realtime: bool = False,
                  build: str | Path | None = None, max_rate: float = 20000.0,
                  faults: Mapping[str, tuple[int, int]] | None = None,
-                 noise_in_loop: bool = True) -> None:
+                 noise_in_loop: bool = True, force_noise: float | None = None) -> None:
         if not (math.isfinite(noise) and noise >= 0):
             raise ValueError(f"noise must be a finite number ≥ 0 m; got {noise!r}")
+        if force_noise is not None and not (math.isfinite(force_noise) and force_noise >= 0):
+            raise ValueError(f"force_noise must be a finite number ≥ 0 N; got {force_noise!r}")
         if not (math.isfinite(max_rate) and max_rate > 0):
             raise ValueError(f"max_rate must be a finite number > 0 Hz; got {max_rate!r}")
         ExactPlant(plant, offset=offset_force)  # checks the plant and the offset
         self.plant, self.offset, self.noise = plant, float(offset_force), float(noise)
         self.rng = np.random.default_rng(seed)
+        # the force noise has its own stream, so the position noise is the same with or without
+        self.force_rng = np.random.default_rng(None if seed is None else [seed, 1])
+        self.force_noise = None if force_noise is None else float(force_noise)
         self.realtime, self.max_rate = bool(realtime), float(max_rate)
         self.faults = dict(faults or {})
         self.noise_in_loop = bool(noise_in_loop)
@@ -206,14 +218,19 @@ class VirtualRig:
         out = bytearray()
         t0 = time.monotonic()
         n = 0
+        sensed = 0.0 if self.force_noise is not None else None  # the force read at nT, N
         while True:
             x = plant.x + (self.noise * float(self.rng.standard_normal()) if self.noise else 0.0)
             before = ctrl.state
-            u = ctrl.step(x if self.noise_in_loop else plant.x, 0.0)
+            u = ctrl.step(x if self.noise_in_loop else plant.x, 0.0, sensed)
             state = ctrl.state
             if before == "run" and state == "done":
                 state = "run"  # the last run sample (the controller is done after it)
-            line = encode("SAMPLE", n, n * T, x, u, state)
+            if self.force_noise is None:
+                line = encode("SAMPLE", n, n * T, x, u, state)
+            else:
+                sensed = G * u + self.force_noise * float(self.force_rng.standard_normal())
+                line = encode("SAMPLE", n, n * T, x, u, state, sensed)
             if fault.get("drop") == n:
                 link.send(bytes(out))
                 with contextlib.suppress(OSError):

@@ -14,6 +14,13 @@
  * compile with -ffast-math. */
 static int finite_(double x) { return (x - x) == 0.0; }
 
+/* a quiet NaN without libm (volatile: not folded at compile time) */
+static double nan_(void)
+{
+    volatile double z = 0.0;
+    return z / z;
+}
+
 static double absd(double x) { return x < 0.0 ? -x : x; }
 
 static void push_event(phoid_ctrl *c, unsigned long index, int code, double value)
@@ -72,6 +79,7 @@ void phoid_config_default(phoid_config *cfg)
     cfg->growth_limit = 0.0;
     cfg->stall_samples = 0;
     cfg->stall_epsilon = 0.0;
+    cfg->has_force = 0;
 }
 
 static int check_config(const phoid_config *g)
@@ -114,6 +122,9 @@ static int check_config(const phoid_config *g)
     if (g->hold_samples < 0 || g->run_samples < 1) {
         return PHOID_E_SAMPLES;
     }
+    if (g->has_force != 0 && g->has_force != 1) {
+        return PHOID_E_HAS_FORCE;
+    }
     return PHOID_OK;
 }
 
@@ -153,6 +164,7 @@ int phoid_init(phoid_ctrl *c, const phoid_config *cfg)
     c->amplitude = 0.0;
     c->clipping = 0;
     c->clips = 0;
+    c->force = nan_();
     c->log_head = c->log_count = 0;
     c->events_lost = 0;
     return PHOID_OK;
@@ -197,16 +209,24 @@ static void enter_run(phoid_ctrl *c, double x, double r)
 
 double phoid_step(phoid_ctrl *c, double x, double r)
 {
+    return phoid_step_force(c, x, r, nan_());
+}
+
+double phoid_step_force(phoid_ctrl *c, double x, double r, double force)
+{
     const phoid_config *g;
     double vhat, u, out;
-    int d, clipped;
+    int d, clipped, bad_x, bad_f;
     if (!c) {
         return 0.0;
     }
     g = &c->cfg;
-    if (!finite_(x) || !finite_(r)) {
+    c->force = force;
+    bad_x = !finite_(x) || !finite_(r);
+    bad_f = g->has_force && !finite_(force);
+    if (bad_x || bad_f) {
         if (c->state != PHOID_FAULT) {
-            fault(c, PHOID_EV_FAULT_INPUT, 0.0);
+            fault(c, PHOID_EV_FAULT_INPUT, bad_x ? 0.0 : 1.0);
         }
         c->n++;
         return 0.0;
@@ -332,6 +352,8 @@ int phoid_state(const phoid_ctrl *c) { return c ? c->state : PHOID_FAULT; }
 unsigned long phoid_sample_index(const phoid_ctrl *c) { return c ? c->n : 0UL; }
 
 double phoid_velocity(const phoid_ctrl *c) { return c ? c->vhat : 0.0; }
+
+double phoid_force(const phoid_ctrl *c) { return c ? c->force : nan_(); }
 
 unsigned long phoid_clips(const phoid_ctrl *c) { return c ? c->clips : 0UL; }
 

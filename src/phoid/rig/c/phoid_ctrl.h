@@ -14,6 +14,8 @@
  *        PHOID_VEL_FILTERED  vhat_n = a*vhat_{n-1} + (1 - a)(x_n - x_{n-1})/T, a = exp(-w_c T);
  *   3. the command u_n = K*(P*(r_n - x_n) - D*vhat_n) (command units; in HOLD
  *      u_n = K*(P_hold*(x_start - x_n) - D_hold*vhat_n)), clipped to +/-u_max;
+ *   (x_n may come with a measured force f_n, N: phoid_step_force stores and checks it, the
+ *    loop does not use it.)
  *   4. the step returns u_{n-d} (d = delay_samples), to be applied at once and held until the
  *      next sample (zero-order hold); the plant sees the force G*u_{n-d}.
  *
@@ -68,7 +70,8 @@ enum phoid_event_code {
     PHOID_EV_FAULT_POSITION = 5,  /**< x outside [x_min, x_max]; value: x (m) */
     PHOID_EV_FAULT_GROWTH = 6,    /**< |x - r| > growth_limit*A; value: |x - r| (m) */
     PHOID_EV_FAULT_STALL = 7,     /**< no motion for stall_samples; value: |x_n - x_{n-1}| (m) */
-    PHOID_EV_FAULT_INPUT = 8,     /**< x or r not finite; value: 0 */
+    PHOID_EV_FAULT_INPUT = 8,     /**< x or r not finite (value 0), or the measured force
+                                       not finite with has_force = 1 (value 1) */
     PHOID_EV_FAULT_HOST = 9,      /**< phoid_abort; value: the host's reason */
     PHOID_EV_CLEAR = 10           /**< FAULT -> IDLE (phoid_clear_fault); value: 0 */
 };
@@ -89,7 +92,8 @@ enum phoid_error {
     PHOID_E_GROWTH = -11,        /**< growth_limit neither 0 (off) nor finite and >= 1 */
     PHOID_E_STALL = -12,         /**< stall_samples < 0, or stall_epsilon not finite and >= 0 */
     PHOID_E_SAMPLES = -13,       /**< hold_samples < 0 or run_samples < 1 */
-    PHOID_E_STATE = -14          /**< (phoid_start, phoid_release) not allowed in this state */
+    PHOID_E_STATE = -14,         /**< (phoid_start, phoid_release) not allowed in this state */
+    PHOID_E_HAS_FORCE = -15      /**< has_force neither 0 nor 1 */
 };
 
 /** The configuration of one run. Units: SI (m, s) and the command's own units. */
@@ -115,6 +119,9 @@ typedef struct phoid_config {
     long stall_samples;    /**< RUN aborts after this many samples in a row with
                                 |x_n - x_{n-1}| < stall_epsilon (0: off) */
     double stall_epsilon;  /**< m (>= 0) */
+    int has_force;         /**< 1: a force sensor is declared, so every sample must bring a
+                                finite measured force (phoid_step_force), else FAULT_INPUT;
+                                0 (default): no sensor, a force given is stored unchecked */
 } phoid_config;
 
 /** One entry of the event log. */
@@ -143,6 +150,7 @@ typedef struct phoid_ctrl {
     double amplitude;          /* A of the growth bound, m */
     int clipping;              /* the last command was clipped */
     unsigned long clips;       /* commands clipped since phoid_init */
+    double force;              /* the measured force of the last sample, N (NaN: none) */
     /* event log */
     phoid_event log[PHOID_EVENT_LOG];
     int log_head, log_count;
@@ -151,7 +159,8 @@ typedef struct phoid_ctrl {
 
 /** Fill *cfg with defaults: K = G = 1, backward difference, no delay, zero gains, no limits
  * in effect (x_min = -1e300, x_max = 1e300, u_max = 1e300), growth and stall checks off,
- * hold_samples = 0 (hold until phoid_release), run_samples = 1. */
+ * hold_samples = 0 (hold until phoid_release), run_samples = 1, no force sensor
+ * (has_force = 0). */
 void phoid_config_default(phoid_config *cfg);
 
 /** Check *cfg and reset *c to IDLE at sample index 0 (estimator at rest at the first x,
@@ -164,6 +173,18 @@ int phoid_init(phoid_ctrl *c, const phoid_config *cfg);
  * Call exactly once per sample period. Returns 0 in IDLE, DONE and FAULT (and while the
  * delay still brings out the zeros issued in IDLE). */
 double phoid_step(phoid_ctrl *c, double x, double r);
+
+/** One sample with a measured force: as phoid_step, and `force` (N, the force applied to the
+ * plant as the rig's force sensor reads it; NaN: no reading) is stored for phoid_force. The
+ * loop does not use it (phoid's loop model is on x). With has_force = 1 a non-finite force
+ * faults the controller (PHOID_EV_FAULT_INPUT, value 1), exactly as a non-finite x does;
+ * phoid_step(c, x, r) is phoid_step_force(c, x, r, NaN), so a controller configured with
+ * has_force = 1 must be stepped with phoid_step_force. */
+double phoid_step_force(phoid_ctrl *c, double x, double r, double force);
+
+/** The measured force given with the last sample, N; NaN when none was given (phoid_step,
+ * or before the first sample). */
+double phoid_force(const phoid_ctrl *c);
 
 /** IDLE or DONE -> HOLD from the next sample on. PHOID_OK or PHOID_E_STATE. */
 int phoid_start(phoid_ctrl *c);
