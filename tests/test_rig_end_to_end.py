@@ -437,10 +437,12 @@ def test_a_silent_rig_is_reported_within_the_timeout(build, tmp_path):
     assert not (tmp_path / "set").exists()
 
 
-def test_a_rig_that_misses_its_sample_time_is_reported(build, tmp_path):
-    # a scripted rig whose clock runs 2 % slow (intervals 1.02 T): the run completes, the host
-    # says so in one line (its bound: the mean interval within 0.1 % of T) and records them
-    plan = _design(tmp_path, PAPER, runs=2)
+def _scripted_rig(sample):
+    """A scripted rig on the loopback, for faults the virtual rig does not make: it answers the
+    hello, OK to every CONFIG, and to every START the run's hold and run samples and one more
+    (state done), each SAMPLE's fields after its index given by ``sample(start, n, T, n_hold,
+    state)`` (start counts the STARTs from 1), then END done. Returns the listening socket (the
+    test closes it) and its ``--port`` URL."""
     srv = socket.create_server(("127.0.0.1", 0))
 
     def serve():
@@ -449,25 +451,35 @@ def test_a_rig_that_misses_its_sample_time_is_reported(build, tmp_path):
             f = conn.makefile("rb")
             f.readline()
             conn.sendall(hello())
+            starts = 0
             while True:
                 msg = parse(f.readline())
                 if msg.kind == "CONFIG":
                     cfg = msg.fields
                     conn.sendall(encode("OK"))
                 elif msg.kind == "START":
+                    starts += 1
                     T, n_hold = cfg["sample_time"], cfg["hold_samples"]
                     n_run = cfg["run_samples"]
                     out = b""
                     for n in range(n_hold + n_run + 1):
                         state = "hold" if n < n_hold else "run" if n < n_hold + n_run else "done"
-                        out += encode("SAMPLE", n, 1.02 * T * n, 0.001, 0.0, state)
+                        out += encode("SAMPLE", n, *sample(starts, n, T, n_hold, state))
                     conn.sendall(out + encode("END", "done"))
                 else:
                     return
 
     threading.Thread(target=serve, daemon=True).start()
-    r = _cli("run", plan, "--port", f"tcp://127.0.0.1:{srv.getsockname()[1]}", "--out",
-             tmp_path / "set")
+    return srv, f"tcp://127.0.0.1:{srv.getsockname()[1]}"
+
+
+def test_a_rig_that_misses_its_sample_time_is_reported(build, tmp_path):
+    # a scripted rig whose clock runs 2 % slow (intervals 1.02 T): the run completes, the host
+    # says so in one line (its bound: the mean interval within 0.1 % of T) and records them
+    plan = _design(tmp_path, PAPER, runs=2)
+    srv, port = _scripted_rig(lambda start, n, T, n_hold, state: (1.02 * T * n, 0.001, 0.0,
+                                                                   state))
+    r = _cli("run", plan, "--port", port, "--out", tmp_path / "set")
     srv.close()
     assert r.exit_code == 0, r.output
     assert r.stderr.count("the rig's sample intervals were") == 2
@@ -629,36 +641,13 @@ def test_a_force_field_that_stops_midway_makes_the_run_incomplete(build, tmp_pat
     import numpy as np
 
     plan = _design(tmp_path, PAPER, runs=2)
-    srv = socket.create_server(("127.0.0.1", 0))
 
-    def serve():
-        conn, _ = srv.accept()
-        with conn:
-            f = conn.makefile("rb")
-            f.readline()
-            conn.sendall(hello())
-            starts = 0
-            while True:
-                msg = parse(f.readline())
-                if msg.kind == "CONFIG":
-                    cfg = msg.fields
-                    conn.sendall(encode("OK"))
-                elif msg.kind == "START":
-                    starts += 1
-                    T, n_hold = cfg["sample_time"], cfg["hold_samples"]
-                    n_run = cfg["run_samples"]
-                    out = b""
-                    for n in range(n_hold + n_run + 1):
-                        state = "hold" if n < n_hold else "run" if n < n_hold + n_run else "done"
-                        force = () if starts == 1 and n >= n_hold + 10 else (0.25,)
-                        out += encode("SAMPLE", n, T * n, 0.001, 0.5, state, *force)
-                    conn.sendall(out + encode("END", "done"))
-                else:
-                    return
+    def sample(start, n, T, n_hold, state):
+        force = () if start == 1 and n >= n_hold + 10 else (0.25,)
+        return (T * n, 0.001, 0.5, state, *force)
 
-    threading.Thread(target=serve, daemon=True).start()
-    r = _cli("run", plan, "--port", f"tcp://127.0.0.1:{srv.getsockname()[1]}", "--out",
-             tmp_path / "set")
+    srv, port = _scripted_rig(sample)
+    r = _cli("run", plan, "--port", port, "--out", tmp_path / "set")
     srv.close()
     assert r.exit_code == 1 and "1 of 2 runs complete" in r.stdout, r.output
     doc = _manifest(tmp_path / "set")
