@@ -166,10 +166,9 @@ def identify(
         estimator = "gls" if estimator is None else estimator
         if no_compensation and estimator != "ols":
             raise ValueError("--no-compensation needs --estimator ols (the eq. (35) lines)")
-        if friction and (exp.method != "pho" or estimator != "gls" or no_compensation
-                         or plots is not None):
-            raise ValueError("--friction applies to pho sets, without --estimator ols, "
-                             "--no-compensation or --plots")
+        if friction and (exp.method != "pho" or estimator != "gls" or no_compensation):
+            raise ValueError("--friction applies to pho sets, without --estimator ols or "
+                             "--no-compensation")
         if not friction:
             from phoid.methods.pho_checks import refuse_bias
 

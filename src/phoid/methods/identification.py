@@ -237,7 +237,7 @@ def identify_pho_data(
         res = _identify_core(data, P, D, digital.delay + 0.5 * digital.sample_time,
                              files=files, names=names, source=source, digital=digital,
                              added_mass=added_mass)
-        return replace(res, delay=digital.delay)
+        return replace(res, delay=digital.delay, u=_recorded_u(u, data))
     if delay is None:
         if estimator != "gls":
             raise IdentificationError("estimating the loop delay needs estimator='gls'")
@@ -245,13 +245,14 @@ def identify_pho_data(
         res = _estimate_delay(data, P, D, files=files, names=names, source=source,
                               added_mass=added_mass)
         if u is None or all(ui is None for ui in u):
-            return replace(res, delay_from="x")
+            return replace(res, delay_from="x", u=_recorded_u(u, data))
 
         dm = np.zeros(n) if added_mass is None else added_mass
-        return with_u(res, u, P, D, names=names, added_mass=dm, n_fast=N_FAST,
-                      rerun=lambda tau: _identify_core(data, P, D, tau, files=files,
-                                                       names=names, source=source,
-                                                       estimate_delay=True, added_mass=dm))
+        res = with_u(res, u, P, D, names=names, added_mass=dm, n_fast=N_FAST,
+                     rerun=lambda tau: _identify_core(data, P, D, tau, files=files,
+                                                      names=names, source=source,
+                                                      estimate_delay=True, added_mass=dm))
+        return replace(res, u=_recorded_u(u, data))
     check_delay(float(delay), data, source)
     res = _identify_core(data, P, D, float(delay), files=files, names=names,
                          estimator=estimator, compensate=compensate, source=source,
@@ -261,7 +262,23 @@ def identify_pho_data(
         note = u_contradicts_gains(data, check_u(u, data), P, D, float(delay), names, wd)
         if note is not None:
             res = replace(res, warnings=(*res.warnings, note))
-    return res
+    return replace(res, u=_recorded_u(u, data))
+
+
+def _recorded_u(u, data) -> tuple:
+    """Each run's recorded force as a float array where it has one on its record's samples
+    (None elsewhere); () when no u was given. Kept in the result for the figures."""
+    if u is None:
+        return ()
+    out = []
+    for j, (t, _x) in enumerate(data):
+        ui = u[j] if j < len(u) else None
+        try:
+            arr = None if ui is None else np.asarray(ui, dtype=float)
+        except (TypeError, ValueError):
+            arr = None
+        out.append(arr if arr is not None and arr.shape == np.shape(t) else None)
+    return tuple(out)
 
 
 _DELAY_GRID = 400  # candidate delays of the starting profile

@@ -119,6 +119,11 @@ class Identification:
     warnings : tuple of str
     source : str
         Where the data came from (a path or a description).
+    data : tuple of (t, x)
+        Each run's record, s and m (for the figures).
+    u : tuple of (ndarray or None)
+        Each run's recorded feedback force, N, on the record's samples (None where not
+        recorded; empty when none was given), for the figures.
     """
 
     m: Estimate
@@ -134,6 +139,7 @@ class Identification:
     digital: Any = None
     data: tuple[tuple[np.ndarray, np.ndarray], ...] = field(default=(), repr=False)
     delay_from: str | None = None
+    u: tuple[np.ndarray | None, ...] = field(default=(), repr=False)
 
     @property
     def cov(self) -> np.ndarray:

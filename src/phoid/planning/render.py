@@ -61,8 +61,18 @@ def design_report(d: Any) -> str:
 def plot_design(d: Any, path: str | Path | None = None, *, ax: Any = None,
                 overwrite: bool = False) -> Any:
     """Root locus and predicted standard errors of a design ``d`` (see
-    :meth:`phoid.planning.result.Design.plot`); returns the matplotlib Figure."""
+    :meth:`phoid.planning.result.Design.plot`); returns the matplotlib Figure.
+
+    Left: each run's dominant root at every plant of the prior grid (small dots) and at the
+    nominal plant (large circle), coloured by run number as the colour bar beside it says
+    (discrete, one colour per run); the ζ band's edges (dashed) and the stability boundary
+    Re s = 0 (red) are in the legend. Right: the predicted standard errors, relative to the
+    nominal value (absolute where it is 0), at the nominal plant and the worst over the prior.
+    """
     import matplotlib
+    from matplotlib.cm import ScalarMappable
+    from matplotlib.colors import BoundaryNorm
+    from matplotlib.lines import Line2D
 
     if path is not None:  # refuse a file in the way before drawing
         out = OutputFolder(Path(path).parent, overwrite=overwrite, error=DesignError)
@@ -70,16 +80,17 @@ def plot_design(d: Any, path: str | Path | None = None, *, ax: Any = None,
     if ax is None:
         matplotlib.use("Agg", force=False)
         import matplotlib.pyplot as plt
-        fig, axes = plt.subplots(1, 2, figsize=(10, 4.2),
+        fig, axes = plt.subplots(1, 2, figsize=(11, 4.4), layout="constrained",
                                  gridspec_kw={"width_ratios": [1.6, 1]})
     else:
         axes = list(ax)
         fig = axes[0].figure
     a0, a1 = axes
-    cmap = matplotlib.colormaps["viridis"]
     n = len(d.runs)
+    cmap = matplotlib.colormaps["viridis"].resampled(max(n, 1))
+    norm = BoundaryNorm(np.arange(0.5, n + 1.5), cmap.N)
     for i in range(n):
-        col = cmap(i / max(n - 1, 1))
+        col = cmap(norm(i + 1))
         r = d.roots[i]
         r = r[np.isfinite(r)]
         a0.plot(r.real, r.imag, ".", color=col, alpha=0.5, ms=4)
@@ -87,26 +98,37 @@ def plot_design(d: Any, path: str | Path | None = None, *, ax: Any = None,
             a0.plot(d.roots[i, 0].real, d.roots[i, 0].imag, "o", color=col, ms=6,
                     mec="k", mew=0.5)
     wmax = max([abs(x.imag) for x in d.roots.ravel() if np.isfinite(x)] or [1.0])
-    for j, z in enumerate(d.settings.zeta):
-        a0.plot([0, -z * wmax * 1.1 / math.sqrt(1 - z * z)], [0, wmax * 1.1], "k--", lw=0.7,
-                label="zeta band" if j == 0 else None)
-    a0.legend(fontsize=8, loc="lower left")
+    for z in d.settings.zeta:
+        a0.plot([0, -z * wmax * 1.1 / math.sqrt(1 - z * z)], [0, wmax * 1.1], "k--", lw=0.7)
     a0.axvline(0.0, color="r", lw=0.8)
+    handles = [
+        Line2D([], [], ls="", marker=".", color="0.4", ms=6, label="plants of the prior"),
+        Line2D([], [], ls="", marker="o", color="0.6", mec="k", mew=0.5, ms=6,
+               label="nominal plant"),
+        Line2D([], [], ls="--", color="k", lw=0.7,
+               label="ζ band " + "–".join(f"{z:g}" for z in d.settings.zeta)),
+        Line2D([], [], color="r", lw=0.8, label="stability boundary"),
+    ]
+    a0.legend(handles=handles, fontsize=8, loc="lower left")
     a0.set_xlabel("Re s (1/s)")
     a0.set_ylabel("Im s (rad/s)")
-    a0.set_title("dominant roots over the prior (o: nominal plant)")
+    a0.set_title("dominant roots over the prior")
+    sm = ScalarMappable(norm=norm, cmap=cmap)
+    cb = fig.colorbar(sm, ax=a0, pad=0.02, fraction=0.05)
+    cb.set_label("run")
+    step = max(1, math.ceil(n / 12))
+    cb.set_ticks(list(range(1, n + 1, step)))
     names = ["m", "c", "k"]
     vals = np.array([getattr(d, x).value for x in names], dtype=float)
     scale = np.where(vals != 0, np.abs(vals), 1.0)
     x = np.arange(3)
-    a1.bar(x - 0.2, d.stderr / scale, 0.4, label="nominal")
-    a1.bar(x + 0.2, d.stderr_worst / scale, 0.4, label="worst over prior")
+    a1.bar(x - 0.2, d.stderr / scale, 0.4, label="nominal plant")
+    a1.bar(x + 0.2, d.stderr_worst / scale, 0.4, label="worst over the prior")
     a1.set_xticks(x, [f"{nm} ({'rel.' if vals[j] != 0 else UNITS[nm]})"
                       for j, nm in enumerate(names)])
     a1.set_yscale("log")
     a1.set_title("predicted standard error")
     a1.legend(fontsize=8)
-    fig.tight_layout()
     if path is not None:
         out.write(Path(path).name, png_writer(fig, 110))
     return fig

@@ -198,7 +198,8 @@ class Design:
         """Root locus of the planned runs and their predicted uncertainties.
 
         Left: each run's dominant root at every plant of the prior grid (the nominal plant
-        marked), with the ζ band's rays; right: the predicted relative standard errors of m, c,
+        marked), coloured by run number (a colour bar says which), with the ζ band's rays and
+        a legend of the markers; right: the predicted relative standard errors of m, c,
         k (nominal and worst over the prior).
 
         Parameters

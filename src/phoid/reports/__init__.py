@@ -1,6 +1,7 @@
 """phoid.reports: plain-text reports (:mod:`~phoid.reports.text`) and figures
-(:mod:`~phoid.reports.figures`, matplotlib imported only when drawing) of results, and both for
-a tracking validation (:mod:`~phoid.reports.tracking`).
+(:mod:`~phoid.reports.figures` writes them, :mod:`~phoid.reports.runs` and
+:mod:`~phoid.reports.lines` draw them; matplotlib imported only when drawing) of results,
+and both for a tracking validation (:mod:`~phoid.reports.tracking`).
 
 Results are taken by duck typing: nothing here imports the methods, planning or paper modules.
 """
@@ -9,6 +10,7 @@ from phoid.reports.figures import (
     figure1,
     plot_forced,
     plot_free,
+    plot_friction,
     plot_identification,
     save_png,
 )
@@ -30,6 +32,7 @@ __all__ = [
     "identification_text",
     "plot_forced",
     "plot_free",
+    "plot_friction",
     "plot_identification",
     "plot_tracking",
     "save_png",

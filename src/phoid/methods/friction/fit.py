@@ -366,7 +366,8 @@ def _result(setup, idx, reasons, prob, fixed, res, facts, iterations) -> Frictio
         runs=tuple(runs), chi2=chi2, dof=dof,
         residual_rms=rms_all, converged=res.converged, iterations=iterations,
         start=tuple(float(a) for a in setup.start), warnings=tuple(warnings),
-        digital=setup.digital,
+        digital=setup.digital, data=tuple((s.t, s.y) for s in setup.surveys),
+        sim_rate=float(setup.fs),
     )
 
 

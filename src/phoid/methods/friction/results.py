@@ -3,7 +3,8 @@
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -127,6 +128,10 @@ class FrictionFit:
     digital : phoid.DigitalPD or None
         The sampled controller the records were simulated with (None: a continuous loop with
         delay Δt); ``delay`` is then its command delay d·T_s.
+    data : tuple of (t, x)
+        Each run's record, s and m (for :meth:`model` and the figures).
+    sim_rate : float
+        Rate of the fit's simulation grid, Hz (:meth:`model` simulates on the same grid).
     """
 
     m: Estimate
@@ -144,6 +149,52 @@ class FrictionFit:
     start: tuple[float, float, float, float]
     warnings: tuple[str, ...] = ()
     digital: Any = None
+    data: tuple[tuple[np.ndarray, np.ndarray], ...] = field(default=(), repr=False)
+    sim_rate: float = math.nan
+
+    def model(self, i: int, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Run ``i``'s fitted model at times ``t``: position (m, sensor offset included) and
+        velocity (m/s).
+
+        The fitted plant (m + the run's added mass, c, k, f_c) under the run's loop (and bias)
+        released at rest from x₀ᵢ at τᵢ, simulated exactly with stick–slip on the fit's grid
+        (:attr:`sim_rate`) and read by the cubic Hermite interpolant, as the fit reads it
+        (:mod:`phoid.methods.friction.model`); before τᵢ the held level bᵢ + x₀ᵢ and velocity
+        0. While the simulated mass sticks its velocity is exactly 0.
+        """
+        from phoid.methods.friction.model import _PlantParams, hermite
+        from phoid.simulation import simulate
+
+        r = self.runs[i]
+        t = np.asarray(t, dtype=float)
+        h = 1.0 / self.sim_rate
+        dur = max(float(np.max(t, initial=r.release)) - r.release, 0.0) + 3.0 * h
+        g = self.digital
+        loop = {"delay": self.delay} if g is None else {
+            "sample_time": g.sample_time, "delay_samples": g.delay_samples,
+            "velocity": g.velocity, "cutoff": g.cutoff}
+        sim = simulate(_PlantParams(self.m.value + r.added_mass, self.c.value, self.k.value,
+                                    max(self.fc.value, 0.0)),
+                       np.array([r.P]), np.array([r.D]), duration=max(dur, 4 * h),
+                       fs=self.sim_rate, x0=np.array([r.x0]), bias=np.array([r.bias]),
+                       **loop)
+        u = t - r.release
+        post = u > 0
+        hv, hd = hermite(sim.x_true[0], sim.v[0], h, np.maximum(u, 0.0))
+        return r.offset + np.where(post, hv, r.x0), np.where(post, hd, 0.0)
+
+    def plot(self, out_dir: str | Path, *, overwrite: bool = False) -> list[Path]:
+        """Write per-run figures (record, simulated fit, stick intervals, residual, fitted
+        velocity) and the (m, k) confidence region as PNG files.
+
+        ``out_dir`` is created if needed; existing files are replaced only with ``overwrite``
+        and links in it are refused (:mod:`phoid._output`; all names checked before the first
+        figure is written). Returns the list of paths written
+        (:func:`phoid.reports.figures.plot_friction`).
+        """
+        from phoid.reports.figures import plot_friction
+
+        return plot_friction(self, out_dir, overwrite=overwrite)
 
     @property
     def chi2_red(self) -> float:
