@@ -46,7 +46,8 @@ def test_identify_text_and_plots(simulated, tmp_path):
     assert r.exit_code == 0, r.output
     assert "m = " in r.stdout and "k = " in r.stdout
     pngs = sorted(p.name for p in (tmp_path / "p").glob("*.png"))
-    assert "eq35-lines.png" in pngs and len(pngs) == 11  # 10 runs + the lines figure
+    assert {"lines.png", "mk-ellipse.png", "run01.png"} <= set(pngs)
+    assert len(pngs) == 12  # 10 runs (<stem>.png) + the lines + the (m, k) ellipse
 
 
 def test_identify_ols_and_no_compensation(simulated):

@@ -449,7 +449,7 @@ def test_api_summary_report_plot(tmp_path, paper_design):
     text = d.report()
     assert "Predicted standard errors" in text and "k = 64" in text
     fig = d.plot(tmp_path / "design.png")
-    assert (tmp_path / "design.png").stat().st_size > 10_000 and len(fig.axes) == 2
+    assert (tmp_path / "design.png").stat().st_size > 10_000 and len(fig.axes) == 3  # + colour bar
     import matplotlib.pyplot as plt
 
     plt.close(fig)

@@ -264,7 +264,7 @@ def test_cli_simulate_and_identify_free(tmp_path):
     assert s["m"]["value"] == 1.0 and abs(s["k"]["value"] - 100) < 3 * s["k"]["stderr"]
     r = runner.invoke(app, ["identify", str(out), "--plots", str(tmp_path / "p")])
     assert r.exit_code == 0 and "ζ" in r.stdout and "--mass" in r.stdout
-    assert len(list((tmp_path / "p").glob("free-*.png"))) == 1
+    assert [p.name for p in (tmp_path / "p").glob("*.png")] == ["run01.png"]  # <stem>.png
 
 
 def test_cli_manifest_mass_and_override(tmp_path):

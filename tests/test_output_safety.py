@@ -49,7 +49,7 @@ COMMANDS = {
     "paper --out": Command(lambda out, s: [*_PAPER, "--out", str(out)],
                            ("figure1a.png", "figure1b.png")),
     "identify --plots": Command(lambda out, s: ["identify", str(s), "--plots", str(out)],
-                                ("run-01-run01.png", "eq35-lines.png")),
+                                ("run01.png", "lines.png", "mk-ellipse.png")),
 }
 CASES = [(name, target) for name, cmd in COMMANDS.items() for target in cmd.targets]
 

@@ -111,9 +111,10 @@ def identify(
         "--json", help="Print the result as one JSON object (the phoid/1 spec) on standard "
                        "output; warnings also go to standard error.")] = False,
     plots: Annotated[Path | None, typer.Option(
-        "--plots", help="Write per-run fits with residuals and the eq. (35) lines (pho) or "
-                        "eq. (20) lines (forced) with error bars as PNG files into this "
-                        "folder.")] = None,
+        "--plots", help="Write figures as PNG files into this folder: per run <stem>.png "
+                        "(record, fit, noise band, residual and its autocorrelation, recorded "
+                        "force; with --friction the stick intervals), lines.png (the eq. (35) "
+                        "or eq. (20) lines, residuals in stderr units), mk-ellipse.png.")] = None,
     estimator: Annotated[str | None, typer.Option(
         help="pho: 'gls', weighted fit of m, c, k through the exact loop roots (efficient, "
              "default), or 'ols', the paper's eq. (35) lines by ordinary least squares. "
