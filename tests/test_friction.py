@@ -394,7 +394,7 @@ def test_cli_identify_friction(tmp_path):
     assert abs(v["c"]["value"] - 2.0) > 0.2
     assert any("--friction" in w for w in v["warnings"])
     # options the friction fit does not take: one line, exit 2
-    for extra in (["--plots", str(tmp_path / "p")], ["--estimator", "ols"]):
+    for extra in (["--estimator", "ols"], ["--estimator", "ols", "--no-compensation"]):
         r = runner.invoke(app, ["identify", str(out), "--friction", *extra])
         assert r.exit_code == 2 and "--friction applies" in r.stderr
     manifest = out / "experiment.toml"

@@ -234,8 +234,11 @@ def pho_lines_figure(ident: Any) -> Figure:
 
     Left: c′ᵢ against 2σᵢ; right: k′ᵢ against ω₀ᵢ²; below each, (yᵢ − line(xᵢ))/stderr with
     ±1 bars and a ±2 band. What is drawn and how the errors are propagated:
-    :func:`pho_line_points` (its attributes read from ``ident``). Error bars in the upper
-    panels are to scale (often smaller than the markers); the residual panels show them.
+    :func:`pho_line_points` (its attributes read from ``ident``, and ``digital``). Error bars
+    in the upper panels are to scale (often smaller than the markers); the residual panels
+    show them. For a sampled loop (``ident.digital`` set) the points are eq. (32) at the
+    equivalent continuous delay (d + ½)T_s while m, c, k come from the sampled loop's exact
+    roots, so the residuals hold that approximation's error too (the title says so).
     """
     from matplotlib.figure import Figure
 
@@ -247,7 +250,12 @@ def pho_lines_figure(ident: Any) -> Figure:
     how = ("ordinary least squares per line" if getattr(fit, "estimator", "") == "ols"
            else "the joint weighted fit of m, c, k")
     comp = "" if getattr(fit, "compensated", True) else ", delay not compensated"
-    fig.suptitle(f"eq. (35) lines ({how}{comp}); error bars ±1 stderr from each run's σ, ω_d")
+    title = f"eq. (35) lines ({how}{comp}); error bars ±1 stderr from each run's σ, ω_d"
+    if getattr(ident, "digital", None) is not None:
+        title += (f"\nsampled loop: points through the continuous eq. (32) at the equivalent "
+                  f"delay {_used_delay(ident):.4g} s (an approximation the residuals include); "
+                  "m, c, k from the sampled loop's exact roots")
+    fig.suptitle(title)
     return fig
 
 
