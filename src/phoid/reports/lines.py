@@ -21,6 +21,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from phoid.dynamics.loop import inverse_map
+from phoid.reports.text import format_estimate
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
@@ -253,8 +254,8 @@ def pho_lines_figure(ident: Any) -> Figure:
     title = f"eq. (35) lines ({how}{comp}); error bars ±1 stderr from each run's σ, ω_d"
     if getattr(ident, "digital", None) is not None:
         title += (f"\nsampled loop: points through the continuous eq. (32) at the equivalent "
-                  f"delay {_used_delay(ident):.4g} s (an approximation the residuals include); "
-                  "m, c, k from the sampled loop's exact roots")
+                  f"delay {_used_delay(ident):.4g} s,\nan approximation the residuals include; "
+                  "m, c, k come from the sampled loop's exact roots")
     fig.suptitle(title)
     return fig
 
@@ -325,7 +326,7 @@ def mk_ellipse_figure(result: Any) -> Figure:
                                        "stderr on each axis)"))
         sm, sk = math.sqrt(C[0, 0]), math.sqrt(C[1, 1])
         ax.errorbar([m], [k], xerr=[sm], yerr=[sk], fmt="o", color="C1", ms=4, capsize=3,
-                    label=f"m = {m:.5g} ± {sm:.2g} kg, k = {k:.5g} ± {sk:.2g} N/m")
+                    label=f"m = {format_estimate(m, sm)} kg, k = {format_estimate(k, sk)} N/m")
         rho = C[0, 1] / (sm * sk)
         ax.set_xlim(m - 2.6 * sm, m + 2.6 * sm)
         ax.set_ylim(k - 2.6 * sk, k + 2.6 * sk)
