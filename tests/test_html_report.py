@@ -142,7 +142,7 @@ def test_repr_shows_the_main_estimates_and_counts(results, key):
 class _Checker(HTMLParser):
     """Tag balance of an HTML fragment (void elements excepted) and its text."""
 
-    VOID = {"br", "img", "meta", "hr", "input", "link", "col", "wbr"}
+    VOID = frozenset({"br", "img", "meta", "hr", "input", "link", "col", "wbr"})
 
     def __init__(self):
         super().__init__(convert_charrefs=True)
@@ -192,6 +192,43 @@ def test_repr_html_has_an_inline_figure_where_it_summarises(results):
     for key in ("pho", "forced", "design"):  # eq. (35) lines, eq. (20) lines, root locus
         tags = _parse(results[key]._repr_html_()).tags
         assert tags.count("img") == 1, key
+
+
+class _Extended:
+    """A result whose summary() has the optional keys the display reads (docs/format.md):
+    statistics, covariance, correlation, per-run residual_noise_ratio; numbers made up."""
+
+    warnings = ()
+
+    def summary(self):
+        return {
+            "method": "pho",
+            "m": {"value": 2.0, "stderr": 0.001, "unit": "kg"},
+            "statistics": {"chi2": 31.5, "dof": 30, "chi2_dof": 1.05},
+            "covariance": {"params": ["m", "k"], "units": ["kg", "N/m"],
+                           "matrix": [[1e-6, 2e-6], [2e-6, 9e-4]]},
+            "correlation": {"params": ["m", "k"], "matrix": [[1.0, 0.0667], [0.0667, 1.0]]},
+            "runs": [{"file": "a.csv", "sigma": 0.5, "sigma_stderr": 0.01,
+                      "residual_noise_ratio": 1.02, "used": True, "warnings": []},
+                     {"file": "b.csv", "sigma": 0.7, "sigma_stderr": 0.02,
+                      "residual_noise_ratio": 3.5, "used": False, "warnings": ["odd"]}],
+            "warnings": [],
+        }
+
+
+def test_optional_summary_keys_are_shown():
+    from phoid.reports.html import result_html
+
+    fragment = result_html(_Extended())
+    text = " ".join(_parse(fragment).text)
+    for caption in ("Fit statistics", "Covariance", "Correlation"):
+        assert caption in text
+    assert "chi2_dof" in text and "1.05" in text
+    assert "m (kg)" in text and "k (N/m)" in text and "0.0667" in text
+    assert "residual_noise_ratio" in text and "3.5" in text
+    assert "0.500 ± 0.01" in text  # sigma ± sigma_stderr in one cell (format_estimate)
+    assert fragment.count('class="phoid-aside"') == 1  # the run set aside is marked
+    assert "odd" in text
 
 
 def test_experiment_set_repr_html_lists_the_runs(results):
