@@ -272,6 +272,40 @@ def test_report_page_without_a_browser(results, tmp_path, sets):
     for key in ("phoid", "python", "numpy", "scipy"):
         assert key in text
     assert f"{np.__version__}" in text
+    # the embedded figures are the files plot() writes, byte for byte (Agg renders the same
+    # figure to the same PNG)
+    import base64
+
+    embedded = [base64.b64decode(s) for s in re.findall(r'src="data:image/png;base64,([^"]+)"',
+                                                       page)]
+    written = [f.read_bytes() for f in results["free"].plot(tmp_path / "plots")]
+    assert embedded == written and len(written) == len(results["free"].runs)
+
+
+def test_design_html_without_a_browser(tmp_path):
+    path = tmp_path / "design.html"
+    cli("design", "--m", "2", "--c", "1", "--k", "64", "--delay", "0.1", "--runs", "3",
+        "--html", path)
+    page = path.read_text(encoding="utf-8")
+    text = " ".join(_parse(page.split("<!DOCTYPE html>\n", 1)[1]).text)
+    predicted = phoid.design(2.0, 1.0, 64.0, delay=0.1, runs=3).summary()["predicted"]
+    for e in predicted.values():
+        assert format_estimate(e["value"], e["stderr"]) in text
+    assert page.count("<img ") == 1  # the design's one figure (root locus, uncertainties)
+    assert "No input files were given." in text
+
+
+def test_browser_skip_reason_names_what_is_missing(monkeypatch, tmp_path):
+    import importlib.util
+    import sys
+
+    me = sys.modules[__name__]
+    monkeypatch.setattr(me, "CHROMIUM", tmp_path / "no-chromium")
+    reason = me._browser_missing()
+    assert reason is not None
+    # without selenium the reason names selenium first; with it, the missing browser
+    assert ("no-chromium" in reason) if importlib.util.find_spec("selenium") else (
+        "selenium" in reason)
 
 
 # ------------------------------------------------------------------------------------------
@@ -381,6 +415,12 @@ def test_report_in_a_browser(key, browser, sets, results, tmp_path):
         "return Array.from(document.images).map(i => [i.complete, i.naturalWidth, i.alt])")
     assert len(images) == figures(summary), images
     assert all(done and width > 0 for done, width, _ in images), images
+    # and every image decodes whole (a truncated PNG still reports its header's width)
+    decoded = browser.execute_async_script("""
+        const done = arguments[arguments.length - 1];
+        Promise.all(Array.from(document.images).map(
+            i => i.decode().then(() => true, () => false))).then(done);""")
+    assert decoded == [True] * len(images), decoded
     # nothing was fetched from anywhere: every resource is the page itself or a data: URL
     fetched = browser.execute_script(
         "return performance.getEntriesByType('resource').map(e => e.name)")

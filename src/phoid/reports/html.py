@@ -528,7 +528,8 @@ def report_html(result: Any, *, experiment: Any = None, inputs: Iterable[str | P
         figs = sorted(result_figures(result), key=lambda f: f[0].startswith("run"))
         body.append(f"<h2>Figures ({len(figs)})</h2>" if figs else
                     f"<h2>Figures</h2><p>{_e(type(result).__name__)} draws no figures.</p>")
-        body += [f"<figure>{_img(png, name)}<figcaption>{_e(name)}</figcaption></figure>"
+        one = ' style="width:100%;max-width:1000px"' if len(figs) == 1 else ""
+        body += [f"<figure{one}>{_img(png, name)}<figcaption>{_e(name)}</figcaption></figure>"
                  for name, png in figs]
     body.append("<h2>Environment</h2>")
     body.append(f'<div class="phoid-result">{_key_values(environment(), "")}</div>')
