@@ -231,6 +231,15 @@ def test_optional_summary_keys_are_shown():
     assert "odd" in text
 
 
+@pytest.mark.parametrize("key", ["pho", "tracking", "design", "experiment"])
+def test_ipython_displays_the_html_and_the_short_repr(results, key):
+    formatters = pytest.importorskip("IPython.core.formatters",
+                                     reason="IPython (ipykernel's) is not installed")
+    data, _meta = formatters.DisplayFormatter().format(results[key])
+    assert data["text/plain"] == repr(results[key])
+    assert data["text/html"] == results[key]._repr_html_()
+
+
 def test_experiment_set_repr_html_lists_the_runs(results):
     exp = results["experiment"]
     page = _parse(exp._repr_html_())
