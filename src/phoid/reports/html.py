@@ -37,8 +37,9 @@ from typing import Any
 from phoid._output import OutputFolder
 from phoid.reports.text import format_estimate
 
-__all__ = ["check_report_target", "environment", "file_checksums", "report_html",
-           "result_html", "short_repr", "write_report"]
+__all__ = ["check_report_target", "environment", "estimates_of", "file_checksums",
+           "report_html", "result_figures", "result_html", "short_repr", "summary_of",
+           "write_report"]
 
 # units of the per-run columns phoid's results use (a column not listed is shown bare)
 _RUN_UNITS = {
