@@ -415,7 +415,8 @@ NUMBER = r"[-+]?\d+(?:\.\d*)?(?:e[-+]?\d+)?"
 def test_report_in_a_browser(key, browser, sets, results, tmp_path):
     args, figures = CASES[key]
     path = tmp_path / f"{key}.html"
-    cli(*(a.format(**sets) for a in args), "--html", path, "--json")
+    out = cli(*(a.format(**sets) for a in args), "--html", path, "--json")
+    json.loads(out.stdout)  # standard output stays one JSON object ("report written" on stderr)
     summary = results[key].summary()
     browser.get(path.resolve().as_uri())
     severe = [e for e in browser.get_log("browser") if e.get("level") == "SEVERE"]
