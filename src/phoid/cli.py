@@ -134,8 +134,11 @@ def identify(
         "--friction", help="pho: fit Coulomb friction f_c too (JSON key fc), by a full-record "
                            "fit through the stick-slip simulator (seconds, not milliseconds; "
                            "the loop delay must be known).")] = False,
+    html: Annotated[Path | None, typer.Option(
+        "--html", help="Write a single-file HTML report (summary, runs, figures, environment, "
+                       "SHA-256 of the input files) to this path.")] = None,
     overwrite: Annotated[bool, typer.Option(
-        help="Replace existing figures in --plots.")] = False,
+        help="Replace existing figures in --plots and an existing --html file.")] = False,
 ) -> None:
     """Identify m, c, k (with standard errors) from a recorded experiment set.
 
@@ -154,6 +157,10 @@ def identify(
     from phoid.io import read_experiment
 
     try:
+        if html is not None:  # a file in the way: refused before the work
+            from phoid.reports.html import check_report_target
+
+            check_report_target(html, overwrite=overwrite)
         exp = read_experiment(experiment)
         if exp.method == "tracking":
             if mass is not None or friction or no_compensation:
@@ -162,7 +169,8 @@ def identify(
                                  "known parameters)")
             result = _identify(exp, delay=delay, estimator=estimator)
             written = result.plot(plots, overwrite=overwrite) if plots is not None else []
-            _print_result(result, as_json, written, plots)
+            _write_html(result, html, exp, overwrite)
+            _print_result(result, as_json, written, plots, html)
             return
         estimator = "gls" if estimator is None else estimator
         if no_compensation and estimator != "ols":
@@ -188,12 +196,21 @@ def identify(
             result = _identify_other(exp, mass=mass, delay=delay, estimator=estimator,
                                      no_compensation=no_compensation)
         written = result.plot(plots, overwrite=overwrite) if plots is not None else []
+        _write_html(result, html, exp, overwrite)
     except (ValueError, OSError) as exc:
         _fail(str(exc))
-    _print_result(result, as_json, written, plots)
+    _print_result(result, as_json, written, plots, html)
 
 
-def _print_result(result, as_json: bool, written, plots) -> None:
+def _write_html(result, html: Path | None, experiment, overwrite: bool) -> None:
+    """--html: the single-file report, with the checksums of the set's files."""
+    if html is not None:
+        from phoid.reports.html import write_report
+
+        write_report(result, html, experiment=experiment, overwrite=overwrite)
+
+
+def _print_result(result, as_json: bool, written, plots, html=None) -> None:
     """The result as JSON (warnings also on stderr) or as the text report; figures written."""
     if as_json:
         typer.echo(json.dumps(result.summary(), indent=1))
@@ -203,6 +220,8 @@ def _print_result(result, as_json: bool, written, plots) -> None:
         typer.echo(result.report())
     if written:
         typer.echo(f"{len(written)} figures written to {plots}", err=as_json)
+    if html is not None:
+        typer.echo(f"report written to {html}", err=as_json)
 
 
 def _identify_other(exp, *, mass, delay, estimator, no_compensation):
@@ -633,8 +652,10 @@ def design(
     check_set: Annotated[Path | None, typer.Option(
         "--check", help="Evaluate the gains of an existing set or skeleton instead of "
                         "designing; without --m/--c/--k its data are identified first.")] = None,
+    html: Annotated[Path | None, typer.Option(
+        "--html", help="Write a single-file HTML report of the design to this path.")] = None,
     overwrite: Annotated[bool, typer.Option(
-        help="Replace an existing --out or --plot file.")] = False,
+        help="Replace an existing --out, --plot or --html file.")] = False,
 ) -> None:
     """Design the gains of a PHO experiment: every run rings stably, m, c, k come out best.
 
@@ -667,6 +688,10 @@ def design(
                 schedule_target(out, overwrite=overwrite)
             if plot is not None:
                 OutputFolder(plot.parent, overwrite=overwrite).check([plot.name])
+        if html is not None:
+            from phoid.reports.html import check_report_target
+
+            check_report_target(html, overwrite=overwrite)
         if check_set is not None:
             result = check_experiment(check_set, m, c, k, delay=delay, **settings)
         else:
@@ -687,6 +712,11 @@ def design(
             import matplotlib.pyplot as plt
 
             plt.close(result.plot(plot, overwrite=overwrite))
+        if html is not None:  # a checked set: its manifest's checksum (a skeleton has no data)
+            from phoid.reports.html import write_report
+
+            write_report(result, html, overwrite=overwrite, inputs=[] if check_set is None else [
+                check_set / "experiment.toml" if check_set.is_dir() else check_set])
     except (ValueError, OSError) as exc:
         _fail(str(exc))
     if as_json:
@@ -699,6 +729,8 @@ def design(
         typer.echo(f"schedule written to {written}", err=as_json)
     if plot is not None:
         typer.echo(f"figure written to {plot}", err=as_json)
+    if html is not None:
+        typer.echo(f"report written to {html}", err=as_json)
     if check_set is not None and not result.safe:
         # a check that finds a run unsafe must fail a script that runs it before the rig does
         typer.echo("phoid: some runs are unsafe on the prior (see UNSAFE above)", err=True)

@@ -286,6 +286,12 @@ class ExperimentSet:
     def __len__(self) -> int:
         return len(self.runs)
 
+    def _repr_html_(self) -> str:
+        """HTML for notebooks (:func:`phoid.io.display.experiment_html`)."""
+        from phoid.io.display import experiment_html
+
+        return experiment_html(self)
+
     def __repr__(self) -> str:
         return (f"ExperimentSet({str(self.path)!r}, method={self.method!r}, "
                 f"delay={self.delay!r}, {len(self.runs)} runs"

@@ -205,6 +205,17 @@ class FreeIdentification:
                                self.k_over_m.value)
         return r.offset + r.x0 * B1 + r.v0 * B2
 
+    def __repr__(self) -> str:
+        from phoid.reports.html import short_repr
+
+        return short_repr(self)
+
+    def _repr_html_(self) -> str:
+        """HTML for notebooks (:func:`phoid.reports.html.result_html`)."""
+        from phoid.reports.html import result_html
+
+        return result_html(self)
+
     def summary(self) -> dict[str, Any]:
         """The JSON object of ``phoid identify --json`` for a free set.
 

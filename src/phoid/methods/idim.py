@@ -81,6 +81,17 @@ class IDIMFit:
     k: Estimate | None = None
     free: tuple[str, ...] = _NAMES
 
+    def __repr__(self) -> str:
+        from phoid.reports.html import short_repr
+
+        return short_repr(self)
+
+    def _repr_html_(self) -> str:
+        """HTML for notebooks (:func:`phoid.reports.html.result_html`)."""
+        from phoid.reports.html import result_html
+
+        return result_html(self)
+
     def summary(self) -> dict[str, Any]:
         """JSON-ready dict: the four estimates, the fit statistics and the warnings."""
         return {

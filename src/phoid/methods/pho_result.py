@@ -156,6 +156,17 @@ class Identification:
         """Open-loop damping ratio ζ = c/(2√(mk)) (eq. 10), delta-method stderr."""
         return open_loop_zeta(self.m.value, self.c.value, self.k.value, self.cov)
 
+    def __repr__(self) -> str:
+        from phoid.reports.html import short_repr
+
+        return short_repr(self)
+
+    def _repr_html_(self) -> str:
+        """HTML for notebooks (:func:`phoid.reports.html.result_html`)."""
+        from phoid.reports.html import result_html
+
+        return result_html(self)
+
     def summary(self) -> dict[str, Any]:
         """The JSON object of ``phoid identify --json`` (docs/format.md).
 

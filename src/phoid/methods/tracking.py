@@ -190,6 +190,17 @@ class TrackingFit:
             return None
         return float(self.correlation[self.free.index(a), self.free.index(b)])
 
+    def __repr__(self) -> str:
+        from phoid.reports.html import short_repr
+
+        return short_repr(self)
+
+    def _repr_html_(self) -> str:
+        """HTML for notebooks (:func:`phoid.reports.html.result_html`)."""
+        from phoid.reports.html import result_html
+
+        return result_html(self)
+
     def summary(self) -> dict[str, Any]:
         """JSON-ready dict: estimates, fit statistics, correlations, warnings."""
         return {

@@ -96,6 +96,17 @@ class TrackingIdentification:
         """The first run's validation (the reports' default)."""
         return self.validations[0]
 
+    def __repr__(self) -> str:
+        from phoid.reports.html import short_repr
+
+        return short_repr(self)
+
+    def _repr_html_(self) -> str:
+        """HTML for notebooks (:func:`phoid.reports.html.result_html`)."""
+        from phoid.reports.html import result_html
+
+        return result_html(self)
+
     def summary(self) -> dict[str, Any]:
         """JSON-ready dict (docs/format.md, "tracking sets")."""
         fit = self.fit.summary()
@@ -315,6 +326,17 @@ class TrackingReplay:
     def validation(self) -> Any:
         """The first run's validation."""
         return self.validations[0]
+
+    def __repr__(self) -> str:
+        from phoid.reports.html import short_repr
+
+        return short_repr(self)
+
+    def _repr_html_(self) -> str:
+        """HTML for notebooks (:func:`phoid.reports.html.result_html`)."""
+        from phoid.reports.html import result_html
+
+        return result_html(self)
 
     def summary(self) -> dict[str, Any]:
         """JSON-ready dict: the parameters and each run's validation."""

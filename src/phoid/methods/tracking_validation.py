@@ -145,6 +145,17 @@ class TrackingValidation:
         """force − force_sim, N (None without a measured force)."""
         return None if self.force is None else self.force - self.force_sim
 
+    def __repr__(self) -> str:
+        from phoid.reports.html import short_repr
+
+        return short_repr(self)
+
+    def _repr_html_(self) -> str:
+        """HTML for notebooks (:func:`phoid.reports.html.result_html`)."""
+        from phoid.reports.html import result_html
+
+        return result_html(self)
+
     def summary(self) -> dict[str, Any]:
         """JSON-ready dict: per signal its relative error (%) and RMS residual, and the warnings."""
         start, stop = self.window

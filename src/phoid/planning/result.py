@@ -166,6 +166,17 @@ class Design:
         """Every run is safe on the whole prior grid."""
         return all(r.safe for r in self.runs)
 
+    def __repr__(self) -> str:
+        from phoid.reports.html import short_repr
+
+        return short_repr(self)
+
+    def _repr_html_(self) -> str:
+        """HTML for notebooks (:func:`phoid.reports.html.result_html`)."""
+        from phoid.reports.html import result_html
+
+        return result_html(self)
+
     def summary(self) -> dict[str, Any]:
         """Plain JSON-ready dict: ``runs``, ``predicted``, ``warnings`` and the inputs."""
 

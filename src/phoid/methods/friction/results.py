@@ -206,6 +206,17 @@ class FrictionFit:
         """Per-run stick times, s (None where the fitted motion does not stop in its window)."""
         return tuple(r.stick_time for r in self.runs)
 
+    def __repr__(self) -> str:
+        from phoid.reports.html import short_repr
+
+        return short_repr(self)
+
+    def _repr_html_(self) -> str:
+        """HTML for notebooks (:func:`phoid.reports.html.result_html`)."""
+        from phoid.reports.html import result_html
+
+        return result_html(self)
+
     def summary(self) -> dict[str, Any]:
         """The JSON of ``phoid identify --friction --json``: the spec's keys (method, m, c, k,
         delay, runs, warnings) plus ``fc`` in the same {value, stderr, unit} shape.
@@ -289,3 +300,14 @@ class FrictionEvidence:
     k: Estimate
     chi2_red: float
     warnings: tuple[str, ...] = ()
+
+    def __repr__(self) -> str:
+        from phoid.reports.html import short_repr
+
+        return short_repr(self)
+
+    def _repr_html_(self) -> str:
+        """HTML for notebooks (:func:`phoid.reports.html.result_html`)."""
+        from phoid.reports.html import result_html
+
+        return result_html(self)

@@ -1,0 +1,489 @@
+"""The results where users look: the short ``repr``, the notebook's ``_repr_html_`` and the
+single-file HTML report (``phoid identify/design --html``), the report checked in a real
+headless Chromium.
+
+Expected values come from each result's own ``summary()`` (the JSON of ``--json``, pinned by
+the methods' tests), computed here by the public API on the same sets; the page must show those
+numbers, rounded as :func:`phoid.reports.format_estimate` rounds (the stderr to two significant
+digits, the value to the same decimal place). The sets: examples/paper-sample (pho, in the
+repository) and small sets simulated here (forced, free, friction, tracking).
+
+The browser tests need selenium, /usr/bin/chromium and /usr/bin/chromedriver; they are skipped,
+with the reason, where any is missing (CI installs the browser when it can: .ci/run).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import html
+import json
+import os
+import re
+from html.parser import HTMLParser
+from pathlib import Path
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+import phoid
+import phoid.io
+from phoid.cli import app
+from phoid.dynamics.controller import SampledController
+from phoid.dynamics.plant import Plant
+from phoid.reports.text import format_estimate
+from phoid.simulation.tracking import simulate_tracking
+
+runner = CliRunner()
+CHROMIUM = Path("/usr/bin/chromium")
+CHROMEDRIVER = Path("/usr/bin/chromedriver")
+HOSTILE = '<script>alert("x")</script>'
+
+
+def cli(*args, code=0):
+    r = runner.invoke(app, [str(a) for a in args])
+    assert r.exit_code == code, r.output
+    return r
+
+
+# ------------------------------------------------------------------------------------------
+# the sets and their results
+@pytest.fixture(scope="module")
+def sets(tmp_path_factory, sample_set_path):
+    """Folder of each method's set: pho (the example), forced, free, friction, tracking."""
+    root = tmp_path_factory.mktemp("sets")
+    cli("simulate", root / "forced", "--method", "forced", "--omega", "2:14:4", "--duration",
+        "20", "--fs", "250", "--noise", "1e-5", "--seed", "12")
+    cli("simulate", root / "free", "--method", "free", "--m", "1", "--c", "2", "--k", "100",
+        "--duration", "6", "--noise", "1e-5", "--seed", "3")
+    cli("simulate", root / "friction", "--fc", "0.05", "--P", "0:20:4", "--D", "1:4:4",
+        "--duration", "6", "--noise", "1e-5", "--seed", "2")
+    # a tracking set as in tests/test_tracking_cli.py: a small axis under a 1 kHz PD loop
+    # following a two-sine reference, u recorded
+    ctrl = SampledController(sample_time=1e-3, P=4000.0, D=60.0, velocity="central-difference",
+                             saturation=200.0, delay=0.4e-3)
+    t = 1e-3 * np.arange(3000)
+    r = 0.02 * np.sin(2 * np.pi * 0.7 * t) + 0.01 * np.sin(2 * np.pi * 1.9 * t + 0.3)
+    sim = simulate_tracking(Plant(2.0, 15.0, 0.0, 1.5), ctrl, r, offset=-0.3, x_init=[0.0])
+    x = sim.x + 1e-6 * np.random.default_rng(0).standard_normal(t.size)
+    run = phoid.io.run_from_arrays(t, x, r=r, u=sim.command, P=4000.0, D=60.0, index=1)
+    phoid.io.write_experiment(root / "tracking", [run], method="tracking", fixed={"k": 0.0},
+                              loop={"sample_time": 1e-3, "velocity": "central-difference",
+                                    "saturation": 200.0, "delay": 0.4e-3})
+    return {"pho": sample_set_path, **{k: root / k for k in
+                                        ("forced", "free", "friction", "tracking")}}
+
+
+@pytest.fixture(scope="module")
+def results(sets):
+    """Every result and design class, made by the public API."""
+    from phoid.methods import friction_evidence, identify_friction_set, replay_set
+
+    read = phoid.io.read_experiment
+    out = {"pho": phoid.identify(read(sets["pho"])),
+           "forced": phoid.identify(read(sets["forced"])),
+           "free": phoid.identify(read(sets["free"]))}
+    fexp = read(sets["friction"])
+    out["friction"] = identify_friction_set(fexp)
+    out["friction-evidence"] = friction_evidence(
+        [(r.t, r.x) for r in fexp.runs], np.array([r.P for r in fexp.runs]),
+        np.array([r.D for r in fexp.runs]), fexp.delay)
+    texp = read(sets["tracking"])
+    out["tracking"] = phoid.identify(texp, estimator="idim")
+    out["idim"] = out["tracking"].fit
+    out["output-error"] = phoid.identify(texp, estimator="output-error").fit
+    out["validation"] = out["tracking"].validation
+    out["replay"] = replay_set(texp, {"m": 2.0, "c": 15.0, "k": 0.0, "fc": 1.5,
+                                      "offset": -0.3, "delay": 0.4e-3})
+    out["design"] = phoid.design(2.0, 1.0, 64.0, delay=0.1, runs=4)
+    out["experiment"] = read(sets["pho"])
+    return out
+
+
+def _estimates(summary: dict) -> dict:
+    """The estimate-shaped entries of a summary ({value, stderr, unit}), as the docs define."""
+    found = {k: v for k, v in summary.items() if isinstance(v, dict) and "unit" in v
+             and "value" in v}
+    for group in ("parameters", "predicted"):
+        found.update({k: v for k, v in (summary.get(group) or {}).items()
+                      if isinstance(v, dict) and "value" in v})
+    return found
+
+
+RESULT_KEYS = ["pho", "forced", "free", "friction", "friction-evidence", "tracking", "idim",
+               "output-error", "validation", "replay", "design"]
+
+
+# ------------------------------------------------------------------------------------------
+# repr and _repr_html_, no browser
+@pytest.mark.parametrize("key", [*RESULT_KEYS, "experiment"])
+def test_repr_is_one_short_line(results, key):
+    text = repr(results[key])
+    # before, a PHO Identification's repr was 19 kB of dataclass text; one line of at most a
+    # few estimates fits 400 characters (the tracking fit's six estimates are the longest)
+    assert "\n" not in text and len(text) < 400, text
+    assert text.startswith(type(results[key]).__name__), text
+
+
+@pytest.mark.parametrize("key", ["pho", "forced", "friction", "tracking", "design"])
+def test_repr_shows_the_main_estimates_and_counts(results, key):
+    res = results[key]
+    summary = res.summary()
+    ests = _estimates(summary)
+    text = repr(res)
+    for name in ("m", "c", "k"):
+        e = ests[name]
+        assert f"{name} = {format_estimate(e['value'], e['stderr'])} {e['unit']}" in text, text
+    n = len(summary.get("runs") or summary.get("validation"))
+    nw = len(summary["warnings"])
+    assert f"{n} run" in text and f"{nw} warning" in text, text
+
+
+class _Checker(HTMLParser):
+    """Tag balance of an HTML fragment (void elements excepted) and its text."""
+
+    VOID = frozenset({"br", "img", "meta", "hr", "input", "link", "col", "wbr"})
+
+    def __init__(self):
+        super().__init__(convert_charrefs=True)
+        self.stack, self.errors, self.text, self.tags = [], [], [], []
+
+    def handle_starttag(self, tag, attrs):
+        self.tags.append(tag)
+        if tag not in self.VOID:
+            self.stack.append(tag)
+
+    def handle_endtag(self, tag):
+        if not self.stack or self.stack[-1] != tag:
+            self.errors.append(f"</{tag}> closes {self.stack[-1:] or 'nothing'}")
+        else:
+            self.stack.pop()
+
+    def handle_data(self, data):
+        self.text.append(data)
+
+
+def _parse(fragment: str) -> _Checker:
+    p = _Checker()
+    p.feed(fragment)
+    p.close()
+    assert not p.errors and not p.stack, (p.errors, p.stack)
+    return p
+
+
+@pytest.mark.parametrize("key", RESULT_KEYS)
+def test_repr_html_is_balanced_and_shows_every_estimate(results, key):
+    res = results[key]
+    fragment = res._repr_html_()
+    page = _parse(fragment)
+    text = " ".join(page.text)
+    ests = _estimates(res.summary()) if hasattr(res, "summary") else {
+        n: {"value": getattr(res, n).value, "stderr": getattr(res, n).stderr}
+        for n in ("m", "c", "k", "fc")}
+    assert ests or key in ("validation", "replay")  # those two hold relative errors, no estimate
+    for name, e in ests.items():
+        if e["value"] is not None:
+            assert format_estimate(e["value"], e["stderr"]) in text, (name, e)
+    warnings = getattr(res, "warnings", ())
+    assert (f"{len(warnings)} warning" in text) if warnings else ("No warnings." in text)
+
+
+def test_repr_html_has_an_inline_figure_where_it_summarises(results):
+    for key in ("pho", "forced", "design"):  # eq. (35) lines, eq. (20) lines, root locus
+        tags = _parse(results[key]._repr_html_()).tags
+        assert tags.count("img") == 1, key
+
+
+class _Extended:
+    """A result whose summary() has the optional keys the display reads (docs/format.md):
+    statistics, covariance, correlation, per-run residual_noise_ratio; numbers made up."""
+
+    warnings = ()
+
+    def summary(self):
+        return {
+            "method": "pho",
+            "m": {"value": 2.0, "stderr": 0.001, "unit": "kg"},
+            "statistics": {"chi2": 31.5, "dof": 30, "chi2_dof": 1.05},
+            "covariance": {"params": ["m", "k"], "units": ["kg", "N/m"],
+                           "matrix": [[1e-6, 2e-6], [2e-6, 9e-4]]},
+            "correlation": {"params": ["m", "k"], "matrix": [[1.0, 0.0667], [0.0667, 1.0]]},
+            "runs": [{"file": "a.csv", "sigma": 0.5, "sigma_stderr": 0.01,
+                      "residual_noise_ratio": 1.02, "used": True, "warnings": []},
+                     {"file": "b.csv", "sigma": 0.7, "sigma_stderr": 0.02,
+                      "residual_noise_ratio": 3.5, "used": False, "warnings": ["odd"]}],
+            "warnings": [],
+        }
+
+
+def test_optional_summary_keys_are_shown():
+    from phoid.reports.html import result_html
+
+    fragment = result_html(_Extended())
+    text = " ".join(_parse(fragment).text)
+    for caption in ("Fit statistics", "Covariance", "Correlation"):
+        assert caption in text
+    assert "chi2_dof" in text and "1.05" in text
+    assert "m (kg)" in text and "k (N/m)" in text and "0.0667" in text
+    assert "residual_noise_ratio" in text and "3.5" in text
+    assert "0.500 ± 0.01" in text  # sigma ± sigma_stderr in one cell (format_estimate)
+    assert fragment.count('class="phoid-aside"') == 1  # the run set aside is marked
+    assert "odd" in text
+
+
+@pytest.mark.parametrize("key", ["pho", "tracking", "design", "experiment"])
+def test_ipython_displays_the_html_and_the_short_repr(results, key):
+    formatters = pytest.importorskip("IPython.core.formatters",
+                                     reason="IPython (ipykernel's) is not installed")
+    data, _meta = formatters.DisplayFormatter().format(results[key])
+    assert data["text/plain"] == repr(results[key])
+    assert data["text/html"] == results[key]._repr_html_()
+
+
+def test_experiment_set_repr_html_lists_the_runs(results):
+    exp = results["experiment"]
+    page = _parse(exp._repr_html_())
+    text = " ".join(page.text)
+    assert all(r.file in text for r in exp.runs)
+    assert f"Runs ({len(exp.runs)})" in text
+
+
+def test_hostile_names_are_escaped(results):
+    res = results["pho"]
+    runs = (dataclasses.replace(res.runs[0], file=HOSTILE, warnings=(HOSTILE,)), *res.runs[1:])
+    bad = dataclasses.replace(res, runs=runs, warnings=(f"run 1: {HOSTILE}",), source=HOSTILE)
+    fragment = bad._repr_html_()
+    assert "<script" not in fragment
+    assert html.escape(HOSTILE) in fragment
+    assert HOSTILE in " ".join(_parse(fragment).text)  # shown as text, as written
+    assert "<script" not in repr(bad)  # the repr shows no run names at all
+    run = phoid.io.run_from_arrays(np.arange(5.0), np.zeros(5), P=1.0, D=1.0, file=HOSTILE)
+    exp = phoid.io.ExperimentSet(path=Path("x") / "experiment.toml", runs=(run,),
+                                 title=HOSTILE)
+    assert "<script" not in exp._repr_html_()
+    assert HOSTILE in " ".join(_parse(exp._repr_html_()).text)
+
+
+def test_report_page_without_a_browser(results, tmp_path, sets):
+    from phoid.reports.html import write_report
+
+    path = write_report(results["free"], tmp_path / "r" / "free.html",
+                        experiment=phoid.io.read_experiment(sets["free"]))
+    page = path.read_text(encoding="utf-8")
+    p = _parse(page.split("<!DOCTYPE html>\n", 1)[1])
+    assert not re.search(r"""(src|href)\s*=\s*["']?(https?:|//)""", page)  # self-contained
+    # the manifest's SHA-256, computed here independently of the report
+    import hashlib
+
+    manifest = sets["free"] / "experiment.toml"
+    assert hashlib.sha256(manifest.read_bytes()).hexdigest() in page
+    text = " ".join(p.text)
+    for key in ("phoid", "python", "numpy", "scipy"):
+        assert key in text
+    assert f"{np.__version__}" in text
+    # the embedded figures are the files plot() writes, byte for byte (Agg renders the same
+    # figure to the same PNG)
+    import base64
+
+    embedded = [base64.b64decode(s) for s in re.findall(r'src="data:image/png;base64,([^"]+)"',
+                                                       page)]
+    written = [f.read_bytes() for f in results["free"].plot(tmp_path / "plots")]
+    assert embedded == written and len(written) == len(results["free"].runs)
+
+
+def test_design_html_without_a_browser(tmp_path):
+    path = tmp_path / "design.html"
+    cli("design", "--m", "2", "--c", "1", "--k", "64", "--delay", "0.1", "--runs", "3",
+        "--html", path)
+    page = path.read_text(encoding="utf-8")
+    text = " ".join(_parse(page.split("<!DOCTYPE html>\n", 1)[1]).text)
+    predicted = phoid.design(2.0, 1.0, 64.0, delay=0.1, runs=3).summary()["predicted"]
+    for e in predicted.values():
+        assert format_estimate(e["value"], e["stderr"]) in text
+    assert page.count("<img ") == 1  # the design's one figure (root locus, uncertainties)
+    assert "No input files were given." in text
+
+
+def test_browser_skip_reason_names_what_is_missing(monkeypatch, tmp_path):
+    import sys
+
+    try:
+        import selenium  # noqa: F401
+        has_selenium = True
+    except ImportError:
+        has_selenium = False
+    me = sys.modules[__name__]
+    monkeypatch.setattr(me, "CHROMIUM", tmp_path / "no-chromium")
+    reason = me._browser_missing()
+    assert reason is not None
+    # without selenium the reason names selenium first; with it, the missing browser
+    assert ("no-chromium" if has_selenium else "selenium") in reason
+
+
+# ------------------------------------------------------------------------------------------
+# --html through the CLI: the _output rules, one-line errors
+def _one_line_error(r, *words):
+    assert r.exit_code == 2, r.output
+    lines = r.output.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("phoid: error:"), r.output
+    assert "Traceback" not in r.output
+    for w in words:
+        assert w in lines[0], (w, lines[0])
+
+
+def test_html_refuses_to_overwrite_then_replaces_with_overwrite(sets, tmp_path):
+    target = tmp_path / "report.html"
+    target.write_text("keep me")
+    _one_line_error(runner.invoke(app, ["identify", str(sets["free"]), "--html", str(target)]),
+                    str(target), "--overwrite")
+    assert target.read_text() == "keep me"
+    cli("identify", sets["free"], "--html", target, "--overwrite")
+    assert target.read_text(encoding="utf-8").startswith("<!DOCTYPE html>")
+    _one_line_error(runner.invoke(app, ["design", "--m", "2", "--c", "1", "--k", "64",
+                                        "--delay", "0.1", "--runs", "3", "--html",
+                                        str(target)]), "--overwrite")
+
+
+def test_html_refuses_links_and_folders(sets, tmp_path):
+    outside = tmp_path / "outside.html"
+    outside.write_text("not phoid's")
+    link = tmp_path / "out" / "report.html"
+    link.parent.mkdir()
+    link.symlink_to(outside)
+    for extra in ([], ["--overwrite"]):  # a link is refused with or without --overwrite
+        _one_line_error(runner.invoke(app, ["identify", str(sets["free"]), "--html",
+                                            str(link), *extra]), "symbolic link")
+    assert outside.read_text() == "not phoid's"
+    dangling = tmp_path / "gone"
+    dangling.symlink_to(tmp_path / "nowhere")
+    _one_line_error(runner.invoke(app, ["identify", str(sets["free"]), "--html",
+                                        str(dangling / "sub" / "r.html")]), "link")
+    assert not (tmp_path / "nowhere").exists()
+    (tmp_path / "folder.html").mkdir()
+    _one_line_error(runner.invoke(app, ["identify", str(sets["free"]), "--html",
+                                        str(tmp_path / "folder.html")]), "folder")
+
+
+# ------------------------------------------------------------------------------------------
+# the report in a real browser
+def _browser_missing() -> str | None:
+    try:
+        import selenium  # noqa: F401
+    except ImportError:
+        return "selenium is not installed (pip install selenium; the `test` extra has it)"
+    for path in (CHROMIUM, CHROMEDRIVER):
+        if not path.is_file() or not os.access(path, os.X_OK):
+            return (f"{path} is absent: install Debian's chromium and chromium-driver to run "
+                    "the browser tests (.ci/run does where it runs as root)")
+    return None
+
+
+@pytest.fixture(scope="module")
+def browser():
+    reason = _browser_missing()
+    if reason:
+        pytest.skip(reason)
+    from selenium import webdriver
+    from selenium.webdriver.chrome.options import Options
+    from selenium.webdriver.chrome.service import Service
+
+    opts = Options()
+    opts.binary_location = str(CHROMIUM)
+    for arg in ("--headless=new", "--no-sandbox", "--disable-dev-shm-usage",
+                "--window-size=1300,1800"):
+        opts.add_argument(arg)
+    opts.set_capability("goog:loggingPrefs", {"browser": "ALL"})
+    driver = webdriver.Chrome(service=Service(str(CHROMEDRIVER)), options=opts)
+    yield driver
+    driver.quit()
+
+
+# the figures each result's plot() writes (the plot functions' docstrings): a PHO set one per
+# fitted run and the eq. (35) lines; forced one per run and the eq. (20) lines; free and
+# tracking one per run; a design one; the friction fit none
+CASES = {
+    "pho": (["identify", "{pho}"], lambda s: len(s["runs"]) + 1),
+    "forced": (["identify", "{forced}"], lambda s: len(s["runs"]) + 1),
+    "free": (["identify", "{free}"], lambda s: len(s["runs"])),
+    "friction": (["identify", "{friction}", "--friction"], lambda s: 0),
+    "tracking": (["identify", "{tracking}", "--estimator", "idim"],
+                 lambda s: len(s["validation"])),
+    "design": (["design", "--m", "2", "--c", "1", "--k", "64", "--delay", "0.1", "--runs", "4"],
+               lambda s: 1),
+}
+NUMBER = r"[-+]?\d+(?:\.\d*)?(?:e[-+]?\d+)?"
+
+
+@pytest.mark.parametrize("key", list(CASES))
+def test_report_in_a_browser(key, browser, sets, results, tmp_path):
+    args, figures = CASES[key]
+    path = tmp_path / f"{key}.html"
+    out = cli(*(a.format(**sets) for a in args), "--html", path, "--json")
+    json.loads(out.stdout)  # standard output stays one JSON object ("report written" on stderr)
+    summary = results[key].summary()
+    browser.get(path.resolve().as_uri())
+    severe = [e for e in browser.get_log("browser") if e.get("level") == "SEVERE"]
+    assert not severe, severe
+    images = browser.execute_script(
+        "return Array.from(document.images).map(i => [i.complete, i.naturalWidth, i.alt])")
+    assert len(images) == figures(summary), images
+    assert all(done and width > 0 for done, width, _ in images), images
+    # and every image decodes whole (a truncated PNG still reports its header's width)
+    decoded = browser.execute_async_script("""
+        const done = arguments[arguments.length - 1];
+        Promise.all(Array.from(document.images).map(
+            i => i.decode().then(() => true, () => false))).then(done);""")
+    assert decoded == [True] * len(images), decoded
+    # nothing was fetched from anywhere: every resource is the page itself or a data: URL
+    fetched = browser.execute_script(
+        "return performance.getEntriesByType('resource').map(e => e.name)")
+    assert all(n.startswith("data:") for n in fetched), fetched
+    assert browser.execute_script("return document.scripts.length") == 0
+    # the estimates table, read back and compared with summary() to its rounding
+    rows = browser.execute_script("""
+        const t = Array.from(document.querySelectorAll('table')).find(
+            t => t.caption && t.caption.textContent === 'Estimates');
+        return Array.from(t.rows).slice(1).map(r => Array.from(r.cells).map(
+            c => c.textContent));""")
+    shown = {r[0]: r[1] for r in rows}
+    ests = _estimates(summary)
+    assert set(ests) <= set(shown), (set(ests), set(shown))
+    for name, e in ests.items():
+        if e["value"] is None:
+            continue
+        m = re.fullmatch(rf"({NUMBER})(?: ± ({NUMBER}))?", shown[name])
+        assert m, shown[name]
+        value, se = float(m.group(1)), m.group(2)
+        if se is None:  # no stderr: 6 significant digits (format_estimate)
+            assert value == pytest.approx(e["value"], rel=5e-6)
+            continue
+        # the stderr to two significant digits (≤ 5 % off), the value to the stderr's second
+        # digit (≤ half a unit of that place, ≤ 0.05 stderr)
+        assert float(se) == pytest.approx(e["stderr"], rel=0.05), (name, se, e)
+        assert abs(value - e["value"]) <= 0.051 * e["stderr"] + 1e-12 * abs(e["value"])
+    body = browser.find_element("tag name", "body").text
+    for w in summary["warnings"]:
+        assert " ".join(w.split())[:60] in " ".join(body.split())
+    shot = tmp_path / f"{key}.png"
+    assert browser.save_screenshot(str(shot)) and shot.stat().st_size > 10_000
+
+
+def test_hostile_report_runs_no_script_in_a_browser(browser, results, tmp_path):
+    from phoid.reports.html import write_report
+
+    res = results["free"]
+    runs = (dataclasses.replace(res.runs[0], file=HOSTILE),)
+    bad = dataclasses.replace(res, runs=runs, warnings=(HOSTILE,), source=HOSTILE)
+    path = write_report(bad, tmp_path / "hostile.html")
+    browser.get(path.resolve().as_uri())
+    assert browser.execute_script("return document.scripts.length") == 0
+    assert HOSTILE in browser.find_element("tag name", "body").text
+    assert not [e for e in browser.get_log("browser") if e.get("level") == "SEVERE"]
+
+
+def test_summary_json_in_the_page_matches(results, tmp_path):
+    from phoid.reports.html import report_html
+
+    page = report_html(results["forced"], figures=False)
+    pre = re.search(r"<pre>(.*?)</pre>", page, re.S).group(1)
+    assert json.loads(html.unescape(pre)) == json.loads(json.dumps(results["forced"].summary()))
