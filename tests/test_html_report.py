@@ -399,13 +399,18 @@ def browser():
 
 
 # the figures each result's plot() writes (the plot functions' docstrings): a PHO set one per
-# fitted run and the eq. (35) lines; forced one per run and the eq. (20) lines; free and
-# tracking one per run; a design one; the friction fit none
+# used run, the eq. (35) lines and the m-k ellipse; forced one per used run, the eq. (20) lines
+# and the ellipse; free and tracking one per run; a design one; the friction fit one per used
+# run and the ellipse
+def _used(s):
+    return sum(1 for r in s["runs"] if r.get("used", True))
+
+
 CASES = {
-    "pho": (["identify", "{pho}"], lambda s: len(s["runs"]) + 1),
-    "forced": (["identify", "{forced}"], lambda s: len(s["runs"]) + 1),
+    "pho": (["identify", "{pho}"], lambda s: _used(s) + 2),
+    "forced": (["identify", "{forced}"], lambda s: _used(s) + 2),
     "free": (["identify", "{free}"], lambda s: len(s["runs"])),
-    "friction": (["identify", "{friction}", "--friction"], lambda s: 0),
+    "friction": (["identify", "{friction}", "--friction"], lambda s: _used(s) + 1),
     "tracking": (["identify", "{tracking}", "--estimator", "idim"],
                  lambda s: len(s["validation"])),
     "design": (["design", "--m", "2", "--c", "1", "--k", "64", "--delay", "0.1", "--runs", "4"],

@@ -399,14 +399,14 @@ def _img(png: bytes, alt: str, width: int | None = None) -> str:
 
 def _summary_figure(result: Any, summary: dict[str, Any]) -> Any:
     """The one figure that summarises ``result`` (a matplotlib Figure), or None."""
-    from phoid.reports import figures
+    from phoid.reports import lines
 
     method = summary.get("method")
     if method == "pho" and hasattr(result, "delay_source") and hasattr(result, "fit"):
         if sum(1 for r in result.runs if r.used) >= 2:
-            return figures._lines_figure(result)
+            return lines.pho_lines_figure(result)
     elif method == "forced" and hasattr(result, "fit"):
-        return figures._eq20_figure(result)
+        return lines.forced_lines_figure(result)
     elif "predicted" in summary and hasattr(result, "roots") and callable(
             getattr(result, "plot", None)):
         from matplotlib.figure import Figure
