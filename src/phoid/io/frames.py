@@ -64,13 +64,14 @@ def _check_column(values: np.ndarray, where: str, *, increasing: bool = False) -
     bad = ~np.isfinite(values)
     if bad.any():
         i = int(np.flatnonzero(bad)[0])
-        raise ExperimentError(f"{where} has a non-finite value ({values[i]!r}) at position {i}")
+        raise ExperimentError(f"{where} has a non-finite value ({float(values[i])!r}) at "
+                              f"position {i}")
     if increasing:
         d = np.diff(values)
         if not (d > 0).all():
             i = int(np.flatnonzero(~(d > 0))[0]) + 1
             raise ExperimentError(f"{where} is not strictly increasing at position {i}: "
-                             f"{values[i]!r} s follows {values[i - 1]!r} s")
+                             f"{float(values[i])!r} s follows {float(values[i - 1])!r} s")
     return values
 
 
