@@ -429,3 +429,66 @@ def test_bad_tables_are_one_line_errors_naming_argument_and_column(table, match)
     assert "\n" not in str(info.value)
     with pytest.raises(ValueError, match=match.replace(r"data\[0\]", "t")):
         phoid.run_from_arrays(tables[table])
+
+
+def test_tracking_identification_exports_m_c_k(tmp_path):
+    # a tracking set of one run (a small axis, k = 0, under a 1 kHz PD loop; the recipe of
+    # tests/test_tracking_cli.py), identified by IDIM-LS
+    from phoid.dynamics.controller import SampledController
+    from phoid.simulation.tracking import simulate_tracking
+
+    ctrl = SampledController(sample_time=1e-3, P=4000.0, D=60.0, velocity="central-difference",
+                             saturation=200.0, delay=0.4e-3)
+    t = 1e-3 * np.arange(3000)
+    r = 0.02 * np.sin(2 * np.pi * 0.7 * t) + 0.01 * np.sin(2 * np.pi * 1.9 * t + 0.3)
+    sim = simulate_tracking(Plant(2.0, 15.0, 0.0, 1.5), ctrl, r, offset=-0.3, x_init=[0.0])
+    run = phoid.run_from_arrays(t, sim.x, r=r, u=sim.command, P=4000.0, D=60.0, index=1)
+    phoid.write_experiment(tmp_path, [run], method="tracking", fixed={"k": 0.0},
+                           loop={"sample_time": 1e-3, "velocity": "central-difference",
+                                 "saturation": 200.0, "delay": 0.4e-3})
+    res = phoid.identify(phoid.read_experiment(tmp_path), estimator="idim")
+    lp = linear_plant(res)
+    m, c = res.estimates["m"].value, res.estimates["c"].value
+    assert lp.values.tolist() == [m, c, 0.0]
+    # (m, c)'s block of the fit's covariance, by the fit's names; k fixed: zero variance
+    i, j = res.fit.free.index("M"), res.fit.free.index("Fv")
+    assert lp.cov[0, 1] == res.fit.covariance[i, j] and lp.cov[2, 2] == 0.0
+    G = to_lti(res)
+    assert np.allclose(_sorted(G.poles), _sorted(np.roots([m, c, 0.0])), rtol=ROOT_RTOL,
+                       atol=1e-12)
+    pd = pytest.importorskip("pandas")
+    est, runs = res.to_pandas()
+    assert isinstance(runs, pd.DataFrame) and len(runs) == 1
+    assert est.loc["fc", "value"] == res.estimates["fc"].value and est.loc["m", "unit"] == "kg"
+
+
+def test_docstring_examples_run():
+    pytest.importorskip("control")
+    import doctest
+
+    from phoid.interop import control as control_module
+    from phoid.interop import plant as plant_module
+
+    for module in (plant_module, control_module):
+        result = doctest.testmod(module)
+        assert result.attempted > 0 and result.failed == 0
+
+
+def test_a_sampled_loops_identification_exports_its_measured_modes():
+    pytest.importorskip("control")
+    # the digital loop of tests/test_digital_identify.py: T_s = 2 ms, backward difference,
+    # 3 samples of delay; plant m 1, c 2, k 100
+    plant = Plant(1.0, 2.0, 100.0)
+    P, D = np.linspace(20.0, 200.0, 4), np.linspace(0.5, 5.0, 4)
+    loop = DigitalPD(0.0, 0.0, sample_time=0.002, delay_samples=3)
+    sim = phoid.simulate(plant, P, D, duration=10.0, fs=500.0, x0=0.01, hold=0.2, noise=1e-5,
+                         rng=np.random.default_rng(2), sample_time=0.002, delay_samples=3)
+    res = phoid.identify_data([(sim.t, sim.x[i]) for i in range(P.size)], P, D, None,
+                              digital=loop)
+    for i, run in enumerate(res.runs):
+        T = res.closed_loop(i)
+        assert T.dt == 0.002 and T.phoid.delay == 0.006
+        s = T.phoid.dominant_pole  # ln(z)/T_s of the exported loop's dominant pole
+        # the run's measured dominant mode (its own decay fit), within 5 of its stderrs
+        assert abs(-s.real - run.sigma) < 5 * run.sigma_stderr, (i, s, run.sigma)
+        assert abs(abs(s.imag) - run.omega_d) < 5 * run.omega_d_stderr, (i, s, run.omega_d)

@@ -177,6 +177,14 @@ def to_control(result: Any, *, form: str = "tf", per_unit_mass: bool = False) ->
     ------
     ImportError
         When python-control is not installed.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from phoid.interop.plant import LinearPlant
+    >>> G = to_control(LinearPlant(2.0, 1.0, 64.0, cov=np.diag([1e-4, 1e-4, 1e-2])))
+    >>> float(G.dcgain()), G.phoid.cov[2, 2]
+    (0.015625, np.float64(0.01))
     """
     control = require_control()
     _check_form(form)
@@ -198,6 +206,14 @@ def to_lti(result: Any, *, form: str = "tf", per_unit_mass: bool = False) -> Any
 
     ``form="tf"`` gives ``lti([1], [m, c, k])``, ``"ss"`` the state space of
     :func:`to_control` (states x, v). The system carries ``phoid`` (:class:`ExportInfo`).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from phoid.interop.plant import LinearPlant
+    >>> L = to_lti(LinearPlant(2.0, 1.0, 64.0, cov=np.zeros((3, 3))))
+    >>> L.den.tolist(), L.phoid.input
+    ([1.0, 0.5, 32.0], 'F (N)')
     """
     from scipy.signal import lti
 

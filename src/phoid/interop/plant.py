@@ -43,6 +43,15 @@ class LinearPlant:
         What the export leaves out or assumes (e.g. a Coulomb friction force dropped).
     source : str
         Where the result came from.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> p = LinearPlant(2.0, 1.0, 64.0, cov=np.diag([1e-4, 1e-4, 1e-2]))
+    >>> p.poles.round(4)
+    array([-0.25+5.6513j, -0.25-5.6513j])
+    >>> p.draw(3, rng=1).shape
+    (3, 3)
     """
 
     m: float
