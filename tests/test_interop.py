@@ -292,7 +292,7 @@ def test_friction_fit_exports_its_linear_part():
     cov = np.arange(16.0).reshape(4, 4)
     cov = cov @ cov.T + np.eye(4)
     run = FrictionRun("r1", 8.5, 2.4, True, 0.2, 0.01, 0.0, 0.4, 5.6, None, -1, 10.0, 1000,
-                      1e-6, 1e-6)
+                      1e-6, 1e-6, added_mass=0.5)
     fit = FrictionFit(Estimate(2.0, 0.01, "kg"), Estimate(1.0, 0.01, "N s/m"),
                       Estimate(64.0, 0.1, "N/m"), Estimate(0.3, 0.01, "N"), cov, 0.0, (run,),
                       1.0, 10, 1e-6, True, 3, (2.0, 1.0, 64.0, 0.3))
@@ -300,7 +300,9 @@ def test_friction_fit_exports_its_linear_part():
     assert np.array_equal(G.phoid.cov, cov[:3, :3])
     assert "fc = 0.3 N is dropped" in G.phoid.notes[0]
     T = fit.closed_loop("r1")
-    assert np.allclose(_sorted(T.poles()), _sorted(np.roots([2.0, 3.4, 72.5])), rtol=ROOT_RTOL)
+    # eq. (31) with the run's mass m + Δm = 2.5 kg: 2.5 s² + (1 + 2.4) s + (64 + 8.5)
+    assert np.allclose(_sorted(T.poles()), _sorted(np.roots([2.5, 3.4, 72.5])), rtol=ROOT_RTOL)
+    assert T.phoid.added_mass == 0.5 and "added mass" in T.phoid.notes[-1]
 
 
 def test_tracking_result_covariance_by_parameter_name():

@@ -352,6 +352,8 @@ def closed_loop(result: Any, run: int | str, *, pade_order: int | None = None,
     """
     control = require_control()
     _check_form(form)
+    if not (isinstance(rtol, (int, float)) and 0 < rtol < 1):
+        raise ValueError(f"`rtol` must be a number in (0, 1); got {rtol!r}")
     r = _pick_run(result, run)
     plant = linear_plant(result)
     P, D = float(r.P), float(r.D)
@@ -361,6 +363,9 @@ def closed_loop(result: Any, run: int | str, *, pade_order: int | None = None,
     digital = getattr(result, "digital", None)
     delay = float(getattr(result, "delay", 0.0) or 0.0)
     notes = list(plant.notes)
+    if getattr(result, "delay_stderr", None) is not None and digital is None:
+        notes.append(f"the delay is the estimated {delay:.6g} ± {result.delay_stderr:.2g} s; "
+                     "its uncertainty is not in the covariance of (m, c, k)")
     if added:
         notes.append(f"the run's added mass {added:.6g} kg is part of the loop's mass")
     order: int | None = None
