@@ -176,10 +176,11 @@ LAYERS: dict[str, set[str]] = {
     "phoid.io": BASE,
     "phoid.reports": BASE | {"phoid.dynamics"},
     "phoid.methods": BASE | {"phoid.fits", "phoid.dynamics", "phoid.simulation", "phoid.io",
-                             "phoid.reports"},
+                             "phoid.reports", "phoid.interop"},
     "phoid.planning": BASE | {"phoid.methods", "phoid.fits", "phoid.dynamics", "phoid.io",
                               "phoid.reports"},
     "phoid.rig": BASE | {"phoid.dynamics", "phoid.simulation", "phoid.io", "phoid.planning"},
+    "phoid.interop": BASE | {"phoid.dynamics"},
 }
 
 

@@ -4,14 +4,16 @@
 to :func:`phoid.methods.identification.identify_pho`, forced and free sets to
 :func:`phoid.methods.forced.identify_forced` and :func:`phoid.methods.free.identify_free`,
 tracking sets to :func:`phoid.methods.tracking_identification.identify_tracking`.
-:func:`identify_data` is the PHO pipeline on plain arrays.
+:func:`identify_data` is the PHO pipeline on records in memory (arrays or pandas objects).
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
 from phoid.errors import IdentificationError
+from phoid.io.frames import is_table, table_columns
 from phoid.methods.identification import check_estimator, identify_pho, identify_pho_data
 from phoid.methods.pho_checks import refuse_bias
 from phoid.methods.pho_result import Identification
@@ -89,7 +91,68 @@ def identify(
     return identify_pho(experiment, delay=delay, estimator=estimator, compensate=compensate)
 
 
-#: :func:`identify` on plain arrays (``data``: a sequence of (t, x) per run). Records given as
-#: arrays carry no ``method``, so there is nothing to dispatch: this is the PHO pipeline itself,
-#: :func:`phoid.methods.identification.identify_pho_data`, under its public name.
-identify_data = identify_pho_data
+def identify_data(
+    data: Sequence[Any],
+    P: Any,
+    D: Any,
+    delay: float | None,
+    *,
+    files: Sequence[str] | None = None,
+    names: Sequence[str] | None = None,
+    estimator: str = "gls",
+    compensate: bool = True,
+    source: str = "",
+    digital: Any = None,
+    added_mass: Any = None,
+    u: Sequence[Any] | None = None,
+) -> Identification:
+    """The PHO pipeline on records in memory: :func:`identify` without a manifest.
+
+    Records given as arrays carry no ``method``, so there is nothing to dispatch: this is
+    :func:`phoid.methods.identification.identify_pho_data`, with each record given either as
+    a pair (t, x) of arrays or as a pandas object (:func:`phoid.io.frames.table_columns`): a
+    Series (index t, values x) or a DataFrame
+    (column ``x``, optionally ``u``; t from a column ``t`` or the index; a datetime or
+    timedelta index becomes seconds from the first sample).
+
+    Parameters
+    ----------
+    data : sequence of (t, x), pandas.Series or pandas.DataFrame
+        Each run's record: time (s) and position (m).
+    P, D : array_like
+        Each run's gains, N/m and N·s/m.
+    delay : float or None
+        Loop delay Δt, s; None estimates it.
+    files, names, estimator, compensate, source, digital, added_mass
+        As :func:`phoid.methods.identification.identify_pho_data`.
+    u : sequence of ndarray or None, optional
+        Each run's recorded feedback force, N; when not given, a DataFrame's ``u`` column.
+
+    Returns
+    -------
+    Identification
+
+    Raises
+    ------
+    ValueError
+        A table without an ``x`` column, with an unknown column, a non-finite value or a
+        time that does not increase (naming ``data[i]`` and the column).
+    IdentificationError
+        When the data cannot determine m, c, k.
+    """
+    records = list(data)
+    tables = [is_table(r) for r in records]
+    if any(tables):
+        us: list[Any] = []
+        for i, is_tab in enumerate(tables):
+            if is_tab:
+                cols = table_columns(records[i], f"data[{i}]")
+                records[i] = (cols["t"], cols["x"])
+                us.append(cols.get("u"))
+            else:
+                us.append(None)
+        if u is None and any(one is not None for one in us):
+            u = us
+    return identify_pho_data(records, P, D, delay, files=files, names=names,
+                             estimator=estimator, compensate=compensate, source=source,
+                             digital=digital, added_mass=added_mass, u=u)

@@ -31,6 +31,7 @@ from phoid.io._format import (
     show,
     unknown_hint,
 )
+from phoid.io.frames import is_table, table_columns
 from phoid.io.tracking import check_estimator, check_fixed, check_tracking_loop, min_samples
 
 __all__ = ["ExperimentSet", "Run", "run_from_arrays"]
@@ -327,7 +328,7 @@ def _check_method_needs(where: str, run: Run, method: str) -> None:
 
 def run_from_arrays(
     t: Any,
-    x: Any,
+    x: Any = None,
     *,
     u: Any = None,
     F: Any = None,
@@ -349,10 +350,14 @@ def run_from_arrays(
 
     Parameters
     ----------
-    t : array_like
-        Sample times (s), finite, strictly increasing, at least 2.
+    t : array_like, pandas.Series or pandas.DataFrame
+        Sample times (s), finite, strictly increasing, at least 2. Or the whole record as a
+        table (``x`` then omitted; :func:`phoid.io.frames.table_columns`): a Series (index
+        t, values x) or a DataFrame (columns ``x`` and optionally ``u``, ``F``, ``r``,
+        ``w``; t from a column ``t`` or the index). A datetime or timedelta index becomes
+        seconds from the first sample.
     x : array_like
-        Position (m), same length as ``t``.
+        Position (m), same length as ``t``; required unless ``t`` is a table.
     u, F : array_like, optional
         Applied feedback force and external force (N), same length as ``t``.
     P, D : float, optional
@@ -384,7 +389,8 @@ def run_from_arrays(
     Raises
     ------
     ExperimentError
-        On NaN/inf, unequal lengths, non-increasing ``t``, bad gains.
+        On NaN/inf, unequal lengths, non-increasing ``t``, bad gains; for a table also a
+        missing ``x`` or an unknown column (the message names the argument and the column).
 
     Examples
     --------
@@ -393,6 +399,20 @@ def run_from_arrays(
     >>> run.x.dtype, run.x.flags.writeable
     (dtype('float64'), False)
     """
+    if is_table(t):
+        if x is not None:
+            raise ExperimentError("run_from_arrays: `t` is a table (Series/DataFrame) holding "
+                                  "x already; do not pass `x` as well")
+        cols = table_columns(t, "t")
+        given = {"u": u, "F": F, "r": r, "w": w}
+        both = [k for k, value in given.items() if k in cols and value is not None]
+        if both:
+            raise ExperimentError(f"run_from_arrays: column(s) {', '.join(map(repr, both))} "
+                                  "of `t` also given as argument(s); give each once")
+        t, x = cols["t"], cols["x"]
+        u, F, r, w = (cols.get(k, value) for k, value in given.items())
+    elif x is None:
+        raise ExperimentError("run_from_arrays: `x` (the position, m) is missing")
     return Run(file=file, t=t, x=x, u=u, F=F, P=P, D=D, B=B, omega=omega,
                added_mass=added_mass, bias=bias, index=index,
                extra=FrozenMap() if extra is None else extra, r=r, w=w, gain=gain,

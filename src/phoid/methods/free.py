@@ -269,6 +269,45 @@ class FreeIdentification:
 
         return plot_free(self, out_dir, overwrite=overwrite)
 
+    # ---- export: python-control, scipy.signal, pandas (phoid.interop) ----
+
+    def to_control(self, *, form: str = "tf", per_unit_mass: bool = False) -> Any:
+        """The identified plant G(s) = 1/(m s² + c s + k), force (N) → position (m), as a
+        python-control system (:func:`phoid.interop.control.to_control`).
+
+        ``form="tf"`` gives a TransferFunction, ``"ss"`` a StateSpace with states x (m) and
+        v (m/s); the covariance of (m, c, k) travels as ``.phoid.cov``.
+        Without a known mass only c/m and k/m are known: ``per_unit_mass=True`` exports
+        1/(s² + (c/m)s + k/m) (input F/m), else a ValueError says so.
+        """
+        from phoid.interop.control import to_control
+
+        return to_control(self, form=form, per_unit_mass=per_unit_mass)
+
+    def to_lti(self, *, form: str = "tf", per_unit_mass: bool = False) -> Any:
+        """The identified plant as a :class:`scipy.signal.lti` (no python-control needed;
+        :func:`phoid.interop.control.to_lti`)."""
+        from phoid.interop.control import to_lti
+
+        return to_lti(self, form=form, per_unit_mass=per_unit_mass)
+
+    def sample_plants(self, n: int, rng: Any = None, *, form: str = "plant",
+                      per_unit_mass: bool = False) -> list:
+        """``n`` Monte Carlo plants: (m, c, k) drawn from the estimates' normal with this
+        result's covariance, draws with m ≤ 0, c < 0 or k < 0 rejected
+        (:func:`phoid.interop.sampling.sample_plants`; ``form`` "plant", "tf", "ss", "lti")."""
+        from phoid.interop.sampling import sample_plants
+
+        return sample_plants(self, n, rng, form=form, per_unit_mass=per_unit_mass)
+
+    def to_pandas(self) -> Any:
+        """``Frames(estimates, runs)``: the estimates (rows σ, ω₀, ζ, c/m, k/m, …; columns
+        value, stderr, unit) and the runs (one row per run) as pandas DataFrames
+        (:func:`phoid.interop.tables.to_pandas`)."""
+        from phoid.interop.tables import to_pandas
+
+        return to_pandas(self)
+
 
 # --------------------------------------------------------------------------------------------
 # derived quantities
