@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING
 from phoid._lazy import lazy_exports
 
 if TYPE_CHECKING:  # the real imports, for type checkers and IDEs; at run time see __getattr__
+    from phoid._progress import progress
     from phoid.api import identify, identify_data
     from phoid.dynamics import (
         DelayedPD,
@@ -142,6 +143,7 @@ _LAZY: dict[str, str] = {
     "identify_tracking": "phoid.methods",
     "replay_set": "phoid.methods",
     "validate_tracking": "phoid.methods",
+    "progress": "phoid._progress",
 }
 
 __all__ = [
@@ -202,6 +204,7 @@ __all__ = [
     "inverse_map",
     "is_stable",
     "logdec",
+    "progress",
     "read_experiment",
     "replay_set",
     "run_from_arrays",
