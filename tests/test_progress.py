@@ -68,7 +68,7 @@ def test_hidden_inner_task_does_not_advance_the_outer_one(terminal):
     with task("outer", total=10):
         with task("inner", show=False):
             step(5)  # inside a hidden task: must not count for "outer"
-        bar, stack = _BAR.get()
+        bar, _stack = _BAR.get()
         (outer,) = bar.tasks
         assert outer.completed == 0
         step(3)

@@ -82,7 +82,7 @@ def check_units(where: str, table: Any, method: str) -> dict[str, tuple[str, flo
         allowed = ", ".join(u for u in units if u not in ("μs", "μm"))
         if not isinstance(unit, str):
             fail(uwhere, f"key {key!r} must be a unit name (a string); got {show(unit)} "
-                          f"({kind_of(unit)}); {known[key]} units: {allowed}")
+                          f"({kind_of(unit)}); allowed {known[key]} units: {allowed}")
         if unit not in units:
             fail(uwhere, f"{key} = {show(unit)} is not a {known[key]} unit phoid knows; "
                           f"allowed: {allowed} (case-sensitive)")
@@ -107,3 +107,41 @@ def to_si(cols: dict[str, np.ndarray], units: Mapping[str, tuple[str, float, flo
         si.flags.writeable = False
         out[key] = si
     return out
+
+
+def unit_hint(column: str, ratio: float) -> str:
+    """A hint naming the ``[units]`` entry a set probably needs, or ``""``.
+
+    Parameters
+    ----------
+    column : str
+        The data column whose unit is in doubt: ``t``, ``x``, ``r``, ``u`` or ``F``.
+    ratio : float
+        A quantity read from that column as if it were SI (a sample step, an amplitude)
+        divided by what the manifest's numbers imply for it: about 1000 when t is in ms but
+        read as s (or x in mm read as m), 1/1000 when F is in kN but read as N.
+
+    Returns
+    -------
+    str
+        ``'is t in ms? (then give [units] t = "ms")'`` when ``ratio`` is within a factor 2 of a
+        unit's (one of :data:`UNITS_TABLE`'s, other than SI), else ``""``.
+
+    Examples
+    --------
+    >>> unit_hint("t", 1000.0)
+    'is t in ms? (then give [units] t = "ms")'
+    >>> unit_hint("F", 1e-3)
+    'is F in kN? (then give [units] F = "kN")'
+    >>> unit_hint("t", 3.0)
+    ''
+    """
+    quantity = {**UNIT_QUANTITIES, **_TRACKING_QUANTITIES}.get(column)
+    if quantity is None or not (ratio > 0 and np.isfinite(ratio)):
+        return ""
+    for unit, (mul, div) in UNITS_TABLE[quantity].items():
+        if (mul, div) == (1.0, 1.0) or not unit.isascii():
+            continue
+        if abs(np.log(ratio * mul / div)) <= np.log(2.0):
+            return f'is {column} in {unit}? (then give [units] {column} = "{unit}")'
+    return ""
