@@ -128,7 +128,12 @@ def probable_cause(
     # 1b. units of t for the whole set: the runs fit one plant with every mode rescaled
     # (t read in s but written in ms: every rate σ, ω_d comes out 1000× too slow)
     for unit, factor in _TIME_UNITS.items():
-        alt = _misfit(factor * sig, factor * wd, Pk, Dk, tau, dmk)
+        if tau is not None and factor * float(np.max(wd)) * tau >= math.pi:
+            continue  # rates that fast would not be the loop's dominant mode at this delay
+        try:
+            alt = _misfit(factor * sig, factor * wd, Pk, Dk, tau, dmk)
+        except (np.linalg.LinAlgError, ValueError, ArithmeticError):
+            continue  # rates so far off that the lines cannot even be fitted: not this unit
         if alt <= _AGREE and alt <= _BETTER * base:
             return (f"the runs' time axis looks like it is in {unit}, not s: with t read as "
                     f"{unit} the runs fit one plant; give [units] t = \"{unit}\" in the "
