@@ -763,13 +763,14 @@ def main() -> int:
                     if sec in only)
     if sys.stdout.isatty() and not args.no_progress:
         phoid_progress(True)
-    with progress_task("benchmark", total=steps) as advance:
-        return _run_sections(args, res, only, replicas, phoid_replicas, repeats, opts, command,
-                             t_start, advance)
+    with progress_task("benchmark", total=steps) as advance:  # erased before the report
+        _run_sections(args, res, only, replicas, phoid_replicas, repeats, t_start, advance)
+    return _report(args, res, opts, command)
 
 
-def _run_sections(args, res, only, replicas, phoid_replicas, repeats, opts, command, t_start,
-                  advance) -> int:
+def _run_sections(args, res, only, replicas, phoid_replicas, repeats, t_start, advance
+                  ) -> None:
+    """Run the sections asked for into ``res`` (one log line and one bar step each)."""
     def log(msg: str) -> None:
         print(f"[{time.perf_counter() - t_start:6.1f} s] {msg}", file=sys.stderr, flush=True)
         advance(description=f"benchmark: {msg}")
@@ -819,6 +820,10 @@ def _run_sections(args, res, only, replicas, phoid_replicas, repeats, opts, comm
         else:
             log("EMPS")
     res["wall_s"] = time.perf_counter() - t_start
+
+
+def _report(args, res, opts, command) -> int:
+    """Write (for a full run) and print the report; 1 when an accuracy target is missed."""
     write = args.write or (not opts and not args.quick)
     if write:
         (HERE / "results.json").write_text(json.dumps(res, indent=1, default=float))

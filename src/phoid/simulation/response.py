@@ -256,7 +256,7 @@ def simulate(
     )
 
 
-_LONG_SAMPLES = 2_000_000  # runs × samples from which a progress bar is shown (~0.5 s)
+_LONG_SAMPLES = 10_000_000  # runs × samples from which a progress bar is shown (~1 s)
 _LONG_TEXT = "simulating {} run(s): steps"
 _TOEPLITZ_STEPS = 32  # release_response: at most this many steps per delay by products
 

@@ -484,5 +484,5 @@ def _vector(name, value, size=None) -> np.ndarray:
         raise ValueError(f"`{name}` must be finite; it has {int(np.sum(~np.isfinite(arr)))} "
                          "non-finite values")
     return arr
-_LONG_SAMPLES = 200_000  # samples from which simulate_tracking shows a progress bar (~1 s)
+_LONG_SAMPLES = 1_000_000  # samples from which simulate_tracking shows a progress bar (~1.5 s)
 _CHUNK_MASK = 4095  # the bar advances once per 4096 samples
