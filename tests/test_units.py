@@ -116,6 +116,16 @@ def test_pho_in_ms_without_units_gets_the_warning(tmp_path):
     assert "time axis" in hint[0]
 
 
+def test_pho_x_in_mm_without_units_names_them_in_the_u_check(tmp_path):
+    # x read 1000× too large: u = −(P x + D ẋ)(t − Δt) holds only scaled by 1e-3, which the
+    # check of the recorded u against the gains reports, naming the two unit mistakes that
+    # give that scale (m, c, k come from the modes alone, which x's unit does not change)
+    folder = convert(SAMPLE, tmp_path / "mm", {"x": "mm"}, declare=False)
+    result = phoid.identify(read_experiment(folder))
+    (warning,) = [w for w in result.warnings if "recorded u contradicts" in w]
+    assert '[units] x = "mm"' in warning and '[units] u = "kN"' in warning
+
+
 def test_read_write_round_trip_stays_si(ms_sample, tmp_path):
     first = read_experiment(ms_sample)
     write_experiment(tmp_path / "back", first.runs, method=first.method, loop=dict(first.loop),

@@ -129,9 +129,14 @@ def u_contradicts_gains(data: Sequence[tuple[np.ndarray, np.ndarray]],
     if not bad:
         return None
     listed = ", ".join(f"{n} ({g:.2g})" for n, g in bad[:5]) + (" …" if len(bad) > 5 else "")
+    # a scale near a unit's factor names it: u in kN (or x in mm) reads as g ≈ 1e-3
+    g_med = float(np.median([g for _, g in bad]))
+    hints = [h for h in (unit_hint("u", g_med), unit_hint("x", 1.0 / g_med) if g_med else "")
+             if h]
+    hint = f" ({'; or '.join(hints)})" if hints else ""
     return (f"the recorded u contradicts the given gains and delay in {len(bad)} run(s): u is "
             f"not -(P x + D x') at t - delay but that times {listed}: check P, D, the units "
-            "of x (m) and u (N), or the delay; m, c, k assume the gains are right")
+            f"of x (m) and u (N){hint}, or the delay; m, c, k assume the gains are right")
 
 
 # a controller sampling more than this many times per recorded sample is no sampled loop phoid
