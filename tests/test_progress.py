@@ -62,6 +62,21 @@ def test_task_draws_description_bar_and_count(terminal):
     assert "/4" in out  # the M/N column shows the total given
 
 
+def test_a_console_that_is_no_terminal_gets_nothing():
+    # phoid.progress(True) with standard error redirected to a file or a pipe: not one byte
+    from rich.console import Console
+
+    buf = io.StringIO()
+    progress(True, console=Console(file=buf))  # a file: rich sees no terminal
+    try:
+        with task("demo work", total=2) as advance:
+            advance()
+            step()
+    finally:
+        progress(False)
+    assert buf.getvalue() == ""
+
+
 def test_hidden_inner_task_does_not_advance_the_outer_one(terminal):
     from phoid._progress import _BAR
 

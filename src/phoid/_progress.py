@@ -48,7 +48,8 @@ def progress(on: bool = True, *, console: Any = None) -> None:
     ----------
     on : bool, default True
         Draw a bar (on standard error, erased when the work ends) while a friction fit, a long
-        simulation or another long computation runs.
+        simulation or another long computation runs; only where standard error is a terminal
+        or a notebook (nothing is written to a file or a pipe).
     console : rich.console.Console, optional
         Where to draw (default: a console on standard error). Tests pass one that writes to
         a string.
@@ -116,6 +117,9 @@ def task(description: str, total: float | None = None, *, show: bool = True
         )
 
         console = switch[0] if switch[0] is not None else Console(stderr=True)
+        if not (console.is_terminal or console.is_jupyter):  # a file or a pipe: nothing
+            yield _noop
+            return
         bar = Progress(SpinnerColumn(), TextColumn("{task.description}"), BarColumn(),
                        MofNCompleteColumn(), TimeElapsedColumn(), console=console,
                        transient=True)
