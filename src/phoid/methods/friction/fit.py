@@ -239,7 +239,7 @@ def identify_friction(
     >>> round(fit.fc.value, 2), round(fit.c.value, 1)
     (0.05, 2.0)
     """
-    with task("friction fit: start") as advance:  # advanced per Levenberg–Marquardt step
+    with task("friction fit: the starting point") as advance:  # then one step per LM step
         setup = prepare(data, P, D, delay, start, names, need_fc=True, added_mass=added_mass,
                         digital=digital, bias=bias, u=u)
         n = len(setup.surveys)
