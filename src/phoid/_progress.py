@@ -3,9 +3,10 @@
 Library code marks its long loops (a friction fit's iterations, a simulation's runs, a
 benchmark's cases) with :func:`task` and :func:`step`; nothing is drawn unless progress is
 switched on, by :func:`progress` (the Python API's opt-in, ``phoid.progress(True)``) or by the
-command line, which switches it on only when standard output is a terminal and ``--json`` is
-not given. The bar is rich's, drawn on standard error and erased when the work ends
-(transient), so that what a command prints is unchanged.
+command line, which switches it on only when standard output and standard error are terminals
+and ``--json`` is not given. The bar is rich's, drawn on standard error (only where that is a
+terminal or a notebook) and erased when the work ends (transient), so that what a command
+prints is unchanged.
 
 Switched off, :func:`task` yields a function that does nothing and :func:`step` returns after
 one context-variable look-up: call them once per run or per iteration, never per sample.
@@ -76,8 +77,8 @@ def task(description: str, total: float | None = None, *, show: bool = True
     Yields ``advance(n=1, *, description=None, total=None, completed=None)``: moves the task
     on by ``n`` (of ``total``; ``total=None`` shows a count with no end), and optionally
     renames it (e.g. a fit's stage), sets its total, or sets how much is done (``completed``,
-    which replaces the advance by ``n``). Tasks nest: an inner task is a second line under the outer
-    one. :func:`step` advances the innermost open task from code that was not handed
+    which replaces the advance by ``n``). Tasks nest: an inner task is a second line under the
+    outer one. :func:`step` advances the innermost open task from code that was not handed
     ``advance``.
 
     Parameters
