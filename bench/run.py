@@ -43,6 +43,9 @@ import scipy  # noqa: E402
 from crb import crb_sd  # noqa: E402
 from sets import SETS, check_rings  # noqa: E402
 
+from phoid._progress import progress as phoid_progress  # noqa: E402
+from phoid._progress import task as progress_task  # noqa: E402
+
 RMSE_TARGET = 1.1  # phoid RMSE ≤ 1.1 × CRB (issue 7)
 COVERAGE_TARGET = 0.99  # |err| < 3 stderr in ≥ 99 % of replicas (the project's promise)
 FEW_TIMES = 4.0  # "a few times its own size": peak ≤ 4 × the record (t, x)
@@ -716,6 +719,8 @@ def main() -> int:
                          "all and is what BENCHMARKS.md must come from)")
     ap.add_argument("--write", action="store_true",
                     help="write BENCHMARKS.md and bench/results.json even for a partial run")
+    ap.add_argument("--no-progress", action="store_true",
+                    help="no progress bar (drawn on stderr only when stdout is a terminal)")
     args = ap.parse_args()
     replicas = args.replicas or (20 if args.quick else 200)
     phoid_replicas = args.phoid_replicas or (100 if args.quick else max(PHOID_REPLICAS,
@@ -752,8 +757,23 @@ def main() -> int:
         "scaling": {}, "startup": {}, "emps": {},
     }
 
+    # one step of the progress bar per log line: the sets, then each section (per set)
+    steps = 1 + sum(len(SETS) if sec in ("speed", "mc") else 1
+                    for sec in ("speed", "sim", "mc", "scaling", "startup", "emps")
+                    if sec in only)
+    if sys.stdout.isatty() and not args.no_progress:
+        phoid_progress(True)
+    with progress_task("benchmark", total=steps) as advance:  # erased before the report
+        _run_sections(args, res, only, replicas, phoid_replicas, repeats, t_start, advance)
+    return _report(args, res, opts, command)
+
+
+def _run_sections(args, res, only, replicas, phoid_replicas, repeats, t_start, advance
+                  ) -> None:
+    """Run the sections asked for into ``res`` (one log line and one bar step each)."""
     def log(msg: str) -> None:
         print(f"[{time.perf_counter() - t_start:6.1f} s] {msg}", file=sys.stderr, flush=True)
+        advance(description=f"benchmark: {msg}")
 
     crbs = {}
     for name, spec in SETS.items():
@@ -800,6 +820,10 @@ def main() -> int:
         else:
             log("EMPS")
     res["wall_s"] = time.perf_counter() - t_start
+
+
+def _report(args, res, opts, command) -> int:
+    """Write (for a full run) and print the report; 1 when an accuracy target is missed."""
     write = args.write or (not opts and not args.quick)
     if write:
         (HERE / "results.json").write_text(json.dumps(res, indent=1, default=float))

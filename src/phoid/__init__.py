@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING
 from phoid._lazy import lazy_exports
 
 if TYPE_CHECKING:  # the real imports, for type checkers and IDEs; at run time see __getattr__
+    from phoid._progress import progress
     from phoid.api import identify, identify_data
     from phoid.dynamics import (
         DelayedPD,
@@ -162,6 +163,7 @@ _LAZY: dict[str, str] = {
     "to_control": "phoid.interop",
     "to_lti": "phoid.interop",
     "to_pandas": "phoid.interop",
+    "progress": "phoid._progress",
 }
 
 __all__ = [
@@ -227,6 +229,7 @@ __all__ = [
     "is_stable",
     "linear_plant",
     "logdec",
+    "progress",
     "read_experiment",
     "replay_set",
     "run_from_arrays",

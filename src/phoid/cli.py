@@ -754,6 +754,10 @@ def main() -> None:
 
     if not sys.argv[1:]:
         app()  # no arguments: the help, as the root's no_args_is_help prints it
+    if sys.stdout.isatty() and sys.stderr.isatty() and "--json" not in sys.argv[1:]:
+        from phoid._progress import progress
+
+        progress(True)  # bars on stderr for long work, never in a pipe or with --json
     try:
         status = app(standalone_mode=False)
     except KeyboardInterrupt:

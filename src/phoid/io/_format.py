@@ -49,8 +49,9 @@ MANIFEST = "experiment.toml"
 METHODS = ("pho", "forced", "free", "tracking")
 """The values of the manifest's ``method`` key."""
 
-TOP_KEYS = ("title", "format", "method", "loop", "run", "mass", "estimator", "fixed")
-"""The manifest's top-level keys (``estimator`` and ``fixed``: tracking sets only)."""
+TOP_KEYS = ("title", "format", "method", "loop", "run", "mass", "estimator", "fixed", "units")
+"""The manifest's top-level keys (``estimator`` and ``fixed``: tracking sets only; ``units``:
+the data columns' units, converted to SI on reading, so never kept)."""
 RUN_KEYS = ("file", "P", "D", "B", "omega", "added_mass", "bias", "gain", "command_gain",
             "columns")
 """The keys of a ``[[run]]`` table (``gain``, ``command_gain``, ``columns``: tracking sets

@@ -44,6 +44,7 @@ from phoid.io.tracking import (
     check_tracking_loop,
     tracking_run_spec,
 )
+from phoid.io.units import check_units, to_si
 
 _TRACKING_ONLY_TOP = ("estimator", "fixed")
 _TRACKING_ONLY_RUN = ("gain", "command_gain", "columns")
@@ -68,7 +69,9 @@ def read_experiment(path: str | os.PathLike[str]) -> ExperimentSet:
     Returns
     -------
     ExperimentSet
-        The runs in manifest order; arrays in SI units (s, m, N), read-only.
+        The runs in manifest order; arrays in SI units (s, m, N), read-only: columns that the
+        manifest's ``[units]`` table gives in other units (``t = "ms"``, ``x = "mm"``, …) are
+        converted (:func:`phoid.io.units.check_units`), so a set written back is SI.
 
     Raises
     ------
@@ -112,6 +115,7 @@ def read_experiment(path: str | os.PathLike[str]) -> ExperimentSet:
     if tracking and "mass" in doc:
         fail(where, "key 'mass' is not read in a tracking set: give the known mass as "
                      "[fixed] m")
+    units = check_units(where, doc.get("units"), method)
     estimator = check_estimator(where, doc.get("estimator")) if tracking else None
     fixed = check_fixed(where, doc.get("fixed")) if tracking else {}
     mass = optional_number(where, "mass", doc.get("mass"), minimum=0.0, strict=True)
@@ -161,6 +165,7 @@ def read_experiment(path: str | os.PathLike[str]) -> ExperimentSet:
     budget = limits.MAX_SET_ROWS
     for spec in specs:
         cols, digest = _read_data(spec, method, budget)
+        cols = to_si(cols, units)  # [units]: the columns in s, m, N from here on
         budget -= cols["t"].size
         other = digests.get(digest)
         if other is not None:

@@ -8,7 +8,8 @@ decay fits' starting stage) that the straight lines of eq. (35) show cheaply:
 
 - the runs' points are collinear with one positive slope m on both lines only with the right
   gains and delay (:func:`phoid.methods.pho.delay_profile` measures the misfit);
-- a time column in ms makes one run's sample step 1000× the others'.
+- a time column in ms makes one run's sample step 1000× the others', and a whole set's makes
+  every rate 1000× too slow: its runs fit one plant once the rates are scaled back.
 
 :func:`probable_cause` tries the usual mistakes in turn and names the one that makes the runs
 agree, in the command line's words (a manifest field, or a flag).
@@ -40,6 +41,9 @@ _STEP_RATIO = 20.0
 # while each of these mistakes gives 1e-1 … 1 per point
 _BETTER = 1e-2
 _AGREE = 1e-3
+# a whole set's time axis in another unit: the unit, and the factor its rates σ, ω_d are read
+# too slow by (t in ms read as s: 1000)
+_TIME_UNITS = {"ms": 1e3, "us": 1e6, "min": 1.0 / 60.0}
 
 
 def _misfit(sig, wd, P, D, delay, dm) -> float:
@@ -121,6 +125,19 @@ def probable_cause(
     base = _misfit(sig, wd, Pk, Dk, tau, dmk)
     if base <= _AGREE:
         return None
+    # 1b. units of t for the whole set: the runs fit one plant with every mode rescaled
+    # (t read in s but written in ms: every rate σ, ω_d comes out 1000× too slow)
+    for unit, factor in _TIME_UNITS.items():
+        if tau is not None and factor * float(np.max(wd)) * tau >= math.pi:
+            continue  # rates that fast would not be the loop's dominant mode at this delay
+        try:
+            alt = _misfit(factor * sig, factor * wd, Pk, Dk, tau, dmk)
+        except (np.linalg.LinAlgError, ValueError, ArithmeticError):
+            continue  # rates so far off that the lines cannot even be fitted: not this unit
+        if alt <= _AGREE and alt <= _BETTER * base:
+            return (f"the runs' time axis looks like it is in {unit}, not s: with t read as "
+                    f"{unit} the runs fit one plant; give [units] t = \"{unit}\" in the "
+                    "manifest (docs/format.md), or write t in seconds")
     # 2. the sign convention of the gains (every run alike: the usual mistake)
     flips = {"D": (1.0, -1.0), "P and D": (-1.0, -1.0), "P": (-1.0, 1.0)}
     for what, (a, b) in flips.items():

@@ -115,13 +115,13 @@ def identify_pho(
     added_mass = np.array([getattr(r, "added_mass", 0.0) for r in runs], dtype=float)
     digital = read_digital_loop(experiment)
     if digital is not None:
-        check_sample_time(experiment, digital, runs)
+        note = check_sample_time(experiment, digital, runs)
         if delay is not None or experiment.delay is not None:
             raise IdentificationError(
                 f"{experiment.path}: [loop] delay: a digital loop (sample_time) takes its delay "
                 "as delay_samples, in whole samples; give one or the other"
             )
-        return identify_pho_data(
+        result = identify_pho_data(
             [(r.t, r.x) for r in runs],
             np.array([r.P for r in runs], dtype=float),
             np.array([r.D for r in runs], dtype=float),
@@ -129,6 +129,7 @@ def identify_pho(
             estimator=estimator, source=str(experiment.path), digital=digital,
             added_mass=added_mass,
         )
+        return result if note is None else replace(result, warnings=(note, *result.warnings))
     if delay is None:
         delay = experiment.delay
     if delay is None and estimator != "gls":

@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from phoid.errors import IdentificationError
+from phoid.io.units import unit_hint
 from phoid.methods.pho import fit_lines
 from phoid.methods.savgol import savgol_filter
 
@@ -79,7 +80,8 @@ def check_delay(delay: float, data: Sequence[tuple[np.ndarray, np.ndarray]], sou
         raise IdentificationError(
             f"{where}{what} = {delay:.4g} s is too long for the records: the fit starts 3 "
             f"delays ({3 * delay:.4g} s) after the release, beyond the longest record "
-            f"({max(spans):.4g} s); is it in seconds?")
+            f"({max(spans):.4g} s); is it in seconds, and is t (else give its unit as "
+            "[units] t, docs/format.md)?")
 
 
 
@@ -127,9 +129,14 @@ def u_contradicts_gains(data: Sequence[tuple[np.ndarray, np.ndarray]],
     if not bad:
         return None
     listed = ", ".join(f"{n} ({g:.2g})" for n, g in bad[:5]) + (" …" if len(bad) > 5 else "")
+    # a scale near a unit's factor names it: u in kN (or x in mm) reads as g ≈ 1e-3
+    g_med = float(np.median([g for _, g in bad]))
+    hints = [h for h in (unit_hint("u", g_med), unit_hint("x", 1.0 / g_med) if g_med else "")
+             if h]
+    hint = f" ({'; or '.join(hints)})" if hints else ""
     return (f"the recorded u contradicts the given gains and delay in {len(bad)} run(s): u is "
             f"not -(P x + D x') at t - delay but that times {listed}: check P, D, the units "
-            "of x (m) and u (N), or the delay; m, c, k assume the gains are right")
+            f"of x (m) and u (N){hint}, or the delay; m, c, k assume the gains are right")
 
 
 # a controller sampling more than this many times per recorded sample is no sampled loop phoid
@@ -138,9 +145,11 @@ def u_contradicts_gains(data: Sequence[tuple[np.ndarray, np.ndarray]],
 _MAX_CONTROL_PER_RECORD = 1e4
 
 
-def check_sample_time(experiment: Any, digital: Any, runs: Sequence[Any]) -> None:
+def check_sample_time(experiment: Any, digital: Any, runs: Sequence[Any]) -> str | None:
     """Refuse a ``[loop] sample_time`` far below the records' own sample step (a unit mistake,
-    or a controller so fast it is a continuous loop)."""
+    or a controller so fast it is a continuous loop); return a warning when the records are
+    sampled about 1000 (or 10⁶) times more slowly than the controller runs (t in ms, or µs,
+    read as s), else None."""
     steps = []
     for r in runs:
         try:
@@ -151,14 +160,21 @@ def check_sample_time(experiment: Any, digital: Any, runs: Sequence[Any]) -> Non
             continue
     steps = [h for h in steps if math.isfinite(h) and h > 0]
     if not steps:
-        return
+        return None
     h = float(np.median(steps))
     if digital.sample_time * _MAX_CONTROL_PER_RECORD < h:
+        hint = unit_hint("t", h / digital.sample_time)
         raise IdentificationError(
             f"{experiment.path}: [loop] sample_time = {digital.sample_time:.3g} s is "
             f"{h / digital.sample_time:.3g} times shorter than the records' sample step "
-            f"({h:.3g} s): is it in seconds? A controller that fast is a continuous loop: give "
-            "[loop] delay instead of sample_time")
+            f"({h:.3g} s): is it in seconds? {hint + ' ' if hint else ''}A controller that "
+            "fast is a continuous loop: give [loop] delay instead of sample_time")
+    hint = unit_hint("t", h / digital.sample_time) if h > 20 * digital.sample_time else ""
+    if hint:
+        return (f"the records are sampled every {h:.3g} s but the controller's period "
+                f"([loop] sample_time) is {digital.sample_time:.3g} s, "
+                f"{h / digital.sample_time:.3g} times shorter: {hint}")
+    return None
 
 
 DIGITAL_KEYS = ("sample_time", "delay_samples", "velocity", "cutoff")

@@ -34,6 +34,7 @@ import numpy as np
 from phoid.dynamics.controller import SampledController
 from phoid.dynamics.plant import Plant
 from phoid.errors import IdentificationError
+from phoid.io.units import unit_hint
 from phoid.methods.pho import Estimate
 from phoid.methods.tracking import (
     PARAMETERS,
@@ -221,10 +222,11 @@ def run_controller(experiment: Any, run: Any, *, delay: float | None = None) -> 
         typical = float(np.median(steps))
         gaps = np.abs(steps - T) > 0.5 * T
         if abs(typical - T) > 1e-3 * T or (abs(mean_step - T) > 1e-3 * T and not gaps.any()):
+            hint = unit_hint("t", typical / T)
             raise IdentificationError(
                 f"{where}: t: the samples are {typical:.6g} s apart (median; {mean_step:.6g} s "
                 f"on average) but [loop] sample_time is {T:g} s; the record must hold one "
-                "sample per controller period"
+                f"sample per controller period{'; ' + hint if hint else ''}"
             )
         # every step, not only the typical one: a dropped sample shifts the rest of the
         # record by a period, which the loop model would take for dynamics
@@ -247,7 +249,8 @@ def run_controller(experiment: Any, run: Any, *, delay: float | None = None) -> 
         # the simulator would hold a history of τ/T commands
         raise IdentificationError(
             f"{where}: the command delay {tau:g} s exceeds the record's length {span:g} s: "
-            "the plant would not see the controller's command within the record"
+            "the plant would not see the controller's command within the record (the delay is "
+            "in s, and so is t unless the manifest's [units] t says otherwise)"
         )
     try:
         return SampledController(

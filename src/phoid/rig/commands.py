@@ -13,6 +13,8 @@ from typing import Annotated
 
 import typer
 
+from phoid._progress import task
+
 __all__ = ["run", "virtual_rig"]
 
 
@@ -117,25 +119,16 @@ def run(
     if out is None:
         base = plan.parent if plan.suffix == ".toml" else plan
         out = base.parent / f"{base.name}-run"
-    show = sys.stderr.isatty()
     try:
-        if show:
-            from rich.console import Console
-            from rich.progress import Progress
+        # the bar of phoid._progress: drawn only where the CLI switched progress on
+        with task("run", total=None) as advance:
 
-            with Progress(console=Console(stderr=True), transient=True) as bar:
-                task = bar.add_task("run", total=None)
+            def progress(i: int, n: int, total: int) -> None:
+                advance(0, description=f"run {i}: samples", completed=n, total=total)
 
-                def progress(i: int, n: int, total: int) -> None:
-                    bar.update(task, description=f"run {i}", completed=n, total=total)
-
-                result = run_plan(plan, port, out, resume=resume, timeout=timeout,
-                                  progress=progress, pmax=pmax, dmax=dmax, hold_p=hold_p,
-                                  hold_d=hold_d, hold=hold, x_limit=x_limit, u_max=u_max)
-        else:
-            result = run_plan(plan, port, out, resume=resume, timeout=timeout, pmax=pmax,
-                              dmax=dmax, hold_p=hold_p, hold_d=hold_d, hold=hold,
-                              x_limit=x_limit, u_max=u_max)
+            result = run_plan(plan, port, out, resume=resume, timeout=timeout,
+                              progress=progress, pmax=pmax, dmax=dmax, hold_p=hold_p,
+                              hold_d=hold_d, hold=hold, x_limit=x_limit, u_max=u_max)
     except (RigError, ValueError, OSError) as exc:
         _fail(str(exc))
     for msg in result.messages:

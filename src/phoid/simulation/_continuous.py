@@ -91,6 +91,7 @@ from fractions import Fraction
 
 import numpy as np
 
+from phoid._progress import step as progress_step
 from phoid.errors import PhoidError
 from phoid.simulation._checks import MAX_STEPS
 from phoid.simulation._propagation import (
@@ -307,6 +308,7 @@ def run_continuous(m, c, k, fc, P, D, delay, x0a, v0a, hold, fs, N, force, bias=
     u[:, :j0] = (-P * x0a)[:, None]
 
     if grid.n_steps > 0:
+        progress_step(0, total=grid.n_steps)  # the bar's total (a no-op unless shown)
         cF = force_coeffs(force, hold, grid.h, grid.n_steps)
         out = (x_true, vel, u)
         if delay > 0:
@@ -453,6 +455,7 @@ def run_delayed(m, fc, A0, P, D, x0, v0, cF, grid, out, bias=None):
             cuts = {key: cut for key, cut in cuts.items() if key[1] < L}
         cb = cu + cFT[:, n0 : n0 + L] if cFT is not None else cu
         Y, ce, splits, mode, xs = friction_block(fr, cb, y, mode, xs, cuts)
+        progress_step(L)
         a, b = _block_samples(grid, n0, L)
         _emit(ctx, a, b, n0, Y, ce, cu, cb=cb, splits=splits)
         if cuts:
@@ -550,6 +553,7 @@ def _linear_blocks(ctx: _Ctx, L10T, cFT, y, x0) -> None:
         else:
             c = cu
         X = ch_input(y, wk[:, :, 0], wk[:, :, 1:], wm[:, :, :-1], Mch)
+        progress_step(L)
         Y = recurse(a_ch, X, overwrite_x=True)
         if refine:
             Y = eng.refine(0, Y, wk)
@@ -601,6 +605,7 @@ def _run_ode(m, c, k, fc, P, D, x0, v0, cF, grid, out, bias=None):
         else:
             cb = np.repeat(cFT[None, :, n0 : n0 + L], B, axis=0)
         Y, ce, splits, mode, xs = friction_block(fr, cb, y, mode, xs)
+        progress_step(L)
         a, b = _block_samples(grid, n0, L)
         _emit(ctx, a, b, n0, Y, ce, None, cb=cb, splits=splits)
         y = Y[:, :, -1]

@@ -48,6 +48,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from phoid._progress import step as progress_step
 from phoid.dynamics.digital import (
     DigitalPD,
     ZOHPlant,
@@ -299,6 +300,7 @@ def _sampled_friction(m, c, k, fc, P, D, x0, v0, loop, geo: _SampledGeometry, cF
         state.update(done=upto, x=xseq[:, -1].copy(), ve=ve[:, -1].copy())
 
     kb = 0
+    progress_step(0, total=geo.k_total)  # the progress bar's total (a no-op unless shown)
     while kb < geo.k_total:
         nb = (j_rel + kb // S) // Mr  # period of the block's first step
         if nb >= n1 and geo.k_inst(nb) == kb:
@@ -323,6 +325,7 @@ def _sampled_friction(m, c, k, fc, P, D, x0, v0, loop, geo: _SampledGeometry, cF
         inside = (k_in > kb) & (k_in <= ke)
         Xc[:, n_in[inside]] = Y[:, k_in[inside] - kb, 0]
         y = Y[:, -1]
+        progress_step(ke - kb)
         kb = ke
     if n1 == j_rel // Mr and n1 * Mr == j_rel and n1 <= n_last:
         Xc[:, n1] = x0  # release on the last instant: nothing propagated

@@ -31,6 +31,7 @@ from typing import Any
 import numpy as np
 
 from phoid import _validate as v
+from phoid._progress import task
 from phoid.dynamics.digital import DigitalPD
 from phoid.errors import PhoidError
 from phoid.simulation._checks import MAX_SAMPLES, batch_array, broadcast_batch, plant_params
@@ -214,8 +215,9 @@ def simulate(
                     or not np.all(np.isin(bias_signs, (-1.0, 0.0, 1.0))):
                 raise ValueError("`bias_signs` must be an array (B, n) of −1, 0, 1; got shape "
                                  f"{bias_signs.shape}")
-        x_true, vel, u, signs = run_sampled(m, c, k, fc, P, D, x0a, v0a, hold, fs, N, force,
-                                             loop, biased, bias_signs)
+        with task(_LONG_TEXT.format(B), show=B * N >= _LONG_SAMPLES):
+            x_true, vel, u, signs = run_sampled(m, c, k, fc, P, D, x0a, v0a, hold, fs, N,
+                                                 force, loop, biased, bias_signs)
     else:
         if delay_samples != 0 or velocity != "backward-difference" or cutoff is not None:
             name = "delay_samples" if delay_samples != 0 else (
@@ -223,9 +225,10 @@ def simulate(
             raise ValueError(
                 f"`{name}` applies only to a sampled controller: give `sample_time` as well"
             )
-        x_true, vel, u = run_continuous(
-            m, c, k, fc, P, D, delay, x0a, v0a, hold, fs, N, force, biased
-        )
+        with task(_LONG_TEXT.format(B), show=B * N >= _LONG_SAMPLES):
+            x_true, vel, u = run_continuous(
+                m, c, k, fc, P, D, delay, x0a, v0a, hold, fs, N, force, biased
+            )
         loop = None
 
     x = x_true + offset
@@ -253,6 +256,8 @@ def simulate(
     )
 
 
+_LONG_SAMPLES = 10_000_000  # runs × samples from which a progress bar is shown (~1 s)
+_LONG_TEXT = "simulating {} run(s): steps"
 _TOEPLITZ_STEPS = 32  # release_response: at most this many steps per delay by products
 
 
@@ -308,7 +313,8 @@ def release_response(plant: Any, P: np.ndarray, D: np.ndarray, *, delay: float,
     A0 = np.array([[0.0, 1.0], [-k / m, -c / m]])
     if not grid.unit or d > _TOEPLITZ_STEPS:  # simulate's own path (run_continuous)
         out = (np.empty((B, N)), np.empty((B, N)), np.empty((B, N)))
-        run_delayed(m, fc, A0, P, D, np.ones(B), np.zeros(B), None, grid, out)
+        with task("release response", show=False):  # its steps advance no outer bar
+            run_delayed(m, fc, A0, P, D, np.ones(B), np.zeros(B), None, grid, out)
         return out[0]
     eng = Engine(A0[None], m, grid.h, grid.n_steps)
     L10, _ = feedback_maps(A0, m, grid.h, P, D)

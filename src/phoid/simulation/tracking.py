@@ -36,6 +36,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from phoid import _validate as v
+from phoid._progress import task
 from phoid.dynamics.controller import SampledController, zoh_pieces
 from phoid.simulation._checks import plant_params
 
@@ -194,49 +195,54 @@ def simulate_tracking(
     al = [float(q) / float(a[0]) for q in a[1:]]
     inv_a0 = 1.0 / float(a[0])
     stuck_periods = 0
-    for n in range(N):
-        if not -_BIG < x < _BIG:  # also NaN
-            raise ValueError(
-                f"the simulated loop diverged: |x| > {_BIG:g} m at t = {t0 + n * T:g} s (sample "
-                f"{n}); the loop is unstable for these parameters and gains"
-            )
-        x_out[n] = x
-        v_out[n] = vel
-        acc = b0 * x
-        for j, bj in enumerate(bl):
-            acc += bj * xs[-1 - j]
-        acc *= inv_a0
-        for i, ai in enumerate(al):
-            acc -= ai * vhat_hist[-1 - i]
-        if al:
-            vhat_hist.append(acc)
-            del vhat_hist[0]
-        if bl:
-            xs.append(x)
-            del xs[0]
-        u = K * (P * (rl[n] - x) - D * acc)
-        u_out[n] = u
-        if u > umax:
-            us = umax
-            sat[n] = True
-        elif u < -umax:
-            us = -umax
-            sat[n] = True
-        else:
-            us = u
-        F = G * (us + wl[n])
-        F_out[n] = F
-        queue.append(F)
-        if n == N - 1:
-            break
-        # forces of this period: F_{n−d−1} then F_{n−d} (one piece when φ = 0)
-        forces = (queue[-d - 2], queue[-d - 1]) if phi > 0 else (queue[-d - 1],)
-        del queue[0]
-        stuck_here = False
-        for mp, Fa in zip(maps, forces, strict=True):
-            stuck_here |= body.hold(mp, Fa)
-        x, vel = body.x, body.v
-        stuck_periods += stuck_here
+    mask = _CHUNK_MASK
+    with task("simulating the tracking loop: samples", total=N,
+              show=N >= _LONG_SAMPLES) as advance:
+        for n in range(N):
+            if not -_BIG < x < _BIG:  # also NaN
+                raise ValueError(
+                    f"the simulated loop diverged: |x| > {_BIG:g} m at t = {t0 + n * T:g} s "
+                    f"(sample {n}); the loop is unstable for these parameters and gains"
+                )
+            if not n & mask and n:
+                advance(mask + 1)  # the progress bar, once per 4096 samples
+            x_out[n] = x
+            v_out[n] = vel
+            acc = b0 * x
+            for j, bj in enumerate(bl):
+                acc += bj * xs[-1 - j]
+            acc *= inv_a0
+            for i, ai in enumerate(al):
+                acc -= ai * vhat_hist[-1 - i]
+            if al:
+                vhat_hist.append(acc)
+                del vhat_hist[0]
+            if bl:
+                xs.append(x)
+                del xs[0]
+            u = K * (P * (rl[n] - x) - D * acc)
+            u_out[n] = u
+            if u > umax:
+                us = umax
+                sat[n] = True
+            elif u < -umax:
+                us = -umax
+                sat[n] = True
+            else:
+                us = u
+            F = G * (us + wl[n])
+            F_out[n] = F
+            queue.append(F)
+            if n == N - 1:
+                break
+            # forces of this period: F_{n−d−1} then F_{n−d} (one piece when φ = 0)
+            forces = (queue[-d - 2], queue[-d - 1]) if phi > 0 else (queue[-d - 1],)
+            del queue[0]
+            stuck_here = False
+            for mp, Fa in zip(maps, forces, strict=True):
+                stuck_here |= body.hold(mp, Fa)
+            x, vel = body.x, body.v
+            stuck_periods += stuck_here
     if not np.all(np.isfinite(x_out)) or not np.all(np.isfinite(F_out)):
         raise ValueError("the simulated loop diverged (non-finite values): the loop is unstable "
                          "for these parameters and gains")
@@ -478,3 +484,5 @@ def _vector(name, value, size=None) -> np.ndarray:
         raise ValueError(f"`{name}` must be finite; it has {int(np.sum(~np.isfinite(arr)))} "
                          "non-finite values")
     return arr
+_LONG_SAMPLES = 1_000_000  # samples from which simulate_tracking shows a progress bar (~1.5 s)
+_CHUNK_MASK = 4095  # the bar advances once per 4096 samples

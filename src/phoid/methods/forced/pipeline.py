@@ -35,6 +35,7 @@ from phoid import _validate as v
 from phoid._threads import single_blas_thread
 from phoid.errors import IdentificationError
 from phoid.fits import diff_noise
+from phoid.io.units import unit_hint
 from phoid.methods._modal import (
     Prep,
     Segment,
@@ -208,13 +209,17 @@ def identify_forced_data(
         if wn[i] is not None:
             se = math.sqrt(f.omega_var)
             if abs(f.omega - wn[i]) > max(5 * se, 1e-3 * wn[i]):
+                hint = unit_hint("t", wn[i] / f.omega) if f.omega > 0 else ""
                 run_warn[i].append(f"the manifest's omega = {wn[i]:g} rad/s differs from F's "
-                                   f"frequency {f.omega:.6g} rad/s; F's is used")
+                                   f"frequency {f.omega:.6g} rad/s; F's is used"
+                                   + (f"; {hint}" if hint else ""))
         if Bn[i] is not None:
             amp = math.hypot(f.coef[1], f.coef[2])
             if abs(amp - abs(Bn[i])) > 0.02 * abs(Bn[i]):
+                hint = unit_hint("F", amp / abs(Bn[i])) if Bn[i] else ""
                 run_warn[i].append(f"the manifest's B = {Bn[i]:g} N differs from F's "
-                                   f"amplitude {amp:.5g} N; F's is used")
+                                   f"amplitude {amp:.5g} N; F's is used"
+                                   + (f"; {hint}" if hint else ""))
     used = [i for i in range(n) if reasons[i] is None]
     prefix = f"{source}: " if source else ""
     if not used:

@@ -41,6 +41,7 @@ from typing import Any
 
 import numpy as np
 
+from phoid._progress import task
 from phoid._threads import single_blas_thread
 from phoid.errors import ExperimentError, IdentificationError
 from phoid.methods.friction.model import Problem
@@ -238,56 +239,59 @@ def identify_friction(
     >>> round(fit.fc.value, 2), round(fit.c.value, 1)
     (0.05, 2.0)
     """
-    setup = prepare(data, P, D, delay, start, names, need_fc=True, added_mass=added_mass,
-                    digital=digital, bias=bias, u=u)
-    n = len(setup.surveys)
-    reasons = list(setup.reasons)
-    idx = [i for i in range(n) if reasons[i] is None]
-    theta = setup.start.copy()
-    local = np.array([[s.level - setup.offset[i], setup.offset[i], setup.release[i]]
-                      for i, s in enumerate(setup.surveys)])
-    free = (True, True, True, True)
-    # stage 1: the first half of each run's motion, loosely (to 2 stderr), so that stage 2
-    # starts in the right basin: a model that sticks one half-cycle too early is a local
-    # optimum of the full records (the missing half-cycle has no sensitivity), not of these
-    early = _early_windows(setup, idx, local[idx, 2])
-    if len(setup.candidates) > 1:  # the candidate start that fits these windows best
-        probe = Problem([setup.surveys[i] for i in idx], early, setup.P[idx], setup.D[idx],
-                        setup.delay, setup.fs, free, setup.dm[idx], setup.digital,
-                        setup.bias[idx])
-        costs = []
-        for th in setup.candidates:
-            XV = probe.simulate(th, local[idx, 0], local[idx, 2])
-            r = probe.residual(local[idx], XV) if XV is not None else None
-            costs.append(float(r @ r) if r is not None else math.inf)
-        theta = setup.candidates[int(np.argmin(costs))].copy()
-        setup.start = theta.copy()
-    prob, fixed, res = fit_runs(setup, idx, theta, local[idx], free, max_iter, t_end=early,
-                                tol=2.0, confirm=False)
-    iterations = res.iterations
-    theta, local[idx] = prob.split(res.p, fixed)
-    while True:
-        prob, fixed, res = fit_runs(setup, idx, theta, local[idx], free, max_iter)
-        iterations += res.iterations
-        theta_f, local_f = prob.split(res.p, fixed)
-        facts = _motion_facts(prob, local_f, res.XV)
-        short = [idx[j] for j, (ts, rev) in enumerate(facts)
-                 if ts is not None and rev < _MIN_REVERSALS]
-        if not short:
-            break
-        for j, i in enumerate(idx):
-            local[i] = local_f[j]
-        for i in short:
-            reasons[i] = ("friction stops the motion within a cycle "
-                          f"({facts[idx.index(i)][1]} velocity reversals before it sticks)")
-        idx = [i for i in idx if i not in short]
-        if not idx:
-            raise IdentificationError(
-                "no usable runs: " + "; ".join(f"{setup.names[i]}: {reasons[i]}"
-                                               for i in range(n))
-            )
-        theta = theta_f
-    return _result(setup, idx, reasons, prob, fixed, res, facts, iterations)
+    with task("friction fit: the starting point") as advance:  # then one step per LM step
+        setup = prepare(data, P, D, delay, start, names, need_fc=True, added_mass=added_mass,
+                        digital=digital, bias=bias, u=u)
+        n = len(setup.surveys)
+        reasons = list(setup.reasons)
+        idx = [i for i in range(n) if reasons[i] is None]
+        theta = setup.start.copy()
+        local = np.array([[s.level - setup.offset[i], setup.offset[i], setup.release[i]]
+                          for i, s in enumerate(setup.surveys)])
+        free = (True, True, True, True)
+        # stage 1: the first half of each run's motion, loosely (to 2 stderr), so that stage 2
+        # starts in the right basin: a model that sticks one half-cycle too early is a local
+        # optimum of the full records (the missing half-cycle has no sensitivity), not of these
+        early = _early_windows(setup, idx, local[idx, 2])
+        if len(setup.candidates) > 1:  # the candidate start that fits these windows best
+            probe = Problem([setup.surveys[i] for i in idx], early, setup.P[idx], setup.D[idx],
+                            setup.delay, setup.fs, free, setup.dm[idx], setup.digital,
+                            setup.bias[idx])
+            costs = []
+            for th in setup.candidates:
+                XV = probe.simulate(th, local[idx, 0], local[idx, 2])
+                r = probe.residual(local[idx], XV) if XV is not None else None
+                costs.append(float(r @ r) if r is not None else math.inf)
+            theta = setup.candidates[int(np.argmin(costs))].copy()
+            setup.start = theta.copy()
+        advance(0, description="friction fit, stage 1 of 2 (early windows)")
+        prob, fixed, res = fit_runs(setup, idx, theta, local[idx], free, max_iter, t_end=early,
+                                    tol=2.0, confirm=False)
+        iterations = res.iterations
+        theta, local[idx] = prob.split(res.p, fixed)
+        advance(0, description="friction fit, stage 2 of 2 (whole records)")
+        while True:
+            prob, fixed, res = fit_runs(setup, idx, theta, local[idx], free, max_iter)
+            iterations += res.iterations
+            theta_f, local_f = prob.split(res.p, fixed)
+            facts = _motion_facts(prob, local_f, res.XV)
+            short = [idx[j] for j, (ts, rev) in enumerate(facts)
+                     if ts is not None and rev < _MIN_REVERSALS]
+            if not short:
+                break
+            for j, i in enumerate(idx):
+                local[i] = local_f[j]
+            for i in short:
+                reasons[i] = ("friction stops the motion within a cycle "
+                              f"({facts[idx.index(i)][1]} velocity reversals before it sticks)")
+            idx = [i for i in idx if i not in short]
+            if not idx:
+                raise IdentificationError(
+                    "no usable runs: " + "; ".join(f"{setup.names[i]}: {reasons[i]}"
+                                                   for i in range(n))
+                )
+            theta = theta_f
+        return _result(setup, idx, reasons, prob, fixed, res, facts, iterations)
 
 
 def _result(setup, idx, reasons, prob, fixed, res, facts, iterations) -> FrictionFit:

@@ -116,9 +116,9 @@ def _check_time_base(names, surveys, delay: float) -> None:
         if dt > _DT_PER_DELAY * delay:
             raise ExperimentError(
                 f"{name}: the sample interval {dt:.3g} s is {dt / delay:.3g} times the loop "
-                f"delay {delay:.3g} s: t in milliseconds instead of seconds, or the delay in "
-                f"the wrong unit? (the friction fit needs a sample interval of at most "
-                f"{_DT_PER_DELAY:g} delays)")
+                f"delay {delay:.3g} s: t in milliseconds instead of seconds (then give "
+                f"[units] t = \"ms\" in the manifest), or the delay in the wrong unit? (the "
+                f"friction fit needs a sample interval of at most {_DT_PER_DELAY:g} delays)")
 
 
 def dominant(m: float, c: float, k: float, P: Any, D: Any, delay: float,

@@ -14,6 +14,7 @@ from typing import Any
 
 import numpy as np
 
+from phoid._progress import step
 from phoid.errors import IdentificationError
 from phoid.methods.friction.model import BlockJacobian, Normal, Problem
 
@@ -117,6 +118,7 @@ def levenberg_marquardt(prob: Problem, p0: np.ndarray, fixed: np.ndarray,
     converged = False
     it = chords = 0
     while it < max_iter:
+        step()  # the progress bar's count of steps (a no-op unless switched on)
         A = J.normal()
         g = J.tdot(r)
         s2 = cost / dof
