@@ -34,6 +34,7 @@ import numpy as np
 from phoid.dynamics.controller import SampledController
 from phoid.dynamics.plant import Plant
 from phoid.errors import IdentificationError
+from phoid.methods.fit_statistics import difference_noise, fit_blocks, residual_noise_ratio
 from phoid.methods.pho import Estimate
 from phoid.methods.tracking import (
     PARAMETERS,
@@ -52,6 +53,8 @@ __all__ = [
     "identify_tracking",
     "replay_set",
     "run_controller",
+    "validation_entries",
+    "validation_noise_ratio",
 ]
 
 ESTIMATORS = ("auto", "idim", "output-error")
@@ -97,7 +100,9 @@ class TrackingIdentification:
         return self.validations[0]
 
     def summary(self) -> dict[str, Any]:
-        """JSON-ready dict (docs/format.md, "tracking sets")."""
+        """JSON-ready dict (docs/format.md, "tracking sets"): with each validation's
+        ``residual_noise_ratio`` and the ``covariance``, ``correlation`` and ``statistics``
+        blocks of :meth:`fit_statistics`."""
         fit = self.fit.summary()
         fit.pop("warnings", None)
         fit.pop("parameters", None)
@@ -107,12 +112,70 @@ class TrackingIdentification:
             "parameters": {k: e.to_dict() for k, e in self.estimates.items()},
             "delay_source": self.delay_source,
             "fit": fit,
-            "validation": [
-                {"run": name, **v.summary()}
-                for name, v in zip(self.run_names, self.validations, strict=True)
-            ],
+            "validation": validation_entries(self.run_names, self.validations),
             "warnings": list(self.warnings),
+            **self.fit_statistics(),
         })
+
+    def residual_noise_ratios(self) -> list[float | None]:
+        """Per run: the RMS of the validation's position residual x − x_sim over the record's
+        noise level estimated without the model (:func:`validation_noise_ratio`)."""
+        return [validation_noise_ratio(v) for v in self.validations]
+
+    def fit_statistics(self) -> dict[str, Any]:
+        """The ``covariance``, ``correlation`` and ``statistics`` blocks of :meth:`summary`.
+
+        The parameters are the estimator's free ones (phoid's names ``m``, ``c``, ``k``,
+        ``fc``, ``offset``, ``delay``; IDIM's ``M``, ``Fv``, ``Fc``, ``OF`` renamed) in its
+        covariance's order: IDIM's OLS covariance, or output error's Newey–West one. χ² is
+        that of the position: Σ (x − x_sim)²/ŝ² over every run's compared window (the loop
+        simulated with the estimates, driven by the recorded reference), ŝ each run's noise
+        level from its record alone
+        (:func:`~phoid.methods.fit_statistics.difference_noise`), dof = samples − free
+        parameters (− 2 start states per run for output error). Encoder quantisation and
+        unmodelled dynamics make it ≫ dof on real records: it measures the model's position
+        error against the sensor's noise, not the stderrs' validity (those are the
+        estimator's own, see ``fit``).
+        """
+        inverse = {v: k for k, v in _IDIM_NAMES.items()}
+        names = [inverse.get(n, n) for n in self.fit.free]
+        units = [UNITS.get(n, "") for n in names]
+        chi2, n = 0.0, 0
+        for v in self.validations:
+            start, stop = v.window
+            q = difference_noise(v.x[start:stop])
+            if not q > 0:
+                continue
+            r = v.x[start:stop] - v.x_sim[start:stop]
+            chi2 += float(r @ r) / q**2
+            n += stop - start
+        starts = 2 * len(self.validations) if self.estimator == "output-error" else 0
+        dof = n - len(names) - starts
+        return fit_blocks(names, units, self.fit.covariance, chi2 if n else None,
+                          dof if n else None,
+                          of="the position x - x_sim of the loop simulated with the estimates "
+                             "(the validation), each sample over its run's noise level "
+                             "estimated from third differences")
+
+
+def validation_noise_ratio(validation: Any) -> float | None:
+    """RMS of a validation's position residual x − x_sim over the noise level of the recorded
+    x, both in the compared window (:func:`~phoid.methods.fit_statistics.difference_noise`,
+    independent of the model): ≈ 1 when the simulated loop reproduces the record to its
+    noise, ≫ 1 otherwise. None when the noise level is 0 (an exactly quantised still record)."""
+    start, stop = validation.window
+    x = np.asarray(validation.x[start:stop], dtype=float)
+    r = x - np.asarray(validation.x_sim[start:stop], dtype=float)
+    if r.size == 0:
+        return None
+    return residual_noise_ratio(float(np.sqrt(np.mean(r * r))), difference_noise(x))
+
+
+def validation_entries(run_names: Any, validations: Any) -> list[dict[str, Any]]:
+    """The ``validation`` list of a summary: per run ``run``, the validation's own summary and
+    ``residual_noise_ratio`` (:func:`validation_noise_ratio`)."""
+    return [{"run": name, **v.summary(), "residual_noise_ratio": validation_noise_ratio(v)}
+            for name, v in zip(run_names, validations, strict=True)]
 
     def report(self) -> str:
         """Plain-text report: estimates ± stderr, the fit's statistics, the validation."""
@@ -320,8 +383,7 @@ class TrackingReplay:
         """JSON-ready dict: the parameters and each run's validation."""
         return _json_safe({
             "parameters": {k: float(v) for k, v in self.parameters.items()},
-            "validation": [{"run": n, **v.summary()}
-                           for n, v in zip(self.run_names, self.validations, strict=True)],
+            "validation": validation_entries(self.run_names, self.validations),
             "warnings": list(self.warnings),
         })
 
