@@ -158,6 +158,24 @@ class TrackingIdentification:
                              "estimated from third differences")
 
 
+    def report(self) -> str:
+        """Plain-text report: estimates ± stderr, the fit's statistics, the validation."""
+        from phoid.reports.tracking import identification_text
+
+        return identification_text(self)
+
+    def plot(self, folder: str | Path, *, overwrite: bool = False) -> list[Path]:
+        """One PNG per run (measured vs simulated, residual, force) into ``folder``."""
+        from phoid.reports.tracking import plot_tracking
+
+        folder = Path(folder)
+        written = []
+        for i, v in enumerate(self.validations, start=1):
+            written.append(plot_tracking(v, folder / f"tracking_run{i:02d}.png",
+                                         overwrite=overwrite))
+        return written
+
+
 def validation_noise_ratio(validation: Any) -> float | None:
     """RMS of a validation's position residual x − x_sim over the noise level of the recorded
     x, both in the compared window (:func:`~phoid.methods.fit_statistics.difference_noise`,
@@ -176,23 +194,6 @@ def validation_entries(run_names: Any, validations: Any) -> list[dict[str, Any]]
     ``residual_noise_ratio`` (:func:`validation_noise_ratio`)."""
     return [{"run": name, **v.summary(), "residual_noise_ratio": validation_noise_ratio(v)}
             for name, v in zip(run_names, validations, strict=True)]
-
-    def report(self) -> str:
-        """Plain-text report: estimates ± stderr, the fit's statistics, the validation."""
-        from phoid.reports.tracking import identification_text
-
-        return identification_text(self)
-
-    def plot(self, folder: str | Path, *, overwrite: bool = False) -> list[Path]:
-        """One PNG per run (measured vs simulated, residual, force) into ``folder``."""
-        from phoid.reports.tracking import plot_tracking
-
-        folder = Path(folder)
-        written = []
-        for i, v in enumerate(self.validations, start=1):
-            written.append(plot_tracking(v, folder / f"tracking_run{i:02d}.png",
-                                         overwrite=overwrite))
-        return written
 
 
 def _json_safe(value: Any) -> Any:
