@@ -45,6 +45,7 @@ from phoid.methods.tracking import (
     replay,
 )
 from phoid.methods.tracking_validation import validate_tracking
+from phoid.reports.statistics import ratio_text
 
 __all__ = [
     "TrackingIdentification",
@@ -398,7 +399,10 @@ class TrackingReplay:
                  f"{p['offset']:.6g} N, delay = {p['delay'] * 1e3:.6g} ms, driven by the "
                  "recorded reference from the recorded state"]
         for name, v in zip(self.run_names, self.validations, strict=True):
-            lines += ["", f"{name}:", *validation_lines(v)]
+            q = validation_noise_ratio(v)
+            lines += ["", f"{name}:", *validation_lines(v),
+                      "  position residual / noise (noise from the record's third "
+                      f"differences): {ratio_text(q)}"]
         if self.warnings:
             lines += ["", "warnings:"] + [f"  - {w}" for w in self.warnings]
         return "\n".join(lines)

@@ -194,5 +194,8 @@ def correlation_lines(corr: Mapping[str, Any], min_correl: float = MIN_CORREL) -
 
 
 def ratio_text(ratio: float | None) -> str:
-    """A residual/noise ratio for a table column (``-`` when undefined)."""
-    return "-" if ratio is None or not math.isfinite(ratio) else f"{ratio:.3g}"
+    """A residual/noise ratio for a table column: three decimals below 100 (``1.004``), three
+    significant digits above (``1.89e+03``), ``-`` when undefined."""
+    if ratio is None or not math.isfinite(ratio):
+        return "-"
+    return f"{ratio:.3f}" if abs(ratio) < 100 else f"{ratio:.3g}"
