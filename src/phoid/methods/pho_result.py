@@ -210,8 +210,10 @@ class Identification:
         estimated with them. χ² is that of the set's fit: for the weighted estimator (``gls``)
         Σᵢ rᵢᵀ Covᵢ⁻¹ rᵢ of the runs' measured modes rᵢ = (σ̂ᵢ − σᵢ(θ), ω̂_dᵢ − ω_dᵢ(θ)) through
         the exact loop roots (eq. 35 weighted by each decay fit's covariance), dof = 2·runs − p;
-        χ²/dof ≈ 1 when one plant explains every run's mode within its own noise. The paper's
-        OLS lines (``ols``) have no χ² (null).
+        χ²/dof ≈ 1 when one plant explains every run's mode within its own noise. With a delay
+        estimated from x and u (``delay_from == "x+u"``) the runs' delays from their joint
+        x–u fits are residuals too (:func:`phoid.methods.udelay.combine`), dof = 2·runs +
+        runs with u − 4. The paper's OLS lines (``ols``) have no χ² (null).
         """
         fit = self.fit
         if fit.cov_full is not None:
@@ -222,6 +224,10 @@ class Identification:
         if fit.estimator == "gls":
             of = ("the weighted fit of the runs' modes (sigma_i, omega_d_i) through the exact "
                   "loop roots (eq. 35), each run weighted by its decay fit's covariance")
+            if self.delay_from == "x+u":
+                of = ("the weighted fit of the runs' modes (sigma_i, omega_d_i) through the "
+                      "exact loop roots (eq. 35) and of the delays of the runs' joint x-u fits, "
+                      "each weighted by its own fit's variance")
             return fit_blocks(names, units, cov, fit.chi2, fit.dof, of=of)
         return fit_blocks(names, units, cov, None, None,
                           of="not computed: the paper's OLS lines of eq. (35)")

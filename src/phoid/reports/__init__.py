@@ -1,6 +1,7 @@
 """phoid.reports: plain-text reports (:mod:`~phoid.reports.text`) and figures
-(:mod:`~phoid.reports.figures`, matplotlib imported only when drawing) of results, and both for
-a tracking validation (:mod:`~phoid.reports.tracking`).
+(:mod:`~phoid.reports.figures`, matplotlib imported only when drawing) of results, both for
+a tracking validation (:mod:`~phoid.reports.tracking`), and the fit statistics' blocks
+(:mod:`~phoid.reports.statistics`: covariance → correlation, JSON and text).
 
 Results are taken by duck typing: nothing here imports the methods, planning or paper modules.
 """
@@ -12,7 +13,16 @@ from phoid.reports.figures import (
     plot_identification,
     save_png,
 )
+from phoid.reports.statistics import (
+    correlation,
+    correlation_json,
+    correlation_lines,
+    covariance_json,
+    statistics_json,
+    statistics_lines,
+)
 from phoid.reports.text import (
+    fit_statistics_lines,
     forced_text,
     format_estimate,
     free_text,
@@ -22,7 +32,12 @@ from phoid.reports.text import (
 from phoid.reports.tracking import plot_tracking, tracking_text, validation_lines
 
 __all__ = [
+    "correlation",
+    "correlation_json",
+    "correlation_lines",
+    "covariance_json",
     "figure1",
+    "fit_statistics_lines",
     "forced_text",
     "format_estimate",
     "free_text",
@@ -33,6 +48,8 @@ __all__ = [
     "plot_identification",
     "plot_tracking",
     "save_png",
+    "statistics_json",
+    "statistics_lines",
     "tracking_text",
     "validation_lines",
 ]
