@@ -274,3 +274,20 @@ def test_estimate_float_and_format():
     assert f"{Estimate(0.0442, 3e-5, '')}" == "0.044200 ± 3e-05"
     assert (e.value, e.stderr, e.unit) == (2.000123, 0.0042, "kg")
     assert math.isclose(np.float64(e), 2.000123)
+
+
+def test_tracking_output_error_chi2_is_that_of_its_fit(tmp_path):
+    # a simulated tracking record with 2 µm white position noise, fitted by output error: the
+    # right model, so χ²/dof of its own position residual is 1 within its spread √(2/dof) from
+    # the residual and 2·1.5/√n from the third-difference noise level (5 of that combined sd)
+    from test_json_schema import _tracking_set
+
+    folder = _tracking_set(tmp_path / "set")
+    d = json_of("identify", folder, "--json", "--estimator", "output-error")
+    s = d["statistics"]
+    assert "output-error fit" in s["of"]
+    assert s["chi2_dof"] == pytest.approx(1.0, abs=5 * math.sqrt(11 / s["dof"]))
+    assert d["correlation"]["params"] == d["fit"]["free"]
+    # the Newey–West correlation that fit prints is the top-level block's
+    np.testing.assert_allclose(np.array(d["correlation"]["matrix"], dtype=float),
+                               np.array(d["fit"]["correlation"], dtype=float), atol=1e-12)

@@ -129,11 +129,13 @@ class TrackingIdentification:
         The parameters are the estimator's free ones (phoid's names ``m``, ``c``, ``k``,
         ``fc``, ``offset``, ``delay``; IDIM's ``M``, ``Fv``, ``Fc``, ``OF`` renamed) in its
         covariance's order: IDIM's OLS covariance, or output error's Newey–West one. χ² is
-        that of the position: Σ (x − x_sim)²/ŝ² over every run's compared window (the loop
-        simulated with the estimates, driven by the recorded reference), ŝ each run's noise
-        level from its record alone
-        (:func:`~phoid.methods.fit_statistics.difference_noise`), dof = samples − free
-        parameters (− 2 start states per run for output error). Encoder quantisation and
+        that of the position, Σ (x − x_sim)²/ŝ², ŝ each run's noise level from its record
+        alone (:func:`~phoid.methods.fit_statistics.difference_noise`): for output error over
+        the fitted samples of its own fit (x_sim: each run's loop simulated from its fitted
+        start state), dof = samples − free parameters − 2 start states per run; for IDIM,
+        whose own residual is a force without an independent noise level, over the
+        validation's compared window (the loop simulated with the estimates from the
+        recorded state), dof = samples − free parameters. Encoder quantisation and
         unmodelled dynamics make it ≫ dof on real records: it measures the model's position
         error against the sensor's noise, not the stderrs' validity (those are the
         estimator's own, see ``fit``).
@@ -141,23 +143,31 @@ class TrackingIdentification:
         inverse = {v: k for k, v in _IDIM_NAMES.items()}
         names = [inverse.get(n, n) for n in self.fit.free]
         units = [UNITS.get(n, "") for n in names]
+        records = getattr(self.fit, "records", ())
+        sims = getattr(self.fit, "simulations", ())
+        if self.estimator == "output-error" and records and len(records) == len(sims):
+            pairs = [(rec.x[rec.start:], sim.x) for rec, sim in zip(records, sims, strict=True)]
+            starts = 2 * len(pairs)
+            of = ("the position x - x_sim of the output-error fit over its fitted samples, each "
+                  "over its run's noise level estimated from third differences")
+        else:
+            pairs = [(v.x[v.window[0]:v.window[1]], v.x_sim[v.window[0]:v.window[1]])
+                     for v in self.validations]
+            starts = 0
+            of = ("the position x - x_sim of the loop simulated with the estimates (the "
+                  "validation), each sample over its run's noise level estimated from third "
+                  "differences")
         chi2, n = 0.0, 0
-        for v in self.validations:
-            start, stop = v.window
-            q = difference_noise(v.x[start:stop])
+        for x, x_sim in pairs:
+            q = difference_noise(x)
             if not q > 0:
                 continue
-            r = v.x[start:stop] - v.x_sim[start:stop]
+            r = np.asarray(x, dtype=float) - np.asarray(x_sim, dtype=float)
             chi2 += float(r @ r) / q**2
-            n += stop - start
-        starts = 2 * len(self.validations) if self.estimator == "output-error" else 0
+            n += r.size
         dof = n - len(names) - starts
         return fit_blocks(names, units, self.fit.covariance, chi2 if n else None,
-                          dof if n else None,
-                          of="the position x - x_sim of the loop simulated with the estimates "
-                             "(the validation), each sample over its run's noise level "
-                             "estimated from third differences")
-
+                          dof if n else None, of=of)
 
     def report(self) -> str:
         """Plain-text report: estimates ± stderr, the fit's statistics, the validation."""
