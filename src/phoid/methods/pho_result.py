@@ -191,7 +191,7 @@ class Identification:
         """Per run: the RMS of its decay fit's residual over the record's noise level estimated
         without the model (:func:`phoid.methods.fit_statistics.difference_noise` over the fit's
         window); ≈ 1 when the decay model explains the record to its noise, ≫ 1 for a misfit.
-        None for a run that was not fitted, or when the result carries no records."""
+        None for a run set aside or not fitted, or when the result carries no records."""
         out: list[float | None] = []
         for i, r in enumerate(self.runs):
             f = r.fit
