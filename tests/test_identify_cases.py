@@ -183,8 +183,9 @@ def assert_honest(res, plant: Plant, crb: np.ndarray | None = None, label: str =
 SPEC_RUN_KEYS = {"file", "P", "D", "sigma", "omega_d", "c_prime", "k_prime", "cycles"}
 UNITS = {"m": "kg", "c": "N s/m", "k": "N/m"}
 # top-level keys beyond the spec's that summary() writes today (zeta/omega0: the spec's optional
-# {value, stderr, unit}) — a new key must be added knowingly
-EXTRA_KEYS = {"zeta", "omega0"}
+# {value, stderr, unit}; covariance/correlation/statistics: the fit statistics of
+# docs/format-extensions.md) — a new key must be added knowingly
+EXTRA_KEYS = {"zeta", "omega0", "covariance", "correlation", "statistics"}
 
 
 def assert_spec_json(res, n_runs: int, set_aside: tuple[int, ...] = ()) -> dict:

@@ -57,6 +57,7 @@ from phoid.methods._modal import (
     pick_start,
     release_basis,
 )
+from phoid.methods.fit_statistics import fit_blocks, residual_noise_ratio, window_noise
 from phoid.methods.pho import Estimate
 
 __all__ = ["FreeIdentification", "FreeRun", "identify_free", "identify_free_data"]
@@ -224,7 +225,9 @@ class FreeIdentification:
         ``roots``: two objects ``{"re", "im", "re_stderr", "im_stderr", "unit": "1/s"}``,
         rightmost first (stderr null when the damping is critical within its uncertainty);
         ``runs``; ``warnings``. With a known mass also ``m`` (the given mass, stderr 0,
-        ``"source": "given"``), ``c`` and ``k``.
+        ``"source": "given"``), ``c`` and ``k``. Each run has ``residual_noise_ratio``
+        (:meth:`residual_noise_ratios`); ``covariance``, ``correlation`` and ``statistics`` are
+        :meth:`fit_statistics`.
         """
         out: dict[str, Any] = {
             "method": "free",
@@ -247,9 +250,53 @@ class FreeIdentification:
             out["m"] = {**self.m.to_dict(), "source": "given"}
             out["c"] = self.c.to_dict()
             out["k"] = self.k.to_dict()
-        out["runs"] = [r.to_dict() for r in self.runs]
+        out["runs"] = [r.to_dict() | {"residual_noise_ratio": q}
+                       for r, q in zip(self.runs, self.residual_noise_ratios(), strict=True)]
         out["warnings"] = list(self.warnings)
+        return out | self.fit_statistics()
+
+    def _noise_levels(self) -> list[float | None]:
+        """Each used run's noise level from its record alone (difference_noise in its window)."""
+        out: list[float | None] = []
+        for i, r in enumerate(self.runs):
+            if not r.used or i >= len(self.data):
+                out.append(None)
+                continue
+            t, x = self.data[i]
+            out.append(window_noise(t, x, r.t_start, r.t_end))
         return out
+
+    def residual_noise_ratios(self) -> list[float | None]:
+        """Per run: the RMS of its free-response fit's residual over the record's noise level
+        estimated without the model (:func:`phoid.methods.fit_statistics.difference_noise`
+        over the fitted window); ≈ 1 when the free response explains the record to its noise,
+        ≫ 1 for a misfit. None for a run set aside, or when the result carries no records."""
+        return [residual_noise_ratio(r.residual_rms, q)
+                for r, q in zip(self.runs, self._noise_levels(), strict=True)]
+
+    def fit_statistics(self) -> dict[str, Any]:
+        """The ``covariance``, ``correlation`` and ``statistics`` blocks of :meth:`summary`.
+
+        The parameters are σ (``sigma``, 1/s) and ω₀² (``k_over_m``, 1/s²), what a free decay
+        determines (c and k of a known mass are these times the mass). χ² is that of the joint
+        free-response fit of all runs, each residual weighted by its run's noise level
+        estimated without the model: χ² = Σᵢ nᵢ·rmsᵢ²/ŝᵢ² (ŝᵢ from
+        :func:`~phoid.methods.fit_statistics.difference_noise`; the fit's own weights come from
+        its residuals, which would make χ²/dof 1 by construction), dof = Σᵢ nᵢ − 2 − 3·runs
+        (σ, ω₀², and each run's offset, x₀ and v₀).
+        """
+        chi2, n, used = 0.0, 0, 0
+        for r, q in zip(self.runs, self._noise_levels(), strict=True):
+            if q is None or not (q > 0 and math.isfinite(r.residual_rms)):
+                continue
+            chi2 += r.n_samples * r.residual_rms**2 / q**2
+            n += r.n_samples
+            used += 1
+        dof = n - 2 - 3 * used
+        return fit_blocks(["sigma", "k_over_m"], ["1/s", "1/s^2"], self.cov,
+                          chi2 if used else None, dof if used else None,
+                          of="the joint free-response fit of x in every run, each residual "
+                             "over its run's noise level estimated from third differences")
 
     def report(self) -> str:
         """Plain-text report: σ, ω₀, ζ, roots, c/m, k/m (c, k with a known mass), runs."""

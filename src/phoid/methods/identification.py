@@ -35,6 +35,7 @@ from phoid.methods.pho_checks import (
 from phoid.methods.pho_measure import N_FAST, measure_runs, start_run
 from phoid.methods.pho_result import Identification, RunMode
 from phoid.methods.udelay import check_u, with_u
+from phoid.reports.statistics import correlation
 
 __all__ = ["check_estimator", "identify_pho", "identify_pho_data"]
 
@@ -474,7 +475,7 @@ def _identify_core(data, P, D, delay, *, files, names, estimator="gls", compensa
         # P-only loops (the seed's Discussion): damping varies between runs only through the
         # delay, so the damping line's points crowd together; say how much that costs
         sd = np.sqrt(np.diag(mck.cov))
-        corr = mck.cov / np.outer(sd, sd)
+        corr = correlation(mck.cov)
         rho = float(np.max(np.abs(corr[np.triu_indices(3, 1)])))
         warnings.append(
             f"all runs have the same D ({D[used][0]:g} N s/m, a P-only sweep): the runs' "

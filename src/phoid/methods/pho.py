@@ -38,6 +38,7 @@ from phoid.dynamics import (
 from phoid.dynamics.digital import digital_is_dominant, digital_modes
 from phoid.errors import IdentificationError
 from phoid.methods.chi2 import chi2_isf
+from phoid.reports.text import format_estimate
 
 __all__ = ["Estimate", "LineFit", "MCKFit", "delay_profile", "fit_lines", "fit_modes"]
 
@@ -68,6 +69,22 @@ class Estimate:
             return None if x is None or not math.isfinite(float(x)) else float(x)
 
         return {"value": num(self.value), "stderr": num(self.stderr), "unit": self.unit}
+
+    def __float__(self) -> float:
+        """The value: ``float(est)`` is ``est.value``."""
+        return float(self.value)
+
+    def __format__(self, spec: str) -> str:
+        """``format(est, spec)`` / f-strings: a non-empty ``spec`` formats the value
+        (``f"{est:.4f}"`` is ``format(est.value, ".4f")``); an empty one gives
+        ``"value ± stderr unit"``, rounded to the stderr's first two significant digits
+        (:func:`phoid.reports.text.format_estimate`; the value alone when there is no stderr).
+        """
+        if spec:
+            return format(float(self.value), spec)
+        se = None if self.stderr is None else float(self.stderr)
+        text = format_estimate(float(self.value), se)
+        return f"{text} {self.unit}" if self.unit else text
 
 
 @dataclass(frozen=True)

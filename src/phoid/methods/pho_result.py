@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 
 from phoid.fits import DecayFit
+from phoid.methods.fit_statistics import fit_blocks, residual_noise_ratio, window_noise
 from phoid.methods.pho import Estimate, MCKFit, open_loop_omega0, open_loop_zeta
 
 __all__ = ["Identification", "RunMode"]
@@ -172,8 +173,9 @@ class Identification:
 
         Top-level keys are the spec's (method, m, c, k, delay, runs, warnings) plus the optional
         ``omega0`` and ``zeta`` in the same {value, stderr, unit} shape; each run carries the
-        spec's keys plus sigma_stderr, omega_d_stderr, residual_rms, used and its warnings. The
-        full covariance of (m, c, k) is :attr:`cov` (not in the JSON).
+        spec's keys plus sigma_stderr, omega_d_stderr, residual_rms, residual_noise_ratio
+        (:meth:`residual_noise_ratios`), used and its warnings. ``covariance``,
+        ``correlation`` and ``statistics`` are :meth:`fit_statistics`.
         """
         out: dict[str, Any] = {
             "method": "pho",
@@ -184,7 +186,8 @@ class Identification:
                       "stderr": None if self.delay_stderr is None else float(self.delay_stderr),
                       "unit": "s", "source": self.delay_source}
             | ({"from": self.delay_from} if self.delay_from else {}),
-            "runs": [r.to_dict() for r in self.runs],
+            "runs": [r.to_dict() | {"residual_noise_ratio": q}
+                     for r, q in zip(self.runs, self.residual_noise_ratios(), strict=True)],
             "warnings": list(self.warnings),
         }
         if self.digital is not None:
@@ -199,7 +202,52 @@ class Identification:
         z = self.zeta
         if math.isfinite(z.value):
             out["zeta"] = z.to_dict()
+        return out | self.fit_statistics()
+
+    def residual_noise_ratios(self) -> list[float | None]:
+        """Per run: the RMS of its decay fit's residual over the record's noise level estimated
+        without the model (:func:`phoid.methods.fit_statistics.difference_noise` over the fit's
+        window); ≈ 1 when the decay model explains the record to its noise, ≫ 1 for a misfit.
+        None for a run set aside or not fitted, or when the result carries no records."""
+        out: list[float | None] = []
+        for i, r in enumerate(self.runs):
+            f = r.fit
+            if f is None or i >= len(self.data) or not r.used:
+                out.append(None)
+                continue
+            t, x = self.data[i][0], self.data[i][1]
+            out.append(residual_noise_ratio(r.residual_rms,
+                                            window_noise(t, x, f.t_start, f.t_end)))
         return out
+
+    def fit_statistics(self) -> dict[str, Any]:
+        """The ``covariance``, ``correlation`` and ``statistics`` blocks of :meth:`summary`.
+
+        The parameters are m (kg), c (N s/m), k (N/m), and the delay Δt (s) when it was
+        estimated with them. χ² is that of the set's fit: for the weighted estimator (``gls``)
+        Σᵢ rᵢᵀ Covᵢ⁻¹ rᵢ of the runs' measured modes rᵢ = (σ̂ᵢ − σᵢ(θ), ω̂_dᵢ − ω_dᵢ(θ)) through
+        the exact loop roots (eq. 35 weighted by each decay fit's covariance), dof = 2·runs − p;
+        χ²/dof ≈ 1 when one plant explains every run's mode within its own noise. With a delay
+        estimated from x and u (``delay_from == "x+u"``) the runs' delays from their joint
+        x–u fits are residuals too (:func:`phoid.methods.udelay.combine`), dof = 2·runs +
+        runs with u − 4. The paper's OLS lines (``ols``) have no χ² (null).
+        """
+        fit = self.fit
+        if fit.cov_full is not None:
+            names, units, cov = ["m", "c", "k", "delay"], ["kg", "N s/m", "N/m", "s"], \
+                fit.cov_full
+        else:
+            names, units, cov = ["m", "c", "k"], ["kg", "N s/m", "N/m"], fit.cov
+        if fit.estimator == "gls":
+            of = ("the weighted fit of the runs' modes (sigma_i, omega_d_i) through the exact "
+                  "loop roots (eq. 35), each run weighted by its decay fit's covariance")
+            if self.delay_from == "x+u":
+                of = ("the weighted fit of the runs' modes (sigma_i, omega_d_i) through the "
+                      "exact loop roots (eq. 35) and of the delays of the runs' joint x-u fits, "
+                      "each weighted by its own fit's variance")
+            return fit_blocks(names, units, cov, fit.chi2, fit.dof, of=of)
+        return fit_blocks(names, units, cov, None, None,
+                          of="not computed: the paper's OLS lines of eq. (35)")
 
     def report(self) -> str:
         """A plain-text report: estimates with ± one stderr, per-run table, warnings."""

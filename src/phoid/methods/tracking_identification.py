@@ -35,6 +35,7 @@ from phoid.dynamics.controller import SampledController
 from phoid.dynamics.plant import Plant
 from phoid.errors import IdentificationError
 from phoid.io.units import unit_hint
+from phoid.methods.fit_statistics import difference_noise, fit_blocks, residual_noise_ratio
 from phoid.methods.pho import Estimate
 from phoid.methods.tracking import (
     PARAMETERS,
@@ -45,6 +46,7 @@ from phoid.methods.tracking import (
     replay,
 )
 from phoid.methods.tracking_validation import validate_tracking
+from phoid.reports.statistics import ratio_text
 
 __all__ = [
     "TrackingIdentification",
@@ -53,6 +55,8 @@ __all__ = [
     "identify_tracking",
     "replay_set",
     "run_controller",
+    "validation_entries",
+    "validation_noise_ratio",
 ]
 
 ESTIMATORS = ("auto", "idim", "output-error")
@@ -109,7 +113,9 @@ class TrackingIdentification:
         return result_html(self)
 
     def summary(self) -> dict[str, Any]:
-        """JSON-ready dict (docs/format.md, "tracking sets")."""
+        """JSON-ready dict (docs/format.md, "tracking sets"): with each validation's
+        ``residual_noise_ratio`` and the ``covariance``, ``correlation`` and ``statistics``
+        blocks of :meth:`fit_statistics`."""
         fit = self.fit.summary()
         fit.pop("warnings", None)
         fit.pop("parameters", None)
@@ -119,12 +125,61 @@ class TrackingIdentification:
             "parameters": {k: e.to_dict() for k, e in self.estimates.items()},
             "delay_source": self.delay_source,
             "fit": fit,
-            "validation": [
-                {"run": name, **v.summary()}
-                for name, v in zip(self.run_names, self.validations, strict=True)
-            ],
+            "validation": validation_entries(self.run_names, self.validations),
             "warnings": list(self.warnings),
+            **self.fit_statistics(),
         })
+
+    def residual_noise_ratios(self) -> list[float | None]:
+        """Per run: the RMS of the validation's position residual x − x_sim over the record's
+        noise level estimated without the model (:func:`validation_noise_ratio`)."""
+        return [validation_noise_ratio(v) for v in self.validations]
+
+    def fit_statistics(self) -> dict[str, Any]:
+        """The ``covariance``, ``correlation`` and ``statistics`` blocks of :meth:`summary`.
+
+        The parameters are the estimator's free ones (phoid's names ``m``, ``c``, ``k``,
+        ``fc``, ``offset``, ``delay``; IDIM's ``M``, ``Fv``, ``Fc``, ``OF`` renamed) in its
+        covariance's order: IDIM's OLS covariance, or output error's Newey–West one. χ² is
+        that of the position, Σ (x − x_sim)²/ŝ², ŝ each run's noise level from its record
+        alone (:func:`~phoid.methods.fit_statistics.difference_noise`): for output error over
+        the fitted samples of its own fit (x_sim: each run's loop simulated from its fitted
+        start state), dof = samples − free parameters − 2 start states per run; for IDIM,
+        whose own residual is a force without an independent noise level, over the
+        validation's compared window (the loop simulated with the estimates from the
+        recorded state), dof = samples − free parameters. Encoder quantisation and
+        unmodelled dynamics make it ≫ dof on real records: it measures the model's position
+        error against the sensor's noise, not the stderrs' validity (those are the
+        estimator's own, see ``fit``).
+        """
+        inverse = {v: k for k, v in _IDIM_NAMES.items()}
+        names = [inverse.get(n, n) for n in self.fit.free]
+        units = [UNITS.get(n, "") for n in names]
+        records = getattr(self.fit, "records", ())
+        sims = getattr(self.fit, "simulations", ())
+        if self.estimator == "output-error" and records and len(records) == len(sims):
+            pairs = [(rec.x[rec.start:], sim.x) for rec, sim in zip(records, sims, strict=True)]
+            starts = 2 * len(pairs)
+            of = ("the position x - x_sim of the output-error fit over its fitted samples, each "
+                  "over its run's noise level estimated from third differences")
+        else:
+            pairs = [(v.x[v.window[0]:v.window[1]], v.x_sim[v.window[0]:v.window[1]])
+                     for v in self.validations]
+            starts = 0
+            of = ("the position x - x_sim of the loop simulated with the estimates (the "
+                  "validation), each sample over its run's noise level estimated from third "
+                  "differences")
+        chi2, n = 0.0, 0
+        for x, x_sim in pairs:
+            q = difference_noise(x)
+            if not q > 0:
+                continue
+            r = np.asarray(x, dtype=float) - np.asarray(x_sim, dtype=float)
+            chi2 += float(r @ r) / q**2
+            n += r.size
+        dof = n - len(names) - starts
+        return fit_blocks(names, units, self.fit.covariance, chi2 if n else None,
+                          dof if n else None, of=of)
 
     def report(self) -> str:
         """Plain-text report: estimates ± stderr, the fit's statistics, the validation."""
@@ -178,6 +233,26 @@ class TrackingIdentification:
         from phoid.interop.tables import to_pandas
 
         return to_pandas(self)
+
+
+def validation_noise_ratio(validation: Any) -> float | None:
+    """RMS of a validation's position residual x − x_sim over the noise level of the recorded
+    x, both in the compared window (:func:`~phoid.methods.fit_statistics.difference_noise`,
+    independent of the model): ≈ 1 when the simulated loop reproduces the record to its
+    noise, ≫ 1 otherwise. None when the noise level is 0 (an exactly quantised still record)."""
+    start, stop = validation.window
+    x = np.asarray(validation.x[start:stop], dtype=float)
+    r = x - np.asarray(validation.x_sim[start:stop], dtype=float)
+    if r.size == 0:
+        return None
+    return residual_noise_ratio(float(np.sqrt(np.mean(r * r))), difference_noise(x))
+
+
+def validation_entries(run_names: Any, validations: Any) -> list[dict[str, Any]]:
+    """The ``validation`` list of a summary: per run ``run``, the validation's own summary and
+    ``residual_noise_ratio`` (:func:`validation_noise_ratio`)."""
+    return [{"run": name, **v.summary(), "residual_noise_ratio": validation_noise_ratio(v)}
+            for name, v in zip(run_names, validations, strict=True)]
 
 
 def _json_safe(value: Any) -> Any:
@@ -381,8 +456,7 @@ class TrackingReplay:
         """JSON-ready dict: the parameters and each run's validation."""
         return _json_safe({
             "parameters": {k: float(v) for k, v in self.parameters.items()},
-            "validation": [{"run": n, **v.summary()}
-                           for n, v in zip(self.run_names, self.validations, strict=True)],
+            "validation": validation_entries(self.run_names, self.validations),
             "warnings": list(self.warnings),
         })
 
@@ -396,7 +470,10 @@ class TrackingReplay:
                  f"{p['offset']:.6g} N, delay = {p['delay'] * 1e3:.6g} ms, driven by the "
                  "recorded reference from the recorded state"]
         for name, v in zip(self.run_names, self.validations, strict=True):
-            lines += ["", f"{name}:", *validation_lines(v)]
+            q = validation_noise_ratio(v)
+            lines += ["", f"{name}:", *validation_lines(v),
+                      "  position residual / noise (noise from the record's third "
+                      f"differences): {ratio_text(q)}"]
         if self.warnings:
             lines += ["", "warnings:"] + [f"  - {w}" for w in self.warnings]
         return "\n".join(lines)

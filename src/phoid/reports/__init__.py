@@ -1,7 +1,9 @@
 """phoid.reports: plain-text reports (:mod:`~phoid.reports.text`) and figures
 (:mod:`~phoid.reports.figures` writes them, :mod:`~phoid.reports.runs` and
 :mod:`~phoid.reports.lines` draw them; matplotlib imported only when drawing) of results,
-and both for a tracking validation (:mod:`~phoid.reports.tracking`).
+both for a tracking validation (:mod:`~phoid.reports.tracking`), the fit statistics' blocks
+(:mod:`~phoid.reports.statistics`: covariance → correlation, JSON and text) and HTML views
+(:mod:`~phoid.reports.html`: the notebook display and the single-file report).
 
 Results are taken by duck typing: nothing here imports the methods, planning or paper modules.
 """
@@ -14,7 +16,16 @@ from phoid.reports.figures import (
     plot_identification,
     save_png,
 )
+from phoid.reports.statistics import (
+    correlation,
+    correlation_json,
+    correlation_lines,
+    covariance_json,
+    statistics_json,
+    statistics_lines,
+)
 from phoid.reports.text import (
+    fit_statistics_lines,
     forced_text,
     format_estimate,
     free_text,
@@ -24,7 +35,12 @@ from phoid.reports.text import (
 from phoid.reports.tracking import plot_tracking, tracking_text, validation_lines
 
 __all__ = [
+    "correlation",
+    "correlation_json",
+    "correlation_lines",
+    "covariance_json",
     "figure1",
+    "fit_statistics_lines",
     "forced_text",
     "format_estimate",
     "free_text",
@@ -36,6 +52,8 @@ __all__ = [
     "plot_identification",
     "plot_tracking",
     "save_png",
+    "statistics_json",
+    "statistics_lines",
     "tracking_text",
     "validation_lines",
 ]

@@ -9,7 +9,16 @@ from __future__ import annotations
 import math
 from typing import Any
 
-__all__ = ["forced_text", "format_estimate", "free_text", "friction_text", "identification_text"]
+from phoid.reports.statistics import correlation_lines, ratio_text, statistics_lines
+
+__all__ = [
+    "fit_statistics_lines",
+    "forced_text",
+    "format_estimate",
+    "free_text",
+    "friction_text",
+    "identification_text",
+]
 
 
 def format_estimate(value: float, se: float | None) -> str:
@@ -48,7 +57,9 @@ def identification_text(ident: Any) -> str:
     ident : phoid.Identification or alike
         Read: ``source``, ``delay``, ``delay_stderr``, ``delay_source``, ``delay_from``
         (optional), ``digital`` (optional), ``fit.estimator``, ``m``, ``c``, ``k``, ``omega0``,
-        ``zeta`` (each with ``value``, ``stderr``, ``unit``), ``runs`` and ``warnings``.
+        ``zeta`` (each with ``value``, ``stderr``, ``unit``), ``runs``, ``warnings``,
+        ``residual_noise_ratios()`` (one per run, or None) and ``fit_statistics()`` (read as by
+        :func:`fit_statistics_lines`).
 
     Returns
     -------
@@ -70,22 +81,42 @@ def identification_text(ident: Any) -> str:
     lines.append("")
     # a space before each wide column: a long value (σ ± stderr) never runs into the one before
     head = (f"  {'run':<16}{'P N/m':>10}{'D N s/m':>10} {'σ 1/s':>19} {'ω_d rad/s':>19}"
-            f"{'c′ N s/m':>11}{'k′ N/m':>11}{'cycles':>8}{'resid m':>10}")
+            f"{'c′ N s/m':>11}{'k′ N/m':>11}{'cycles':>8}{'resid m':>10}{'resid/noise':>12}")
     lines.append(head)
-    for r in ident.runs:
+    for r, q in zip(ident.runs, ident.residual_noise_ratios(), strict=True):
         mark = "" if r.used else "  (set aside)"
         lines.append(
             f"  {r.file:<16}{r.P:>10.4g}{r.D:>10.4g}"
             f" {format_estimate(r.sigma, r.sigma_stderr):>19}"
             f" {format_estimate(r.omega_d, r.omega_d_stderr):>19}"
             f"{r.c_prime:>11.5g}{r.k_prime:>11.5g}"
-            f"{r.cycles:>8.1f}{r.residual_rms:>10.2g}{mark}"
+            f"{r.cycles:>8.1f}{r.residual_rms:>10.2g}{ratio_text(q):>12}{mark}"
         )
+    lines.extend(fit_statistics_lines(ident))
     if ident.warnings:
         lines.append("")
         lines.append("warnings:")
         lines.extend(f"  - {w}" for w in ident.warnings)
     return "\n".join(lines)
+
+
+def fit_statistics_lines(result: Any) -> list[str]:
+    """The ``[[Fit statistics]]`` and ``[[Correlations]]`` blocks of a report (lmfit's layout),
+    preceded by an empty line.
+
+    Parameters
+    ----------
+    result : any identification result
+        Read: ``fit_statistics()``, a mapping with ``"statistics"`` and ``"correlation"`` as in
+        the result's JSON summary (:mod:`phoid.reports.statistics`).
+
+    Returns
+    -------
+    list of str
+    """
+    blocks = result.fit_statistics()
+    return ["", *statistics_lines(blocks["statistics"]),
+            *correlation_lines(blocks["correlation"])]
 
 
 def _digital_line(result: Any) -> list[str]:
@@ -105,7 +136,8 @@ def friction_text(fit: Any) -> str:
     ----------
     fit : phoid.FrictionFit or alike
         Read: ``delay``, ``chi2_red``, ``converged``, ``digital`` (optional), ``m``, ``c``,
-        ``k``, ``fc`` (each with ``value``, ``stderr``, ``unit``), ``runs`` and ``warnings``.
+        ``k``, ``fc`` (each with ``value``, ``stderr``, ``unit``), ``runs``, ``warnings``,
+        ``residual_noise_ratios()`` and ``fit_statistics()``.
 
     Returns
     -------
@@ -123,12 +155,14 @@ def friction_text(fit: Any) -> str:
         lines.append(f"  {name} = {format_estimate(est.value, est.stderr)} {est.unit}")
     lines.append("")
     lines.append(f"  {'run':<16}{'P N/m':>10}{'D N s/m':>10}{'σ 1/s':>10}{'ω_d rad/s':>11}"
-                 f"{'x0 m':>11}{'sticks at s':>13}{'resid m':>10}")
-    for r in fit.runs:
+                 f"{'x0 m':>11}{'sticks at s':>13}{'resid m':>10}{'resid/noise':>12}")
+    for r, q in zip(fit.runs, fit.residual_noise_ratios(), strict=True):
         stick = f"{r.stick_time:.4g}" if r.stick_time is not None else "-"
         mark = "" if r.used else "  (set aside)"
         lines.append(f"  {r.name:<16}{r.P:>10.4g}{r.D:>10.4g}{r.sigma:>10.4g}"
-                     f"{r.omega_d:>11.5g}{r.x0:>11.3g}{stick:>13}{r.residual_rms:>10.2g}{mark}")
+                     f"{r.omega_d:>11.5g}{r.x0:>11.3g}{stick:>13}{r.residual_rms:>10.2g}"
+                     f"{ratio_text(q):>12}{mark}")
+    lines.extend(fit_statistics_lines(fit))
     if fit.warnings:
         lines.append("")
         lines.append("warnings:")
@@ -147,8 +181,8 @@ def free_text(result: Any) -> str:
         (two complex, 1/s) and ``roots_stderr`` (per root the stderr of its real and
         imaginary parts, or None), ``m``, ``c``, ``k`` (each an estimate as above, or None
         without a known mass), ``runs`` (each with ``file``, ``release`` (s), ``held``,
-        ``x0`` (m), ``v0`` (m/s), ``n_samples``, ``residual_rms`` (m), ``used``) and
-        ``warnings``.
+        ``x0`` (m), ``v0`` (m/s), ``n_samples``, ``residual_rms`` (m), ``used``), ``warnings``,
+        ``residual_noise_ratios()`` and ``fit_statistics()``.
 
     Returns
     -------
@@ -176,12 +210,13 @@ def free_text(result: Any) -> str:
                      "give the mass with --mass to get c and k)")
     lines.append("")
     lines.append(f"  {'run':<18}{'release s':>11}{'held':>6}{'x0 m':>12}{'v0 m/s':>12}"
-                 f"{'samples':>9}{'resid m':>10}")
-    for r in result.runs:
+                 f"{'samples':>9}{'resid m':>10}{'resid/noise':>12}")
+    for r, q in zip(result.runs, result.residual_noise_ratios(), strict=True):
         mark = "" if r.used else "  (set aside)"
         lines.append(f"  {r.file:<18}{r.release:>11.5g}{'yes' if r.held else 'no':>6}"
                      f"{r.x0:>12.4g}{r.v0:>12.4g}{r.n_samples:>9d}"
-                     f"{r.residual_rms:>10.2g}{mark}")
+                     f"{r.residual_rms:>10.2g}{ratio_text(q):>12}{mark}")
+    lines.extend(fit_statistics_lines(result))
     if result.warnings:
         lines += ["", "warnings:"] + [f"  - {w}" for w in result.warnings]
     return "\n".join(lines)
@@ -197,7 +232,8 @@ def forced_text(result: Any) -> str:
         ``stderr``, ``unit``), ``omega0`` (rad/s) and ``zeta`` (each with ``value`` and
         ``stderr``), ``runs`` (each with ``file``, ``omega`` (rad/s), ``B`` (N), ``C`` (m),
         ``R`` and ``R_stderr`` (N/m), ``rho`` and ``rho_stderr`` (rad), ``t_start`` and
-        ``settle_time`` (s), ``used``) and ``warnings``.
+        ``settle_time`` (s), ``used``), ``warnings``, ``residual_noise_ratios()`` and
+        ``fit_statistics()``.
 
     Returns
     -------
@@ -213,13 +249,14 @@ def forced_text(result: Any) -> str:
                      f"ζ = {format_estimate(z.value, z.stderr)}")
     lines.append("")
     lines.append(f"  {'run':<16}{'ω rad/s':>12}{'B N':>10}{'C m':>11} {'R N/m':>22} "
-                 f"{'ρ rad':>22}{'settled s':>11}")
-    for r in result.runs:
+                 f"{'ρ rad':>22}{'settled s':>11}{'resid/noise':>12}")
+    for r, q in zip(result.runs, result.residual_noise_ratios(), strict=True):
         mark = "" if r.used else "  (set aside)"
         lines.append(
             f"  {r.file:<16}{r.omega:>12.6g}{r.B:>10.4g}{r.C:>11.4g} "
             f"{format_estimate(r.R, r.R_stderr):>22} {format_estimate(r.rho, r.rho_stderr):>22}"
-            f"{r.settle_time - r.t_start:>11.3g}{mark}")
+            f"{r.settle_time - r.t_start:>11.3g}{ratio_text(q):>12}{mark}")
+    lines.extend(fit_statistics_lines(result))
     if result.warnings:
         lines += ["", "warnings:"] + [f"  - {w}" for w in result.warnings]
     return "\n".join(lines)

@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from phoid._output import save_figure
+from phoid.reports.statistics import correlation_lines, ratio_text, statistics_lines
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
@@ -170,7 +171,9 @@ def identification_text(result: Any) -> str:
     result : phoid.methods.tracking_identification.TrackingIdentification or alike
         Read: ``estimator``, ``estimates`` (name → value, stderr, unit), ``delay_source``,
         ``fit.summary()`` (the estimator's statistics), ``run_names``, ``validations`` (each read
-        as by :func:`validation_lines`), ``warnings``, ``path``.
+        as by :func:`validation_lines`), ``warnings``, ``path``, ``residual_noise_ratios()``
+        (one per run) and ``fit_statistics()`` (``"statistics"`` and ``"correlation"`` as in
+        :mod:`phoid.reports.statistics`).
 
     Returns
     -------
@@ -212,8 +215,14 @@ def identification_text(result: Any) -> str:
         if "delay" in free and "m" in free:
             c = fit["correlation"][free.index("m")][free.index("delay")]
             lines.append(f"  corr(m, delay) = {c:.4f}")
-    for name, v in zip(result.run_names, result.validations, strict=True):
-        lines += ["", f"validation, {name}:", *validation_lines(v)]
+    blocks = result.fit_statistics()
+    lines += ["", *statistics_lines(blocks["statistics"]),
+              *correlation_lines(blocks["correlation"])]
+    for name, v, q in zip(result.run_names, result.validations, result.residual_noise_ratios(),
+                          strict=True):
+        lines += ["", f"validation, {name}:", *validation_lines(v),
+                  f"  position residual / noise (noise from the record's third differences): "
+                  f"{ratio_text(q)}"]
     if result.warnings:
         lines += ["", "warnings:"] + [f"  - {w}" for w in result.warnings]
     return "\n".join(lines)

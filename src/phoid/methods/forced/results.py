@@ -10,6 +10,7 @@ from typing import Any
 import numpy as np
 
 from phoid.methods._modal import release_basis
+from phoid.methods.fit_statistics import fit_blocks, residual_noise_ratio, window_noise
 from phoid.methods.forced.stiffness import ResponseFit
 from phoid.methods.pho import Estimate, open_loop_omega0, open_loop_zeta
 
@@ -185,7 +186,9 @@ class ForcedIdentification:
         Keys: ``method`` ("forced"), ``m``, ``c``, ``k`` (``{"value", "stderr", "unit"}``),
         ``omega0`` and ``zeta`` when defined, ``runs`` (per run ``file``, ``omega``, ``R``
         (N/m), ``rho`` (rad), each with ``*_stderr``, plus ``B``, ``C``, the window, settling
-        and diagnostics), ``warnings``.
+        and diagnostics, and ``residual_noise_ratio``: :meth:`residual_noise_ratios`),
+        ``warnings``, and ``covariance``, ``correlation``, ``statistics``
+        (:meth:`fit_statistics`).
         """
         out: dict[str, Any] = {
             "method": "forced",
@@ -197,9 +200,38 @@ class ForcedIdentification:
             est = getattr(self, key)
             if math.isfinite(est.value):
                 out[key] = est.to_dict()
-        out["runs"] = [r.to_dict() for r in self.runs]
+        out["runs"] = [r.to_dict() | {"residual_noise_ratio": q}
+                       for r, q in zip(self.runs, self.residual_noise_ratios(), strict=True)]
         out["warnings"] = list(self.warnings)
+        return out | self.fit_statistics()
+
+    def residual_noise_ratios(self) -> list[float | None]:
+        """Per run: the RMS of its response fit's residual of x over the record's noise level
+        estimated without the model (:func:`phoid.methods.fit_statistics.difference_noise`
+        over the analysed window); ≈ 1 when the model explains x to its noise, ≫ 1 for a
+        misfit. None for a run set aside, or when the result carries no records."""
+        out: list[float | None] = []
+        for i, r in enumerate(self.runs):
+            if not r.used or i >= len(self.data):
+                out.append(None)
+                continue
+            t, x = self.data[i][0], self.data[i][1]
+            out.append(residual_noise_ratio(r.residual_rms,
+                                            window_noise(t, x, r.t_start, r.t_end)))
         return out
+
+    def fit_statistics(self) -> dict[str, Any]:
+        """The ``covariance``, ``correlation`` and ``statistics`` blocks of :meth:`summary`.
+
+        The parameters are m (kg), c (N s/m), k (N/m). χ² is that of the eq. (20) fit: the
+        generalised least squares of Re Zᵢ = k − mωᵢ² and Im Zᵢ = cωᵢ to the runs' dynamic
+        stiffnesses Zᵢ = Rᵢe^{iρᵢ}, each weighted by the inverse covariance of its (Re Zᵢ,
+        Im Zᵢ) (:class:`~phoid.methods.forced.stiffness.ResponseFit`), dof = 2·runs − 3.
+        """
+        return fit_blocks(["m", "c", "k"], ["kg", "N s/m", "N/m"], self.fit.cov,
+                          self.fit.chi2, self.fit.dof,
+                          of="the weighted (GLS) fit of the eq. (20) lines Re Z_i = k - m "
+                             "omega_i^2, Im Z_i = c omega_i to the runs' dynamic stiffnesses")
 
     def report(self) -> str:
         """Plain-text report: m, c, k ± stderr, ω₀, ζ, per-run table, warnings."""

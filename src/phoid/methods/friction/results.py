@@ -10,6 +10,7 @@ from typing import Any
 import numpy as np
 
 from phoid.dynamics import inverse_map
+from phoid.methods.fit_statistics import fit_blocks, residual_noise_ratio
 from phoid.methods.pho import Estimate
 
 __all__ = ["FrictionEvidence", "FrictionFit", "FrictionRun"]
@@ -224,12 +225,14 @@ class FrictionFit:
         Each run carries the spec's keys — ``file``, ``P``, ``D``, ``sigma``, ``omega_d`` (the
         fitted loop's dominant mode), ``c_prime``, ``k_prime`` (eq. 32 at that mode) and
         ``cycles`` (velocity reversals / 2) — and the friction fit's own (release, x0, offset,
-        stick_time, …). χ²/dof and convergence are in :attr:`chi2_red` and :attr:`converged`
-        (a fit that did not converge, or misfits, says so in the warnings).
+        stick_time, …) and ``residual_noise_ratio`` (:meth:`residual_noise_ratios`).
+        ``covariance``, ``correlation`` and ``statistics`` (χ²/dof) are :meth:`fit_statistics`;
+        convergence is :attr:`converged` (a fit that did not converge, or misfits, says so in
+        the warnings).
         """
         runs = []
-        for r in self.runs:
-            d = r.to_dict()
+        for r, q in zip(self.runs, self.residual_noise_ratios(), strict=True):
+            d = r.to_dict() | {"residual_noise_ratio": q}
             if math.isfinite(r.sigma) and math.isfinite(r.omega_d):
                 # a sampled loop: eq. (32) at its equivalent continuous delay, as identify does
                 dly = self.delay if self.digital is None else (
@@ -259,7 +262,31 @@ class FrictionFit:
                          "delay_samples": self.digital.delay_samples,
                          "velocity": self.digital.velocity, "cutoff": self.digital.cutoff}}
                if self.digital is not None else {}),
+            **self.fit_statistics(),
         }
+
+    def residual_noise_ratios(self) -> list[float | None]:
+        """Per run: the fit's residual RMS over the run's noise sd, which comes from the record
+        alone (its held segment, or the MAD of its third differences), not from the model; ≈ 1
+        when the stick–slip model explains the record to its noise, ≫ 1 for a misfit. None
+        for a run set aside."""
+        return [residual_noise_ratio(r.residual_rms, r.noise_sd) if r.used else None
+                for r in self.runs]
+
+    def fit_statistics(self) -> dict[str, Any]:
+        """The ``covariance``, ``correlation`` and ``statistics`` blocks of :meth:`summary`.
+
+        The parameters are m (kg), c (N s/m), k (N/m) and f_c (N), the nuisance parameters
+        (each run's release, x₀, offset) profiled out. χ² is that of the full-record fit:
+        Σ (xᵢ − x̂ᵢ)²/sᵣ² over every fitted sample, sᵣ the run's noise sd from the record
+        (held segment or third differences), dof = samples − parameters (:attr:`chi2`,
+        :attr:`dof`).
+        """
+        return fit_blocks(["m", "c", "k", "fc"], ["kg", "N s/m", "N/m", "N"], self.cov,
+                          self.chi2, self.dof,
+                          of="the full-record fit of x through the stick-slip simulator, each "
+                             "sample over its run's noise sd (held segment or third "
+                             "differences)")
 
     def report(self) -> str:
         """A plain-text report: m, c, k, f_c with ± one stderr, the runs, warnings."""
