@@ -75,7 +75,7 @@ def identify_job(job: tuple[str, str, Mapping[str, Any], Mapping[str, Any]]) -> 
                          finished=datetime.now(UTC), version=_version())
     return result_row(set_path, checksum, key, metadata, summary,
                       seconds=time.perf_counter() - start, worker=_worker(),
-                      finished=datetime.now(UTC), version=_version())
+                      finished=datetime.now(UTC), version=_version(), n_runs=len(exp.runs))
 
 
 @dataclass(frozen=True)

@@ -102,19 +102,23 @@ def _number(value: Any) -> float | None:
 
 def result_row(set_path: str, checksum: str | None, options: str, metadata: Mapping[str, Any],
                summary: Mapping[str, Any], *, seconds: float, worker: str, finished: datetime,
-               version: str) -> dict[str, Any]:
+               version: str, n_runs: int | None = None) -> dict[str, Any]:
     """The row of an identified set, from its result's ``summary()`` (the phoid/1 JSON).
 
-    Every top-level entry of the summary with a ``value`` gives a column of that name and
-    one ``<name>_stderr`` (null when the method gives none, e.g. a delay given, not
-    estimated); the ``correlation`` block gives ``corr_<a>_<b>`` for each pair a before b in
-    its ``params``; ``statistics`` gives ``chi2_dof``; ``runs`` gives ``n_runs``.
+    Every entry of the summary with a ``value`` (at the top level, or in its ``parameters``
+    block: a tracking set's) gives a column of that name and one ``<name>_stderr`` (null when
+    the method gives none, e.g. a delay given, not estimated); the ``correlation`` block gives
+    ``corr_<a>_<b>`` for each pair a before b in its ``params``; ``statistics`` gives
+    ``chi2_dof``; ``n_runs`` is the set's number of runs
+    (default: the length of the summary's ``runs``).
     """
     row = _common(set_path, checksum, options, metadata, seconds=seconds, worker=worker,
                   finished=finished, version=version)
     row["status"] = "ok"
     row["method"] = summary.get("method")
-    for name, entry in summary.items():
+    nested = summary.get("parameters")
+    entries = {**summary, **(nested if isinstance(nested, Mapping) else {})}
+    for name, entry in entries.items():
         if (isinstance(entry, Mapping) and "value" in entry
                 and (name in PARAMETERS or name not in row)):
             row[name] = _number(entry.get("value"))
@@ -128,7 +132,8 @@ def result_row(set_path: str, checksum: str | None, options: str, metadata: Mapp
     stats = summary.get("statistics")
     row["chi2_dof"] = _number(stats.get("chi2_dof")) if isinstance(stats, Mapping) else None
     runs = summary.get("runs")
-    row["n_runs"] = len(runs) if isinstance(runs, list) else None
+    row["n_runs"] = n_runs if n_runs is not None else (
+        len(runs) if isinstance(runs, list) else None)
     warnings = [str(w) for w in summary.get("warnings", [])]
     row["n_warnings"] = len(warnings)
     row["warnings"] = json.dumps(warnings, ensure_ascii=False)
