@@ -116,10 +116,10 @@ class BatchStore:
         self._rows: dict[tuple[str, str], dict[str, Any]] = {}
         for path in (self.parquet, self.csv, self.journal):
             self._check_regular(path)
+        if self.csv.exists():
+            self._check_csv()
         if self.parquet.exists():
             self._read_parquet()
-        elif self.csv.exists():
-            self._check_csv()
         if self.journal.exists():
             self._read_journal()
 
