@@ -108,11 +108,13 @@ def cluster_client(scheduler: str | None = None, workers: int | None = None, *,
     if n < 1:
         raise PhoidError(f"workers must be at least 1, got {n}")
     # no dashboard: the scheduler's plain HTTP server (health, metrics) still starts, on a
-    # free port rather than on 8787, which another cluster may hold (distributed would warn)
+    # free port rather than on 8787, which another cluster may hold (distributed would warn);
+    # the workers' logs silenced below CRITICAL: a heartbeat racing the shutdown logs a
+    # traceback otherwise (a failure that matters reaches the client as an exception)
     cluster = LocalCluster(n_workers=n, processes=True, threads_per_worker=1,
                            dashboard_address=":0" if dashboard else None,
                            scheduler_kwargs={"dashboard_address": ":0"},
-                           silence_logs=logging.ERROR)
+                           silence_logs=logging.CRITICAL)
     try:
         client = Client(cluster, timeout=timeout)
         try:
