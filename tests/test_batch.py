@@ -244,6 +244,21 @@ def test_a_csv_of_another_kind_is_refused(base_sets, tmp_path):
     assert out.with_suffix(".csv").read_text(encoding="utf-8") == "a,b\n1,2\n"
 
 
+def test_sets_by_glob_and_list_file(base_sets, tmp_path):
+    """A glob pattern and a list file (relative lines from its folder, comments skipped) name
+    the same sets; a pattern that matches nothing is one line, exit status 2."""
+    from phoid.batch.sets import expand_sets
+
+    root = base_sets["free"].parent
+    listing = root / "sets.txt"
+    listing.write_text("# the two pho sets\npho-a\n\npho-b\n", encoding="utf-8")
+    assert expand_sets([str(root / "pho-[ab]")]) == expand_sets([listing])
+    assert expand_sets([listing]) == [str((root / n).resolve()) for n in ("pho-a", "pho-b")]
+    r = cli("batch", str(tmp_path / "nothing-*"), "--out", tmp_path / "r.parquet",
+            "--workers", "0", code=2)
+    assert r.output.count("\n") == 1 and "matches no set" in r.output
+
+
 def test_without_the_extra_one_line_says_what_to_install(base_sets, tmp_path, monkeypatch):
     monkeypatch.setitem(sys.modules, "distributed", None)  # import distributed: ImportError
     r = cli("batch", base_sets["free"], "--out", tmp_path / "r.parquet", code=2)
