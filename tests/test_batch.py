@@ -19,6 +19,7 @@ import sys
 import time
 from pathlib import Path
 
+import jsonschema
 import numpy as np
 import pytest
 from typer.testing import CliRunner
@@ -34,6 +35,7 @@ pytest.importorskip("pyarrow", reason="the batch extra (pyarrow) is not installe
 pytest.importorskip("distributed", reason="the batch extra (dask.distributed) is not installed")
 
 ROOT = Path(__file__).resolve().parents[1]
+SCHEMA = ROOT / "src" / "phoid" / "schema" / "batch.schema.json"  # `phoid batch --json`
 runner = CliRunner()
 
 # `phoid simulate` options of the base sets: a few runs, a few seconds, a low sample rate
@@ -129,6 +131,7 @@ def test_rows_equal_identify_json_and_a_rerun_skips_them(base_sets, tmp_path):
     out = tmp_path / "out" / "rows.parquet"
     r = cli("batch", *names, "--out", out, "--workers", "0", "--json")
     counts = json.loads(r.stdout)
+    jsonschema.validate(counts, json.loads(SCHEMA.read_text(encoding="utf-8")))
     assert counts["sets"] == len(names) and counts["computed"] == len(names)
     assert counts["errors"] == 1  # the missing folder
     table = pd.read_parquet(out).set_index("set")

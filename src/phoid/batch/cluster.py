@@ -58,6 +58,13 @@ def require_batch(command: str) -> None:
                 f"phoid {command} needs the batch extra: pip install 'phoid[batch]'") from None
 
 
+def _cpus() -> int:
+    """The CPUs this process may run on (its affinity where the OS has one)."""
+    if hasattr(os, "sched_getaffinity"):
+        return len(os.sched_getaffinity(0)) or 1
+    return os.cpu_count() or 1
+
+
 @contextlib.contextmanager
 def cluster_client(scheduler: str | None = None, workers: int | None = None, *,
                    timeout: float = 10.0, dashboard: bool = False) -> Iterator[Any]:
@@ -70,8 +77,9 @@ def cluster_client(scheduler: str | None = None, workers: int | None = None, *,
         ``distributed.LocalCluster`` of worker processes is started here and closed when the
         block ends.
     workers : int, optional
-        The number of worker processes of the local cluster (one thread each); default
-        ``os.cpu_count()``. Ignored with ``scheduler``.
+        The number of worker processes of the local cluster (one thread each); default the
+        number of CPUs this process may use (``os.sched_getaffinity``, else
+        ``os.cpu_count()``). Ignored with ``scheduler``.
     timeout : float, default 10.0
         Seconds to wait for the scheduler to answer before giving up.
     dashboard : bool, default False
@@ -104,7 +112,7 @@ def cluster_client(scheduler: str | None = None, workers: int | None = None, *,
         finally:
             client.close()
         return
-    n = workers if workers is not None else (os.cpu_count() or 1)
+    n = workers if workers is not None else _cpus()
     if n < 1:
         raise PhoidError(f"workers must be at least 1, got {n}")
     # no dashboard: the scheduler's plain HTTP server (health, metrics) still starts, on a
