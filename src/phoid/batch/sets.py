@@ -90,7 +90,8 @@ class SetDigest:
         The manifest's path.
     checksum : str
         SHA-256 (hex) over the manifest's bytes and then each data file's bytes, in the order
-        of the manifest's ``[[run]]`` tables (a file named twice counted once).
+        of the manifest's ``[[run]]`` tables (a file named twice counted once; a name that
+        would leave the set's folder is not read: the reader refuses such a set).
     metadata : dict
         The manifest's optional ``[metadata]`` table (its scalar values), or empty.
     """
@@ -151,6 +152,9 @@ def set_digest(set_path: str | os.PathLike[str]) -> SetDigest:
     runs = doc.get("run", [])
     files = [r.get("file") for r in runs if isinstance(r, dict)] if isinstance(runs, list) else []
     for name in dict.fromkeys(f for f in files if isinstance(f, str)):
+        parts = name.split("/")
+        if name.startswith("/") or ".." in parts or "\\" in name or "\0" in name:
+            continue  # outside the set's folder: not read here (the reader refuses it)
         _read_regular(manifest.parent / name, digest)
     meta = doc.get("metadata", {})
     metadata = ({k: v for k, v in meta.items() if not isinstance(v, dict | list)}
