@@ -33,6 +33,7 @@ HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
 sys.path.insert(0, str(HERE))
 
+import bench_batch  # noqa: E402
 import bench_emps  # noqa: E402
 import bench_identify  # noqa: E402
 import bench_scaling  # noqa: E402
@@ -714,7 +715,7 @@ def main() -> int:
                     help="Monte Carlo replicas for phoid (1000; --quick: 100)")
     ap.add_argument("--repeats", type=int, default=None, help="timing repeats (9)")
     ap.add_argument("--workers", type=int, default=2, help="Monte Carlo worker processes (2)")
-    ap.add_argument("--only", default="sets,mc,speed,sim,scaling,startup,emps",
+    ap.add_argument("--only", default="sets,mc,speed,sim,scaling,startup,emps,batch",
                     help="comma-separated sections to run (for development; the default runs "
                          "all and is what BENCHMARKS.md must come from)")
     ap.add_argument("--write", action="store_true",
@@ -754,12 +755,12 @@ def main() -> int:
                     "numpy": np.__version__, "scipy": scipy.__version__,
                     "blas_threads": os.environ.get("OPENBLAS_NUM_THREADS")},
         "sets": {}, "monte_carlo": {}, "identification_speed": {}, "simulation": {},
-        "scaling": {}, "startup": {}, "emps": {},
+        "scaling": {}, "startup": {}, "emps": {}, "batch": {},
     }
 
     # one step of the progress bar per log line: the sets, then each section (per set)
     steps = 1 + sum(len(SETS) if sec in ("speed", "mc") else 1
-                    for sec in ("speed", "sim", "mc", "scaling", "startup", "emps")
+                    for sec in ("speed", "sim", "mc", "scaling", "startup", "emps", "batch")
                     if sec in only)
     if sys.stdout.isatty() and not args.no_progress:
         phoid_progress(True)
@@ -819,6 +820,9 @@ def _run_sections(args, res, only, replicas, phoid_replicas, repeats, t_start, a
             log(f"EMPS skipped: {res['emps']['skipped']}")
         else:
             log("EMPS")
+    if "batch" in only:
+        res["batch"] = bench_batch.run_all(quick=args.quick)
+        log("batch")
     res["wall_s"] = time.perf_counter() - t_start
 
 
@@ -843,7 +847,7 @@ def _report(args, res, opts, command) -> int:
     ]
     lines += [*target_lines, ""]
     for sec in (_sets_section, _mc_section, _speed_section, _sim_section, _scaling_section,
-                _startup_section, _emps_section):
+                _startup_section, _emps_section, lambda r: bench_batch.section(r.get("batch"))):
         part = sec(res)
         if part:
             lines += [*part, ""]

@@ -182,6 +182,8 @@ LAYERS: dict[str, set[str]] = {
                               "phoid.reports"},
     "phoid.rig": BASE | {"phoid.dynamics", "phoid.simulation", "phoid.io", "phoid.planning"},
     "phoid.interop": BASE | {"phoid.dynamics"},
+    "phoid.batch": BASE | {"phoid.methods", "phoid.planning", "phoid.io", "phoid.interop",
+                           "phoid.simulation", "phoid.dynamics", "phoid.reports"},
 }
 
 

@@ -18,6 +18,7 @@ from phoid._lazy import lazy_exports
 if TYPE_CHECKING:  # the real imports, for type checkers and IDEs; at run time see __getattr__
     from phoid._progress import progress
     from phoid.api import identify, identify_data
+    from phoid.batch.engine import identify_many
     from phoid.dynamics import (
         DelayedPD,
         DigitalPD,
@@ -134,6 +135,7 @@ _LAZY: dict[str, str] = {
     "RunMode": "phoid.methods",
     "identify": "phoid.api",
     "identify_data": "phoid.api",
+    "identify_many": "phoid.batch.engine",
     "Estimate": "phoid.methods",
     "MCKFit": "phoid.methods",
     "fit_lines": "phoid.methods",
@@ -223,6 +225,7 @@ __all__ = [
     "identify_free",
     "identify_free_data",
     "identify_friction",
+    "identify_many",
     "identify_tracking",
     "idim_ls",
     "inverse_map",
