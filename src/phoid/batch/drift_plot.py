@@ -93,7 +93,12 @@ def plot_trend(trend: Any, out_dir: str | Path, *, overwrite: bool = False) -> l
                             label="flagged")
             ax.set_ylabel(chart.name)
         axes[0].set_title(f"{trend.by} {unit.unit}: estimates ± stderr")
-        axes[0].legend(fontsize="small", ncols=3, loc="best")
+        handles: dict[str, Any] = {}
+        for ax in axes:  # one legend for the panels: every kind of mark, once
+            for handle, label in zip(*ax.get_legend_handles_labels(), strict=True):
+                handles.setdefault(label, handle)
+        fig.legend(list(handles.values()), list(handles), loc="outside lower center",
+                   ncols=len(handles), fontsize="small")
         axes[-1].set_xlabel("time (UTC)" if unit.ordered_by == "time"
                             else "identified at (UTC; the sets carry no time)")
         written.append(out.write(name, png_writer(fig, 110)))
