@@ -12,6 +12,7 @@ from __future__ import annotations
 import json
 import math
 from importlib import resources
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -158,6 +159,12 @@ def test_design_rehearse_json_follows_the_schema(plan):
                         .read_text())
     assert list(jsonschema.Draft202012Validator(schema).iter_errors(out)) == []
     reh = out["rehearsal"]
+    # every key of the block is named, in backticks, in docs/format.md's section
+    doc = (Path(__file__).parents[1] / "docs" / "format.md").read_text(encoding="utf-8")
+    start = doc.index("### `rehearsal`")
+    text = doc[start:doc.index("\n## ", start)]
+    keys = set(reh) | set().union(*(set(v) for v in reh["parameters"].values()))
+    assert sorted(k for k in keys if f"`{k}`" not in text) == []
     assert (reh["replicas"], reh["identified"], reh["seed"]) == (6, 6, 5)
     # the CLI's replicas are phoid.rehearse's with the same design and seed
     here = phoid.rehearse(plan, 6, seed=5)

@@ -230,3 +230,23 @@ def test_unreadable_inputs_are_one_line(tmp_path):
     frame.to_parquet(tmp_path / "failed.parquet")
     res = runner.invoke(app, ["trend", str(tmp_path / "failed.parquet"), "--by", "axis"])
     assert res.exit_code == 2 and "no row with status 'ok'" in res.stderr
+
+
+def test_the_json_keys_are_documented(fleet_file):
+    # every key `phoid trend --json` prints is named, in backticks, in docs/format.md's section
+    from pathlib import Path
+
+    doc = (Path(__file__).parents[1] / "docs" / "format.md").read_text(encoding="utf-8")
+    start = doc.index("## `phoid trend --json`")
+    text = doc[start:doc.index("\n## ", start + 1)]
+    res = CliRunner().invoke(app, ["trend", str(fleet_file), "--json"])
+
+    def keys(obj):
+        if isinstance(obj, dict):
+            return set(obj).union(*(keys(v) for v in obj.values()))
+        if isinstance(obj, list):
+            return set().union(*(keys(v) for v in obj))
+        return set()
+
+    names = keys(json.loads(res.stdout)) - {"m", "c", "k"}  # parameter names, not keys
+    assert sorted(k for k in names if f"`{k}`" not in text) == []
