@@ -19,6 +19,7 @@ if TYPE_CHECKING:  # the real imports, for type checkers and IDEs; at run time s
     from phoid._progress import progress
     from phoid.api import identify, identify_data
     from phoid.batch.drift import Trend, trend
+    from phoid.batch.engine import identify_many
     from phoid.batch.rehearsal import Rehearsal, rehearse
     from phoid.dynamics import (
         DelayedPD,
@@ -136,6 +137,7 @@ _LAZY: dict[str, str] = {
     "RunMode": "phoid.methods",
     "identify": "phoid.api",
     "identify_data": "phoid.api",
+    "identify_many": "phoid.batch.engine",
     "Estimate": "phoid.methods",
     "MCKFit": "phoid.methods",
     "fit_lines": "phoid.methods",
@@ -231,6 +233,7 @@ __all__ = [
     "identify_free",
     "identify_free_data",
     "identify_friction",
+    "identify_many",
     "identify_tracking",
     "idim_ls",
     "inverse_map",

@@ -153,8 +153,8 @@ def identify(
     Prints the estimates with +- one standard error and units, the open-loop zeta and omega0,
     a per-run table and any warnings.
     """
-    from phoid.api import identify as _identify
     from phoid.io import read_experiment
+    from phoid.methods.dispatch import identify_set
 
     try:
         if html is not None:  # a file in the way: refused before the work
@@ -162,39 +162,8 @@ def identify(
 
             check_report_target(html, overwrite=overwrite)
         exp = read_experiment(experiment)
-        if exp.method == "tracking":
-            if mass is not None or friction or no_compensation:
-                raise ValueError("--mass, --friction and --no-compensation do not apply to "
-                                 f"tracking sets; {exp.path} is one (its [fixed] table holds "
-                                 "known parameters)")
-            result = _identify(exp, delay=delay, estimator=estimator)
-            written = result.plot(plots, overwrite=overwrite) if plots is not None else []
-            _write_html(result, html, exp, overwrite)
-            _print_result(result, as_json, written, plots, html)
-            return
-        estimator = "gls" if estimator is None else estimator
-        if no_compensation and estimator != "ols":
-            raise ValueError("--no-compensation needs --estimator ols (the eq. (35) lines)")
-        if friction and (exp.method != "pho" or estimator != "gls" or no_compensation):
-            raise ValueError("--friction applies to pho sets, without --estimator ols or "
-                             "--no-compensation")
-        if not friction:
-            from phoid.methods.pho_checks import refuse_bias
-
-            refuse_bias(exp, exp.method)  # a biased command: only the friction fit models it
-        if exp.method == "pho":
-            if mass is not None:
-                raise ValueError("--mass applies to free-decay sets (method = \"free\") only")
-            if friction:
-                from phoid.methods.friction import identify_friction_set
-
-                result = identify_friction_set(exp, delay=delay)
-            else:
-                result = _identify(exp, delay=delay, estimator=estimator,
-                                   compensate=not no_compensation)
-        else:
-            result = _identify_other(exp, mass=mass, delay=delay, estimator=estimator,
-                                     no_compensation=no_compensation)
+        result = identify_set(exp, estimator=estimator, delay=delay, mass=mass,
+                              no_compensation=no_compensation, friction=friction)
         written = result.plot(plots, overwrite=overwrite) if plots is not None else []
         _write_html(result, html, exp, overwrite)
     except (ValueError, OSError) as exc:
@@ -222,25 +191,6 @@ def _print_result(result, as_json: bool, written, plots, html=None) -> None:
         typer.echo(f"{len(written)} figures written to {plots}", err=as_json)
     if html is not None:
         typer.echo(f"report written to {html}", err=as_json)
-
-
-def _identify_other(exp, *, mass, delay, estimator, no_compensation):
-    """Identify a forced or free-decay set (the PHO-only options are refused)."""
-    for flag, given in (("--delay", delay is not None),
-                        ("--estimator", estimator not in (None, "gls")),
-                        ("--no-compensation", no_compensation)):
-        if given:
-            raise ValueError(f"{flag} applies to pho sets only; {exp.path} is a "
-                             f"{exp.method} set")
-    if exp.method == "forced":
-        from phoid.methods.forced import identify_forced
-
-        if mass is not None:
-            raise ValueError("--mass applies to free-decay sets only (a forced set gives m)")
-        return identify_forced(exp)
-    from phoid.methods.free import identify_free
-
-    return identify_free(exp, mass=mass)
 
 
 _REPLAY_OPTIONS = {"out", "m", "c", "k", "fc", "offset_force", "delay", "gzip", "overwrite",
@@ -598,6 +548,7 @@ def _simulate_other(ctx, out, *, method, m, c, k, fc, B, omega, duration, fs, x0
 
 
 from phoid import design_cli as _design_cli  # noqa: E402  (typer functions, lazy inside)
+from phoid.batch import commands as _batch_commands  # noqa: E402  (typer function, lazy inside)
 from phoid.batch import trend_commands as _trend_commands  # noqa: E402
 from phoid.rig import commands as _rig_commands  # noqa: E402  (typer functions, lazy inside)
 
@@ -606,6 +557,7 @@ app.command(name="trend")(_trend_commands.trend)
 
 app.command(name="virtual-rig")(_rig_commands.virtual_rig)
 app.command(name="run")(_rig_commands.run)
+app.command(name="batch")(_batch_commands.batch)
 
 
 def main() -> None:

@@ -107,8 +107,11 @@ def cluster_client(scheduler: str | None = None, workers: int | None = None, *,
     n = workers if workers is not None else (os.cpu_count() or 1)
     if n < 1:
         raise PhoidError(f"workers must be at least 1, got {n}")
+    # no dashboard: the scheduler's plain HTTP server (health, metrics) still starts, on a
+    # free port rather than on 8787, which another cluster may hold (distributed would warn)
     cluster = LocalCluster(n_workers=n, processes=True, threads_per_worker=1,
                            dashboard_address=":0" if dashboard else None,
+                           scheduler_kwargs={"dashboard_address": ":0"},
                            silence_logs=logging.ERROR)
     try:
         client = Client(cluster, timeout=timeout)

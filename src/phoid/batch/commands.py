@@ -1,0 +1,103 @@
+"""``phoid batch``: many sets identified on a Dask cluster, one row each (registered in cli.py).
+
+Errors a user can cause print one line ``phoid: error: …`` and exit with status 2; a set that
+cannot be identified is a row with its error, not an error of the command.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+__all__ = ["batch"]
+
+
+def _fail(message: str, code: int = 2) -> None:
+    typer.echo(f"phoid: error: {' '.join(message.split())}", err=True)
+    raise typer.Exit(code)
+
+
+def batch(
+    sets: Annotated[list[str], typer.Argument(
+        help="Experiment sets: folders (or their experiment.toml), glob patterns ('fleet/*') "
+             "or text files listing one set per line.")],
+    out: Annotated[Path, typer.Option(
+        help="Parquet file of the rows (a CSV of the same name is written beside it). Sets "
+             "it already holds with the same checksum and options are skipped, so a batch "
+             "that was stopped is finished by running the same command again.")],
+    scheduler: Annotated[str | None, typer.Option(
+        help="Address of a running Dask scheduler, e.g. tcp://10.0.0.5:8786. Default: a "
+             "local cluster of --workers processes, started and closed here.")] = None,
+    workers: Annotated[int | None, typer.Option(
+        help="Worker processes of the local cluster [default: the number of CPUs]; 0 runs "
+             "the sets one after the other in this process.")] = None,
+    timeout: Annotated[float, typer.Option(
+        help="Seconds to wait for --scheduler to answer.")] = 10.0,
+    estimator: Annotated[str | None, typer.Option(
+        help="As for `phoid identify`: pho 'gls' (default) or 'ols'; tracking 'idim', "
+             "'output-error' or 'auto'.")] = None,
+    delay: Annotated[float | None, typer.Option(
+        help="Loop delay in s, overriding each manifest's (as for `phoid identify`).")] = None,
+    no_compensation: Annotated[bool, typer.Option(
+        "--no-compensation", help="Ignore the loop delay (only with --estimator ols).")
+    ] = False,
+    mass: Annotated[float | None, typer.Option(
+        "--mass", help="Known mass, kg, for free-decay sets.")] = None,
+    friction: Annotated[bool, typer.Option(
+        "--friction", help="pho: fit Coulomb friction f_c too (slow).")] = False,
+    as_json: Annotated[bool, typer.Option(
+        "--json", help="Print the counts and the files written as one JSON object.")] = False,
+) -> None:
+    """Identify many experiment sets, one task per set, and write one row per set.
+
+    Every set is identified as `phoid identify SET --json` would with the options given (the
+    same numbers); the rows (estimates, standard errors, correlations, warnings, timing, the
+    set's path and SHA-256) go to --out as Parquet and beside it as CSV (docs/format.md,
+    "phoid batch output"). A set that fails is a row with its error. While the batch runs,
+    each finished row is appended to OUT's .journal.jsonl file and the table is rewritten
+    every few seconds: a batch killed halfway loses no finished set.
+    """
+    from phoid.batch.cluster import cluster_client, require_batch
+    from phoid.batch.engine import run_batch
+    from phoid.batch.rows import options_key
+    from phoid.batch.store import BatchStore
+
+    options = {"estimator": estimator, "delay": delay, "no_compensation": no_compensation,
+               "mass": mass, "friction": friction}
+    try:
+        require_batch("batch")
+        options_key(options)
+        store = BatchStore(out)
+        if workers is not None and workers < 0:
+            raise ValueError(f"--workers must be 0 or more, got {workers}")
+    except ValueError as exc:
+        _fail(str(exc))
+    try:
+        if scheduler is None and workers == 0:
+            report = run_batch(sets, client=None, options=options, store=store)
+        else:
+            with cluster_client(scheduler, workers, timeout=timeout) as client:
+                link = getattr(client, "dashboard_link", None) if scheduler else None
+                if link and not as_json:
+                    typer.echo(f"Dask dashboard: {link}", err=True)
+                report = run_batch(sets, client=client, options=options, store=store)
+    except KeyboardInterrupt:
+        typer.echo(f"phoid: interrupted; the sets finished are in {out} (run the same "
+                   "command again to finish the batch)", err=True)
+        raise typer.Exit(130) from None
+    except ValueError as exc:  # a glob that matches nothing, an output that cannot be written
+        _fail(str(exc))
+    except Exception as exc:  # the cluster failed (a worker lost, the scheduler gone)
+        _fail(f"the Dask cluster failed ({type(exc).__name__}: {exc}); the sets finished are "
+              f"in {out} (run the same command again to finish the batch)", code=1)
+    counts = {"sets": len(report.rows), "computed": report.computed, "skipped": report.skipped,
+              "errors": report.errors, "parquet": str(store.parquet), "csv": str(store.csv)}
+    if as_json:
+        typer.echo(json.dumps(counts, indent=1))
+    else:
+        typer.echo(f"{counts['sets']} sets: {report.computed} identified, {report.skipped} "
+                   f"already done, {report.errors} with an error; rows in {store.parquet} "
+                   f"and {store.csv}")

@@ -1,0 +1,158 @@
+"""Which sets a batch identifies, and each set's checksum and ``[metadata]``.
+
+A batch names its sets by folder (or manifest) paths, glob patterns and text files listing
+them (:func:`expand_sets`); each set is known by its resolved path and by the SHA-256 of its
+bytes (:func:`set_digest`), by which a resumed batch skips the sets it has done.
+"""
+
+from __future__ import annotations
+
+import glob
+import hashlib
+import os
+import stat
+import tomllib
+from collections.abc import Iterable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from phoid.errors import ExperimentError
+from phoid.io.limits import MAX_MANIFEST_BYTES
+
+__all__ = ["SetDigest", "expand_sets", "set_digest"]
+
+MANIFEST = "experiment.toml"
+_GLOB_CHARS = set("*?[")
+_BLOCK = 1 << 20
+
+
+def _is_list_file(path: Path) -> bool:
+    """A text file listing sets: a regular file that is not a TOML manifest."""
+    return path.is_file() and path.suffix.lower() != ".toml"
+
+
+def expand_sets(specs: Iterable[str | os.PathLike[str]]) -> list[str]:
+    """The sets named by ``specs``, as resolved paths, in order, each once.
+
+    Parameters
+    ----------
+    specs : iterable of str or path
+        Each one of: a set's folder (holding ``experiment.toml``) or its manifest; a glob
+        pattern (``*``, ``?``, ``[``; matches in sorted order, recursive with ``**``); or a
+        text file (not ending in ``.toml``) listing one set per line (blank lines and lines
+        starting with ``#`` skipped; relative paths taken from the list file's folder). A
+        path that does not exist is kept: its row carries the error.
+
+    Returns
+    -------
+    list of str
+        Absolute paths (``Path.resolve``), duplicates dropped.
+
+    Raises
+    ------
+    ExperimentError
+        One line naming a glob pattern that matches nothing, or a list file that cannot be
+        read.
+    """
+    out: list[str] = []
+    for spec in specs:
+        text = os.fspath(spec)
+        path = Path(text)
+        if _GLOB_CHARS & set(text) and not path.exists():
+            matches = sorted(glob.glob(text, recursive=True))
+            if not matches:
+                raise ExperimentError(f"{text}: the pattern matches no set")
+            out += [str(Path(m).resolve()) for m in matches]
+        elif _is_list_file(path):
+            try:
+                lines = path.read_text(encoding="utf-8").splitlines()
+            except (OSError, UnicodeDecodeError) as exc:
+                raise ExperimentError(f"{path}: the list of sets cannot be read: {exc}") from None
+            for line in lines:
+                line = line.strip()
+                if line and not line.startswith("#"):
+                    entry = Path(line)
+                    out.append(str((entry if entry.is_absolute() else path.parent / entry)
+                                   .resolve()))
+        else:
+            out.append(str(path.resolve()))
+    return list(dict.fromkeys(out))
+
+
+@dataclass(frozen=True)
+class SetDigest:
+    """A set's identity: its manifest's path, the SHA-256 of its bytes and its metadata.
+
+    Attributes
+    ----------
+    manifest : str
+        The manifest's path.
+    checksum : str
+        SHA-256 (hex) over the manifest's bytes and then each data file's bytes, in the order
+        of the manifest's ``[[run]]`` tables (a file named twice counted once).
+    metadata : dict
+        The manifest's optional ``[metadata]`` table (its scalar values), or empty.
+    """
+
+    manifest: str
+    checksum: str
+    metadata: dict[str, Any]
+
+
+def _read_regular(path: Path, digest: Any, limit: int | None = None) -> bytes:
+    """Feed a regular file's bytes to ``digest``; return them when ``limit`` is given."""
+    flags = os.O_RDONLY | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_NONBLOCK", 0)
+    try:
+        fd = os.open(path, flags)
+    except OSError as exc:
+        raise ExperimentError(f"{path}: cannot be read: {exc.strerror or exc}") from None
+    with os.fdopen(fd, "rb") as fh:
+        if not stat.S_ISREG(os.fstat(fh.fileno()).st_mode):
+            raise ExperimentError(f"{path}: not a regular file")
+        kept = bytearray()
+        while block := fh.read(_BLOCK):
+            digest.update(block)
+            if limit is not None:
+                kept += block
+                if len(kept) > limit:
+                    raise ExperimentError(f"{path}: the manifest is over {limit} bytes")
+    return bytes(kept)
+
+
+def set_digest(set_path: str | os.PathLike[str]) -> SetDigest:
+    """Checksum a set's files and read its ``[metadata]`` table, without reading its data.
+
+    Parameters
+    ----------
+    set_path : str or path
+        The set's folder (holding ``experiment.toml``) or its manifest.
+
+    Returns
+    -------
+    SetDigest
+
+    Raises
+    ------
+    ExperimentError
+        One line naming the path: no manifest, a manifest that is not TOML, a data file that
+        cannot be read.
+    """
+    path = Path(set_path)
+    manifest = path / MANIFEST if path.is_dir() else path
+    if not manifest.exists():
+        raise ExperimentError(f"{path}: no experiment set here (no {MANIFEST})")
+    digest = hashlib.sha256()
+    raw = _read_regular(manifest, digest, limit=MAX_MANIFEST_BYTES)
+    try:
+        doc = tomllib.loads(raw.decode("utf-8"))
+    except (UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
+        raise ExperimentError(f"{manifest}: not a TOML manifest: {exc}") from None
+    runs = doc.get("run", [])
+    files = [r.get("file") for r in runs if isinstance(r, dict)] if isinstance(runs, list) else []
+    for name in dict.fromkeys(f for f in files if isinstance(f, str)):
+        _read_regular(manifest.parent / name, digest)
+    meta = doc.get("metadata", {})
+    metadata = ({k: v for k, v in meta.items() if not isinstance(v, dict | list)}
+                if isinstance(meta, dict) else {})
+    return SetDigest(manifest=str(manifest), checksum=digest.hexdigest(), metadata=metadata)
