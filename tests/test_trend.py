@@ -193,6 +193,15 @@ def test_trend_cli_table_json_and_figures(fleet_file, tmp_path):
                                "--overwrite"]).exit_code == 0
 
 
+def test_a_unit_identified_with_other_options_is_warned_about():
+    frame = _fleet()
+    frame.loc[frame.index[:3], "options"] = '{"estimator": "ols"}'
+    units = set(frame.loc[frame.index[:3], "axis"])
+    warnings = trend(frame).warnings
+    assert {w.split(":")[0] for w in warnings if "different options" in w} == {
+        f"axis {u}" for u in units}
+
+
 def test_a_unit_without_times_is_ordered_by_finished_with_a_warning(tmp_path):
     frame = _fleet()
     frame.loc[frame["axis"] == "x", "time"] = pd.NaT
@@ -250,3 +259,48 @@ def test_the_json_keys_are_documented(fleet_file):
 
     names = keys(json.loads(res.stdout)) - {"m", "c", "k"}  # parameter names, not keys
     assert sorted(k for k in names if f"`{k}`" not in text) == []
+
+
+@pytest.mark.slow
+def test_trend_reads_what_phoid_batch_writes(tmp_path):
+    # two axes, 7 nightly sets each (simulated, 3 runs of 3 s); axis B's plant loses stiffness
+    # by 3 % from night 6: `phoid batch` identifies them on 2 workers, `phoid trend` flags k of
+    # axis B at nights 6 and 7, and with it ω0 = √(k/m) and ζ = c/(2√(mk)), which move by
+    # 1.5 %, and nothing else (the steps are many stderrs here; a false alarm among the other
+    # ~20 tested points has probability ~5 %, and this seed has none)
+    pytest.importorskip("distributed")
+    pytest.importorskip("pyarrow")
+    from phoid.dynamics import Plant
+    from phoid.io import run_from_arrays, write_experiment
+    from phoid.simulation import simulate
+
+    rng = np.random.default_rng(8)
+    P, D = np.array([20.0, 40.0, 60.0]), np.array([-0.5, 0.0, 0.5])
+    folders = []
+    for axis in ("A", "B"):
+        for night in range(1, 8):
+            k = 64.0 * (0.97 if axis == "B" and night >= 6 else 1.0)
+            sim = simulate(Plant(2.0, 1.0, k), P, D, delay=0.01, duration=3.0, fs=500.0,
+                           noise=1e-5, rng=rng)
+            runs = [run_from_arrays(sim.t, sim.x[i], P=P[i], D=D[i], index=i + 1)
+                    for i in range(3)]
+            folder = tmp_path / "sets" / f"{axis}-{night}"
+            write_experiment(folder, runs, method="pho", delay=0.01)
+            manifest = folder / "experiment.toml"
+            manifest.write_text(manifest.read_text(encoding="utf-8") + "\n[metadata]\n"
+                                f'axis = "{axis}"\ntime = 2026-11-0{night}T02:00:00Z\n',
+                                encoding="utf-8")
+            folders.append(str(folder))
+    runner = CliRunner()
+    out = tmp_path / "results.parquet"
+    res = runner.invoke(app, ["batch", *folders, "--out", str(out), "--workers", "2"])
+    assert res.exit_code == 0, res.output
+    res = runner.invoke(app, ["trend", str(out), "--json"])
+    assert res.exit_code == 0, res.output
+    units = {u["unit"]: u for u in json.loads(res.stdout)["units"]}
+    assert set(units) == {"A", "B"} and all(u["ordered_by"] == "time" for u in units.values())
+    flagged = {(u, name, p["time"][:10]) for u, unit in units.items()
+               for name, chart in unit["parameters"].items()
+               for p in chart["points"] if p["flagged"]}
+    assert flagged == {("B", name, f"2026-11-0{night}") for name in ("k", "omega0", "zeta")
+                       for night in (6, 7)}

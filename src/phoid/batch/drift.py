@@ -394,6 +394,12 @@ def trend(results: str | Path | Any, *, by: str = "axis", baseline: int = 5,
         else:
             ordered_by = "time"
         rows = rows.sort_values([ordered_by, "finished"], kind="stable")
+        mixed = [col for col in ("method", "options")
+                 if col in rows.columns and rows[col].astype(str).nunique() > 1]
+        if mixed:
+            warnings.append(f"{by} {unit}: its sets were identified with different "
+                            f"{' and '.join(mixed)}; a change there shows as a change of the "
+                            "estimates")
         charts = []
         for name in _parameters(rows):
             sel = rows[rows[name].notna() & rows[f"{name}_stderr"].notna()]
