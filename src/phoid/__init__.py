@@ -18,7 +18,9 @@ from phoid._lazy import lazy_exports
 if TYPE_CHECKING:  # the real imports, for type checkers and IDEs; at run time see __getattr__
     from phoid._progress import progress
     from phoid.api import identify, identify_data
+    from phoid.batch.drift import Trend, trend
     from phoid.batch.engine import identify_many
+    from phoid.batch.rehearsal import Rehearsal, rehearse
     from phoid.dynamics import (
         DelayedPD,
         DigitalPD,
@@ -166,6 +168,10 @@ _LAZY: dict[str, str] = {
     "to_lti": "phoid.interop",
     "to_pandas": "phoid.interop",
     "progress": "phoid._progress",
+    "Rehearsal": "phoid.batch.rehearsal",
+    "rehearse": "phoid.batch.rehearsal",
+    "Trend": "phoid.batch.drift",
+    "trend": "phoid.batch.drift",
 }
 
 __all__ = [
@@ -195,12 +201,14 @@ __all__ = [
     "PhoidError",
     "PlannedRun",
     "Plant",
+    "Rehearsal",
     "ResponseFit",
     "Run",
     "RunMode",
     "SampledController",
     "Simulation",
     "TrackingSimulation",
+    "Trend",
     "__version__",
     "alphas",
     "characteristic_roots",
@@ -234,6 +242,7 @@ __all__ = [
     "logdec",
     "progress",
     "read_experiment",
+    "rehearse",
     "replay_set",
     "run_from_arrays",
     "sample_plants",
@@ -243,6 +252,7 @@ __all__ = [
     "to_control",
     "to_lti",
     "to_pandas",
+    "trend",
     "two_frequency",
     "validate_tracking",
     "write_experiment",

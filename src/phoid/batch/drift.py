@@ -1,0 +1,432 @@
+"""Drift of the estimates over time: a Shewhart chart of each unit's parameters from a batch output.
+
+The batch output (``phoid batch``, docs/format.md "phoid batch output") holds one row per
+identified set. For each unit (the value of a grouping column, ``axis`` by default) and each
+estimated parameter p, the rows with ``status = "ok"`` are put in time order and charted:
+
+* **baseline** — the inverse-variance weighted mean of the first ``baseline`` points,
+  b = Σ wᵢxᵢ / Σ wᵢ with wᵢ = 1/sᵢ², and its standard error s_b = (Σ wᵢ)^(-1/2);
+* **each later point** — z_i = (x_i − b) / √(s_i² + s_b²), flagged when |z_i| > ``threshold``.
+
+Under no change, with the reported standard errors sᵢ correct and the estimates normal, x_i − b
+is normal with variance s_i² + s_b² exactly (x_i is independent of the baseline points), so
+each z_i is standard normal and the chance that a point is flagged is the nominal
+α = 2 Φ(−threshold) (0.27 % for 3): the false alarm rate per point, whatever the number of
+baseline points. Points share the baseline, so the flags of one series are correlated; the
+rate per point is still α. The baseline points themselves are not tested; their scatter is
+checked instead: χ² = Σ wᵢ(xᵢ − b)² on ``baseline − 1`` degrees of freedom, and a warning when
+its upper tail is below 0.001 (the baseline moved, or the stderrs are too small — either makes
+the chart's limits wrong).
+
+Units whose rows all carry a ``time`` are ordered by it; a unit with a row without one is
+ordered by ``finished`` (when each set was identified) with a warning.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from phoid.errors import ExperimentError
+
+__all__ = ["REQUIRED_COLUMNS", "ChartPoint", "ParameterChart", "Trend", "UnitTrend",
+           "control_chart", "read_results", "trend"]
+
+REQUIRED_COLUMNS = ("set", "checksum", "status", "method", "time", "finished")
+"""The batch output's columns the trend reads, besides ``--by`` and the estimates."""
+
+# the estimated parameters in the order a report lists them; any other column p with a
+# p_stderr column beside it is charted after these
+_ORDER = ("m", "c", "k", "fc", "delay", "omega0", "zeta", "sigma", "omega_d")
+
+
+def _normal_tail(z: float) -> float:
+    """Two-sided tail 2 Φ(−|z|) of the standard normal (math.erfc: no scipy needed)."""
+    return math.erfc(abs(z) / math.sqrt(2.0))
+
+
+@dataclass(frozen=True)
+class ChartPoint:
+    """One estimate on a unit's chart.
+
+    Attributes
+    ----------
+    set : str
+        The set's path as the batch output names it.
+    time : str or None
+        The set's time (ISO 8601, UTC) or, for a unit ordered by ``finished``, None.
+    order : str
+        The ISO 8601 time the point is ordered by (``time`` or ``finished``).
+    value, stderr : float
+        The estimate and its standard error (the parameter's SI unit).
+    z : float or None
+        (value − baseline) / √(stderr² + baseline_stderr²); None for a baseline point.
+    flagged : bool
+        |z| > threshold.
+    baseline : bool
+        One of the points the baseline is computed from.
+    """
+
+    set: str
+    time: str | None
+    order: str
+    value: float
+    stderr: float
+    z: float | None
+    flagged: bool
+    baseline: bool
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready dict."""
+        return {"set": self.set, "time": self.time, "order": self.order,
+                "value": self.value, "stderr": self.stderr, "z": self.z,
+                "flagged": self.flagged, "baseline": self.baseline}
+
+
+@dataclass(frozen=True)
+class ParameterChart:
+    """One parameter of one unit, charted.
+
+    Attributes
+    ----------
+    name : str
+        The parameter (a column of the batch output).
+    points : tuple of ChartPoint
+        In time order.
+    baseline, baseline_stderr : float or None
+        b and s_b of the module's equations; None when the unit has fewer points than the
+        baseline needs.
+    baseline_chi2 : float or None
+        Σ wᵢ(xᵢ − b)² of the baseline points (``baseline − 1`` degrees of freedom).
+    baseline_p : float or None
+        Its upper tail probability.
+    """
+
+    name: str
+    points: tuple[ChartPoint, ...]
+    baseline: float | None
+    baseline_stderr: float | None
+    baseline_chi2: float | None
+    baseline_p: float | None
+
+    @property
+    def flagged(self) -> int:
+        """Number of flagged points."""
+        return sum(p.flagged for p in self.points)
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready dict."""
+        return {"baseline": self.baseline, "baseline_stderr": self.baseline_stderr,
+                "baseline_chi2": self.baseline_chi2, "baseline_p": self.baseline_p,
+                "flagged": self.flagged, "points": [p.to_dict() for p in self.points]}
+
+
+@dataclass(frozen=True)
+class UnitTrend:
+    """The charts of one unit.
+
+    Attributes
+    ----------
+    unit : str
+    ordered_by : {"time", "finished"}
+    charts : tuple of ParameterChart
+    """
+
+    unit: str
+    ordered_by: str
+    charts: tuple[ParameterChart, ...]
+
+
+@dataclass(frozen=True)
+class Trend:
+    """The charts of every unit of a batch output.
+
+    Attributes
+    ----------
+    source : str
+        The file read.
+    by : str
+        The grouping column.
+    baseline : int
+        Number of points the baseline is computed from.
+    threshold : float
+        The |z| a point must exceed to be flagged.
+    units : tuple of UnitTrend
+    warnings : tuple of str
+    """
+
+    source: str
+    by: str
+    baseline: int
+    threshold: float
+    units: tuple[UnitTrend, ...]
+    warnings: tuple[str, ...] = ()
+
+    @property
+    def false_alarm_rate(self) -> float:
+        """The chance per tested point of a flag under no change: 2 Φ(−threshold)."""
+        return _normal_tail(self.threshold)
+
+    def summary(self) -> dict[str, Any]:
+        """JSON-ready dict: the settings, each unit's charts, the warnings."""
+        return {
+            "source": self.source, "by": self.by, "baseline": self.baseline,
+            "threshold": self.threshold, "false_alarm_rate": self.false_alarm_rate,
+            "units": [{"unit": u.unit, "ordered_by": u.ordered_by,
+                       "parameters": {ch.name: ch.to_dict() for ch in u.charts}}
+                      for u in self.units],
+            "warnings": list(self.warnings),
+        }
+
+    def report(self) -> str:
+        """A text table: per unit and parameter the last value ± stderr, its change from the
+        baseline, z, and the number of flagged points."""
+        lines = [f"trend of {self.source} by {self.by}: baseline = weighted mean of the first "
+                 f"{self.baseline} points; flag |z| > {self.threshold:g} "
+                 f"(false alarm rate {100 * self.false_alarm_rate:.2g} % per point)"]
+        head = (f"{'unit':<12} {'param':<7} {'n':>4} {'last':>13} {'± stderr':>11} "
+                f"{'change':>12} {'z':>7} {'flagged':>8}")
+        lines += ["", head, "-" * len(head)]
+        for u in self.units:
+            for ch in u.charts:
+                last = ch.points[-1]
+                change = "" if ch.baseline is None else f"{last.value - ch.baseline:12.5g}"
+                z = "" if last.z is None else f"{last.z:7.2f}"
+                lines.append(f"{u.unit:<12} {ch.name:<7} {len(ch.points):>4} "
+                             f"{last.value:13.6g} {last.stderr:11.3g} {change:>12} {z:>7} "
+                             f"{ch.flagged:>8}")
+        flagged = [(u.unit, ch.name, p) for u in self.units for ch in u.charts
+                   for p in ch.points if p.flagged]
+        if flagged:
+            lines += ["", "flagged points:"]
+            lines += [f"  {unit} {name} at {p.order}: {p.value:.6g} ± {p.stderr:.3g} "
+                      f"(z = {p.z:.2f}; {p.set})" for unit, name, p in flagged]
+        lines += [f"warning: {w}" for w in self.warnings]
+        return "\n".join(lines)
+
+
+def control_chart(values: Any, stderrs: Any, *, baseline: int = 5,
+                  threshold: float = 3.0) -> dict[str, Any]:
+    """The chart of one series: baseline from the first points, z of every later one.
+
+    Parameters
+    ----------
+    values, stderrs : array_like, shape (n,)
+        The estimates in time order and their standard errors (> 0, finite).
+    baseline : int
+        Number of leading points the baseline is the weighted mean of (≥ 1).
+    threshold : float
+        A point is flagged when |z| > threshold (> 0).
+
+    Returns
+    -------
+    dict
+        ``baseline`` (b), ``baseline_stderr`` (s_b), ``chi2`` and ``p`` of the baseline points'
+        scatter (None with one point), ``z`` (ndarray, NaN at the baseline points) and
+        ``flagged`` (bool ndarray). With fewer than ``baseline`` + 1 points, b and s_b are
+        None and nothing is tested.
+
+    Examples
+    --------
+    >>> chart = control_chart([1.0, 1.0, 1.0, 1.0, 1.0, 1.5], [0.1] * 6)
+    >>> round(float(chart["z"][-1]), 3)  # 0.5 / sqrt(0.1**2 + 0.1**2 / 5)
+    4.564
+    >>> chart["flagged"].tolist()
+    [False, False, False, False, False, True]
+    """
+    x = np.asarray(values, dtype=float)
+    s = np.asarray(stderrs, dtype=float)
+    if x.shape != s.shape or x.ndim != 1:
+        raise ValueError(f"`values` and `stderrs` must be 1-D of one length; got shapes "
+                         f"{x.shape} and {s.shape}")
+    if not (np.all(np.isfinite(x)) and np.all(np.isfinite(s)) and np.all(s > 0)):
+        raise ValueError("`values` must be finite and `stderrs` finite and > 0")
+    if int(baseline) != baseline or baseline < 1:
+        raise ValueError(f"`baseline` must be a whole number ≥ 1; got {baseline!r}")
+    if not threshold > 0:
+        raise ValueError(f"`threshold` must be > 0; got {threshold!r}")
+    z = np.full(x.shape, np.nan)
+    out: dict[str, Any] = {"baseline": None, "baseline_stderr": None, "chi2": None, "p": None,
+                           "z": z, "flagged": np.zeros(x.shape, bool)}
+    if len(x) <= baseline:
+        return out
+    w = 1.0 / s[:baseline] ** 2
+    b = float(np.sum(w * x[:baseline]) / np.sum(w))
+    sb = float(1.0 / math.sqrt(np.sum(w)))
+    z[baseline:] = (x[baseline:] - b) / np.sqrt(s[baseline:] ** 2 + sb ** 2)
+    out.update(baseline=b, baseline_stderr=sb, z=z, flagged=np.abs(np.nan_to_num(z)) > threshold)
+    if baseline > 1:
+        from phoid.methods.chi2 import chi2_sf
+
+        chi2 = float(np.sum(w * (x[:baseline] - b) ** 2))
+        out.update(chi2=chi2, p=float(chi2_sf(chi2, baseline - 1)))
+    return out
+
+
+def read_results(path: str | Path, *, by: str = "axis") -> Any:
+    """Read a batch output (Parquet, or its CSV) as a DataFrame and check its columns.
+
+    Parameters
+    ----------
+    path : str or Path
+        ``results.parquet`` or ``results.csv`` as ``phoid batch`` writes them. A Parquet file
+        is read with pyarrow; where pyarrow is missing, the CSV beside it is read instead.
+    by : str
+        The grouping column; it must be one of the file's columns.
+
+    Returns
+    -------
+    pandas.DataFrame
+        ``time`` and ``finished`` as UTC timestamps (NaT where null).
+
+    Raises
+    ------
+    ExperimentError
+        The file cannot be read, or a column is missing (naming the file and the column).
+    """
+    import pandas as pd
+
+    path = Path(path)
+    if not path.is_file():
+        raise ExperimentError(f"{path}: no such file")
+    try:
+        if path.suffix.lower() == ".csv":
+            frame = pd.read_csv(path, dtype={"set": str, "checksum": str, by: str})
+        else:
+            try:
+                import pyarrow  # noqa: F401
+            except ImportError:
+                csv = path.with_suffix(".csv")
+                if not csv.is_file():
+                    raise ExperimentError(
+                        f"{path}: reading Parquet needs pyarrow (pip install 'phoid[batch]'), "
+                        f"and there is no {csv.name} beside it") from None
+                return read_results(csv, by=by)
+            frame = pd.read_parquet(path)
+    except ExperimentError:
+        raise
+    except Exception as exc:  # a file that is not a table: pyarrow's and pandas' own errors
+        raise ExperimentError(f"{path}: not a phoid batch output ({' '.join(str(exc).split())})"
+                              ) from None
+    for column in (*REQUIRED_COLUMNS, by):
+        if column not in frame.columns:
+            raise ExperimentError(f"{path}: not a phoid batch output: no column {column!r}"
+                                  + (" (the --by column)" if column == by else ""))
+    for column in ("time", "finished"):
+        try:
+            frame[column] = pd.to_datetime(frame[column], utc=True)
+        except (ValueError, TypeError) as exc:
+            raise ExperimentError(f"{path}: column {column!r} is not a time: "
+                                  f"{' '.join(str(exc).split())}") from None
+    return frame
+
+
+def _parameters(frame: Any) -> list[str]:
+    """The estimated parameters: columns p with a p_stderr column beside them."""
+    names = [c for c in frame.columns if isinstance(c, str) and f"{c}_stderr" in frame.columns]
+    return sorted(names, key=lambda n: (_ORDER.index(n) if n in _ORDER else len(_ORDER), n))
+
+
+def _iso(stamp: Any) -> str | None:
+    return None if stamp is None or stamp != stamp else stamp.isoformat()  # NaT != NaT
+
+
+def trend(results: str | Path | Any, *, by: str = "axis", baseline: int = 5,
+          threshold: float = 3.0) -> Trend:
+    """Chart every unit's estimates over time and flag the changes their stderrs do not explain.
+
+    Parameters
+    ----------
+    results : str, Path or pandas.DataFrame
+        A batch output file (:func:`read_results`) or the DataFrame
+        :func:`phoid.identify_many` returns.
+    by : str
+        The column naming the unit (``axis``: the manifest's ``[metadata] axis``).
+    baseline : int
+        Number of leading points of each series the baseline is the weighted mean of.
+    threshold : float
+        |z| above which a point is flagged (3: 0.27 % false alarms per point).
+
+    Returns
+    -------
+    Trend
+
+    Raises
+    ------
+    ExperimentError
+        A missing column, or no row with ``status = "ok"`` and a unit.
+    """
+    if int(baseline) != baseline or baseline < 1:
+        raise ValueError(f"`baseline` must be a whole number ≥ 1; got {baseline!r}")
+    if not (math.isfinite(threshold) and threshold > 0):
+        raise ValueError(f"`threshold` must be finite and > 0; got {threshold!r}")
+    if isinstance(results, (str, Path)):
+        source = str(results)
+        frame = read_results(results, by=by)
+    else:
+        source = "<DataFrame>"
+        frame = results.copy()
+        for column in (*REQUIRED_COLUMNS, by):
+            if column not in frame.columns:
+                raise ExperimentError(f"{source}: not a phoid batch output: no column "
+                                      f"{column!r}")
+        import pandas as pd
+
+        for column in ("time", "finished"):
+            frame[column] = pd.to_datetime(frame[column], utc=True)
+    warnings: list[str] = []
+    ok = frame[(frame["status"] == "ok") & frame[by].notna()]
+    if len(ok) == 0:
+        raise ExperimentError(f"{source}: no row with status 'ok' and a {by!r}")
+    if (dropped := int((frame["status"] == "ok").sum()) - len(ok)):
+        warnings.append(f"{dropped} ok rows without a {by!r} left out")
+    units = []
+    for unit, rows in ok.groupby(ok[by].astype(str), sort=True):
+        if rows["time"].isna().any():
+            ordered_by = "finished"
+            warnings.append(f"{by} {unit}: {int(rows['time'].isna().sum())} of {len(rows)} "
+                            "rows have no time (the manifest's [metadata] time); ordered by "
+                            "when they were identified (finished)")
+        else:
+            ordered_by = "time"
+        rows = rows.sort_values([ordered_by, "finished"], kind="stable")
+        mixed = [col for col in ("method", "options")
+                 if col in rows.columns and rows[col].astype(str).nunique() > 1]
+        if mixed:
+            warnings.append(f"{by} {unit}: its sets were identified with different "
+                            f"{' and '.join(mixed)}; a change there shows as a change of the "
+                            "estimates")
+        charts = []
+        for name in _parameters(rows):
+            sel = rows[rows[name].notna() & rows[f"{name}_stderr"].notna()]
+            sel = sel[np.isfinite(sel[f"{name}_stderr"].to_numpy(float))
+                      & (sel[f"{name}_stderr"].to_numpy(float) > 0)]
+            if len(sel) == 0:
+                continue
+            x = sel[name].to_numpy(float)
+            s = sel[f"{name}_stderr"].to_numpy(float)
+            chart = control_chart(x, s, baseline=baseline, threshold=threshold)
+            points = tuple(
+                ChartPoint(set=str(r["set"]),
+                           time=_iso(r["time"]) if ordered_by == "time" else None,
+                           order=_iso(r[ordered_by]) or "", value=float(x[i]),
+                           stderr=float(s[i]),
+                           z=None if np.isnan(chart["z"][i]) else float(chart["z"][i]),
+                           flagged=bool(chart["flagged"][i]), baseline=i < baseline)
+                for i, (_, r) in enumerate(sel.iterrows()))
+            if chart["baseline"] is None:
+                warnings.append(f"{by} {unit}, {name}: {len(x)} points, no more than the "
+                                f"baseline's {baseline}; nothing tested")
+            elif chart["p"] is not None and chart["p"] < 1e-3:
+                warnings.append(
+                    f"{by} {unit}, {name}: the {baseline} baseline points scatter more than "
+                    f"their stderrs explain (chi2 = {chart['chi2']:.3g} on {baseline - 1} dof, "
+                    f"p = {chart['p']:.2g}); the control limits are too narrow")
+            charts.append(ParameterChart(name, points, chart["baseline"],
+                                         chart["baseline_stderr"], chart["chi2"], chart["p"]))
+        units.append(UnitTrend(str(unit), ordered_by, tuple(charts)))
+    return Trend(source, by, int(baseline), float(threshold), tuple(units), tuple(warnings))
