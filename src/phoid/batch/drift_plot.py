@@ -20,6 +20,11 @@ from phoid._output import OutputFolder, png_writer
 
 __all__ = ["plot_trend", "trend_figure_names"]
 
+#: the SI units of the parameters a batch row can hold (docs/format.md, "phoid batch output");
+#: a parameter not listed is labelled by its name alone
+UNITS = {"m": "kg", "c": "N s/m", "k": "N/m", "fc": "N", "delay": "s", "omega0": "rad/s",
+         "zeta": "1", "sigma": "1/s", "c_over_m": "1/s", "k_over_m": "1/s²", "offset_force": "N"}
+
 
 def trend_figure_names(units: list[str]) -> list[str]:
     """The PNG names of the units' figures: ``trend-<unit>.png``, made unique with ``-NN``.
@@ -91,7 +96,8 @@ def plot_trend(trend: Any, out_dir: str | Path, *, overwrite: bool = False) -> l
             if flag.any():
                 ax.errorbar(t[flag], x[flag], s[flag], fmt="o", color="C3", ms=6,
                             label="flagged")
-            ax.set_ylabel(chart.name)
+            unit = UNITS.get(chart.name)
+            ax.set_ylabel(f"{chart.name} ({unit})" if unit else chart.name)
         axes[0].set_title(f"{trend.by} {unit.unit}: estimates ± stderr")
         handles: dict[str, Any] = {}
         for ax in axes:  # one legend for the panels: every kind of mark, once
