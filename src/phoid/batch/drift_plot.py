@@ -96,8 +96,8 @@ def plot_trend(trend: Any, out_dir: str | Path, *, overwrite: bool = False) -> l
             if flag.any():
                 ax.errorbar(t[flag], x[flag], s[flag], fmt="o", color="C3", ms=6,
                             label="flagged")
-            unit = UNITS.get(chart.name)
-            ax.set_ylabel(f"{chart.name} ({unit})" if unit else chart.name)
+            si = UNITS.get(chart.name)
+            ax.set_ylabel(f"{chart.name} ({si})" if si else chart.name)
         axes[0].set_title(f"{trend.by} {unit.unit}: estimates ± stderr")
         handles: dict[str, Any] = {}
         for ax in axes:  # one legend for the panels: every kind of mark, once
