@@ -1,0 +1,134 @@
+"""Hostile inputs to the results' display, export and pandas input (issue 19's review).
+
+Each test feeds what a careless or hostile user would and expects a one-line ValueError that
+names the argument (or a result that says what it cannot know), never a traceback from deep
+inside numpy, a MemoryError or a silently wrong number. Expected values come from the
+definitions (Python's own ``format`` of the estimate's text, float round-trips), not from
+the code under test.
+"""
+
+from __future__ import annotations
+
+import math
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+import phoid
+from phoid import Estimate
+from phoid.interop import LinearPlant, closed_loop, linear_plant, sample_plants, to_lti
+from phoid.interop.plant import MAX_DRAWS
+from phoid.reports.text import format_estimate
+
+
+def _result(cov, delay=0.0):
+    """A PHO-like result by duck typing (what phoid.interop reads: m, c, k, cov, runs, delay)."""
+    return SimpleNamespace(
+        m=Estimate(2.0, math.sqrt(cov[0, 0]), "kg"), c=Estimate(1.0, math.sqrt(cov[1, 1]),
+                                                                "N s/m"),
+        k=Estimate(64.0, math.sqrt(cov[2, 2]), "N/m"), cov=cov, delay=delay,
+        runs=(SimpleNamespace(file="r1", P=10.0, D=2.0, added_mass=0.0),))
+
+
+# --------------------------------------------------------------------------------------------
+# Estimate formatting
+
+
+@pytest.mark.parametrize("spec", [">30", "<30", "^30", "*^30", "30", "s", ">30s"])
+def test_an_alignment_spec_pads_the_whole_estimate_not_the_bare_value(spec):
+    e = Estimate(2.000123, 0.0042, "kg")
+    # Python's own padding of the empty-spec text "value ± stderr unit": the stderr and the
+    # unit are not dropped by a width
+    assert format(e, spec) == format(format(e, ""), spec)
+    assert "± 0.0042 kg" in format(e, spec)
+
+
+@pytest.mark.parametrize("spec", [".4f", "e", "+", "g", "010.3f"])
+def test_a_numeric_spec_formats_the_value(spec):
+    e = Estimate(2.000123, 0.0042, "kg")
+    assert format(e, spec) == format(2.000123, spec)
+
+
+def test_an_integer_spec_is_a_one_line_value_error():
+    with pytest.raises(ValueError, match="Unknown format code 'd'"):
+        format(Estimate(2.0, 0.1, "kg"), "d")
+
+
+@pytest.mark.parametrize(("value", "se"), [(2.0, 1e-300), (1e300, 1e-300), (-3.5, 1e-40),
+                                           (0.0, 1e-320)])
+def test_a_stderr_below_double_resolution_prints_all_the_floats_digits_not_hundreds(value, se):
+    text = format_estimate(value, se)
+    shown = text.split(" ± ")[0]
+    # the printed value is the float itself (17 significant digits round-trip a float64),
+    # and no longer than 17 digits plus sign, point and exponent
+    assert float(shown) == value and len(shown) <= 24, text
+    assert text.endswith(f"± {se:.2g}")
+
+
+def test_the_usual_stderr_still_rounds_to_its_two_digits():
+    # the rule of format_estimate's docstring: decimals up to the stderr's second digit
+    assert format_estimate(2.000123, 0.0042) == f"{2.000123:.4f} ± {0.0042:.2g}"
+
+
+# --------------------------------------------------------------------------------------------
+# pandas records
+
+
+def test_complex_and_non_numeric_tables_are_refused_naming_the_column():
+    pd = pytest.importorskip("pandas")
+    t = np.arange(4) * 0.1
+    with pytest.raises(ValueError, match=r"^t: the values \(x\) is complex") as info:
+        phoid.run_from_arrays(pd.Series(np.zeros(4) + 1j, index=t))
+    assert "\n" not in str(info.value)
+    with pytest.raises(ValueError, match=r"^data\[0\]: column 'u' is complex"):
+        phoid.identify_data([pd.DataFrame({"x": np.zeros(4), "u": np.zeros(4) + 0j},
+                                          index=t)], [1.0], [0.5], 0.0)
+    with pytest.raises(ValueError, match=r"^t: the values \(x\) is not numeric"):
+        phoid.run_from_arrays(pd.Series(["a"] * 4, index=t))
+    with pytest.raises(ValueError, match=r"^t: the index \(t\) is neither real numbers"):
+        phoid.run_from_arrays(pd.Series(np.zeros(4), index=t + 1j))
+
+
+def test_identify_data_refuses_gains_that_do_not_match_the_runs():
+    # five records and six gains: one run's gains would silently be dropped (or misplaced)
+    t = np.arange(100) * 1e-3
+    data = [(t, np.zeros_like(t))] * 5
+    gains = np.arange(1.0, 7.0)
+    with pytest.raises(ValueError, match=r"^`P` must give one entry per run \(5 runs\); got 6"):
+        phoid.identify_data(data, gains, gains[:5], 0.0)
+    with pytest.raises(ValueError, match=r"^`D` must give one entry per run \(5 runs\); got 6"):
+        phoid.identify_data(data, gains[:5], gains, 0.0)
+    with pytest.raises(ValueError, match=r"^`files` must give one entry per run"):
+        phoid.identify_data(data, gains[:5], gains[:5], 0.0, files=["a", "b"])
+
+
+# --------------------------------------------------------------------------------------------
+# export
+
+
+def test_a_result_without_standard_errors_exports_its_plant_and_refuses_to_sample():
+    # two runs fitted by the eq. (35) lines: no residual, so the stderrs and cov are nan
+    nan = _result(np.full((3, 3), np.nan))
+    plant = linear_plant(nan)
+    assert np.isnan(plant.cov).all() and any("unknown" in n for n in plant.notes)
+    sys = to_lti(nan)
+    assert sys.den.tolist() == [1.0, 1.0 / 2.0, 64.0 / 2.0]  # 1/(m s² + c s + k), monic
+    with pytest.raises(ValueError, match=r"covariance of \(m, c, k\) is unknown"):
+        sample_plants(nan, 3)
+    with pytest.raises(ValueError, match="infinite"):
+        LinearPlant(2.0, 1.0, 64.0, cov=np.diag([np.inf, 1.0, 1.0]))
+
+
+@pytest.mark.parametrize("n", [MAX_DRAWS + 1, 10**9, 10**12])
+def test_a_huge_sample_is_refused_before_any_memory_is_taken(n):
+    with pytest.raises(ValueError, match=r"^`n` = \d+ plants is more than"):
+        sample_plants(_result(np.diag([1e-6, 1e-6, 1e-4])), n)
+
+
+@pytest.mark.parametrize("order", [0, -1, 10**6, 2.5, True])
+def test_a_bad_pade_order_is_refused_even_where_it_would_not_be_used(order):
+    pytest.importorskip("control")
+    no_delay = _result(np.diag([1e-6, 1e-6, 1e-4]), delay=0.0)
+    with pytest.raises(ValueError, match="`pade_order` must be a whole number"):
+        closed_loop(no_delay, 0, pade_order=order)
