@@ -132,3 +132,22 @@ def test_a_bad_pade_order_is_refused_even_where_it_would_not_be_used(order):
     no_delay = _result(np.diag([1e-6, 1e-6, 1e-4]), delay=0.0)
     with pytest.raises(ValueError, match="`pade_order` must be a whole number"):
         closed_loop(no_delay, 0, pade_order=order)
+
+
+# --------------------------------------------------------------------------------------------
+# --html targets
+
+
+@pytest.mark.parametrize("target", ["", ".", ".."])
+def test_an_html_target_that_names_a_folder_is_one_line_naming_it(target, tmp_path,
+                                                                  sample_set_path, monkeypatch):
+    from typer.testing import CliRunner
+
+    from phoid.cli import app
+
+    monkeypatch.chdir(tmp_path)
+    r = CliRunner().invoke(app, ["identify", str(sample_set_path), "--html", target])
+    assert r.exit_code == 2, r.output
+    line = r.output.strip()
+    assert "\n" not in line and "names a folder, not a file" in line, r.output
+    assert "Traceback" not in r.output and list(tmp_path.iterdir()) == []

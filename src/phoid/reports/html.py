@@ -35,6 +35,7 @@ from pathlib import Path
 from typing import Any
 
 from phoid._output import OutputFolder
+from phoid.errors import OutputError
 from phoid.reports.text import format_estimate
 
 __all__ = ["check_report_target", "environment", "estimates_of", "file_checksums",
@@ -560,9 +561,13 @@ def check_report_target(path: str | Path, *, overwrite: bool = False) -> Path:
     Raises
     ------
     phoid.errors.OutputError
-        ``path`` is a link, a folder, not a regular file, or exists without ``overwrite``.
+        ``path`` is empty, ``.`` or ``..``, a link, a folder, not a regular file, or exists
+        without ``overwrite``.
     """
     path = Path(path)
+    if path.name in ("", ".", ".."):
+        raise OutputError(f"{str(path)!r}: names a folder, not a file; give the report's file "
+                          "name (e.g. report.html)")
     OutputFolder(path.parent, overwrite=overwrite).check([path.name])
     return path
 
