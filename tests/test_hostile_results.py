@@ -151,3 +151,26 @@ def test_an_html_target_that_names_a_folder_is_one_line_naming_it(target, tmp_pa
     line = r.output.strip()
     assert "\n" not in line and "names a folder, not a file" in line, r.output
     assert "Traceback" not in r.output and list(tmp_path.iterdir()) == []
+
+
+# --------------------------------------------------------------------------------------------
+# [units] that make a tracking set's r and x disagree
+
+
+def test_a_tracking_set_whose_r_and_x_differ_by_a_units_factor_is_warned(tmp_path):
+    from test_json_schema import _tracking_set
+
+    folder = _tracking_set(tmp_path / "set")
+    clean = phoid.identify(phoid.read_experiment(folder))
+    assert not any("same units" in w for w in clean.warnings), clean.warnings
+    # the same set, its r (written in m) declared in mm: read as 1/1000 of the real reference
+    manifest = folder / "experiment.toml"
+    manifest.write_text(manifest.read_text() + '\n[units]\nr = "mm"\n')
+    exp = phoid.read_experiment(folder)
+    res = phoid.identify(exp)
+    note = [w for w in res.warnings if "same units" in w]
+    assert len(note) == 1 and 'is x in mm? (then give [units] x = "mm")' in note[0], note
+    # the ratio it quotes is that of the columns as read, computed here from their definition
+    run = exp.runs[0]
+    ratio = np.std(run.r) / np.std(run.x)
+    assert f"varies {ratio:.3g} times" in note[0]
