@@ -174,3 +174,17 @@ def test_a_tracking_set_whose_r_and_x_differ_by_a_units_factor_is_warned(tmp_pat
     run = exp.runs[0]
     ratio = np.std(run.r) / np.std(run.x)
     assert f"varies {ratio:.3g} times" in note[0]
+
+
+def test_a_series_beside_a_table_must_share_its_index():
+    # a Series is read by position: one indexed otherwise would put its samples at the wrong
+    # times without a word; the same Series on the table's own index is accepted as it is
+    pd = pytest.importorskip("pandas")
+    t = np.arange(5) * 0.1
+    rec = pd.Series(np.zeros(5), index=t)
+    u = pd.Series(np.arange(5.0), index=t[::-1])
+    with pytest.raises(ValueError, match=r"^run_from_arrays: `u` is a Series whose index is not"):
+        phoid.run_from_arrays(rec, u=u)
+    assert phoid.run_from_arrays(rec, u=u.sort_index()).u.tolist() == [4.0, 3.0, 2.0, 1.0, 0.0]
+    with pytest.raises(ValueError, match=r"^u\[0\] is a Series whose index is not that of data"):
+        phoid.identify_data([rec], [1.0], [0.5], 0.0, u=[u])
