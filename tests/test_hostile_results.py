@@ -188,3 +188,20 @@ def test_a_series_beside_a_table_must_share_its_index():
     assert phoid.run_from_arrays(rec, u=u.sort_index()).u.tolist() == [4.0, 3.0, 2.0, 1.0, 0.0]
     with pytest.raises(ValueError, match=r"^u\[0\] is a Series whose index is not that of data"):
         phoid.identify_data([rec], [1.0], [0.5], 0.0, u=[u])
+
+
+def test_the_closed_loop_of_an_unstable_set_aside_run_says_so():
+    pytest.importorskip("control")
+    # P = 40 N/m, D = 0.5 N s/m with a 0.1 s delay on m, c, k = 2, 1, 64: the certified
+    # rightmost root (phoid.dynamics, independent of the export) is in the right half-plane
+    from phoid.dynamics import rightmost_roots
+
+    res = _result(np.diag([1e-6, 1e-6, 1e-4]), delay=0.1)
+    res.runs = (SimpleNamespace(file="r1", P=40.0, D=0.5, added_mass=0.0, used=False),)
+    root = complex(rightmost_roots(2.0, 1.0, 64.0, 40.0, 0.5, 0.1, count=2)[0])
+    assert root.real > 0
+    notes = closed_loop(res, 0).phoid.notes
+    assert any("set aside" in n for n in notes) and any("unstable" in n for n in notes), notes
+    res.runs = (SimpleNamespace(file="r1", P=10.0, D=2.0, added_mass=0.0, used=True),)
+    notes = closed_loop(res, 0).phoid.notes
+    assert not any("set aside" in n or "unstable" in n for n in notes), notes

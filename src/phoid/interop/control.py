@@ -404,6 +404,11 @@ def closed_loop(result: Any, run: int | str, *, pade_order: int | None = None,
         notes.append(f"the delay {delay:.6g} s is a Padé approximant of order {order}: relative "
                      f"error {pade_error:.2g} at the dominant root, which the loop's pole "
                      f"matches to {abs(pole - root) / abs(root):.2g}")
+    if getattr(r, "used", True) is False:
+        notes.append(f"run {name} was set aside by the identification (its warnings say why)")
+    if root.real > 0:
+        notes.append(f"the loop is unstable: its dominant root {root:.4g} 1/s has a positive "
+                     "real part")
     if form == "ss":
         sys = control.ss(sys, inputs=["F"], outputs=["x"])
     sys.phoid = ExportInfo(
