@@ -205,3 +205,19 @@ def test_the_closed_loop_of_an_unstable_set_aside_run_says_so():
     res.runs = (SimpleNamespace(file="r1", P=10.0, D=2.0, added_mass=0.0, used=True),)
     notes = closed_loop(res, 0).phoid.notes
     assert not any("set aside" in n or "unstable" in n for n in notes), notes
+
+
+def test_the_notebook_view_of_nan_and_hostile_text_is_escaped_and_says_undefined():
+    from phoid.reports.html import result_html, short_repr
+
+    hostile = '<script>alert("x")</script>'
+    res = SimpleNamespace(
+        summary=lambda: {"method": "pho", "m": {"value": None, "stderr": 0.1, "unit": "kg"},
+                         "c": {"value": float("nan"), "stderr": 0.1, "unit": "N s/m"},
+                         "k": {"value": 64.0, "stderr": float("nan"), "unit": "N/m"},
+                         "warnings": [hostile]})
+    page = result_html(res, figure=False)
+    assert hostile not in page and "&lt;script&gt;" in page
+    # no relative stderr from a value or stderr that is not a finite number
+    assert "nan %" not in page and "inf %" not in page
+    assert short_repr(res).startswith("SimpleNamespace(m = undefined kg, c = undefined N s/m")

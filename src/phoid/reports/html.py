@@ -116,7 +116,7 @@ def _runs_count(result: Any, summary: dict[str, Any]) -> int | None:
 
 def _estimate_text(est: dict[str, Any]) -> str:
     value, se = est.get("value"), est.get("stderr")
-    if value is None or not isinstance(value, (int, float)):
+    if value is None or not isinstance(value, (int, float)) or math.isnan(value):
         return "undefined"
     return format_estimate(float(value), None if se is None else float(se))
 
@@ -206,8 +206,9 @@ def _estimates_table(ests: dict[str, dict[str, Any]]) -> str:
     rows = []
     for name, est in ests.items():
         value, se = est.get("value"), est.get("stderr")
-        rel = (f"{100 * abs(se / value):.2g} %" if isinstance(value, (int, float)) and value
-               and isinstance(se, (int, float)) and se > 0 else "")
+        rel = (f"{100 * abs(se / value):.2g} %" if isinstance(value, (int, float))
+               and isinstance(se, (int, float)) and math.isfinite(value) and value
+               and math.isfinite(se) and se > 0 else "")
         notes = "; ".join(f"{k} {_scalar_text(v)}" for k, v in est.items()
                           if k not in ("value", "stderr", "unit"))
         rows.append([_e(name), _e(_estimate_text(est)), _e(est.get("unit", "")), _e(rel),
