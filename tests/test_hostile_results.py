@@ -221,3 +221,17 @@ def test_the_notebook_view_of_nan_and_hostile_text_is_escaped_and_says_undefined
     # no relative stderr from a value or stderr that is not a finite number
     assert "nan %" not in page and "inf %" not in page
     assert short_repr(res).startswith("SimpleNamespace(m = undefined kg, c = undefined N s/m")
+
+
+def test_one_figure_is_one_figure(tmp_path):
+    # a one-run tracking set draws one figure (tracking_<run>.png): the count and its noun agree
+    from test_json_schema import _tracking_set
+    from typer.testing import CliRunner
+
+    from phoid.cli import app
+
+    folder = _tracking_set(tmp_path / "set")
+    r = CliRunner().invoke(app, ["identify", str(folder), "--plots", str(tmp_path / "p")])
+    assert r.exit_code == 0, r.output
+    assert len(list((tmp_path / "p").iterdir())) == 1
+    assert f"1 figure written to {tmp_path / 'p'}" in r.output

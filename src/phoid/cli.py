@@ -219,7 +219,8 @@ def _print_result(result, as_json: bool, written, plots, html=None) -> None:
     else:
         typer.echo(result.report())
     if written:
-        typer.echo(f"{len(written)} figures written to {plots}", err=as_json)
+        n = len(written)
+        typer.echo(f"{n} figure{'s' if n != 1 else ''} written to {plots}", err=as_json)
     if html is not None:
         typer.echo(f"report written to {html}", err=as_json)
 
