@@ -235,3 +235,31 @@ def test_one_figure_is_one_figure(tmp_path):
     assert r.exit_code == 0, r.output
     assert len(list((tmp_path / "p").iterdir())) == 1
     assert f"1 figure written to {tmp_path / 'p'}" in r.output
+
+
+@pytest.mark.parametrize("html", ["figs", "figs/lines.png"])
+def test_an_html_report_that_would_overwrite_the_figures_is_refused_before_the_work(
+        html, tmp_path, sample_set_path, monkeypatch):
+    from typer.testing import CliRunner
+
+    from phoid.cli import app
+
+    monkeypatch.chdir(tmp_path)
+    r = CliRunner().invoke(app, ["identify", str(sample_set_path), "--plots", "figs",
+                                 "--html", html, "--overwrite"])
+    assert r.exit_code == 2, r.output
+    assert "would collide with the figures of --plots figs" in r.output
+    assert "\n" not in r.output.strip() and list(tmp_path.iterdir()) == []
+
+
+def test_a_design_report_on_its_own_plot_file_is_refused(tmp_path, monkeypatch):
+    from typer.testing import CliRunner
+
+    from phoid.cli import app
+
+    monkeypatch.chdir(tmp_path)
+    r = CliRunner().invoke(app, ["design", "--m", "2", "--c", "1", "--k", "64", "--delay",
+                                 "0.1", "--runs", "3", "--plot", "d.png", "--html", "d.png"])
+    assert r.exit_code == 2, r.output
+    assert "would collide with the --plot file d.png" in r.output
+    assert list(tmp_path.iterdir()) == []

@@ -161,6 +161,7 @@ def identify(
             from phoid.reports.html import check_report_target
 
             check_report_target(html, overwrite=overwrite)
+            _refuse_clash(html, plots)
         exp = read_experiment(experiment)
         if exp.method == "tracking":
             if mass is not None or friction or no_compensation:
@@ -200,6 +201,18 @@ def identify(
     except (ValueError, OSError) as exc:
         _fail(str(exc))
     _print_result(result, as_json, written, plots, html)
+
+
+def _refuse_clash(html: Path, plots: Path | None, *, plot_file: bool = False) -> None:
+    """Refuse an --html path that is the --plots folder (or, for a folder, one of its PNG
+    names; with ``plot_file``, the --plot file itself): one would overwrite the other."""
+    if plots is None:
+        return
+    h, p = html.resolve(), plots.resolve()
+    if h == p or (not plot_file and h.parent == p and h.suffix.lower() == ".png"):
+        what = "--plot file" if plot_file else "figures of --plots"
+        raise ValueError(f"--html {html} would collide with the {what} {plots}: give the "
+                         "report another name")
 
 
 def _write_html(result, html: Path | None, experiment, overwrite: bool) -> None:
@@ -693,6 +706,7 @@ def design(
             from phoid.reports.html import check_report_target
 
             check_report_target(html, overwrite=overwrite)
+            _refuse_clash(html, plot, plot_file=True)
         if check_set is not None:
             result = check_experiment(check_set, m, c, k, delay=delay, **settings)
         else:
