@@ -263,3 +263,12 @@ def test_a_design_report_on_its_own_plot_file_is_refused(tmp_path, monkeypatch):
     assert r.exit_code == 2, r.output
     assert "would collide with the --plot file d.png" in r.output
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("label", ["u", "F", "r", "w", "t"])
+def test_a_series_named_after_another_column_is_not_taken_for_x(label):
+    pd = pytest.importorskip("pandas")
+    s = pd.Series(np.zeros(4), index=np.arange(4) * 0.1, name=label)
+    with pytest.raises(ValueError, match=rf"^t: a Series is read as x .* named '{label}'"):
+        phoid.run_from_arrays(s)
+    assert phoid.run_from_arrays(s.rename("x")).x.tolist() == [0.0] * 4

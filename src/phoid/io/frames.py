@@ -3,7 +3,8 @@
 pandas is never imported: a table is recognised by duck typing (an ``index`` and a
 ``to_numpy`` method), so that phoid reads pandas objects without depending on pandas.
 
-* A Series: its index is t, its values x.
+* A Series: its index is t, its values x (a Series named after another column, ``u``, ``F``,
+  ``r``, ``w`` or ``t``, is refused: it is not a position).
 * A DataFrame: the columns ``x`` and optionally ``u``, ``F``, ``r``, ``w``; t is the
   column ``t`` when there is one, else the index.
 * A datetime or timedelta index (or ``t`` column) becomes seconds from the first sample,
@@ -116,6 +117,10 @@ def table_columns(obj: Any, name: str = "data") -> dict[str, np.ndarray]:
     if columns is None:  # a Series
         t = _seconds(obj.index, f"{name}: the index (t)")
         label = getattr(obj, "name", None)
+        if isinstance(label, str) and label in ("t", *TABLE_COLUMNS) and label != "x":
+            raise ExperimentError(f"{name}: a Series is read as x (the position, m) but this "
+                                  f"one is named {label!r}; give a DataFrame with columns 'x' "
+                                  f"and {label!r}")
         where_x = f"{name}: the values (x{'' if label is None else f', named {label!r}'})"
         cols = {"x": _real(obj.to_numpy(), where_x)}
         out = {"t": _check_column(t, f"{name}: the index (t)", increasing=True),
