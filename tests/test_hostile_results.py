@@ -248,7 +248,7 @@ def test_an_html_report_that_would_overwrite_the_figures_is_refused_before_the_w
     r = CliRunner().invoke(app, ["identify", str(sample_set_path), "--plots", "figs",
                                  "--html", html, "--overwrite"])
     assert r.exit_code == 2, r.output
-    assert "would collide with the figures of --plots figs" in r.output
+    assert f"{html}: would collide with the figures written to figs" in r.output
     assert "\n" not in r.output.strip() and list(tmp_path.iterdir()) == []
 
 
@@ -261,7 +261,7 @@ def test_a_design_report_on_its_own_plot_file_is_refused(tmp_path, monkeypatch):
     r = CliRunner().invoke(app, ["design", "--m", "2", "--c", "1", "--k", "64", "--delay",
                                  "0.1", "--runs", "3", "--plot", "d.png", "--html", "d.png"])
     assert r.exit_code == 2, r.output
-    assert "would collide with the --plot file d.png" in r.output
+    assert "d.png: would collide with the figures written to d.png" in r.output
     assert list(tmp_path.iterdir()) == []
 
 

@@ -160,8 +160,7 @@ def identify(
         if html is not None:  # a file in the way: refused before the work
             from phoid.reports.html import check_report_target
 
-            check_report_target(html, overwrite=overwrite)
-            _refuse_clash(html, plots)
+            check_report_target(html, overwrite=overwrite, figures=plots)
         exp = read_experiment(experiment)
         if exp.method == "tracking":
             if mass is not None or friction or no_compensation:
@@ -203,18 +202,6 @@ def identify(
     _print_result(result, as_json, written, plots, html)
 
 
-def _refuse_clash(html: Path, plots: Path | None, *, plot_file: bool = False) -> None:
-    """Refuse an --html path that is the --plots folder (or, for a folder, one of its PNG
-    names; with ``plot_file``, the --plot file itself): one would overwrite the other."""
-    if plots is None:
-        return
-    h, p = html.resolve(), plots.resolve()
-    if h == p or (not plot_file and h.parent == p and h.suffix.lower() == ".png"):
-        what = "--plot file" if plot_file else "figures of --plots"
-        raise ValueError(f"--html {html} would collide with the {what} {plots}: give the "
-                         "report another name")
-
-
 def _write_html(result, html: Path | None, experiment, overwrite: bool) -> None:
     """--html: the single-file report, with the checksums of the set's files."""
     if html is not None:
@@ -232,8 +219,8 @@ def _print_result(result, as_json: bool, written, plots, html=None) -> None:
     else:
         typer.echo(result.report())
     if written:
-        n = len(written)
-        typer.echo(f"{n} figure{'s' if n != 1 else ''} written to {plots}", err=as_json)
+        typer.echo(f"{len(written)} figure{'s' * (len(written) != 1)} written to {plots}",
+                   err=as_json)
     if html is not None:
         typer.echo(f"report written to {html}", err=as_json)
 
@@ -705,8 +692,7 @@ def design(
         if html is not None:
             from phoid.reports.html import check_report_target
 
-            check_report_target(html, overwrite=overwrite)
-            _refuse_clash(html, plot, plot_file=True)
+            check_report_target(html, overwrite=overwrite, figures=plot)
         if check_set is not None:
             result = check_experiment(check_set, m, c, k, delay=delay, **settings)
         else:

@@ -556,19 +556,35 @@ def report_html(result: Any, *, experiment: Any = None, inputs: Iterable[str | P
             + "\n".join(body) + "\n</body></html>\n")
 
 
-def check_report_target(path: str | Path, *, overwrite: bool = False) -> Path:
+def check_report_target(path: str | Path, *, overwrite: bool = False,
+                        figures: str | Path | None = None) -> Path:
     """Refuse a report target that :func:`write_report` would refuse, before any work.
+
+    Parameters
+    ----------
+    path : str or Path
+        The report's file.
+    overwrite : bool
+        An existing regular file may be replaced.
+    figures : str or Path, optional
+        Where the same command writes its figures (a folder of PNG files, or one PNG file):
+        ``path`` may be neither that path nor a PNG file inside it.
 
     Raises
     ------
     phoid.errors.OutputError
-        ``path`` is empty, ``.`` or ``..``, a link, a folder, not a regular file, or exists
-        without ``overwrite``.
+        ``path`` is empty, ``.`` or ``..``, a link, a folder, not a regular file, exists
+        without ``overwrite``, or would collide with ``figures``.
     """
     path = Path(path)
     if path.name in ("", ".", ".."):
         raise OutputError(f"{str(path)!r}: names a folder, not a file; give the report's file "
                           "name (e.g. report.html)")
+    if figures is not None:
+        h, f = path.resolve(), Path(figures).resolve()
+        if h == f or (h.parent == f and h.suffix.lower() == ".png"):
+            raise OutputError(f"{path}: would collide with the figures written to {figures}; "
+                              "give the report another name")
     OutputFolder(path.parent, overwrite=overwrite).check([path.name])
     return path
 
