@@ -272,3 +272,22 @@ def test_a_series_named_after_another_column_is_not_taken_for_x(label):
     with pytest.raises(ValueError, match=rf"^t: a Series is read as x .* named '{label}'"):
         phoid.run_from_arrays(s)
     assert phoid.run_from_arrays(s.rename("x")).x.tolist() == [0.0] * 4
+
+
+def test_a_wrong_units_entry_for_u_is_named_as_a_possible_cause(tmp_path):
+    # a simulated set (u in N, as simulate writes it) whose manifest claims u in kN: u reads
+    # 1000 times the force -(P x + D x') that the gains imply, which the check reports
+    from typer.testing import CliRunner
+
+    from phoid.cli import app
+
+    folder = tmp_path / "set"
+    r = CliRunner().invoke(app, ["simulate", str(folder), "--P", "2:20:4", "--D", "1:4:4",
+                                 "--duration", "6", "--noise", "1e-5", "--seed", "1"])
+    assert r.exit_code == 0, r.output
+    manifest = folder / "experiment.toml"
+    manifest.write_text(manifest.read_text() + '\n[units]\nu = "kN"\n')
+    res = phoid.identify(phoid.read_experiment(folder))
+    note = [w for w in res.warnings if "contradicts the given gains" in w]
+    assert len(note) == 1, res.warnings
+    assert "a [units] entry given for them is the wrong one" in note[0], note
