@@ -291,3 +291,14 @@ def test_a_wrong_units_entry_for_u_is_named_as_a_possible_cause(tmp_path):
     note = [w for w in res.warnings if "contradicts the given gains" in w]
     assert len(note) == 1, res.warnings
     assert "a [units] entry given for them is the wrong one" in note[0], note
+
+
+def test_a_tracking_result_without_a_covariance_says_so_in_its_export():
+    fit = SimpleNamespace(free=("M", "Fv"), covariance=np.full((2, 2), np.nan))
+    res = SimpleNamespace(estimates={"m": Estimate(2.0, None, "kg"),
+                                     "c": Estimate(1.0, None, "N s/m"),
+                                     "k": Estimate(0.0, 0.0, "N/m")}, fit=fit)
+    plant = linear_plant(res)
+    assert any("covariance of (m, c, k) is unknown" in n for n in plant.notes), plant.notes
+    # the fixed k keeps its zero variance; m and c (IDIM's M and Fv) carry the unknown
+    assert plant.cov[2, 2] == 0.0 and np.isnan(plant.cov[0, 0]) and np.isnan(plant.cov[1, 1])

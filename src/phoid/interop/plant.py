@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -231,9 +231,9 @@ def linear_plant(result: Any, *, per_unit_mass: bool = False) -> LinearPlant:
         no finite m > 0.
     """
     if isinstance(getattr(result, "estimates", None), Mapping):
-        return _tracking(result)
+        return _noted(_tracking(result))
     if hasattr(result, "k_over_m"):
-        return _free(result, per_unit_mass)
+        return _noted(_free(result, per_unit_mass))
     for name in ("m", "c", "k", "cov"):
         if getattr(result, name, None) is None:
             raise ValueError(f"`result` has no {name!r}: not an identification result "
@@ -244,7 +244,13 @@ def linear_plant(result: Any, *, per_unit_mass: bool = False) -> LinearPlant:
     if getattr(result, "fc", None) is not None:
         notes = (f"the linear part only: the Coulomb friction fc = {result.fc.value:.6g} N "
                  "is dropped",)
-    if cov.shape == (3, 3) and not np.all(np.isfinite(cov)):
-        notes += ("the covariance of (m, c, k) is unknown (nan): the data give no standard "
-                  "errors",)
-    return LinearPlant(*values, cov=cov, notes=notes, source=str(getattr(result, "source", "")))
+    return _noted(LinearPlant(*values, cov=cov, notes=notes,
+                              source=str(getattr(result, "source", ""))))
+
+
+def _noted(plant: LinearPlant) -> LinearPlant:
+    """``plant`` with a note when its covariance is unknown (nan entries)."""
+    if np.all(np.isfinite(plant.cov)):
+        return plant
+    return replace(plant, notes=(*plant.notes, "the covariance of (m, c, k) is unknown (nan): "
+                                 "the data give no standard errors"))
