@@ -146,6 +146,12 @@ def identify_data(
         us: list[Any] = []
         for i, is_tab in enumerate(tables):
             if is_tab:
+                ui = u[i] if u is not None and i < len(u) else None
+                same = getattr(getattr(ui, "index", None), "equals", None)
+                if is_table(ui) and callable(same) and not same(records[i].index):
+                    # a Series in u is read by position: its index must be its run's
+                    raise ValueError(f"u[{i}] is a Series whose index is not that of data[{i}]; "
+                                     f"align it first (reindex) or make it data[{i}]'s column 'u'")
                 cols = table_columns(records[i], f"data[{i}]")
                 records[i] = (cols["t"], cols["x"])
                 us.append(cols.get("u"))

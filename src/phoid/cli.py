@@ -160,7 +160,7 @@ def identify(
         if html is not None:  # a file in the way: refused before the work
             from phoid.reports.html import check_report_target
 
-            check_report_target(html, overwrite=overwrite)
+            check_report_target(html, overwrite=overwrite, figures=plots)
         exp = read_experiment(experiment)
         result = identify_set(exp, estimator=estimator, delay=delay, mass=mass,
                               no_compensation=no_compensation, friction=friction)
@@ -188,7 +188,8 @@ def _print_result(result, as_json: bool, written, plots, html=None) -> None:
     else:
         typer.echo(result.report())
     if written:
-        typer.echo(f"{len(written)} figures written to {plots}", err=as_json)
+        typer.echo(f"{len(written)} figure{'s' * (len(written) != 1)} written to {plots}",
+                   err=as_json)
     if html is not None:
         typer.echo(f"report written to {html}", err=as_json)
 

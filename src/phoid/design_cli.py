@@ -144,7 +144,7 @@ def design(
         if html is not None:
             from phoid.reports.html import check_report_target
 
-            check_report_target(html, overwrite=overwrite)
+            check_report_target(html, overwrite=overwrite, figures=plot)
         if check_set is not None:
             result = check_experiment(check_set, m, c, k, delay=delay, **settings)
         else:

@@ -65,4 +65,5 @@ def trend(
     else:
         typer.echo(result.report())
     if written:
-        typer.echo(f"{len(written)} figures written to {plots}", err=as_json)
+        typer.echo(f"{len(written)} figure{'s' * (len(written) != 1)} written to {plots}",
+                   err=as_json)

@@ -328,7 +328,8 @@ def closed_loop(result: Any, run: int | str, *, pade_order: int | None = None,
     pade_order : int, optional
         The Padé order replacing a continuous delay; by default the lowest that puts the
         approximate loop's dominant pole within ``rtol`` of the certified dominant root
-        (:func:`pade_order_for`). Ignored without a delay and for a sampled loop (exact).
+        (:func:`pade_order_for`). Checked always, used only for a continuous delay (a loop
+        without delay and a sampled loop are exact).
     form : {"tf", "ss"}
         Transfer function, or its state-space realisation (states unnamed).
     rtol : float
@@ -354,6 +355,11 @@ def closed_loop(result: Any, run: int | str, *, pade_order: int | None = None,
     _check_form(form)
     if not (isinstance(rtol, (int, float)) and 0 < rtol < 1):
         raise ValueError(f"`rtol` must be a number in (0, 1); got {rtol!r}")
+    if pade_order is not None and (
+            isinstance(pade_order, bool) or not isinstance(pade_order, (int, np.integer))
+            or not 1 <= pade_order <= PADE_MAX_ORDER):
+        raise ValueError(f"`pade_order` must be a whole number in 1 … {PADE_MAX_ORDER}; got "
+                         f"{pade_order!r}")
     r = _pick_run(result, run)
     plant = linear_plant(result)
     P, D = float(r.P), float(r.D)
@@ -385,10 +391,6 @@ def closed_loop(result: Any, run: int | str, *, pade_order: int | None = None,
         if pade_order is None:
             order, root = pade_order_for(mass, plant.c, plant.k, P, D, delay, rtol=rtol)
         else:
-            if (isinstance(pade_order, bool) or not isinstance(pade_order, (int, np.integer))
-                    or not 1 <= pade_order <= PADE_MAX_ORDER):
-                raise ValueError(f"`pade_order` must be a whole number in 1 … "
-                                 f"{PADE_MAX_ORDER}; got {pade_order!r}")
             from phoid.dynamics import rightmost_roots
 
             order = int(pade_order)
@@ -402,6 +404,11 @@ def closed_loop(result: Any, run: int | str, *, pade_order: int | None = None,
         notes.append(f"the delay {delay:.6g} s is a Padé approximant of order {order}: relative "
                      f"error {pade_error:.2g} at the dominant root, which the loop's pole "
                      f"matches to {abs(pole - root) / abs(root):.2g}")
+    if getattr(r, "used", True) is False:
+        notes.append(f"run {name} was set aside by the identification (its warnings say why)")
+    if root.real > 0:
+        notes.append(f"the loop is unstable: its dominant root {root:.4g} 1/s has a positive "
+                     "real part")
     if form == "ss":
         sys = control.ss(sys, inputs=["F"], outputs=["x"])
     sys.phoid = ExportInfo(

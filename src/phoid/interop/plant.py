@@ -10,18 +10,21 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
 
-__all__ = ["LinearPlant", "linear_plant"]
+__all__ = ["MAX_DRAWS", "LinearPlant", "linear_plant"]
 
 _UNITS = ("kg", "N s/m", "N/m")
 # the names an estimator may give m, c and k (IDIM-LS uses the EMPS benchmark's M and Fv)
 _ALIASES = {"m": 0, "M": 0, "c": 1, "Fv": 1, "k": 2}
 # draws tried per requested plant before the sampler gives up (acceptance below 1 %)
 _MAX_TRIES_PER_DRAW = 100
+#: the most plants one :meth:`LinearPlant.draw` gives: 10⁷ draws of (m, c, k) are 240 MB of
+#: float64 (and as much again for the normal deviates); more is a mistake, or wants batches
+MAX_DRAWS = 10**7
 
 
 @dataclass(frozen=True)
@@ -35,7 +38,8 @@ class LinearPlant:
         ``m`` is 1 and ``c``, ``k`` are c/m (1/s) and k/m (1/s²).
     cov : ndarray, shape (3, 3)
         Covariance of (m, c, k) in the products of their units; a parameter that was given,
-        not estimated, has zero variance.
+        not estimated, has zero variance; nan entries where the data give no standard error
+        (the plant exports, :meth:`draw` refuses).
     per_unit_mass : bool
         True when only c/m and k/m are known (a free decay without a mass): the plant is then
         1/(s² + (c/m) s + k/m), input force per unit mass (N/kg = m/s²).
@@ -70,9 +74,11 @@ class LinearPlant:
                 raise ValueError(f"the plant's {name} must be finite; got "
                                  f"{name} = {getattr(self, name)!r}")
         cov = np.array(self.cov, dtype=float)
-        if cov.shape != (3, 3) or not np.all(np.isfinite(cov)):
-            raise ValueError(f"`cov` must be a finite (3, 3) covariance of (m, c, k); got "
+        if cov.shape != (3, 3):
+            raise ValueError(f"`cov` must be the (3, 3) covariance of (m, c, k); got "
                              f"shape {cov.shape}")
+        if np.isinf(cov).any():
+            raise ValueError("`cov` of (m, c, k) has an infinite entry; an unknown one is nan")
         cov.setflags(write=False)
         object.__setattr__(self, "cov", cov)
 
@@ -121,10 +127,17 @@ class LinearPlant:
         Raises
         ------
         ValueError
-            For ``n`` < 1, or when fewer than 1 % of the draws are physical.
+            For ``n`` < 1 or > :data:`MAX_DRAWS`, an unknown (nan) covariance, or when fewer
+            than 1 % of the draws are physical.
         """
         if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
             raise ValueError(f"`n` must be a whole number ≥ 1; got {n!r}")
+        if n > MAX_DRAWS:
+            raise ValueError(f"`n` = {n} plants is more than {MAX_DRAWS:.0e} (the draws alone "
+                             f"would take {24 * n / 2**30:.3g} GiB); draw in batches")
+        if not np.all(np.isfinite(self.cov)):
+            raise ValueError("the covariance of (m, c, k) is unknown (nan: the data give no "
+                             "standard errors), so no plants can be drawn from it")
         rng = np.random.default_rng(rng)
         # a square root of the covariance that also serves a singular one (a given mass)
         w, V = np.linalg.eigh(0.5 * (self.cov + self.cov.T))
@@ -218,9 +231,9 @@ def linear_plant(result: Any, *, per_unit_mass: bool = False) -> LinearPlant:
         no finite m > 0.
     """
     if isinstance(getattr(result, "estimates", None), Mapping):
-        return _tracking(result)
+        return _noted(_tracking(result))
     if hasattr(result, "k_over_m"):
-        return _free(result, per_unit_mass)
+        return _noted(_free(result, per_unit_mass))
     for name in ("m", "c", "k", "cov"):
         if getattr(result, name, None) is None:
             raise ValueError(f"`result` has no {name!r}: not an identification result "
@@ -231,4 +244,13 @@ def linear_plant(result: Any, *, per_unit_mass: bool = False) -> LinearPlant:
     if getattr(result, "fc", None) is not None:
         notes = (f"the linear part only: the Coulomb friction fc = {result.fc.value:.6g} N "
                  "is dropped",)
-    return LinearPlant(*values, cov=cov, notes=notes, source=str(getattr(result, "source", "")))
+    return _noted(LinearPlant(*values, cov=cov, notes=notes,
+                              source=str(getattr(result, "source", ""))))
+
+
+def _noted(plant: LinearPlant) -> LinearPlant:
+    """``plant`` with a note when its covariance is unknown (nan entries)."""
+    if np.all(np.isfinite(plant.cov)):
+        return plant
+    return replace(plant, notes=(*plant.notes, "the covariance of (m, c, k) is unknown (nan): "
+                                 "the data give no standard errors"))

@@ -28,7 +28,7 @@ def sample_plants(result: Any, n: int, rng: np.random.Generator | int | None = N
     result : object
         A result (:func:`phoid.interop.plant.linear_plant`) or a :class:`LinearPlant`.
     n : int
-        Number of plants.
+        Number of plants, 1 … :data:`phoid.interop.plant.MAX_DRAWS`.
     rng : numpy.random.Generator or int, optional
         Random generator or seed.
     form : {"plant", "tf", "ss", "lti"}

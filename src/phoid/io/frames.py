@@ -3,7 +3,8 @@
 pandas is never imported: a table is recognised by duck typing (an ``index`` and a
 ``to_numpy`` method), so that phoid reads pandas objects without depending on pandas.
 
-* A Series: its index is t, its values x.
+* A Series: its index is t, its values x (a Series named after another column, ``u``, ``F``,
+  ``r``, ``w`` or ``t``, is refused: it is not a position).
 * A DataFrame: the columns ``x`` and optionally ``u``, ``F``, ``r``, ``w``; t is the
   column ``t`` when there is one, else the index.
 * A datetime or timedelta index (or ``t`` column) becomes seconds from the first sample,
@@ -51,11 +52,25 @@ def _seconds(values: Any, where: str) -> np.ndarray:
             np.zeros(0, dtype=np.int64))
         return ns / 1e9
     try:
-        out = np.asarray(arr, dtype=float)
-    except (TypeError, ValueError):
-        raise ExperimentError(f"{where} is neither numbers (s) nor datetimes/timedeltas; got dtype "
-                         f"{arr.dtype}") from None
+        out = _real(arr, where)
+    except ExperimentError:
+        raise ExperimentError(f"{where} is neither real numbers (s) nor datetimes/timedeltas; "
+                              f"got dtype {arr.dtype}") from None
     return out
+
+
+def _real(values: Any, where: str) -> np.ndarray:
+    """``values`` as float64; complex numbers (whose imaginary part a cast would drop) and
+    what is not numbers (strings, objects) refused, naming ``where``."""
+    arr = np.asarray(values)
+    if arr.dtype.kind == "c" or (arr.dtype == object and any(isinstance(v, complex)
+                                                             for v in arr.flat)):
+        raise ExperimentError(f"{where} is complex (dtype {arr.dtype}); a record's values are "
+                              "real numbers")
+    try:
+        return np.asarray(arr, dtype=float)
+    except (TypeError, ValueError):
+        raise ExperimentError(f"{where} is not numeric (dtype {arr.dtype})") from None
 
 
 def _check_column(values: np.ndarray, where: str, *, increasing: bool = False) -> np.ndarray:
@@ -101,9 +116,13 @@ def table_columns(obj: Any, name: str = "data") -> dict[str, np.ndarray]:
     columns = getattr(obj, "columns", None)
     if columns is None:  # a Series
         t = _seconds(obj.index, f"{name}: the index (t)")
-        cols = {"x": np.asarray(obj.to_numpy(), dtype=float)}
         label = getattr(obj, "name", None)
+        if isinstance(label, str) and label in ("t", *TABLE_COLUMNS) and label != "x":
+            raise ExperimentError(f"{name}: a Series is read as x (the position, m) but this "
+                                  f"one is named {label!r}; give a DataFrame with columns 'x' "
+                                  f"and {label!r}")
         where_x = f"{name}: the values (x{'' if label is None else f', named {label!r}'})"
+        cols = {"x": _real(obj.to_numpy(), where_x)}
         out = {"t": _check_column(t, f"{name}: the index (t)", increasing=True),
                "x": _check_column(cols["x"], where_x)}
     else:
@@ -128,10 +147,7 @@ def table_columns(obj: Any, name: str = "data") -> dict[str, np.ndarray]:
         for label, col in zip(labels, columns, strict=True):
             if label == "t":
                 continue
-            try:
-                values = np.asarray(obj[col].to_numpy(), dtype=float)
-            except (TypeError, ValueError):
-                raise ExperimentError(f"{name}: column {label!r} is not numeric") from None
+            values = _real(obj[col].to_numpy(), f"{name}: column {label!r}")
             out[label] = _check_column(values, f"{name}: column {label!r}")
     if out["t"].size < 2:
         raise ExperimentError(f"{name}: {out['t'].size} sample(s); at least 2 are needed")

@@ -409,6 +409,13 @@ def run_from_arrays(
         if both:
             raise ExperimentError(f"run_from_arrays: column(s) {', '.join(map(repr, both))} "
                                   "of `t` also given as argument(s); give each once")
+        for k, value in given.items():  # a Series beside the table: read by position, so
+            # its index must be the table's (else its samples would silently be misplaced)
+            same = getattr(getattr(value, "index", None), "equals", None)
+            if is_table(value) and callable(same) and not same(t.index):
+                raise ExperimentError(
+                    f"run_from_arrays: `{k}` is a Series whose index is not that of `t`; "
+                    f"align it first ({k}.reindex(t.index)) or make it a column of `t`")
         t, x = cols["t"], cols["x"]
         u, F, r, w = (cols.get(k, value) for k, value in given.items())
     elif x is None:

@@ -12,8 +12,9 @@ Gaussian noise, so
 
     ŝ = 1.4826 · MAD(Δ³x) / √20.
 
-A smooth motion of amplitude A and angular frequency ω sampled every Δt adds at most A(ωΔt)³
-to a third difference: 3·10⁻⁵ A at 100 samples per period, far below any usable noise. The
+A smooth motion of amplitude A and angular frequency ω sampled every Δt adds at most
+A·(2 sin(ωΔt/2))³ ≤ A(ωΔt)³ to a third difference: 2.5·10⁻⁴ A at 100 samples per period
+(ωΔt = 2π/100), 3·10⁻⁵ A at 200, far below any usable noise. The
 median makes a few steps or spikes harmless. A record so finely quantised that most third
 differences are exactly 0 (MAD = 0) falls back to the RMS of Δ³x over √20.
 

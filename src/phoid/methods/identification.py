@@ -227,6 +227,10 @@ def identify_pho_data(
     names = list(names) if names is not None else files
     P = np.asarray(P, dtype=float)
     D = np.asarray(D, dtype=float)
+    for label, seq in (("P", P), ("D", D), ("files", files), ("names", names)):
+        if np.ndim(seq) != 1 or len(seq) != n:
+            raise ValueError(f"`{label}` must give one entry per run ({n} runs); got "
+                             f"{'shape ' + str(np.shape(seq)) if np.ndim(seq) != 1 else len(seq)}")
     if added_mass is not None:
         added_mass = np.broadcast_to(np.asarray(added_mass, dtype=float), (n,)).copy()
         if not np.all(np.isfinite(added_mass) & (added_mass >= 0)):

@@ -21,6 +21,7 @@ The Jacobian comes from implicit differentiation of the characteristic equation:
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -41,6 +42,10 @@ from phoid.methods.chi2 import chi2_isf
 from phoid.reports.text import format_estimate
 
 __all__ = ["Estimate", "LineFit", "MCKFit", "delay_profile", "fit_lines", "fit_modes"]
+
+
+# a format spec that pads the whole "value ± stderr unit" text: [[fill]align][width][s]
+_TEXT_SPEC = re.compile(r"(.?[<>^])?([1-9]\d*)?s?")
 
 
 @dataclass(frozen=True)
@@ -75,16 +80,21 @@ class Estimate:
         return float(self.value)
 
     def __format__(self, spec: str) -> str:
-        """``format(est, spec)`` / f-strings: a non-empty ``spec`` formats the value
-        (``f"{est:.4f}"`` is ``format(est.value, ".4f")``); an empty one gives
-        ``"value ± stderr unit"``, rounded to the stderr's first two significant digits
-        (:func:`phoid.reports.text.format_estimate`; the value alone when there is no stderr).
+        """``format(est, spec)`` / f-strings: an empty ``spec`` gives ``"value ± stderr unit"``,
+        rounded to the stderr's first two significant digits
+        (:func:`phoid.reports.text.format_estimate`; the value alone when there is no
+        stderr); a spec of fill, alignment and width only (``">30"``), or ending in ``s``,
+        pads that text; any other spec formats the value (``f"{est:.4f}"`` is
+        ``format(est.value, ".4f")``).
         """
-        if spec:
-            return format(float(self.value), spec)
         se = None if self.stderr is None else float(self.stderr)
         text = format_estimate(float(self.value), se)
-        return f"{text} {self.unit}" if self.unit else text
+        text = f"{text} {self.unit}" if self.unit else text
+        if not spec:
+            return text
+        if _TEXT_SPEC.fullmatch(spec):
+            return format(text, spec)
+        return format(float(self.value), spec)
 
 
 @dataclass(frozen=True)

@@ -133,7 +133,8 @@ def u_contradicts_gains(data: Sequence[tuple[np.ndarray, np.ndarray]],
     g_med = float(np.median([g for _, g in bad]))
     hints = [h for h in (unit_hint("u", g_med), unit_hint("x", 1.0 / g_med) if g_med else "")
              if h]
-    hint = f" ({'; or '.join(hints)})" if hints else ""
+    hint = (f" ({'; or '.join(hints)}; or a [units] entry given for them is the wrong one)"
+            if hints else "")
     return (f"the recorded u contradicts the given gains and delay in {len(bad)} run(s): u is "
             f"not -(P x + D x') at t - delay but that times {listed}: check P, D, the units "
             f"of x (m) and u (N){hint}, or the delay; m, c, k assume the gains are right")

@@ -406,6 +406,7 @@ def identify_tracking(experiment: Any, *, delay: float | None = None,
                         "loop with delay 0")
     for name, v in zip((rec.name for rec in records), validations, strict=True):
         warnings += [f"{name}: {w}" for w in v.warnings]
+    warnings += [w for w in map(_scale_mismatch, records) if w]
     return TrackingIdentification(
         estimator=choice, estimates=estimates, delay_source=source, fit=fit,
         validations=tuple(validations), run_names=tuple(rec.name for rec in records),
@@ -583,6 +584,24 @@ def _records(experiment, runs, ctrls) -> tuple[TrackingRecord, ...]:
                        t0=float(r.t[0]), name=f"run {r.index} ({r.file})")
         for r, c in zip(runs, ctrls, strict=True)
     )
+
+
+def _scale_mismatch(rec: TrackingRecord) -> str:
+    """A warning when a run's r and x differ in scale by a unit's factor, else ``""``.
+
+    The loop makes x follow r, so the ratio ρ = rms(r − r̄)/rms(x − x̄) of the recorded
+    columns (read in SI, after ``[units]``) is near 1; within a factor 2 of a unit's factor
+    (10³ for mm read as m, 39.4 for in, …: :func:`phoid.io.units.unit_hint`) the two
+    columns are most likely in different units.
+    """
+    rx = float(np.std(rec.x))
+    ratio = float(np.std(rec.r)) / rx if rx > 0 else math.nan
+    hints = [h for h in (unit_hint("r", ratio), unit_hint("x", 1.0 / ratio)) if h]
+    if not hints:
+        return ""
+    return (f"{rec.name}: the reference r varies {ratio:.3g} times as much as the position x "
+            f"that tracks it: are they in the same units? ({'; or '.join(hints)}; "
+            "a [units] entry already given may be the wrong one)")
 
 
 def _simulable(estimates: Mapping[str, Estimate], warnings: list[str]) -> dict[str, float]:

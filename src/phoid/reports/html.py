@@ -35,6 +35,7 @@ from pathlib import Path
 from typing import Any
 
 from phoid._output import OutputFolder
+from phoid.errors import OutputError
 from phoid.reports.text import format_estimate
 
 __all__ = ["check_report_target", "environment", "estimates_of", "file_checksums",
@@ -115,7 +116,7 @@ def _runs_count(result: Any, summary: dict[str, Any]) -> int | None:
 
 def _estimate_text(est: dict[str, Any]) -> str:
     value, se = est.get("value"), est.get("stderr")
-    if value is None or not isinstance(value, (int, float)):
+    if value is None or not isinstance(value, (int, float)) or math.isnan(value):
         return "undefined"
     return format_estimate(float(value), None if se is None else float(se))
 
@@ -205,8 +206,9 @@ def _estimates_table(ests: dict[str, dict[str, Any]]) -> str:
     rows = []
     for name, est in ests.items():
         value, se = est.get("value"), est.get("stderr")
-        rel = (f"{100 * abs(se / value):.2g} %" if isinstance(value, (int, float)) and value
-               and isinstance(se, (int, float)) and se > 0 else "")
+        rel = (f"{100 * abs(se / value):.2g} %" if isinstance(value, (int, float))
+               and isinstance(se, (int, float)) and math.isfinite(value) and value
+               and math.isfinite(se) and se > 0 else "")
         notes = "; ".join(f"{k} {_scalar_text(v)}" for k, v in est.items()
                           if k not in ("value", "stderr", "unit"))
         rows.append([_e(name), _e(_estimate_text(est)), _e(est.get("unit", "")), _e(rel),
@@ -554,15 +556,35 @@ def report_html(result: Any, *, experiment: Any = None, inputs: Iterable[str | P
             + "\n".join(body) + "\n</body></html>\n")
 
 
-def check_report_target(path: str | Path, *, overwrite: bool = False) -> Path:
+def check_report_target(path: str | Path, *, overwrite: bool = False,
+                        figures: str | Path | None = None) -> Path:
     """Refuse a report target that :func:`write_report` would refuse, before any work.
+
+    Parameters
+    ----------
+    path : str or Path
+        The report's file.
+    overwrite : bool
+        An existing regular file may be replaced.
+    figures : str or Path, optional
+        Where the same command writes its figures (a folder of PNG files, or one PNG file):
+        ``path`` may be neither that path nor a PNG file inside it.
 
     Raises
     ------
     phoid.errors.OutputError
-        ``path`` is a link, a folder, not a regular file, or exists without ``overwrite``.
+        ``path`` is empty, ``.`` or ``..``, a link, a folder, not a regular file, exists
+        without ``overwrite``, or would collide with ``figures``.
     """
     path = Path(path)
+    if path.name in ("", ".", ".."):
+        raise OutputError(f"{str(path)!r}: names a folder, not a file; give the report's file "
+                          "name (e.g. report.html)")
+    if figures is not None:
+        h, f = path.resolve(), Path(figures).resolve()
+        if h == f or (h.parent == f and h.suffix.lower() == ".png"):
+            raise OutputError(f"{path}: would collide with the figures written to {figures}; "
+                              "give the report another name")
     OutputFolder(path.parent, overwrite=overwrite).check([path.name])
     return path
 

@@ -30,7 +30,8 @@ def format_estimate(value: float, se: float | None) -> str:
         The estimate.
     se : float or None
         Its standard error; None, non-finite or ≤ 0 prints ``value`` alone (6 significant
-        digits).
+        digits). A standard error below the value's double-precision resolution prints the
+        value to 17 significant digits (all a float64 has), not to the stderr's place.
 
     Returns
     -------
@@ -42,10 +43,17 @@ def format_estimate(value: float, se: float | None) -> str:
     '2.0001 ± 0.0042'
     >>> format_estimate(64.0, None)
     '64'
+    >>> format_estimate(2.0, 1e-300)
+    '2 ± 1e-300'
     """
     if se is None or not math.isfinite(se) or se <= 0:
         return f"{value:.6g}"
     digits = max(0, 1 - math.floor(math.log10(se)))
+    # significant digits that fixed-point notation would print: beyond 17 they are not the
+    # float's (and a tiny stderr would ask for hundreds of them)
+    lead = math.floor(math.log10(abs(value))) + 1 if math.isfinite(value) and value else 1
+    if lead + digits > 17:
+        return f"{value:.17g} ± {se:.2g}"
     return f"{value:.{digits}f} ± {se:.2g}"
 
 
