@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 
 from phoid.fits import DecayFit
+from phoid.interop.exports import LoopExports
 from phoid.methods.fit_statistics import fit_blocks, residual_noise_ratio, window_noise
 from phoid.methods.pho import Estimate, MCKFit, open_loop_omega0, open_loop_zeta
 
@@ -96,7 +97,7 @@ class RunMode:
 
 
 @dataclass(frozen=True)
-class Identification:
+class Identification(LoopExports):
     """Result of :func:`phoid.identify`: m, c, k with uncertainties, per-run modes, warnings.
 
     Attributes
@@ -264,50 +265,3 @@ class Identification:
         from phoid.reports.figures import plot_identification
 
         return plot_identification(self, out_dir, overwrite=overwrite)
-
-    # ---- export: python-control, scipy.signal, pandas (phoid.interop) ----
-
-    def to_control(self, *, form: str = "tf") -> Any:
-        """The identified plant G(s) = 1/(m s² + c s + k), force (N) → position (m), as a
-        python-control system (:func:`phoid.interop.control.to_control`).
-
-        ``form="tf"`` gives a TransferFunction, ``"ss"`` a StateSpace with states x (m) and
-        v (m/s); the covariance of (m, c, k) travels as ``.phoid.cov``.
-        """
-        from phoid.interop.control import to_control
-
-        return to_control(self, form=form)
-
-    def to_lti(self, *, form: str = "tf") -> Any:
-        """The identified plant as a :class:`scipy.signal.lti` (no python-control needed;
-        :func:`phoid.interop.control.to_lti`)."""
-        from phoid.interop.control import to_lti
-
-        return to_lti(self, form=form)
-
-    def closed_loop(self, run: int | str, *, pade_order: int | None = None,
-                    form: str = "tf") -> Any:
-        """One run's closed loop, external force (N) → position (m), as a python-control
-        system (:func:`phoid.interop.control.closed_loop`): exact without a delay, the delay
-        as a Padé approximant (``pade_order``; by default the lowest that matches the loop's
-        certified dominant root), or the exact discrete-time loop of a sampled controller.
-        ``.phoid`` carries the run, the Padé order and its error."""
-        from phoid.interop.control import closed_loop
-
-        return closed_loop(self, run, pade_order=pade_order, form=form)
-
-    def sample_plants(self, n: int, rng: Any = None, *, form: str = "plant") -> list:
-        """``n`` Monte Carlo plants: (m, c, k) drawn from the estimates' normal with this
-        result's covariance, draws with m ≤ 0, c < 0 or k < 0 rejected
-        (:func:`phoid.interop.sampling.sample_plants`; ``form`` "plant", "tf", "ss", "lti")."""
-        from phoid.interop.sampling import sample_plants
-
-        return sample_plants(self, n, rng, form=form)
-
-    def to_pandas(self) -> Any:
-        """``Frames(estimates, runs)``: the estimates (rows m, c, k, …; columns value, stderr,
-        unit) and the runs (one row per run) as pandas DataFrames
-        (:func:`phoid.interop.tables.to_pandas`)."""
-        from phoid.interop.tables import to_pandas
-
-        return to_pandas(self)

@@ -34,6 +34,7 @@ import numpy as np
 from phoid.dynamics.controller import SampledController
 from phoid.dynamics.plant import Plant
 from phoid.errors import IdentificationError
+from phoid.interop.exports import PlantExports
 from phoid.io.units import unit_hint
 from phoid.methods.fit_statistics import difference_noise, fit_blocks, residual_noise_ratio
 from phoid.methods.pho import Estimate
@@ -64,7 +65,7 @@ _IDIM_NAMES = {"m": "M", "c": "Fv", "fc": "Fc", "offset": "OF", "k": "k"}
 
 
 @dataclass(frozen=True, eq=False)
-class TrackingIdentification:
+class TrackingIdentification(PlantExports):
     """The result of :func:`identify_tracking`.
 
     Attributes
@@ -197,42 +198,6 @@ class TrackingIdentification:
             written.append(plot_tracking(v, folder / f"tracking_run{i:02d}.png",
                                          overwrite=overwrite))
         return written
-
-    # ---- export: python-control, scipy.signal, pandas (phoid.interop) ----
-
-    def to_control(self, *, form: str = "tf") -> Any:
-        """The identified plant G(s) = 1/(m s² + c s + k), force (N) → position (m), as a
-        python-control system (:func:`phoid.interop.control.to_control`).
-
-        ``form="tf"`` gives a TransferFunction, ``"ss"`` a StateSpace with states x (m) and
-        v (m/s); the covariance of (m, c, k) travels as ``.phoid.cov``.
-        """
-        from phoid.interop.control import to_control
-
-        return to_control(self, form=form)
-
-    def to_lti(self, *, form: str = "tf") -> Any:
-        """The identified plant as a :class:`scipy.signal.lti` (no python-control needed;
-        :func:`phoid.interop.control.to_lti`)."""
-        from phoid.interop.control import to_lti
-
-        return to_lti(self, form=form)
-
-    def sample_plants(self, n: int, rng: Any = None, *, form: str = "plant") -> list:
-        """``n`` Monte Carlo plants: (m, c, k) drawn from the estimates' normal with this
-        result's covariance, draws with m ≤ 0, c < 0 or k < 0 rejected
-        (:func:`phoid.interop.sampling.sample_plants`; ``form`` "plant", "tf", "ss", "lti")."""
-        from phoid.interop.sampling import sample_plants
-
-        return sample_plants(self, n, rng, form=form)
-
-    def to_pandas(self) -> Any:
-        """``Frames(estimates, runs)``: the estimates (rows m, c, k, …; columns value, stderr,
-        unit) and the runs (one row per run) as pandas DataFrames
-        (:func:`phoid.interop.tables.to_pandas`)."""
-        from phoid.interop.tables import to_pandas
-
-        return to_pandas(self)
 
 
 def validation_noise_ratio(validation: Any) -> float | None:

@@ -9,6 +9,7 @@ from typing import Any
 
 import numpy as np
 
+from phoid.interop.exports import PlantExports
 from phoid.methods._modal import release_basis
 from phoid.methods.fit_statistics import fit_blocks, residual_noise_ratio, window_noise
 from phoid.methods.forced.stiffness import ResponseFit
@@ -125,7 +126,7 @@ class ForcedRun:
 
 
 @dataclass(frozen=True)
-class ForcedIdentification:
+class ForcedIdentification(PlantExports):
     """Result of :func:`identify_forced`: m, c, k with uncertainties, per-run R and ρ.
 
     Attributes
@@ -250,39 +251,3 @@ class ForcedIdentification:
         from phoid.reports.figures import plot_forced
 
         return plot_forced(self, out_dir, overwrite=overwrite)
-
-    # ---- export: python-control, scipy.signal, pandas (phoid.interop) ----
-
-    def to_control(self, *, form: str = "tf") -> Any:
-        """The identified plant G(s) = 1/(m s² + c s + k), force (N) → position (m), as a
-        python-control system (:func:`phoid.interop.control.to_control`).
-
-        ``form="tf"`` gives a TransferFunction, ``"ss"`` a StateSpace with states x (m) and
-        v (m/s); the covariance of (m, c, k) travels as ``.phoid.cov``.
-        """
-        from phoid.interop.control import to_control
-
-        return to_control(self, form=form)
-
-    def to_lti(self, *, form: str = "tf") -> Any:
-        """The identified plant as a :class:`scipy.signal.lti` (no python-control needed;
-        :func:`phoid.interop.control.to_lti`)."""
-        from phoid.interop.control import to_lti
-
-        return to_lti(self, form=form)
-
-    def sample_plants(self, n: int, rng: Any = None, *, form: str = "plant") -> list:
-        """``n`` Monte Carlo plants: (m, c, k) drawn from the estimates' normal with this
-        result's covariance, draws with m ≤ 0, c < 0 or k < 0 rejected
-        (:func:`phoid.interop.sampling.sample_plants`; ``form`` "plant", "tf", "ss", "lti")."""
-        from phoid.interop.sampling import sample_plants
-
-        return sample_plants(self, n, rng, form=form)
-
-    def to_pandas(self) -> Any:
-        """``Frames(estimates, runs)``: the estimates (rows m, c, k, …; columns value, stderr,
-        unit) and the runs (one row per run) as pandas DataFrames
-        (:func:`phoid.interop.tables.to_pandas`)."""
-        from phoid.interop.tables import to_pandas
-
-        return to_pandas(self)
