@@ -87,3 +87,48 @@ def paper_sample(request) -> SampleSet:
     """Both independent sets in turn: the repository's, then (a cross-check, skipped where
     absent) the shared one."""
     return _example() if request.param == "examples" else _shared()
+
+
+# --------------------------------------------------------------------------------------------
+# small sets of every kind of identify output (a few seconds of record at 500 Hz: only the
+# output's keys matter to their users, tests/test_format_doc.py and tests/test_json_schema.py)
+VARIED_PLANT = ("--m", "1", "--c", "2", "--k", "100")
+VARIED_SMALL = ("--duration", "3", "--fs", "500", "--noise", "1e-5")
+
+
+@pytest.fixture(scope="session")
+def varied_sets(tmp_path_factory) -> dict[str, Path]:
+    """Folders of simulated sets: ``pho`` (continuous loop, no delay in the manifest, u
+    recorded with noise), ``nou`` (the same runs without u), ``dig`` (a sampled loop),
+    ``forced``, ``free`` (with its mass), ``fr`` (Coulomb friction)."""
+    import dataclasses
+
+    from typer.testing import CliRunner
+
+    import phoid.io
+    from phoid.cli import app
+
+    runner = CliRunner()
+
+    def cli(*args) -> None:
+        r = runner.invoke(app, [str(a) for a in args])
+        assert r.exit_code == 0, (args, r.output)
+
+    root = tmp_path_factory.mktemp("varied-sets")
+    s = {name: root / name for name in ("pho", "nou", "dig", "forced", "free", "fr")}
+    cli("simulate", s["pho"], *VARIED_PLANT, "--P", "20:200:4", "--D", "0.5:3:4", "--delay",
+        "0.02", *VARIED_SMALL, "--u-noise", "1e-3", "--omit-delay", "--seed", "1")
+    exp = phoid.io.read_experiment(s["pho"])
+    phoid.io.write_experiment(
+        s["nou"], [dataclasses.replace(r, u=None) for r in exp.runs], method="pho")
+    cli("simulate", s["dig"], *VARIED_PLANT, "--P", "20:200:4", "--D", "0.5:5:4",
+        "--sample-time", "0.002", "--delay-samples", "3", "--velocity", "filtered",
+        "--cutoff", "300", *VARIED_SMALL, "--seed", "4")
+    cli("simulate", s["forced"], "--method", "forced", *VARIED_PLANT, "--omega", "6,9,14",
+        "--duration", "8", "--fs", "200", "--noise", "1e-5", "--seed", "1")
+    cli("simulate", s["free"], "--method", "free", *VARIED_PLANT, *VARIED_SMALL, "--seed", "3",
+        "--write-mass")
+    cli("simulate", s["fr"], *VARIED_PLANT, "--fc", "0.05", "--P", "0:150:3", "--D",
+        "0.5:3:3", "--delay", "0.02", "--duration", "2", "--fs", "500", "--noise", "1e-5",
+        "--x0", "0.008", "--seed", "3")
+    return s

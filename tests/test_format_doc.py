@@ -16,7 +16,6 @@ the tables) or quoted (``"key"``, as in the page's JSON shapes) inside the secti
 
 from __future__ import annotations
 
-import dataclasses
 import gzip
 import json
 import re
@@ -91,35 +90,14 @@ def json_of(*args: str, ok=(0,)) -> dict:
 
 
 # --------------------------------------------------------------------------------------------
-# the sets (small: a few seconds of record at 500 Hz; only the keys matter here)
-PLANT = ("--m", "1", "--c", "2", "--k", "100")
-SMALL = ("--duration", "3", "--fs", "500", "--noise", "1e-5")
+# the sets: conftest's varied_sets (small; only the keys matter here)
+PLANT = ("--m", "1", "--c", "2", "--k", "100")  # the plant of varied_sets, for `design`
 
 
 @pytest.fixture(scope="module")
-def sets(tmp_path_factory) -> dict[str, Path]:
-    root = tmp_path_factory.mktemp("format-doc")
-    s = {name: root / name for name in ("pho", "nou", "dig", "forced", "free", "fr")}
-    # a continuous loop, no delay in the manifest, u recorded with noise (so `[simulated]`
-    # carries u_noise too)
-    cli("simulate", s["pho"], *PLANT, "--P", "20:200:4", "--D", "0.5:3:4", "--delay", "0.02",
-        *SMALL, "--u-noise", "1e-3", "--omit-delay", "--seed", "1")
-    # the same runs without u: the delay is estimated from x only
-    exp = phoid.io.read_experiment(s["pho"])
-    phoid.io.write_experiment(
-        s["nou"], [dataclasses.replace(r, u=None) for r in exp.runs], method="pho")
-    cli("simulate", s["dig"], *PLANT, "--P", "20:200:4", "--D", "0.5:5:4", "--sample-time",
-        "0.002", "--delay-samples", "3", "--velocity", "filtered", "--cutoff", "300", *SMALL,
-        "--seed", "4")
-    cli("simulate", s["forced"], "--method", "forced", *PLANT, "--omega", "6,9,14",
-        "--duration", "8", "--fs", "200", "--noise", "1e-5", "--seed", "1")
-    cli("simulate", s["free"], "--method", "free", *PLANT, *SMALL, "--seed", "3",
-        "--write-mass")
-    cli("simulate", s["fr"], *PLANT, "--fc", "0.05", "--P", "0:150:3", "--D", "0.5:3:3",
-        "--delay", "0.02", "--duration", "2", "--fs", "500", "--noise", "1e-5", "--x0",
-        "0.008", "--seed", "3")
-    s["sched"] = root / "sched"
-    return s
+def sets(varied_sets, tmp_path_factory) -> dict[str, Path]:
+    """conftest's ``varied_sets`` and a folder for a designed schedule."""
+    return {**varied_sets, "sched": tmp_path_factory.mktemp("format-doc") / "sched"}
 
 
 @pytest.fixture(scope="module")

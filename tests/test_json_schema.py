@@ -12,7 +12,6 @@ docs/format.md and the code move together.
 from __future__ import annotations
 
 import copy
-import dataclasses
 import json
 import shutil
 import tomllib
@@ -135,25 +134,11 @@ def _tracking_set(folder: Path, noise: float = 2e-6) -> Path:
 
 
 @pytest.fixture(scope="module")
-def outputs(tmp_path_factory) -> dict[str, tuple[str, dict]]:
-    """name → (schema, the JSON the command printed)."""
+def outputs(tmp_path_factory, varied_sets) -> dict[str, tuple[str, dict]]:
+    """name → (schema, the JSON the command printed), on conftest's ``varied_sets`` and a
+    tracking set."""
     root = tmp_path_factory.mktemp("json-schema")
-    s = {name: root / name for name in ("pho", "nou", "dig", "forced", "free", "fr")}
-    cli("simulate", s["pho"], *PLANT, "--P", "20:200:4", "--D", "0.5:3:4", "--delay",
-            "0.02", *SMALL, "--u-noise", "1e-3", "--omit-delay", "--seed", "1")
-    exp = phoid.io.read_experiment(s["pho"])
-    phoid.io.write_experiment(
-        s["nou"], [dataclasses.replace(r, u=None) for r in exp.runs], method="pho")
-    cli("simulate", s["dig"], *PLANT, "--P", "20:200:4", "--D", "0.5:5:4", "--sample-time",
-            "0.002", "--delay-samples", "3", "--velocity", "filtered", "--cutoff", "300", *SMALL,
-            "--seed", "4")
-    cli("simulate", s["forced"], "--method", "forced", *PLANT, "--omega", "6,9,14",
-            "--duration", "8", "--fs", "200", "--noise", "1e-5", "--seed", "1")
-    cli("simulate", s["free"], "--method", "free", *PLANT, *SMALL, "--seed", "3",
-            "--write-mass")
-    cli("simulate", s["fr"], *PLANT, "--fc", "0.05", "--P", "0:150:3", "--D", "0.5:3:3",
-            "--delay", "0.02", "--duration", "2", "--fs", "500", "--noise", "1e-5", "--x0",
-            "0.008", "--seed", "3")
+    s = varied_sets
     trk = _tracking_set(root / "trk")
     out = {
         "paper-sample": ("identify", json_of("identify", ROOT / "examples" / "paper-sample",
