@@ -23,7 +23,8 @@ def _fail(message: str, code: int = 2) -> None:
 def batch(
     sets: Annotated[list[str], typer.Argument(
         help="Experiment sets: folders (or their experiment.toml), glob patterns ('fleet/*') "
-             "or text files listing one set per line.")],
+             "or text files listing one set per line (# comments and blank lines skipped; "
+             "relative paths taken from the list file's folder).")],
     out: Annotated[Path, typer.Option(
         help="Parquet file of the rows (a CSV of the same name is written beside it). Sets "
              "it already holds with the same checksum and options are skipped, so a batch "

@@ -47,13 +47,14 @@ def expand_sets(specs: Iterable[str | os.PathLike[str]]) -> list[str]:
     Returns
     -------
     list of str
-        Absolute paths (``Path.resolve``), duplicates dropped.
+        Absolute paths (``Path.resolve``; a set's ``experiment.toml`` named by its folder),
+        duplicates dropped.
 
     Raises
     ------
     ExperimentError
         One line naming a glob pattern that matches nothing, or a list file that cannot be
-        read.
+        read or names no set.
     """
     out: list[str] = []
     for spec in specs:
@@ -63,21 +64,31 @@ def expand_sets(specs: Iterable[str | os.PathLike[str]]) -> list[str]:
             matches = sorted(glob.glob(text, recursive=True))
             if not matches:
                 raise ExperimentError(f"{text}: the pattern matches no set")
-            out += [str(Path(m).resolve()) for m in matches]
+            out += [_canonical(Path(m)) for m in matches]
         elif _is_list_file(path):
             try:
                 lines = path.read_text(encoding="utf-8").splitlines()
             except (OSError, UnicodeDecodeError) as exc:
                 raise ExperimentError(f"{path}: the list of sets cannot be read: {exc}") from None
-            for line in lines:
-                line = line.strip()
-                if line and not line.startswith("#"):
-                    entry = Path(line)
-                    out.append(str((entry if entry.is_absolute() else path.parent / entry)
-                                   .resolve()))
+            listed = [line.strip() for line in lines]
+            listed = [line for line in listed if line and not line.startswith("#")]
+            if not listed:
+                raise ExperimentError(f"{path}: the list of sets names no set (only blank "
+                                      "lines and # comments)")
+            for line in listed:
+                entry = Path(line)
+                out.append(_canonical(entry if entry.is_absolute() else path.parent / entry))
         else:
-            out.append(str(path.resolve()))
+            out.append(_canonical(path))
     return list(dict.fromkeys(out))
+
+
+def _canonical(path: Path) -> str:
+    """A set's name in a batch: the resolved folder (for ``DIR/experiment.toml`` too)."""
+    resolved = path.resolve()
+    if resolved.name == MANIFEST and resolved.is_file():
+        return str(resolved.parent)
+    return str(resolved)
 
 
 @dataclass(frozen=True)
