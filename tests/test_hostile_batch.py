@@ -265,8 +265,21 @@ def test_an_estimate_without_a_usable_stderr_is_not_dropped_silently(stderr):
     result = trend(_rows(stderr))
     chart = result.units[0].charts[0]
     assert len(chart.points) == 7
-    assert any("a, m: 1 of 8 estimates without a finite stderr > 0" in w and "sets/a-7" in w
-               for w in result.warnings), result.warnings
+    assert any("a, m: 1 of 8 estimates without a finite value and stderr > 0" in w
+               and "sets/a-7" in w for w in result.warnings), result.warnings
+
+
+def test_a_non_finite_estimate_is_left_out_with_a_warning_naming_its_set():
+    # finding: one m = inf in the table ended the whole trend with "`values` must be finite
+    # and `stderrs` finite and > 0", naming neither the unit nor the set
+    from phoid.batch.drift import trend
+
+    rows = _rows(0.1)
+    rows.loc[3, "m"] = math.inf
+    result = trend(rows)
+    assert [p.set for p in result.units[0].charts[0].points] == [
+        f"sets/a-{i}" for i in (0, 1, 2, 4, 5, 6, 7)]
+    assert any("a, m: 1 of 8" in w and "sets/a-3" in w for w in result.warnings)
 
 
 def test_figure_names_are_distinct_and_short_whatever_the_units():
