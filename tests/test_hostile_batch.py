@@ -83,6 +83,26 @@ def test_list_file_entries_are_relative_to_the_list_files_folder(tmp_path, monke
     assert "list file's folder" in help_text.replace("│ ", "").replace(" │", "")
 
 
+def test_a_set_path_that_is_not_utf8_is_refused_before_any_work(tmp_path):
+    # finding: a folder named b"s\xff" ended the batch halfway with "'utf-8' codec can't
+    # encode character '\udcff'", a journal left behind
+    import os
+
+    s1 = _set(tmp_path / "s1")
+    try:
+        os.mkdir(os.path.join(os.fsencode(tmp_path), b"s\xff"))
+    except (OSError, UnicodeError):
+        pytest.skip("this file system refuses names that are not UTF-8")
+    bad = os.fsdecode(os.path.join(os.fsencode(tmp_path), b"s\xff"))
+    with pytest.raises(ExperimentError, match="not UTF-8 text"):
+        expand_sets([s1, bad])
+    res = runner.invoke(app, ["batch", str(s1), bad, "--out", str(tmp_path / "r.parquet"),
+                              "--workers", "0"])
+    _one_line_error(res, "not UTF-8 text")
+    assert not (tmp_path / "r.parquet").exists()
+    assert not (tmp_path / "r.journal.jsonl").exists()
+
+
 # --- the output ------------------------------------------------------------------------------
 
 

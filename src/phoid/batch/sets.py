@@ -53,8 +53,8 @@ def expand_sets(specs: Iterable[str | os.PathLike[str]]) -> list[str]:
     Raises
     ------
     ExperimentError
-        One line naming a glob pattern that matches nothing, or a list file that cannot be
-        read or names no set.
+        One line naming a glob pattern that matches nothing, a list file that cannot be
+        read or names no set, or a set whose path is not UTF-8 text.
     """
     out: list[str] = []
     for spec in specs:
@@ -87,8 +87,14 @@ def _canonical(path: Path) -> str:
     """A set's name in a batch: the resolved folder (for ``DIR/experiment.toml`` too)."""
     resolved = path.resolve()
     if resolved.name == MANIFEST and resolved.is_file():
-        return str(resolved.parent)
-    return str(resolved)
+        resolved = resolved.parent
+    name = str(resolved)
+    try:
+        name.encode("utf-8")
+    except UnicodeEncodeError:  # bytes the file system took that are not UTF-8 text
+        raise ExperimentError(f"{name!r}: the set's path is not UTF-8 text, which the batch "
+                              "output (Parquet, CSV, JSON) stores; rename the folder") from None
+    return name
 
 
 @dataclass(frozen=True)
