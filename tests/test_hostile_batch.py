@@ -313,3 +313,27 @@ def test_figure_names_are_distinct_and_short_whatever_the_units():
         assert "/" not in name and "\\" not in name and not name.startswith(".")
         assert name.startswith("trend-") and name.endswith(".png")
         assert len(name.encode()) <= len("trend-") + MAX_NAME + len("-NN_.png") + 3 < 255
+
+
+# --- the Python entry ------------------------------------------------------------------------
+
+
+def test_one_set_given_as_a_string_is_one_set_not_its_characters(tmp_path):
+    # finding: phoid.identify_many("fleet/a") identified the sets "f", "l", "e", ... (a str
+    # is iterable), and a Path was a TypeError
+    s1 = _set(tmp_path / "s1")
+    assert expand_sets(str(s1)) == [str(s1.resolve())]
+    assert expand_sets(s1) == [str(s1.resolve())]
+
+
+@pytest.mark.parametrize("options", [{"delay": "abc"}, {"delay": math.nan}, {"mass": True},
+                                     {"friction": "yes"}, {"estimator": 3}])
+def test_identify_options_of_the_wrong_type_are_refused_before_any_set(tmp_path, options):
+    # finding: identify_many(..., delay="abc") ran every set to the same error row
+    import phoid
+
+    s1 = _set(tmp_path / "s1")
+    name = next(iter(options))
+    with pytest.raises(ValueError, match=f"identify option {name!r} must be"):
+        phoid.identify_many([s1], workers=0, out=tmp_path / "r.parquet", **options)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["s1"]

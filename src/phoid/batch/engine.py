@@ -205,9 +205,9 @@ def identify_many(sets: Iterable[str | os.PathLike[str]], client: Any = None, *,
 
     Parameters
     ----------
-    sets : iterable of str or path
+    sets : str, path or iterable of them
         Set folders (or manifests), glob patterns (``"fleet/*/"``) or text files listing
-        sets, one per line.
+        sets, one per line (a single str or path: one of these).
     client : distributed.Client, optional
         The cluster to run on. None: a local cluster of ``workers`` processes is started and
         closed; ``workers=0`` runs the sets one after the other in this process instead.
@@ -233,7 +233,7 @@ def identify_many(sets: Iterable[str | os.PathLike[str]], client: Any = None, *,
     PhoidError
         The batch extra missing, an output file in the way, a scheduler that does not answer.
     ValueError
-        An unknown option.
+        An unknown option, or one of the wrong type.
 
     Examples
     --------

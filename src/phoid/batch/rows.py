@@ -41,12 +41,28 @@ def canonical_options(options: Mapping[str, Any]) -> dict[str, Any]:
     Raises
     ------
     ValueError
-        Naming an option that ``phoid identify`` does not take.
+        Naming an option that ``phoid identify`` does not take, or one of the wrong type
+        (``delay`` in s and ``mass`` in kg: finite numbers or None; ``estimator``: a string
+        or None; ``no_compensation``, ``friction``: bools).
     """
     unknown = sorted(set(options) - set(OPTION_DEFAULTS))
     if unknown:
         raise ValueError(f"unknown identify option {unknown[0]!r}; the options are "
                          f"{', '.join(OPTION_DEFAULTS)}")
+    for name, value in options.items():
+        default = OPTION_DEFAULTS[name]
+        if isinstance(default, bool):
+            ok = isinstance(value, bool)
+        elif name == "estimator":
+            ok = value is None or isinstance(value, str)
+        else:  # delay (s) and mass (kg): a finite number or None
+            ok = value is None or (isinstance(value, int | float) and not isinstance(value, bool)
+                                   and math.isfinite(value))
+        if not ok:
+            raise ValueError(f"identify option {name!r} must be "
+                             + ("True or False" if isinstance(default, bool) else
+                                "a string or None" if name == "estimator" else
+                                "a finite number or None") + f"; got {value!r}")
     return {**OPTION_DEFAULTS, **options}
 
 

@@ -37,12 +37,13 @@ def expand_sets(specs: Iterable[str | os.PathLike[str]]) -> list[str]:
 
     Parameters
     ----------
-    specs : iterable of str or path
-        Each one of: a set's folder (holding ``experiment.toml``) or its manifest; a glob
-        pattern (``*``, ``?``, ``[``; matches in sorted order, recursive with ``**``); or a
-        text file (not ending in ``.toml``) listing one set per line (blank lines and lines
-        starting with ``#`` skipped; relative paths taken from the list file's folder). A
-        path that does not exist is kept: its row carries the error.
+    specs : str, path or iterable of them
+        A single str or path is one spec. Each one of: a set's folder (holding
+        ``experiment.toml``) or its manifest; a glob pattern (``*``, ``?``, ``[``; matches in
+        sorted order, recursive with ``**``); or a text file (not ending in ``.toml``) listing
+        one set per line (blank lines and lines starting with ``#`` skipped; relative paths
+        taken from the list file's folder). A path that does not exist is kept: its row
+        carries the error.
 
     Returns
     -------
@@ -56,6 +57,8 @@ def expand_sets(specs: Iterable[str | os.PathLike[str]]) -> list[str]:
         One line naming a glob pattern that matches nothing, a list file that cannot be
         read or names no set, or a set whose path is not UTF-8 text.
     """
+    if isinstance(specs, str | os.PathLike):  # one set or pattern, not its characters
+        specs = [specs]
     out: list[str] = []
     for spec in specs:
         text = os.fspath(spec)
