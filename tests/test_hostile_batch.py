@@ -337,3 +337,34 @@ def test_identify_options_of_the_wrong_type_are_refused_before_any_set(tmp_path,
     with pytest.raises(ValueError, match=f"identify option {name!r} must be"):
         phoid.identify_many([s1], workers=0, out=tmp_path / "r.parquet", **options)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["s1"]
+
+
+def test_a_data_file_linked_inside_the_set_is_read_as_phoid_identify_reads_it(tmp_path):
+    # finding: the checksum opened data files with O_NOFOLLOW, so a set whose run file is a
+    # link to a file inside its own folder (which `phoid identify` reads) was an error row
+    import hashlib
+    import json
+    import shutil
+    import tomllib
+
+    sample = Path(__file__).resolve().parents[1] / "examples" / "paper-sample"
+    linked = tmp_path / "linked"
+    shutil.copytree(sample, linked)
+    (linked / "data").mkdir()
+    (linked / "run01.csv.gz").rename(linked / "data" / "run01.csv.gz")
+    (linked / "run01.csv.gz").symlink_to("data/run01.csv.gz")
+    ident = runner.invoke(app, ["identify", str(linked), "--json"])
+    assert ident.exit_code == 0, ident.output
+    res = runner.invoke(app, ["batch", str(linked), "--out", str(tmp_path / "r.parquet"),
+                              "--workers", "0"])
+    assert res.exit_code == 0, res.output
+    row = pd.read_parquet(tmp_path / "r.parquet").iloc[0]
+    assert row["status"] == "ok", row["error"]
+    assert row["m"] == json.loads(ident.stdout)["m"]["value"]
+    # SHA-256 of the manifest's bytes, then each run file's bytes in [[run]] order
+    # (docs/format.md, "phoid batch output"), computed here from the original sample
+    manifest = (sample / "experiment.toml").read_bytes()
+    digest = hashlib.sha256(manifest)
+    for run in tomllib.loads(manifest.decode())["run"]:
+        digest.update((sample / run["file"]).read_bytes())
+    assert row["checksum"] == digest.hexdigest()

@@ -110,8 +110,9 @@ class SetDigest:
         The manifest's path.
     checksum : str
         SHA-256 (hex) over the manifest's bytes and then each data file's bytes, in the order
-        of the manifest's ``[[run]]`` tables (a file named twice counted once; a name that
-        would leave the set's folder is not read: the reader refuses such a set).
+        of the manifest's ``[[run]]`` tables (a file named twice counted once; a link is
+        followed while it resolves inside the set's folder; a name that would leave the
+        set's folder is not read: the reader refuses such a set).
     metadata : dict
         The manifest's optional ``[metadata]`` table (its scalar values), or empty.
     """
@@ -171,11 +172,19 @@ def set_digest(set_path: str | os.PathLike[str]) -> SetDigest:
         raise ExperimentError(f"{manifest}: not a TOML manifest: {exc}") from None
     runs = doc.get("run", [])
     files = [r.get("file") for r in runs if isinstance(r, dict)] if isinstance(runs, list) else []
+    root = manifest.parent.resolve()
     for name in dict.fromkeys(f for f in files if isinstance(f, str)):
         parts = name.split("/")
         if name.startswith("/") or ".." in parts or "\\" in name or "\0" in name:
             continue  # outside the set's folder: not read here (the reader refuses it)
-        _read_regular(manifest.parent / name, digest)
+        try:  # a link is followed while it stays inside the set's folder, as the reader does
+            real = (manifest.parent / name).resolve()
+        except (OSError, RuntimeError) as exc:
+            raise ExperimentError(f"{manifest.parent / name}: cannot be resolved: {exc}"
+                                  ) from None
+        if not real.is_relative_to(root):
+            continue  # a link leading outside: not read here (the reader refuses it)
+        _read_regular(real, digest)
     meta = doc.get("metadata", {})
     metadata = ({k: v for k, v in meta.items() if not isinstance(v, dict | list)}
                 if isinstance(meta, dict) else {})
