@@ -368,3 +368,21 @@ def test_a_data_file_linked_inside_the_set_is_read_as_phoid_identify_reads_it(tm
     for run in tomllib.loads(manifest.decode())["run"]:
         digest.update((sample / run["file"]).read_bytes())
     assert row["checksum"] == digest.hexdigest()
+
+
+def test_a_metadata_nan_or_inf_is_a_null_not_the_end_of_the_batch(tmp_path):
+    # finding: `[metadata] gain = nan` (valid TOML) ended the batch with "Out of range float
+    # values are not JSON compliant" (the journal's json.dumps), naming no file
+    import shutil
+
+    sample = Path(__file__).resolve().parents[1] / "examples" / "paper-sample"
+    folder = tmp_path / "odd"
+    shutil.copytree(sample, folder)
+    with open(folder / "experiment.toml", "a", encoding="utf-8") as fh:
+        fh.write('\n[metadata]\naxis = "a"\ngain = nan\nbig = -inf\nturns = 3\n')
+    res = runner.invoke(app, ["batch", str(folder), "--out", str(tmp_path / "r.parquet"),
+                              "--workers", "0"])
+    assert res.exit_code == 0, res.output
+    row = pd.read_parquet(tmp_path / "r.parquet").iloc[0]
+    assert row["status"] == "ok" and row["axis"] == "a" and row["meta_turns"] == 3
+    assert pd.isna(row["meta_gain"]) and pd.isna(row["meta_big"])

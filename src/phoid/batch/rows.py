@@ -88,7 +88,10 @@ def _timestamp(value: Any) -> str | None:
 
 
 def _meta_value(value: Any) -> Any:
-    """A ``[metadata]`` scalar as a column value (dates and times as ISO strings)."""
+    """A ``[metadata]`` scalar as a column value (dates and times as ISO strings; TOML's
+    ``nan`` and ``inf`` as null, which JSON, the journal's format, cannot hold)."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
     if isinstance(value, bool | int | float | str):
         return value
     return value.isoformat() if hasattr(value, "isoformat") else str(value)
