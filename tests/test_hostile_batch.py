@@ -386,3 +386,20 @@ def test_a_metadata_nan_or_inf_is_a_null_not_the_end_of_the_batch(tmp_path):
     row = pd.read_parquet(tmp_path / "r.parquet").iloc[0]
     assert row["status"] == "ok" and row["axis"] == "a" and row["meta_turns"] == 3
     assert pd.isna(row["meta_gain"]) and pd.isna(row["meta_big"])
+
+
+def test_a_glob_that_matches_the_output_does_not_make_it_a_set(tmp_path):
+    # finding: `phoid batch 'fleet/*' --out fleet/results.parquet` run twice added error rows
+    # for results.parquet and results.csv ("not a TOML manifest") to the table
+    fleet = tmp_path / "fleet"
+    _set(fleet / "a")
+    out = fleet / "results.parquet"
+    (fleet / "results.csv").write_text("not a batch output either\n")  # refused, see below
+    res = runner.invoke(app, ["batch", str(fleet / "*"), "--out", str(out), "--workers", "0"])
+    _one_line_error(res, "results.csv")
+    (fleet / "results.csv").unlink()
+    for _ in range(2):
+        res = runner.invoke(app, ["batch", str(fleet / "*"), "--out", str(out), "--workers",
+                                  "0", "--json"])
+        assert res.exit_code == 0, res.output
+    assert list(pd.read_parquet(out)["set"]) == [str((fleet / "a").resolve())]
