@@ -403,3 +403,9 @@ def test_a_glob_that_matches_the_output_does_not_make_it_a_set(tmp_path):
                                   "0", "--json"])
         assert res.exit_code == 0, res.output
     assert list(pd.read_parquet(out)["set"]) == [str((fleet / "a").resolve())]
+
+
+def test_trend_on_a_folder_says_it_is_a_folder(tmp_path):
+    # finding: `phoid trend DIR` said "DIR: no such file"
+    res = runner.invoke(app, ["trend", str(tmp_path)])
+    _one_line_error(res, "is a folder")

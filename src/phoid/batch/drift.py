@@ -295,6 +295,9 @@ def read_results(path: str | Path, *, by: str = "axis") -> Any:
     import pandas as pd
 
     path = Path(path)
+    if path.is_dir():
+        raise ExperimentError(f"{path}: is a folder; give the batch output file "
+                              "(results.parquet or results.csv)")
     if not path.is_file():
         raise ExperimentError(f"{path}: no such file")
     try:
