@@ -409,3 +409,12 @@ def test_trend_on_a_folder_says_it_is_a_folder(tmp_path):
     # finding: `phoid trend DIR` said "DIR: no such file"
     res = runner.invoke(app, ["trend", str(tmp_path)])
     _one_line_error(res, "is a folder")
+
+
+def test_an_unknown_estimator_is_refused_before_any_set(tmp_path):
+    # finding: `phoid batch SETS --estimator bogus` made every set an error row, status 0
+    s1 = _set(tmp_path / "s1")
+    res = runner.invoke(app, ["batch", str(s1), "--out", str(tmp_path / "r.parquet"),
+                              "--workers", "0", "--estimator", "bogus"])
+    _one_line_error(res, "'estimator'", "'bogus'")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["s1"]

@@ -42,8 +42,9 @@ def canonical_options(options: Mapping[str, Any]) -> dict[str, Any]:
     ------
     ValueError
         Naming an option that ``phoid identify`` does not take, or one of the wrong type
-        (``delay`` in s and ``mass`` in kg: finite numbers or None; ``estimator``: a string
-        or None; ``no_compensation``, ``friction``: bools).
+        (``delay`` in s and ``mass`` in kg: finite numbers or None; ``estimator``: None or
+        one of pho's ``gls``, ``ols`` and tracking's ``auto``, ``idim``, ``output-error``;
+        ``no_compensation``, ``friction``: bools).
     """
     unknown = sorted(set(options) - set(OPTION_DEFAULTS))
     if unknown:
@@ -58,6 +59,13 @@ def canonical_options(options: Mapping[str, Any]) -> dict[str, Any]:
         else:  # delay (s) and mass (kg): a finite number or None
             ok = value is None or (isinstance(value, int | float) and not isinstance(value, bool)
                                    and math.isfinite(value))
+        if ok and name == "estimator" and value is not None:
+            from phoid.methods.tracking_identification import ESTIMATORS as TRACKING
+
+            known = ("gls", "ols", *TRACKING)
+            if value not in known:  # which applies is the set's method's business
+                raise ValueError(f"identify option 'estimator' must be one of "
+                                 f"{', '.join(known)}; got {value!r}")
         if not ok:
             raise ValueError(f"identify option {name!r} must be "
                              + ("True or False" if isinstance(default, bool) else
