@@ -418,3 +418,16 @@ def test_an_unknown_estimator_is_refused_before_any_set(tmp_path):
                               "--workers", "0", "--estimator", "bogus"])
     _one_line_error(res, "'estimator'", "'bogus'")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["s1"]
+
+
+def test_a_loop_of_links_is_a_row_with_its_error(tmp_path):
+    # finding: a set path that is a link to itself ended the batch with "the Dask cluster
+    # failed (RuntimeError: Symlink loop ...)", exit status 1, even with --workers 0
+    s1 = _set(tmp_path / "s1")
+    (tmp_path / "loop").symlink_to("loop")
+    assert expand_sets([tmp_path / "loop", s1]) == [str(tmp_path / "loop"), str(s1.resolve())]
+    res = runner.invoke(app, ["batch", str(tmp_path / "loop"), "--out",
+                              str(tmp_path / "r.parquet"), "--workers", "0"])
+    assert res.exit_code == 0, res.output
+    row = pd.read_parquet(tmp_path / "r.parquet").iloc[0]
+    assert row["status"] == "error" and "no experiment set here" in row["error"]

@@ -88,7 +88,10 @@ def expand_sets(specs: Iterable[str | os.PathLike[str]]) -> list[str]:
 
 def _canonical(path: Path) -> str:
     """A set's name in a batch: the resolved folder (for ``DIR/experiment.toml`` too)."""
-    resolved = path.resolve()
+    try:
+        resolved = path.resolve()
+    except (OSError, RuntimeError):  # a loop of links: kept, its row carries the error
+        resolved = Path(os.path.abspath(path))
     if resolved.name == MANIFEST and resolved.is_file():
         resolved = resolved.parent
     name = str(resolved)
