@@ -88,7 +88,8 @@ def design(
         help="With --rehearse: the address of a running Dask scheduler, tcp://HOST:PORT "
              "[a local cluster].")] = None,
     workers: Annotated[int | None, typer.Option(
-        help="With --rehearse: worker processes of the local cluster [one per CPU].")] = None,
+        help="With --rehearse: worker processes of the local cluster [one per CPU]; 0 runs "
+             "the replicas one after the other in this process.")] = None,
     seed: Annotated[int | None, typer.Option(
         help="With --rehearse: the root seed of the replicas' noise [drawn, and reported].")
     ] = None,
@@ -165,8 +166,11 @@ def design(
             from phoid.batch.cluster import cluster_client
             from phoid.batch.rehearsal import rehearse as run_rehearsal
 
-            with cluster_client(scheduler, workers) as client:
-                rehearsal = run_rehearsal(result, rehearse, client=client, seed=seed)
+            if scheduler is None and workers == 0:  # as `phoid batch --workers 0`
+                rehearsal = run_rehearsal(result, rehearse, client=None, seed=seed)
+            else:
+                with cluster_client(scheduler, workers) as client:
+                    rehearsal = run_rehearsal(result, rehearse, client=client, seed=seed)
         written = result.write(out, overwrite=overwrite) if out is not None else None
         if plot is not None:
             import matplotlib.pyplot as plt

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import math
 import os
 import pickle
 from collections.abc import Callable, Iterable, Iterator
@@ -31,6 +32,10 @@ __all__ = ["cluster_client", "map_unordered", "require_batch"]
 
 # the modules of the batch extra, as imported
 _BATCH_MODULES = ("distributed", "pandas", "pyarrow")
+
+MAX_WORKERS_PER_CPU = 4
+"""The most local worker processes per CPU :func:`cluster_client` starts (each one a Python
+process of about 100 MB); a larger cluster is started apart and reached by its address."""
 
 
 def require_batch(command: str) -> None:
@@ -58,6 +63,57 @@ def require_batch(command: str) -> None:
                 f"phoid {command} needs the batch extra: pip install 'phoid[batch]'") from None
 
 
+async def _identity(address: str, timeout: float) -> Any:
+    """The scheduler's answer to ``identity``, read over one connection of its own."""
+    from distributed.comm import connect
+
+    comm = await connect(address, timeout=timeout)
+    try:
+        await comm.write({"op": "identity", "reply": True})
+        return await comm.read()
+    finally:
+        comm.abort()
+
+
+def _probe_scheduler(address: str, timeout: float) -> None:
+    """Ask the scheduler at ``address`` who it is; raise a one-line error unless it answers
+    as a Dask scheduler within ``timeout`` seconds.
+
+    ``distributed.Client`` bounds the TCP connect by its timeout but not the handshake after
+    it, so a listener that accepts and never answers (a firewall, another service on the
+    port) would hang it; this probe bounds the whole exchange (connect, handshake, reply)
+    with ``asyncio.wait_for``, in a thread of its own (the caller may run an event loop).
+
+    Raises
+    ------
+    PhoidError
+        Naming the address: not a valid address, no answer within ``timeout`` s, or an
+        answer that is not a Dask scheduler's.
+    """
+    import asyncio
+    import concurrent.futures
+
+    def run() -> Any:
+        return asyncio.run(asyncio.wait_for(_identity(address, timeout), timeout))
+
+    pool = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="phoid-probe")
+    try:
+        reply = pool.submit(run).result(timeout + 5.0)
+    except (TimeoutError, concurrent.futures.TimeoutError):  # asyncio.TimeoutError too
+        raise PhoidError(f"the Dask scheduler at {address!r} does not answer within "
+                         f"{timeout:g} s") from None
+    except OSError as exc:
+        raise PhoidError(f"the Dask scheduler at {address!r} does not answer within "
+                         f"{timeout:g} s ({type(exc).__name__}: {exc})") from None
+    except Exception as exc:  # a bad address, a reply that is not Dask's
+        raise PhoidError(f"the Dask scheduler at {address!r} cannot be used: "
+                         f"{type(exc).__name__}: {' '.join(str(exc).split())}") from None
+    finally:
+        pool.shutdown(wait=False)
+    if not (isinstance(reply, dict) and reply.get("type") == "Scheduler"):
+        raise PhoidError(f"{address!r} answers, but not as a Dask scheduler")
+
+
 def _cpus() -> int:
     """The CPUs this process may run on (its affinity where the OS has one)."""
     if hasattr(os, "sched_getaffinity"):
@@ -81,7 +137,10 @@ def cluster_client(scheduler: str | None = None, workers: int | None = None, *,
         number of CPUs this process may use (``os.sched_getaffinity``, else
         ``os.cpu_count()``). Ignored with ``scheduler``.
     timeout : float, default 10.0
-        Seconds to wait for the scheduler to answer before giving up.
+        Seconds (finite, > 0) to wait for the scheduler to answer before giving up: the
+        connection, its handshake and a first request each bounded by it (see
+        ``_probe_scheduler``), so a call with ``scheduler`` that fails ends within about
+        ``2 * timeout`` seconds.
     dashboard : bool, default False
         Serve the local cluster's dashboard on a free port (``client.dashboard_link``; needs
         bokeh). Off: no dashboard, no port taken for it.
@@ -95,18 +154,22 @@ def cluster_client(scheduler: str | None = None, workers: int | None = None, *,
     ------
     PhoidError
         One line naming the address when the scheduler does not answer within ``timeout``
-        seconds; one line naming the extra when distributed is not installed.
+        seconds, the address is not one, or what answers is not a Dask scheduler; one line
+        for a bad ``timeout``, or ``workers`` below 1 or above ``MAX_WORKERS_PER_CPU`` per
+        CPU; one line naming the extra when distributed is not installed.
     """
     require_batch("batch")
     from distributed import Client, LocalCluster
 
+    if isinstance(timeout, bool) or not (math.isfinite(timeout) and timeout > 0):
+        raise PhoidError(f"--timeout must be finite and > 0 s; got {timeout!r}")
     if scheduler is not None:
+        _probe_scheduler(scheduler, timeout)
         try:
             client = Client(scheduler, timeout=timeout)
-        except (OSError, TimeoutError) as exc:
-            raise PhoidError(
-                f"the Dask scheduler at {scheduler} does not answer within {timeout:g} s "
-                f"({type(exc).__name__})") from None
+        except Exception as exc:  # any failure to connect: one line
+            raise PhoidError(f"the Dask scheduler at {scheduler!r} cannot be used: "
+                             f"{type(exc).__name__}: {exc}") from None
         try:
             yield client
         finally:
@@ -114,7 +177,11 @@ def cluster_client(scheduler: str | None = None, workers: int | None = None, *,
         return
     n = workers if workers is not None else _cpus()
     if n < 1:
-        raise PhoidError(f"workers must be at least 1, got {n}")
+        raise PhoidError(f"--workers must be at least 1 for a cluster, got {n}")
+    if n > MAX_WORKERS_PER_CPU * _cpus():
+        raise PhoidError(f"--workers {n} is more than {MAX_WORKERS_PER_CPU} worker processes "
+                         f"per CPU ({_cpus()} CPUs here); for more, start a cluster and "
+                         "pass its --scheduler")
     # no dashboard: the scheduler's plain HTTP server (health, metrics) still starts, on a
     # free port rather than on 8787, which another cluster may hold (distributed would warn);
     # the workers' logs silenced below CRITICAL: a heartbeat racing the shutdown logs a

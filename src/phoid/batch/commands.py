@@ -23,7 +23,8 @@ def _fail(message: str, code: int = 2) -> None:
 def batch(
     sets: Annotated[list[str], typer.Argument(
         help="Experiment sets: folders (or their experiment.toml), glob patterns ('fleet/*') "
-             "or text files listing one set per line.")],
+             "or text files listing one set per line (# comments and blank lines skipped; "
+             "relative paths taken from the list file's folder).")],
     out: Annotated[Path, typer.Option(
         help="Parquet file of the rows (a CSV of the same name is written beside it). Sets "
              "it already holds with the same checksum and options are skipped, so a batch "
@@ -91,7 +92,8 @@ def batch(
     except ValueError as exc:  # a glob that matches nothing, an output that cannot be written
         _fail(str(exc))
     except Exception as exc:  # the cluster failed (a worker lost, the scheduler gone)
-        _fail(f"the Dask cluster failed ({type(exc).__name__}: {exc}); the sets finished are "
+        what = "the batch" if scheduler is None and workers == 0 else "the Dask cluster"
+        _fail(f"{what} failed ({type(exc).__name__}: {exc}); the sets finished are "
               f"in {out} (run the same command again to finish the batch)", code=1)
     counts = {"sets": len(report.rows), "computed": report.computed, "skipped": report.skipped,
               "errors": report.errors, "parquet": str(store.parquet), "csv": str(store.csv)}

@@ -18,6 +18,10 @@ checked instead: χ² = Σ wᵢ(xᵢ − b)² on ``baseline − 1`` degrees of f
 its upper tail is below 0.001 (the baseline moved, or the stderrs are too small — either makes
 the chart's limits wrong).
 
+An estimate that is not finite or has no finite stderr > 0 cannot be weighed or tested: it
+is left out of its chart with a warning naming its set (a parameter with no stderr in any
+row, e.g. a delay given rather than estimated, is not charted).
+
 Units whose rows all carry a ``time`` are ordered by it; a unit with a row without one is
 ordered by ``finished`` (when each set was identified) with a warning.
 """
@@ -291,6 +295,9 @@ def read_results(path: str | Path, *, by: str = "axis") -> Any:
     import pandas as pd
 
     path = Path(path)
+    if path.is_dir():
+        raise ExperimentError(f"{path}: is a folder; give the batch output file "
+                              "(results.parquet or results.csv)")
     if not path.is_file():
         raise ExperimentError(f"{path}: no such file")
     try:
@@ -402,9 +409,17 @@ def trend(results: str | Path | Any, *, by: str = "axis", baseline: int = 5,
                             "estimates")
         charts = []
         for name in _parameters(rows):
-            sel = rows[rows[name].notna() & rows[f"{name}_stderr"].notna()]
-            sel = sel[np.isfinite(sel[f"{name}_stderr"].to_numpy(float))
-                      & (sel[f"{name}_stderr"].to_numpy(float) > 0)]
+            estimated = rows[rows[name].notna()]
+            spread = estimated[f"{name}_stderr"].to_numpy(float)
+            usable = (np.isfinite(estimated[name].to_numpy(float)) & np.isfinite(spread)
+                      & (spread > 0))
+            sel = estimated[usable]
+            if len(sel) == 0 and not np.isfinite(spread).any():
+                continue  # never estimated with an uncertainty (e.g. a delay given)
+            if (left := len(estimated) - len(sel)):
+                warnings.append(f"{by} {unit}, {name}: {left} of {len(estimated)} estimates "
+                                "without a finite value and stderr > 0 left out of the chart "
+                                f"(first: {estimated['set'][~usable].iloc[0]})")
             if len(sel) == 0:
                 continue
             x = sel[name].to_numpy(float)

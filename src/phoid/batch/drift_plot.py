@@ -26,18 +26,28 @@ UNITS = {"m": "kg", "c": "N s/m", "k": "N/m", "fc": "N", "delay": "s", "omega0":
          "zeta": "1", "sigma": "1/s", "c_over_m": "1/s", "k_over_m": "1/s²", "offset_force": "N"}
 
 
+#: the most characters of a unit's name in its figure's file name (file systems take 255 bytes)
+MAX_NAME = 100
+
+
 def trend_figure_names(units: list[str]) -> list[str]:
     """The PNG names of the units' figures: ``trend-<unit>.png``, made unique with ``-NN``.
+
+    The unit's name is cut to its first :data:`MAX_NAME` characters; a name already taken
+    gets ``-NN`` (NN the unit's position from 1), and ``_`` appended while that is taken too.
 
     >>> trend_figure_names(["x1", "x/1", "x_1"])
     ['trend-x1.png', 'trend-x_1.png', 'trend-x_1-03.png']
     """
     names: list[str] = []
     for i, unit in enumerate(units):
-        stem = "trend-" + (re.sub(r"[^A-Za-z0-9_.-]", "_", unit).strip(".") or "unit")
+        safe = re.sub(r"[^A-Za-z0-9_.-]", "_", unit)[:MAX_NAME].strip(".")
+        stem = "trend-" + (safe or "unit")
         name = f"{stem}.png"
         if name in names:
             name = f"{stem}-{i + 1:02d}.png"
+        while name in names:  # the numbered name taken too: by a unit named like it
+            name = f"{name[:-4]}_.png"
         names.append(name)
     return names
 

@@ -121,7 +121,8 @@ def run_batch(sets: Iterable[str | os.PathLike[str]], *, client: Any = None,
     Parameters
     ----------
     sets : iterable of str or path
-        Folders, manifests, glob patterns or list files (:func:`~phoid.batch.sets.expand_sets`).
+        Folders, manifests, glob patterns or list files (:func:`~phoid.batch.sets.expand_sets`);
+        the files of ``store`` among them (a glob matching the output) are left out.
     client : distributed.Client, optional
         Where the tasks run; None: one after the other in this process.
     options : mapping, optional
@@ -146,6 +147,9 @@ def run_batch(sets: Iterable[str | os.PathLike[str]], *, client: Any = None,
     options = dict(options or {})
     key = options_key(options)  # refuses an unknown option before any work
     names = expand_sets(sets)
+    if store is not None:  # `fleet/*` with --out fleet/results.parquet: not sets
+        own = {str(path.resolve()) for path in (store.parquet, store.csv, store.journal)}
+        names = [name for name in names if name not in own]
     done = store.done() if store is not None else {}
     rows: dict[str, dict[str, Any]] = {}
     jobs: list[tuple[str, str, dict[str, Any], dict[str, Any]]] = []
@@ -205,9 +209,9 @@ def identify_many(sets: Iterable[str | os.PathLike[str]], client: Any = None, *,
 
     Parameters
     ----------
-    sets : iterable of str or path
+    sets : str, path or iterable of them
         Set folders (or manifests), glob patterns (``"fleet/*/"``) or text files listing
-        sets, one per line.
+        sets, one per line (a single str or path: one of these).
     client : distributed.Client, optional
         The cluster to run on. None: a local cluster of ``workers`` processes is started and
         closed; ``workers=0`` runs the sets one after the other in this process instead.
@@ -233,7 +237,7 @@ def identify_many(sets: Iterable[str | os.PathLike[str]], client: Any = None, *,
     PhoidError
         The batch extra missing, an output file in the way, a scheduler that does not answer.
     ValueError
-        An unknown option.
+        An unknown option, or one of the wrong type.
 
     Examples
     --------

@@ -41,12 +41,36 @@ def canonical_options(options: Mapping[str, Any]) -> dict[str, Any]:
     Raises
     ------
     ValueError
-        Naming an option that ``phoid identify`` does not take.
+        Naming an option that ``phoid identify`` does not take, or one of the wrong type
+        (``delay`` in s and ``mass`` in kg: finite numbers or None; ``estimator``: None or
+        one of pho's ``gls``, ``ols`` and tracking's ``auto``, ``idim``, ``output-error``;
+        ``no_compensation``, ``friction``: bools).
     """
     unknown = sorted(set(options) - set(OPTION_DEFAULTS))
     if unknown:
         raise ValueError(f"unknown identify option {unknown[0]!r}; the options are "
                          f"{', '.join(OPTION_DEFAULTS)}")
+    for name, value in options.items():
+        default = OPTION_DEFAULTS[name]
+        if isinstance(default, bool):
+            ok = isinstance(value, bool)
+        elif name == "estimator":
+            ok = value is None or isinstance(value, str)
+        else:  # delay (s) and mass (kg): a finite number or None
+            ok = value is None or (isinstance(value, int | float) and not isinstance(value, bool)
+                                   and math.isfinite(value))
+        if ok and name == "estimator" and value is not None:
+            from phoid.methods.tracking_identification import ESTIMATORS as TRACKING
+
+            known = ("gls", "ols", *TRACKING)
+            if value not in known:  # which applies is the set's method's business
+                raise ValueError(f"identify option 'estimator' must be one of "
+                                 f"{', '.join(known)}; got {value!r}")
+        if not ok:
+            raise ValueError(f"identify option {name!r} must be "
+                             + ("True or False" if isinstance(default, bool) else
+                                "a string or None" if name == "estimator" else
+                                "a finite number or None") + f"; got {value!r}")
     return {**OPTION_DEFAULTS, **options}
 
 
@@ -72,7 +96,10 @@ def _timestamp(value: Any) -> str | None:
 
 
 def _meta_value(value: Any) -> Any:
-    """A ``[metadata]`` scalar as a column value (dates and times as ISO strings)."""
+    """A ``[metadata]`` scalar as a column value (dates and times as ISO strings; TOML's
+    ``nan`` and ``inf`` as null, which JSON, the journal's format, cannot hold)."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
     if isinstance(value, bool | int | float | str):
         return value
     return value.isoformat() if hasattr(value, "isoformat") else str(value)

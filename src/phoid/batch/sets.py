@@ -37,24 +37,28 @@ def expand_sets(specs: Iterable[str | os.PathLike[str]]) -> list[str]:
 
     Parameters
     ----------
-    specs : iterable of str or path
-        Each one of: a set's folder (holding ``experiment.toml``) or its manifest; a glob
-        pattern (``*``, ``?``, ``[``; matches in sorted order, recursive with ``**``); or a
-        text file (not ending in ``.toml``) listing one set per line (blank lines and lines
-        starting with ``#`` skipped; relative paths taken from the list file's folder). A
-        path that does not exist is kept: its row carries the error.
+    specs : str, path or iterable of them
+        A single str or path is one spec. Each one of: a set's folder (holding
+        ``experiment.toml``) or its manifest; a glob pattern (``*``, ``?``, ``[``; matches in
+        sorted order, recursive with ``**``); or a text file (not ending in ``.toml``) listing
+        one set per line (blank lines and lines starting with ``#`` skipped; relative paths
+        taken from the list file's folder). A path that does not exist is kept: its row
+        carries the error.
 
     Returns
     -------
     list of str
-        Absolute paths (``Path.resolve``), duplicates dropped.
+        Absolute paths (``Path.resolve``; a set's ``experiment.toml`` named by its folder),
+        duplicates dropped.
 
     Raises
     ------
     ExperimentError
-        One line naming a glob pattern that matches nothing, or a list file that cannot be
-        read.
+        One line naming a glob pattern that matches nothing, a list file that cannot be
+        read or names no set, or a set whose path is not UTF-8 text.
     """
+    if isinstance(specs, str | os.PathLike):  # one set or pattern, not its characters
+        specs = [specs]
     out: list[str] = []
     for spec in specs:
         text = os.fspath(spec)
@@ -63,21 +67,40 @@ def expand_sets(specs: Iterable[str | os.PathLike[str]]) -> list[str]:
             matches = sorted(glob.glob(text, recursive=True))
             if not matches:
                 raise ExperimentError(f"{text}: the pattern matches no set")
-            out += [str(Path(m).resolve()) for m in matches]
+            out += [_canonical(Path(m)) for m in matches]
         elif _is_list_file(path):
             try:
                 lines = path.read_text(encoding="utf-8").splitlines()
             except (OSError, UnicodeDecodeError) as exc:
                 raise ExperimentError(f"{path}: the list of sets cannot be read: {exc}") from None
-            for line in lines:
-                line = line.strip()
-                if line and not line.startswith("#"):
-                    entry = Path(line)
-                    out.append(str((entry if entry.is_absolute() else path.parent / entry)
-                                   .resolve()))
+            listed = [line.strip() for line in lines]
+            listed = [line for line in listed if line and not line.startswith("#")]
+            if not listed:
+                raise ExperimentError(f"{path}: the list of sets names no set (only blank "
+                                      "lines and # comments)")
+            for line in listed:
+                entry = Path(line)
+                out.append(_canonical(entry if entry.is_absolute() else path.parent / entry))
         else:
-            out.append(str(path.resolve()))
+            out.append(_canonical(path))
     return list(dict.fromkeys(out))
+
+
+def _canonical(path: Path) -> str:
+    """A set's name in a batch: the resolved folder (for ``DIR/experiment.toml`` too)."""
+    try:
+        resolved = path.resolve()
+    except (OSError, RuntimeError):  # a loop of links: kept, its row carries the error
+        resolved = Path(os.path.abspath(path))
+    if resolved.name == MANIFEST and resolved.is_file():
+        resolved = resolved.parent
+    name = str(resolved)
+    try:
+        name.encode("utf-8")
+    except UnicodeEncodeError:  # bytes the file system took that are not UTF-8 text
+        raise ExperimentError(f"{name!r}: the set's path is not UTF-8 text, which the batch "
+                              "output (Parquet, CSV, JSON) stores; rename the folder") from None
+    return name
 
 
 @dataclass(frozen=True)
@@ -90,8 +113,9 @@ class SetDigest:
         The manifest's path.
     checksum : str
         SHA-256 (hex) over the manifest's bytes and then each data file's bytes, in the order
-        of the manifest's ``[[run]]`` tables (a file named twice counted once; a name that
-        would leave the set's folder is not read: the reader refuses such a set).
+        of the manifest's ``[[run]]`` tables (a file named twice counted once; a link is
+        followed while it resolves inside the set's folder; a name that would leave the
+        set's folder is not read: the reader refuses such a set).
     metadata : dict
         The manifest's optional ``[metadata]`` table (its scalar values), or empty.
     """
@@ -151,11 +175,19 @@ def set_digest(set_path: str | os.PathLike[str]) -> SetDigest:
         raise ExperimentError(f"{manifest}: not a TOML manifest: {exc}") from None
     runs = doc.get("run", [])
     files = [r.get("file") for r in runs if isinstance(r, dict)] if isinstance(runs, list) else []
+    root = manifest.parent.resolve()
     for name in dict.fromkeys(f for f in files if isinstance(f, str)):
         parts = name.split("/")
         if name.startswith("/") or ".." in parts or "\\" in name or "\0" in name:
             continue  # outside the set's folder: not read here (the reader refuses it)
-        _read_regular(manifest.parent / name, digest)
+        try:  # a link is followed while it stays inside the set's folder, as the reader does
+            real = (manifest.parent / name).resolve()
+        except (OSError, RuntimeError) as exc:
+            raise ExperimentError(f"{manifest.parent / name}: cannot be resolved: {exc}"
+                                  ) from None
+        if not real.is_relative_to(root):
+            continue  # a link leading outside: not read here (the reader refuses it)
+        _read_regular(real, digest)
     meta = doc.get("metadata", {})
     metadata = ({k: v for k, v in meta.items() if not isinstance(v, dict | list)}
                 if isinstance(meta, dict) else {})

@@ -101,17 +101,20 @@ class BatchStore:
     Raises
     ------
     OutputError
-        One line naming the file: an existing file that is a link, not a regular file, not a
-        phoid batch output, or a phoid batch output of another schema.
+        One line naming the file: ``out`` ending in ``.csv`` (any case), an existing file
+        that is a link, not a regular file, not a phoid batch output, or a phoid batch output
+        of another schema.
     """
 
     def __init__(self, out: str | os.PathLike[str]) -> None:
         self.parquet = Path(out)
         self.csv = self.parquet.with_suffix(".csv")
         self.journal = self.parquet.with_suffix(".journal.jsonl")
-        if self.csv == self.parquet:
-            raise OutputError(f"{self.parquet}: the output must not end in .csv; name the "
-                              "Parquet file, e.g. results.parquet")
+        if self.parquet.suffix.lower() == ".csv":  # .CSV too: x.CSV and x.csv are one file
+            # on a case-insensitive file system
+            raise OutputError(f"{self.parquet}: the output must not end in "
+                              f"{self.parquet.suffix}; name the Parquet file, e.g. "
+                              "results.parquet")
         self._folder = OutputFolder(self.parquet.parent, overwrite=True)
         self._rows: dict[tuple[str, str], dict[str, Any]] = {}
         for path in (self.parquet, self.csv, self.journal):
