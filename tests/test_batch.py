@@ -117,6 +117,29 @@ def _assert_row_is_identify_json(row, summary, folder) -> None:
     assert row["n_runs"] == len(phoid.io.read_experiment(folder).runs)
 
 
+def test_error_rows_are_skipped_unless_retry_errors(base_sets, tmp_path):
+    """An error row of a set with a checksum is kept on a re-run (the same bytes and options
+    give the same error); --retry-errors identifies those sets again and only those."""
+    names = [base_sets["pho-a"], base_sets["free"]]
+    out = tmp_path / "rows.parquet"
+    # --mass is a free-decay option: the pho set's identify refuses it (a per-set error)
+    first = json.loads(cli("batch", *names, "--out", out, "--workers", "0", "--mass", "1",
+                           "--json").stdout)
+    assert first["errors"] == 1 and first["computed"] == 2
+    table = pd.read_parquet(out).set_index("set")
+    pho, free = (str(f.resolve()) for f in names)
+    assert table.loc[pho, "status"] == "error" and table.loc[free, "status"] == "ok"
+    again = json.loads(cli("batch", *names, "--out", out, "--workers", "0", "--mass", "1",
+                           "--json").stdout)
+    assert again["skipped"] == 2 and again["computed"] == 0
+    retried = json.loads(cli("batch", *names, "--out", out, "--workers", "0", "--mass", "1",
+                             "--retry-errors", "--json").stdout)
+    assert retried["skipped"] == 1 and retried["computed"] == 1
+    after = pd.read_parquet(out).set_index("set")
+    assert after.loc[pho, "finished"] > table.loc[pho, "finished"]  # identified again
+    pd.testing.assert_series_equal(after.loc[free], table.loc[free])  # the ok row kept
+
+
 def test_rows_equal_identify_json_and_a_rerun_skips_them(base_sets, tmp_path):
     """Serial batch (--workers 0): one row per set, the numbers of `phoid identify --json`,
     [metadata] as columns, a missing folder as an error row; the same command again computes

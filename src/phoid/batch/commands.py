@@ -49,6 +49,9 @@ def batch(
         "--mass", help="Known mass, kg, for free-decay sets.")] = None,
     friction: Annotated[bool, typer.Option(
         "--friction", help="pho: fit Coulomb friction f_c too (slow).")] = False,
+    retry_errors: Annotated[bool, typer.Option(
+        "--retry-errors", help="Identify again the sets --out holds as errors (skipped by "
+                               "default: the same bytes give the same error).")] = False,
     as_json: Annotated[bool, typer.Option(
         "--json", help="Print the counts and the files written as one JSON object.")] = False,
 ) -> None:
@@ -78,13 +81,15 @@ def batch(
         _fail(str(exc))
     try:
         if scheduler is None and workers == 0:
-            report = run_batch(sets, client=None, options=options, store=store)
+            report = run_batch(sets, client=None, options=options, store=store,
+                               retry_errors=retry_errors)
         else:
             with cluster_client(scheduler, workers, timeout=timeout) as client:
                 link = getattr(client, "dashboard_link", None) if scheduler else None
                 if link and not as_json:
                     typer.echo(f"Dask dashboard: {link}", err=True)
-                report = run_batch(sets, client=client, options=options, store=store)
+                report = run_batch(sets, client=client, options=options, store=store,
+                                   retry_errors=retry_errors)
     except KeyboardInterrupt:
         typer.echo(f"phoid: interrupted; the sets finished are in {out} (run the same "
                    "command again to finish the batch)", err=True)

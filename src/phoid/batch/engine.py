@@ -115,7 +115,7 @@ def _serial(fn: Callable[[Any], Any], items: list[Any], description: str
 
 def run_batch(sets: Iterable[str | os.PathLike[str]], *, client: Any = None,
               options: Mapping[str, Any] | None = None, store: Any = None,
-              flush_seconds: float = FLUSH_SECONDS) -> BatchReport:
+              flush_seconds: float = FLUSH_SECONDS, retry_errors: bool = False) -> BatchReport:
     """Identify every set: skip those ``store`` holds, run the rest, record each row.
 
     Parameters
@@ -133,6 +133,10 @@ def run_batch(sets: Iterable[str | os.PathLike[str]], *, client: Any = None,
         ``flush_seconds`` and at the end (also when the batch is interrupted).
     flush_seconds : float, default FLUSH_SECONDS
         Seconds between rewrites of the table while the batch runs.
+    retry_errors : bool, default False
+        Identify again the sets ``store`` holds as errors (the same bytes usually give the
+        same error, so they are skipped by default; a failure of the machine, or of a phoid
+        since fixed, is worth a retry).
 
     Returns
     -------
@@ -170,7 +174,8 @@ def run_batch(sets: Iterable[str | os.PathLike[str]], *, client: Any = None,
                              finished=datetime.now(UTC), version=_version()))
             continue
         before = done.get((name, key))
-        if before is not None and before.get("checksum") == digest.checksum:
+        if (before is not None and before.get("checksum") == digest.checksum
+                and not (retry_errors and before.get("status") == "error")):
             rows[name] = before
             skipped += 1
             continue
