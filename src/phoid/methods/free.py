@@ -59,6 +59,7 @@ from phoid.methods._modal import (
 )
 from phoid.methods.fit_statistics import fit_blocks, residual_noise_ratio, window_noise
 from phoid.methods.pho import Estimate
+from phoid.reports.display import NotebookDisplay
 
 __all__ = ["FreeIdentification", "FreeRun", "identify_free", "identify_free_data"]
 
@@ -148,8 +149,8 @@ class FreeRun:
         }
 
 
-@dataclass(frozen=True)
-class FreeIdentification:
+@dataclass(frozen=True, repr=False)
+class FreeIdentification(NotebookDisplay):
     """Result of :func:`identify_free`: σ, ω₀, ζ, the roots, c/m and k/m (and c, k for a known
     mass), with uncertainties.
 
@@ -205,17 +206,6 @@ class FreeIdentification:
         B1, B2 = release_basis(np.asarray(t, dtype=float) - r.release, self.sigma.value,
                                self.k_over_m.value)
         return r.offset + r.x0 * B1 + r.v0 * B2
-
-    def __repr__(self) -> str:
-        from phoid.reports.html import short_repr
-
-        return short_repr(self)
-
-    def _repr_html_(self) -> str:
-        """HTML for notebooks (:func:`phoid.reports.html.result_html`)."""
-        from phoid.reports.html import result_html
-
-        return result_html(self)
 
     def summary(self) -> dict[str, Any]:
         """The JSON object of ``phoid identify --json`` for a free set.

@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 
 from phoid.methods.pho import Estimate
+from phoid.reports.display import NotebookDisplay
 
 __all__ = ["IDIMFit", "idim_ls", "idim_ls_runs"]
 
@@ -34,8 +35,8 @@ _DECIMATE_RIPPLE = 0.05  # dB
 _UNIFORM_RTOL = 1e-3  # largest |Δt − mean Δt| / mean Δt accepted as a uniform grid
 
 
-@dataclass(frozen=True)
-class IDIMFit:
+@dataclass(frozen=True, repr=False)
+class IDIMFit(NotebookDisplay):
     """The result of :func:`idim_ls`.
 
     Attributes
@@ -80,17 +81,6 @@ class IDIMFit:
     warnings: tuple[str, ...] = ()
     k: Estimate | None = None
     free: tuple[str, ...] = _NAMES
-
-    def __repr__(self) -> str:
-        from phoid.reports.html import short_repr
-
-        return short_repr(self)
-
-    def _repr_html_(self) -> str:
-        """HTML for notebooks (:func:`phoid.reports.html.result_html`)."""
-        from phoid.reports.html import result_html
-
-        return result_html(self)
 
     def summary(self) -> dict[str, Any]:
         """JSON-ready dict: the four estimates, the fit statistics and the warnings."""

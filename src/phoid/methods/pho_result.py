@@ -17,6 +17,7 @@ from phoid.fits import DecayFit
 from phoid.interop.exports import LoopExports
 from phoid.methods.fit_statistics import fit_blocks, residual_noise_ratio, window_noise
 from phoid.methods.pho import Estimate, MCKFit, open_loop_omega0, open_loop_zeta
+from phoid.reports.display import NotebookDisplay
 
 __all__ = ["Identification", "RunMode"]
 
@@ -96,8 +97,8 @@ class RunMode:
             {"u": self.u_fit.to_dict()} if self.u_fit is not None else {})
 
 
-@dataclass(frozen=True)
-class Identification(LoopExports):
+@dataclass(frozen=True, repr=False)
+class Identification(LoopExports, NotebookDisplay):
     """Result of :func:`phoid.identify`: m, c, k with uncertainties, per-run modes, warnings.
 
     Attributes
@@ -157,17 +158,6 @@ class Identification(LoopExports):
     def zeta(self) -> Estimate:
         """Open-loop damping ratio ζ = c/(2√(mk)) (eq. 10), delta-method stderr."""
         return open_loop_zeta(self.m.value, self.c.value, self.k.value, self.cov)
-
-    def __repr__(self) -> str:
-        from phoid.reports.html import short_repr
-
-        return short_repr(self)
-
-    def _repr_html_(self) -> str:
-        """HTML for notebooks (:func:`phoid.reports.html.result_html`)."""
-        from phoid.reports.html import result_html
-
-        return result_html(self)
 
     def summary(self) -> dict[str, Any]:
         """The JSON object of ``phoid identify --json`` (docs/format.md).

@@ -38,6 +38,7 @@ from phoid.dynamics.controller import SampledController, closed_loop_poles
 from phoid.dynamics.plant import Plant
 from phoid.fits.hac import hac_covariance
 from phoid.methods.pho import Estimate
+from phoid.reports.display import NotebookDisplay
 from phoid.simulation.tracking import TrackingSimulation, simulate_tracking
 
 __all__ = [
@@ -132,8 +133,8 @@ class TrackingRecord:
         return sx, sx / self.controller.sample_time
 
 
-@dataclass(frozen=True, eq=False)
-class TrackingFit:
+@dataclass(frozen=True, eq=False, repr=False)
+class TrackingFit(NotebookDisplay):
     """The result of :func:`fit_tracking`.
 
     Attributes
@@ -189,17 +190,6 @@ class TrackingFit:
         if a not in self.free or b not in self.free:
             return None
         return float(self.correlation[self.free.index(a), self.free.index(b)])
-
-    def __repr__(self) -> str:
-        from phoid.reports.html import short_repr
-
-        return short_repr(self)
-
-    def _repr_html_(self) -> str:
-        """HTML for notebooks (:func:`phoid.reports.html.result_html`)."""
-        from phoid.reports.html import result_html
-
-        return result_html(self)
 
     def summary(self) -> dict[str, Any]:
         """JSON-ready dict: estimates, fit statistics, correlations, warnings."""

@@ -47,6 +47,7 @@ from phoid.methods.tracking import (
     replay,
 )
 from phoid.methods.tracking_validation import validate_tracking
+from phoid.reports.display import NotebookDisplay
 from phoid.reports.statistics import ratio_text
 
 __all__ = [
@@ -64,8 +65,8 @@ ESTIMATORS = ("auto", "idim", "output-error")
 _IDIM_NAMES = {"m": "M", "c": "Fv", "fc": "Fc", "offset": "OF", "k": "k"}
 
 
-@dataclass(frozen=True, eq=False)
-class TrackingIdentification(PlantExports):
+@dataclass(frozen=True, eq=False, repr=False)
+class TrackingIdentification(PlantExports, NotebookDisplay):
     """The result of :func:`identify_tracking`.
 
     Attributes
@@ -101,17 +102,6 @@ class TrackingIdentification(PlantExports):
     def validation(self) -> Any:
         """The first run's validation (the reports' default)."""
         return self.validations[0]
-
-    def __repr__(self) -> str:
-        from phoid.reports.html import short_repr
-
-        return short_repr(self)
-
-    def _repr_html_(self) -> str:
-        """HTML for notebooks (:func:`phoid.reports.html.result_html`)."""
-        from phoid.reports.html import result_html
-
-        return result_html(self)
 
     def summary(self) -> dict[str, Any]:
         """JSON-ready dict (docs/format.md, "tracking sets"): with each validation's
@@ -379,8 +369,8 @@ def identify_tracking(experiment: Any, *, delay: float | None = None,
     )
 
 
-@dataclass(frozen=True, eq=False)
-class TrackingReplay:
+@dataclass(frozen=True, eq=False, repr=False)
+class TrackingReplay(NotebookDisplay):
     """The result of :func:`replay_set`: each run simulated with given parameters and compared.
 
     Attributes
@@ -406,17 +396,6 @@ class TrackingReplay:
     def validation(self) -> Any:
         """The first run's validation."""
         return self.validations[0]
-
-    def __repr__(self) -> str:
-        from phoid.reports.html import short_repr
-
-        return short_repr(self)
-
-    def _repr_html_(self) -> str:
-        """HTML for notebooks (:func:`phoid.reports.html.result_html`)."""
-        from phoid.reports.html import result_html
-
-        return result_html(self)
 
     def summary(self) -> dict[str, Any]:
         """JSON-ready dict: the parameters and each run's validation."""

@@ -25,6 +25,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from phoid.methods.idim import _filtfilt
+from phoid.reports.display import NotebookDisplay
 
 if TYPE_CHECKING:
     from pathlib import Path
@@ -71,8 +72,8 @@ class SignalError:
                 "rms": num(self.rms), "measured_rms": num(self.measured_rms)}
 
 
-@dataclass(frozen=True)
-class TrackingValidation:
+@dataclass(frozen=True, repr=False)
+class TrackingValidation(NotebookDisplay):
     """The result of :func:`validate_tracking`: the two records side by side and their errors.
 
     Attributes
@@ -144,17 +145,6 @@ class TrackingValidation:
     def force_residual(self) -> np.ndarray | None:
         """force − force_sim, N (None without a measured force)."""
         return None if self.force is None else self.force - self.force_sim
-
-    def __repr__(self) -> str:
-        from phoid.reports.html import short_repr
-
-        return short_repr(self)
-
-    def _repr_html_(self) -> str:
-        """HTML for notebooks (:func:`phoid.reports.html.result_html`)."""
-        from phoid.reports.html import result_html
-
-        return result_html(self)
 
     def summary(self) -> dict[str, Any]:
         """JSON-ready dict: per signal its relative error (%) and RMS residual, and the warnings."""

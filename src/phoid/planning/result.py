@@ -26,6 +26,7 @@ from phoid.planning.fisher import mode_information, safe_inverse
 from phoid.planning.render import design_report, plot_design
 from phoid.planning.schedule import schedule_target
 from phoid.planning.settings import DesignError, DesignSettings, Prior
+from phoid.reports.display import NotebookDisplay
 
 __all__ = ["Design", "PlannedRun", "assemble", "roots_in_range"]
 
@@ -104,8 +105,8 @@ class PlannedRun:
         return out
 
 
-@dataclass(frozen=True)
-class Design:
+@dataclass(frozen=True, repr=False)
+class Design(NotebookDisplay):
     """A gain schedule with its predicted modes, margins and Cramér–Rao uncertainties.
 
     Attributes
@@ -165,17 +166,6 @@ class Design:
     def safe(self) -> bool:
         """Every run is safe on the whole prior grid."""
         return all(r.safe for r in self.runs)
-
-    def __repr__(self) -> str:
-        from phoid.reports.html import short_repr
-
-        return short_repr(self)
-
-    def _repr_html_(self) -> str:
-        """HTML for notebooks (:func:`phoid.reports.html.result_html`)."""
-        from phoid.reports.html import result_html
-
-        return result_html(self)
 
     def summary(self) -> dict[str, Any]:
         """Plain JSON-ready dict: ``runs``, ``predicted``, ``warnings`` and the inputs."""

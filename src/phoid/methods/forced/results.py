@@ -14,6 +14,7 @@ from phoid.methods._modal import release_basis
 from phoid.methods.fit_statistics import fit_blocks, residual_noise_ratio, window_noise
 from phoid.methods.forced.stiffness import ResponseFit
 from phoid.methods.pho import Estimate, open_loop_omega0, open_loop_zeta
+from phoid.reports.display import NotebookDisplay
 
 __all__ = ["ForcedIdentification", "ForcedRun"]
 
@@ -125,8 +126,8 @@ class ForcedRun:
         }
 
 
-@dataclass(frozen=True)
-class ForcedIdentification(PlantExports):
+@dataclass(frozen=True, repr=False)
+class ForcedIdentification(PlantExports, NotebookDisplay):
     """Result of :func:`identify_forced`: m, c, k with uncertainties, per-run R and ρ.
 
     Attributes
@@ -169,17 +170,6 @@ class ForcedIdentification(PlantExports):
     def zeta(self) -> Estimate:
         """ζ = c/(2√(mk)) (eq. 10), delta-method stderr."""
         return open_loop_zeta(self.m.value, self.c.value, self.k.value, self.cov)
-
-    def __repr__(self) -> str:
-        from phoid.reports.html import short_repr
-
-        return short_repr(self)
-
-    def _repr_html_(self) -> str:
-        """HTML for notebooks (:func:`phoid.reports.html.result_html`)."""
-        from phoid.reports.html import result_html
-
-        return result_html(self)
 
     def summary(self) -> dict[str, Any]:
         """The JSON object of ``phoid identify --json`` for a forced set.

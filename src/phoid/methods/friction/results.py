@@ -13,6 +13,7 @@ from phoid.dynamics import inverse_map
 from phoid.interop.exports import LoopExports
 from phoid.methods.fit_statistics import fit_blocks, residual_noise_ratio
 from phoid.methods.pho import Estimate
+from phoid.reports.display import NotebookDisplay
 
 __all__ = ["FrictionEvidence", "FrictionFit", "FrictionRun"]
 
@@ -100,8 +101,8 @@ class FrictionRun:
         return out
 
 
-@dataclass(frozen=True)
-class FrictionFit(LoopExports):
+@dataclass(frozen=True, repr=False)
+class FrictionFit(LoopExports, NotebookDisplay):
     """Result of :func:`identify_friction`.
 
     Attributes
@@ -208,17 +209,6 @@ class FrictionFit(LoopExports):
         """Per-run stick times, s (None where the fitted motion does not stop in its window)."""
         return tuple(r.stick_time for r in self.runs)
 
-    def __repr__(self) -> str:
-        from phoid.reports.html import short_repr
-
-        return short_repr(self)
-
-    def _repr_html_(self) -> str:
-        """HTML for notebooks (:func:`phoid.reports.html.result_html`)."""
-        from phoid.reports.html import result_html
-
-        return result_html(self)
-
     def summary(self) -> dict[str, Any]:
         """The JSON of ``phoid identify --friction --json``: the spec's keys (method, m, c, k,
         delay, runs, warnings) plus ``fc`` in the same {value, stderr, unit} shape.
@@ -296,8 +286,8 @@ class FrictionFit(LoopExports):
         return friction_text(self)
 
 
-@dataclass(frozen=True)
-class FrictionEvidence:
+@dataclass(frozen=True, repr=False)
+class FrictionEvidence(NotebookDisplay):
     """Result of :func:`friction_evidence`: a score test of f_c = 0.
 
     Attributes
@@ -328,14 +318,3 @@ class FrictionEvidence:
     k: Estimate
     chi2_red: float
     warnings: tuple[str, ...] = ()
-
-    def __repr__(self) -> str:
-        from phoid.reports.html import short_repr
-
-        return short_repr(self)
-
-    def _repr_html_(self) -> str:
-        """HTML for notebooks (:func:`phoid.reports.html.result_html`)."""
-        from phoid.reports.html import result_html
-
-        return result_html(self)
