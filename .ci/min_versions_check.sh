@@ -23,7 +23,8 @@ for line in open(".ci/min-versions.txt"):
     if m and md.version(m.group(1)) != m.group(2):
         bad.append(f"{m.group(1)} {md.version(m.group(1))} (pinned {m.group(2)})")
 print("min-versions:", ", ".join(f"{n} {md.version(n)}" for n in
-      ("numpy", "scipy", "matplotlib", "typer", "rich", "tomli-w", "threadpoolctl", "click")))
+      ("numpy", "scipy", "matplotlib", "typer", "rich", "tomli-w", "threadpoolctl", "click",
+       "pyarrow", "h5py", "pandas", "control", "dask", "distributed")))
 sys.exit(f"min-versions: not installed as pinned: {bad}" if bad else 0)
 PY
 MPLBACKEND=Agg "$TMP/venv/bin/python" -m pytest -q "$@"

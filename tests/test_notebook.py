@@ -76,7 +76,7 @@ def test_the_displayed_result_shows_the_estimates(executed, reference):
 
 
 def test_the_experiment_set_and_the_tables_display(executed, reference):
-    assert _outputs(_cell(executed, "import matplotlib"), "text/html")
+    assert _outputs(_cell(executed, "%matplotlib inline"), "text/html")
     estimates = _outputs(_cell(executed, "frames = result.to_pandas()"), "text/html")[0]
     assert f"{reference.k.value:.4f}"[:5] in estimates  # 63.98…: pandas' own float rendering
     assert _outputs(_cell(executed, "frames.runs.head()"), "text/html")

@@ -22,6 +22,7 @@ CELLS = [
         "exported to python-control (`pip install 'phoid[control]'`) and to pandas, and the "
         "identified plant's step response plotted with its uncertainty."),
     new_code_cell(
+        "%matplotlib inline\n"
         "import matplotlib.pyplot as plt\n"
         "import numpy as np\n\n"
         "import phoid\n\n"

@@ -302,7 +302,8 @@ def read_results(path: str | Path, *, by: str = "axis") -> Any:
         raise ExperimentError(f"{path}: no such file")
     try:
         if path.suffix.lower() == ".csv":
-            frame = pd.read_csv(path, dtype={"set": str, "checksum": str, by: str})
+            frame = pd.read_csv(path, dtype={"set": str, "checksum": str, by: str},
+                                float_precision="round_trip")  # the Parquet's floats exactly
         else:
             try:
                 import pyarrow  # noqa: F401

@@ -183,8 +183,8 @@ def to_control(result: Any, *, form: str = "tf", per_unit_mass: bool = False) ->
     >>> import numpy as np
     >>> from phoid.interop.plant import LinearPlant
     >>> G = to_control(LinearPlant(2.0, 1.0, 64.0, cov=np.diag([1e-4, 1e-4, 1e-2])))
-    >>> float(G.dcgain()), G.phoid.cov[2, 2]
-    (0.015625, np.float64(0.01))
+    >>> float(G.dcgain()), float(G.phoid.cov[2, 2])
+    (0.015625, 0.01)
     """
     control = require_control()
     _check_form(form)
