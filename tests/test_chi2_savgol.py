@@ -63,6 +63,22 @@ def test_incomplete_gamma_matches_scipy():
     assert gamma_p(2.0, math.inf) == 1.0 and gamma_q(2.0, math.inf) == 0.0
 
 
+def test_incomplete_gamma_far_below_the_mode():
+    """x ≪ a (a noise-free fit's χ² of ~1e-300 on many degrees of freedom): x/a − 1 rounds to
+    −1, where ln(1 + u) is undefined; P and Q are still scipy's (to rounding) and Q ≤ 1."""
+    a = np.array([10.5, 50.0, 700.0, 1e4, 1e5])
+    for x in (1e-300, 1e-20, 1e-3):
+        P = np.array([gamma_p(ai, x) for ai in a])
+        Q = np.array([gamma_q(ai, x) for ai in a])
+        np.testing.assert_allclose(Q, special.gammaincc(a, x), rtol=1e-15)
+        np.testing.assert_allclose(P, special.gammainc(a, x), rtol=1e-12, atol=1e-300)
+    frac = np.linspace(0.05, 0.6, 12)  # across the switch of forms at x = a/2
+    for ai in (20.0, 700.0):
+        P = np.array([gamma_p(ai, f * ai) for f in frac])
+        big = special.gammainc(ai, frac * ai) > 1e-280
+        np.testing.assert_allclose(P[big], special.gammainc(ai, frac * ai)[big], rtol=1e-11)
+
+
 @pytest.mark.parametrize("dof", [0, -1, math.nan, math.inf])
 def test_chi2_isf_refuses_bad_dof(dof):
     with pytest.raises(ValueError, match="dof"):

@@ -366,7 +366,7 @@ def test_friction_model_is_the_fitted_model(friction):
 
 
 def test_friction_run_figure_marks_stick_intervals(friction):
-    from matplotlib.patches import Rectangle
+    from matplotlib.patches import Polygon, Rectangle
 
     stuck = [i for i, r in enumerate(friction.runs) if r.used and r.stick_time is not None]
     assert stuck, "the set is made so that a run sticks before its record ends"
@@ -374,7 +374,8 @@ def test_friction_run_figure_marks_stick_intervals(friction):
     r = friction.runs[i]
     fig = friction_run_figure(friction, i)
     (ax,) = _by_label(fig, "x (mm)")
-    spans = [p for p in ax.patches if isinstance(p, Rectangle)
+    # axvspan draws a Rectangle (matplotlib ≥ 3.9) or a Polygon (3.8, the lower bound)
+    spans = [p for p in ax.patches if isinstance(p, Rectangle | Polygon)
              and p.get_facecolor()[:3] != (1.0, 1.0, 1.0)]
     assert spans  # at least the final stick, shaded
     t, _x = friction.data[i]

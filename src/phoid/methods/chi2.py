@@ -27,7 +27,7 @@ def _stirling_rest(a: float) -> float:
 def _log_prefactor(a: float, x: float) -> float:
     """ln(xᵃ e⁻ˣ / Γ(a)), written for large a as −a (u − ln(1 + u)) + ½ ln(a / 2π) − rest(a)
     with u = (x − a)/a, so that the terms of size a ln a do not cancel in rounding."""
-    if a < 10.0:
+    if a < 10.0 or x < 0.5 * a:  # far below the mode the direct form does not cancel
         return a * math.log(x) - x - math.lgamma(a)
     u = (x - a) / a
     return -a * (u - math.log1p(u)) + 0.5 * math.log(a) - _LN_SQRT_2PI - _stirling_rest(a)
