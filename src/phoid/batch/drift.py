@@ -302,8 +302,11 @@ def read_results(path: str | Path, *, by: str = "axis") -> Any:
         raise ExperimentError(f"{path}: no such file")
     try:
         if path.suffix.lower() == ".csv":
-            frame = pd.read_csv(path, dtype={"set": str, "checksum": str, by: str},
-                                float_precision="round_trip")  # the Parquet's floats exactly
+            # the Parquet's floats exactly: pandas 3 parses them so by default (and deprecates
+            # the argument), pandas 2 when asked
+            exact = {} if int(pd.__version__.split(".")[0]) >= 3 else {
+                "float_precision": "round_trip"}
+            frame = pd.read_csv(path, dtype={"set": str, "checksum": str, by: str}, **exact)
         else:
             try:
                 import pyarrow  # noqa: F401
