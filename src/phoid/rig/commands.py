@@ -47,12 +47,21 @@ def virtual_rig(
     force_noise: Annotated[float | None, typer.Option(
         "--force-noise", help="Report a measured force (the force applied plus white noise of "
                               "this sd, N) in each sample; off by default.")] = None,
+    idle_timeout: Annotated[float, typer.Option(
+        "--idle-timeout", help="End a session whose host sends nothing for this long, s "
+                               "(outside a run).")] = 30.0,
+    max_session: Annotated[float, typer.Option(
+        "--max-session", help="The longest a session may hold the rig, s.")] = 3600.0,
+    max_samples: Annotated[int, typer.Option(
+        "--max-samples", help="The most samples one run may take (hold + run + 1).")
+    ] = 2_000_000,
 ) -> None:
     """Serve a simulated rig: the compiled C controller against phoid's exact plant.
 
-    Speaks the rig protocol PHOID-RIG 1 (docs/rig-protocol.md) on --listen, one connection at a
-    time, until interrupted (Ctrl-C or SIGTERM: it then stops serving and removes its temporary
-    build folder). Needs a C compiler.
+    Speaks the rig protocol PHOID-RIG 1 (docs/rig-protocol.md) on --listen, one host at a time
+    (another is refused at once: ERROR busy), until interrupted (Ctrl-C or SIGTERM: it then
+    stops serving and removes its temporary build folder). A host silent for --idle-timeout s
+    or a session older than --max-session s is closed with an ERROR. Needs a C compiler.
     """
     import signal
 
@@ -64,7 +73,9 @@ def virtual_rig(
         host, port = parse_port(listen) if not listen.endswith(":0") else (listen[:-2], 0)
         rig = VirtualRig(Plant(m=m, c=c, k=k, fc=fc), offset_force=offset_force, noise=noise,
                          seed=seed, realtime=realtime, build=build, max_rate=max_rate,
-                         noise_in_loop=not noise_outside_loop, force_noise=force_noise)
+                         noise_in_loop=not noise_outside_loop, force_noise=force_noise,
+                         idle_timeout=idle_timeout, max_session=max_session,
+                         max_samples=max_samples)
     except (ValueError, OSError) as exc:
         _fail(str(exc))
     try:

@@ -50,7 +50,7 @@ VELOCITIES = {"backward-difference": 0, "central-difference": 1, "filtered": 2}
 
 # phoid_init's error codes (phoid_ctrl.h, enum phoid_error): the field and what it must be
 _ERRORS = {
-    -2: ("sample_time", "must be finite and > 0 (s)"),
+    -2: ("sample_time", "must be finite and >= 1e-9 (s; PHOID_MIN_SAMPLE_TIME)"),
     -3: ("velocity", "must be 'backward-difference', 'central-difference' or 'filtered' "
                      "(0, 1, 2)"),
     -4: ("filter_pole", "must be in [0, 1) (a = exp(-cutoff·T))"),
@@ -61,8 +61,10 @@ _ERRORS = {
     -9: ("x_start", "must be finite and within [x_min, x_max] (m)"),
     -10: ("u_max", "must be > 0 (command units)"),
     -11: ("growth_limit", "must be 0 (off) or finite and >= 1"),
-    -12: ("stall_samples, stall_epsilon", "must be >= 0 (stall_epsilon finite, m)"),
-    -13: ("hold_samples, run_samples", "must be hold_samples >= 0 and run_samples >= 1"),
+    -12: ("stall_samples, stall_epsilon", "must be stall_samples from 0 to 2147483647 and "
+                                          "stall_epsilon finite and >= 0 (m)"),
+    -13: ("hold_samples, run_samples", "must be hold_samples from 0 and run_samples from 1, "
+                                       "to 2147483647 (PHOID_MAX_COUNT)"),
     -15: ("has_force", "must be 0 (no force sensor) or 1 (a force with every sample)"),
 }
 
@@ -106,6 +108,13 @@ _INT_FIELDS = {"velocity", "delay_samples", "hold_samples", "run_samples", "stal
                "has_force"}
 
 
+def _int_range(key: str) -> tuple[int, int]:
+    """The values the C type of ``phoid_config.<key>`` holds on this machine."""
+    ctype = dict(_Config._fields_)[key]
+    bits = 8 * ctypes.sizeof(ctype)
+    return -(1 << (bits - 1)), (1 << (bits - 1)) - 1
+
+
 @dataclass(frozen=True)
 class Event:
     """One entry of the controller's event log.
@@ -119,7 +128,8 @@ class Event:
         The C event code (``enum phoid_event_code``).
     name : str
         Its name: ``"start"``, ``"release"``, ``"done"``, ``"clip"``, ``"fault-position"``,
-        ``"fault-growth"``, ``"fault-stall"``, ``"fault-input"``, ``"fault-host"``, ``"clear"``.
+        ``"fault-growth"``, ``"fault-stall"``, ``"fault-input"``, ``"fault-host"``, ``"clear"``,
+        ``"fault-command"``.
     value : float
         The code's value (the position at a release, m; the unclipped command of a clip, …).
     """
@@ -296,6 +306,11 @@ class Controller:
                 raise ValueError(f"controller field `{key}` must be a "
                                  f"{'whole number' if key in _INT_FIELDS else 'number'}; "
                                  f"got {value!r}") from None
+            if key in _INT_FIELDS:
+                lo, hi = _int_range(key)
+                if not lo <= value <= hi:  # ctypes would wrap it silently (2**64 → 0)
+                    raise ValueError(f"controller field `{key}` must be a whole number from "
+                                     f"{lo} to {hi} (its C type); got {value!r}")
             setattr(cfg, key, value)
         self.config = cfg
         self._buf = ctypes.create_string_buffer(int(self._lib.phoid_ctrl_size()))

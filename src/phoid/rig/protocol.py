@@ -17,6 +17,7 @@ Messages (host → rig): ``PHOID-RIG 1`` (hello), ``CONFIG key=value …``, ``ST
 from __future__ import annotations
 
 import math
+import re
 import zlib
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -35,6 +36,7 @@ __all__ = [
     "hello",
     "parse",
     "parse_config",
+    "text_field",
 ]
 
 VERSION = 1
@@ -50,6 +52,11 @@ CONFIG_FIELDS: dict[str, bool] = {
     "stall_samples": True, "stall_epsilon": False, "has_force": True,
 }
 STATES = ("idle", "hold", "run", "done", "fault")
+
+# the decimal numbers the protocol allows (no `_` separators, no hex, no words like `inf`)
+_INT = re.compile(r"[+-]?[0-9]+")
+_CRC = re.compile(rb"[0-9a-fA-F]{8}")
+_FLOAT = re.compile(r"[+-]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]+)?")
 
 # each kind: the names of its fields and their types ("i" whole number, "f" finite number,
 # "w" a word, "r" the rest of the line, free text)
@@ -157,8 +164,31 @@ def encode(kind: str, *values: object) -> bytes:
                 raise ProtocolError(f"{kind} field `{name}` must be one word; got {text!r}")
             words.append(text)
         else:
-            words.append(" ".join(str(val).split()) or "-")
-    return _frame(" ".join(words))
+            words.append(text_field(str(val)))
+    payload = " ".join(words)
+    if spec and spec[-1][1] == "r":  # free text: cut to fit the line (docs: at most MAX_LINE)
+        room = MAX_LINE - len(" *xxxxxxxx\n")
+        if len(payload) > room:
+            payload = payload[:room - 3].rstrip() + "..."
+    return _frame(payload)
+
+
+def text_field(text: str) -> str:
+    """Free text made sendable: one line of printable ASCII without ``*`` (never raises).
+
+    Whitespace runs become one space; any other character the protocol forbids (``*``,
+    control characters, non-ASCII) is written as its Python escape (``\\x2a`` for ``*``),
+    so an error message that quotes a hostile line can always be sent. Empty text is ``-``.
+    """
+    out = []
+    for ch in " ".join(text.split()):
+        if ch == "*" or not (ch.isascii() and ch.isprintable()):
+            code = ord(ch)
+            out.append(f"\\x{code:02x}" if code < 0x100 else
+                       f"\\u{code:04x}" if code < 0x10000 else f"\\U{code:08x}")
+        else:
+            out.append(ch)
+    return "".join(out) or "-"
 
 
 def encode_config(config: Mapping[str, object]) -> bytes:
@@ -180,40 +210,47 @@ def encode_config(config: Mapping[str, object]) -> bytes:
 
 
 def _unframe(line: bytes | str) -> str:
-    raw = line.encode("latin-1") if isinstance(line, str) else bytes(line)
-    shown = raw[:60].decode("ascii", "replace")
-    if not raw.endswith(b"\n"):
-        raise ProtocolError(f"truncated line (no end of line): {shown!r}")
+    try:
+        raw = line.encode("latin-1") if isinstance(line, str) else bytes(line)
+    except UnicodeEncodeError:
+        raise ProtocolError(f"line is not ASCII: {line[:60]!a}") from None
+    shown = ascii(raw[:60].decode("latin-1"))  # quoted, ASCII: the rig can send it back
     if len(raw) > MAX_LINE:
-        raise ProtocolError(f"line longer than {MAX_LINE} bytes: {shown!r}…")
+        raise ProtocolError(f"line longer than {MAX_LINE} bytes: {shown}...")
+    if not raw.endswith(b"\n"):
+        raise ProtocolError(f"truncated line (no end of line): {shown}")
     body = raw[:-1].rstrip(b"\r")
     payload, sep, crc = body.rpartition(b" *")
     if not sep or len(crc) != 8:
-        raise ProtocolError(f"line without its checksum ' *xxxxxxxx' (truncated?): {shown!r}")
-    try:
-        want = int(crc, 16)
-    except ValueError:
-        raise ProtocolError(f"checksum is not 8 hex digits: {shown!r}") from None
+        raise ProtocolError("line without its checksum (a space, an asterisk and 8 hex digits "
+                            f"at its end; truncated?): {shown}")
+    if not _CRC.fullmatch(crc):
+        raise ProtocolError(f"checksum is not 8 hex digits: {shown}")
+    want = int(crc, 16)
     if zlib.crc32(payload) != want:
-        raise ProtocolError(f"checksum mismatch (a corrupted line): {shown!r}")
+        raise ProtocolError(f"checksum mismatch (a corrupted line): {shown}")
     try:
         text = payload.decode("ascii")
     except UnicodeDecodeError:
-        raise ProtocolError(f"line is not ASCII: {shown!r}") from None
+        raise ProtocolError(f"line is not ASCII: {shown}") from None
     if not text.isprintable():
-        raise ProtocolError(f"line holds control characters: {shown!r}")
+        raise ProtocolError(f"line holds control characters: {shown}")
     return text
 
 
 def _field(kind: str, name: str, typ: str, word: str) -> object:
     if typ == "w":
         return word
+    what = "a whole number" if typ == "i" else "a number"
+    if not (_INT if typ == "i" else _FLOAT).fullmatch(word):
+        if typ == "f" and word.lower().lstrip("+-") in ("inf", "infinity", "nan"):
+            raise ProtocolError(f"{kind} field `{name}` must be finite; got {word!r}")
+        raise ProtocolError(f"{kind} field `{name}` must be {what} (decimal); got {word!r}")
     try:
         if typ == "i":
             return int(word)
         val = float(word)
-    except ValueError:
-        what = "a whole number" if typ == "i" else "a number"
+    except ValueError:  # more digits than int() converts
         raise ProtocolError(f"{kind} field `{name}` must be {what}; got {word!r}") from None
     if not math.isfinite(val):
         raise ProtocolError(f"{kind} field `{name}` must be finite; got {word!r}")

@@ -1,7 +1,7 @@
 r"""The virtual rig: the compiled C controller stepping against phoid's exact plant, over TCP.
 
 A :class:`VirtualRig` serves the ``PHOID-RIG 1`` protocol (docs/rig-protocol.md) on a TCP port,
-one connection at a time, in a background thread. For each ``START`` it initialises the C
+one connection at a time, in background threads. For each ``START`` it initialises the C
 controller (:class:`phoid.rig.native.Controller`, built into the rig's build folder) with the
 last ``CONFIG`` and steps it sample by sample against
 :class:`phoid.simulation.tracking.ExactPlant`, the plant
@@ -20,6 +20,16 @@ controller with the force measured at the previous sample (what a load cell read
 the first sample) through ``phoid_step_force``. At the end come the controller's events and
 ``END``. It runs as fast as it can, or paced to the wall clock with ``realtime``.
 
+The rig trusts nothing the host sends. Every ``CONFIG`` is checked against what the C
+controller holds (``phoid_init``'s checks and the C types' ranges) and what this rig can run
+(the sample time within ``max_rate`` and 1 s, a hold that ends, at most ``max_samples``
+samples, a finite largest force); a refusal is ``ERROR`` naming the field. Every failure of a
+session becomes an ``ERROR`` line to the host, never a traceback: a line it cannot use is
+answered and the session goes on; a host silent for ``idle_timeout`` s, a session older than
+``max_session`` s or a failure of the rig ends the session with a last ``ERROR``. One host is
+served at a time; another gets ``ERROR busy: …`` at once and is closed. A line longer than the
+protocol allows is refused once and skipped as it arrives, never buffered whole.
+
 Fault injection (for tests, Python only): ``faults`` maps ``"drop"``, ``"corrupt"`` or
 ``"gap"`` to ``(run, index)`` — the connection is closed before sample ``index`` of the
 ``run``-th START, that sample's line has a byte changed, or it is not sent.
@@ -29,9 +39,11 @@ from __future__ import annotations
 
 import contextlib
 import math
+import select
 import shutil
 import socket
 import socketserver
+import sys
 import tempfile
 import threading
 import time
@@ -42,12 +54,68 @@ import numpy as np
 
 from phoid.rig.link import Link, LinkClosed
 from phoid.rig.native import Controller, build_library
-from phoid.rig.protocol import ProtocolError, check_hello, encode, hello, parse
+from phoid.rig.protocol import MAX_LINE, ProtocolError, check_hello, encode, hello, parse
 from phoid.simulation.tracking import ExactPlant
 
 __all__ = ["VirtualRig"]
 
+IDLE_TIMEOUT = 30.0  # s without a line from the host before the rig ends the session
+HELLO_TIMEOUT = 10.0  # s for the host's hello (at most the idle timeout)
+MAX_SESSION = 3600.0  # s a session may hold the rig
+MAX_SAMPLES = 2_000_000  # samples of one run (hold, run and the sample after it)
+MAX_SAMPLE_TIME = 1.0  # s: the slowest sample rate the rig runs (1 Hz)
+BUSY_GRACE = 1.0  # s a new connection waits for the last session to finish closing
+LINGER = 1.0  # s the rig reads what the host still sends after its last ERROR, then closes
+SEND_TIMEOUT = 5.0  # s, at least: a host that reads nothing for this long is dropped
 FLUSH = 512  # samples per send when not in real time
+BUSY = "busy: another host is connected to this rig; try again when it is done"
+
+
+class _SessionOver(Exception):
+    """The rig ends the session; the message goes to the host as its last ``ERROR``."""
+
+
+class _Lines:
+    """The host's lines, read within the session's bounds.
+
+    A line longer than the protocol's ``MAX_LINE`` is refused once (:class:`ProtocolError`)
+    and the rest of it, up to its LF, is skipped as it arrives: the link holds at most one
+    receive buffer of it, never the whole line. :meth:`check` ends the session when the rig
+    closes or the session has held the rig for ``max_session`` s.
+    """
+
+    def __init__(self, link: Link, closing: threading.Event, max_session: float) -> None:
+        self.link, self.closing, self.max_session = link, closing, max_session
+        self.deadline = time.monotonic() + max_session
+        self.skipping = False
+
+    def check(self) -> None:
+        if self.closing.is_set():
+            raise _SessionOver("the rig is shutting down: closing the session")
+        if time.monotonic() > self.deadline:
+            raise _SessionOver(f"this session has held the rig for {self.max_session:g} s, "
+                               "its limit (the rig's --max-session): closing it")
+
+    def read(self, timeout: float) -> bytes | None:
+        """The next line (with its LF) within ``timeout`` s (0: poll); None when none came."""
+        end = time.monotonic() + timeout
+        while True:
+            self.check()
+            left = end - time.monotonic()
+            line = self.link.readline(min(left, 0.5) if timeout > 0 and left > 0 else 0)
+            if line is None:
+                if timeout <= 0 or time.monotonic() >= end:
+                    return None
+                continue
+            if self.skipping:  # the tail of an overlong line
+                self.skipping = not line.endswith(b"\n")
+                continue
+            if len(line) > MAX_LINE and not line.endswith(b"\n"):
+                self.skipping = True
+                raise ProtocolError(f"a line longer than {MAX_LINE} bytes (refused; the rig "
+                                    "skips it to its end): "
+                                    f"{line[:40].decode('latin-1')!a}...")
+            return line
 
 
 class VirtualRig:
@@ -79,24 +147,44 @@ class VirtualRig:
     force_noise : float, optional
         Standard deviation of the force sensor's white noise, N: the SAMPLE lines then carry
         the measured force G·uₙ + ηₙ. None (default): no force sensor, no force field.
+    idle_timeout : float, default 30
+        Seconds without a line from the host (outside a run) after which the rig ends the
+        session (``ERROR``, then it closes); the hello must come within
+        min(10 s, ``idle_timeout``).
+    max_session : float, default 3600
+        Seconds one session may hold the rig; then it ends (``ERROR``, close), a run in
+        progress too.
+    max_samples : int, default 2000000
+        The most samples one run may take (hold_samples + run_samples + 1); a CONFIG asking
+        for more is refused.
 
     Raises
     ------
     CompilerNotFoundError
         Without a C compiler (the library is built when the rig is made).
+    ValueError
+        For a parameter out of its range (named).
     """
 
     def __init__(self, plant, *, offset_force: float = 0.0, noise: float = 0.0,
                  seed: int | None = None, realtime: bool = False,
                  build: str | Path | None = None, max_rate: float = 20000.0,
                  faults: Mapping[str, tuple[int, int]] | None = None,
-                 noise_in_loop: bool = True, force_noise: float | None = None) -> None:
+                 noise_in_loop: bool = True, force_noise: float | None = None,
+                 idle_timeout: float = IDLE_TIMEOUT, max_session: float = MAX_SESSION,
+                 max_samples: int = MAX_SAMPLES) -> None:
         if not (math.isfinite(noise) and noise >= 0):
             raise ValueError(f"noise must be a finite number ≥ 0 m; got {noise!r}")
         if force_noise is not None and not (math.isfinite(force_noise) and force_noise >= 0):
             raise ValueError(f"force_noise must be a finite number ≥ 0 N; got {force_noise!r}")
-        if not (math.isfinite(max_rate) and max_rate > 0):
-            raise ValueError(f"max_rate must be a finite number > 0 Hz; got {max_rate!r}")
+        if not (math.isfinite(max_rate) and max_rate >= 1.0 / MAX_SAMPLE_TIME):
+            raise ValueError(f"max_rate must be a finite number ≥ {1 / MAX_SAMPLE_TIME:g} Hz; "
+                             f"got {max_rate!r}")
+        for name, val in (("idle_timeout", idle_timeout), ("max_session", max_session)):
+            if not (math.isfinite(val) and val > 0):
+                raise ValueError(f"{name} must be a finite number > 0 s; got {val!r}")
+        if isinstance(max_samples, bool) or not isinstance(max_samples, int) or max_samples < 3:
+            raise ValueError(f"max_samples must be a whole number ≥ 3; got {max_samples!r}")
         ExactPlant(plant, offset=offset_force)  # checks the plant and the offset
         self.plant, self.offset, self.noise = plant, float(offset_force), float(noise)
         self.rng = np.random.default_rng(seed)
@@ -104,6 +192,8 @@ class VirtualRig:
         self.force_rng = np.random.default_rng(None if seed is None else [seed, 1])
         self.force_noise = None if force_noise is None else float(force_noise)
         self.realtime, self.max_rate = bool(realtime), float(max_rate)
+        self.idle_timeout, self.max_session = float(idle_timeout), float(max_session)
+        self.max_samples = int(max_samples)
         self.faults = dict(faults or {})
         self.noise_in_loop = bool(noise_in_loop)
         self._tmp = None if build is not None else tempfile.mkdtemp(prefix="phoid-rig-")
@@ -111,20 +201,35 @@ class VirtualRig:
         build_library(self.folder)
         self.starts = 0
         self._closing = threading.Event()
+        self._busy = threading.Lock()  # held by the session being served
+        self._socks: set[socket.socket] = set()  # the connections open now
+        self._socks_lock = threading.Lock()
         self._server: socketserver.TCPServer | None = None
         self._thread: threading.Thread | None = None
 
     # -------------------------------------------------------------------------------------
     def listen(self, host: str = "127.0.0.1", port: int = 0) -> tuple[str, int]:
-        """Start serving in a background thread; the address served (port 0: a free one)."""
+        """Start serving in a background thread; the address served (port 0: a free one).
+
+        One host is served at a time; another that connects meanwhile gets
+        ``ERROR busy: another host is connected …`` at once and is closed.
+        """
         rig = self
 
         class Handler(socketserver.BaseRequestHandler):
             def handle(self) -> None:
-                rig.session(Link(self.request))
+                rig._connection(self.request)
 
-        class Server(socketserver.TCPServer):
+        class Server(socketserver.ThreadingTCPServer):
             allow_reuse_address = True
+            daemon_threads = False
+            block_on_close = True  # close() waits for the connections' threads
+
+            def handle_error(self, request, client_address) -> None:
+                # _connection turns every failure into an ERROR line; nothing else to print
+                exc = sys.exc_info()[1]
+                sys.stderr.write(f"phoid virtual-rig: a connection from {client_address} "
+                                 f"failed: {type(exc).__name__}: {exc}\n")
 
         try:
             self._server = Server((host, port), Handler)
@@ -137,10 +242,17 @@ class VirtualRig:
         return str(addr[0]), int(addr[1])
 
     def close(self) -> None:
-        """Stop serving and remove the temporary build folder."""
-        self._closing.set()  # a session waiting for the host's next line gives up within 1 s
+        """Stop serving (sessions end with an ``ERROR``) and remove the temporary build folder."""
+        self._closing.set()  # a session gives up within about a second
         if self._server is not None:
             self._server.shutdown()
+            if self._busy.acquire(timeout=3.0):  # the session ended by itself
+                self._busy.release()
+            else:  # it is stuck sending to a host that reads nothing: cut it off
+                with self._socks_lock:
+                    for sock in self._socks:
+                        with contextlib.suppress(OSError):
+                            sock.shutdown(socket.SHUT_RDWR)
             self._server.server_close()
             self._server = None
         if self._tmp is not None:
@@ -154,64 +266,148 @@ class VirtualRig:
         self.close()
 
     # -------------------------------------------------------------------------------------
-    def session(self, link: Link) -> None:
-        """Serve one connection: hello, then CONFIG/START/CLEAR/ABORT until BYE or the end."""
+    def _connection(self, sock: socket.socket) -> None:
+        """One accepted connection: its session, or ``ERROR busy`` while another is served."""
+        with self._socks_lock:
+            self._socks.add(sock)
         try:
-            try:
-                check_hello(parse(link.readline(10.0) or b""), "the host")
-            except ProtocolError as exc:
-                link.send(encode("ERROR", str(exc)))
+            sock.settimeout(max(self.idle_timeout, SEND_TIMEOUT))  # bounds every send
+            link = Link(sock)
+            if not self._busy.acquire(timeout=BUSY_GRACE):
+                self._last_word(link, BUSY)
+                link.close()
                 return
-            link.send(hello())
-            config: dict[str, object] | None = None
-            while True:
-                line = link.readline(1.0)
-                if line is None:
-                    if self._closing.is_set():
-                        return
-                    continue
-                try:
-                    msg = parse(line or b"")
-                except ProtocolError as exc:
-                    link.send(encode("ERROR", str(exc)))
-                    continue
-                if msg.kind == "BYE":
-                    return
-                if msg.kind == "CONFIG":
-                    err = self._check_config(msg.fields)
-                    config = None if err else dict(msg.fields)
-                    link.send(encode("ERROR", err) if err else encode("OK"))
-                elif msg.kind == "START":
-                    if config is None:
-                        link.send(encode("ERROR", "START without an accepted CONFIG"))
-                    elif not self._run(link, config):
-                        return  # the connection was dropped (an injected fault)
-                elif msg.kind in ("CLEAR", "ABORT"):
-                    link.send(encode("OK"))  # no run in progress: nothing to clear or abort
-                else:
-                    link.send(encode("ERROR", f"the rig does not take {msg.kind}"))
+            try:
+                self.session(link)
+            finally:
+                self._busy.release()
+        finally:
+            with self._socks_lock:
+                self._socks.discard(sock)
+
+    @staticmethod
+    def _last_word(link: Link, message: str) -> None:
+        """Send ``ERROR message``, stop sending, and read (at most LINGER s) until the host
+        closes: closing at once could reset the connection before the host reads the line."""
+        with contextlib.suppress(OSError):  # LinkClosed too
+            link.send(encode("ERROR", message))
+            link.sock.shutdown(socket.SHUT_WR)
+            end = time.monotonic() + LINGER
+            while (left := end - time.monotonic()) > 0:
+                ready, _, _ = select.select([link.sock], [], [], left)
+                if not ready or not link.sock.recv(65536):
+                    break
+
+    def session(self, link: Link) -> None:
+        """Serve one connection: hello, then CONFIG/START/CLEAR/ABORT until BYE or the end.
+
+        Never raises: a line the rig cannot use is answered ``ERROR`` and the session goes
+        on; a session the rig ends (no hello, a host idle for ``idle_timeout`` s, the
+        ``max_session`` limit, the rig closing, a failure of the rig itself) gets a last
+        ``ERROR`` naming why, then the connection is closed.
+        """
+        lines = _Lines(link, self._closing, self.max_session)
+        try:
+            self._serve(link, lines)
         except LinkClosed:
-            return
+            pass
+        except _SessionOver as end:
+            self._last_word(link, str(end))
+        except Exception as exc:  # a failure of the rig itself: the host hears of it
+            self._last_word(link, f"the rig failed ({type(exc).__name__}: {exc}); closing "
+                                  "the session")
         finally:
             link.close()
 
-    def _check_config(self, cfg: Mapping[str, object]) -> str:
-        T = cfg.get("sample_time")
-        if isinstance(T, float) and 0 < T < 1.0 / self.max_rate:
-            return (f"sample_time {T:g} s ({1 / T:g} Hz) is faster than this rig can sample "
-                    f"(at most {self.max_rate:g} Hz)")
+    def _serve(self, link: Link, lines: _Lines) -> None:
+        wait = min(HELLO_TIMEOUT, self.idle_timeout)
         try:
-            Controller(cfg, self.folder)
+            line = lines.read(wait)
+            if line is None:
+                raise _SessionOver(f"no hello ('PHOID-RIG 1') within {wait:g} s: closing")
+            check_hello(parse(line), "the host")
+        except LinkClosed:
+            raise
+        except ProtocolError as exc:
+            raise _SessionOver(str(exc)) from None
+        link.send(hello())
+        config: dict[str, object] | None = None
+        while True:
+            try:
+                line = lines.read(self.idle_timeout)
+                if line is None:
+                    raise _SessionOver(f"no line from the host for {self.idle_timeout:g} s "
+                                       "(the rig's --idle-timeout): closing the session")
+                msg = parse(line)
+            except LinkClosed:
+                raise
+            except ProtocolError as exc:
+                link.send(encode("ERROR", str(exc)))
+                continue
+            if msg.kind == "BYE":
+                return
+            if msg.kind == "CONFIG":
+                err = self._check_config(msg.fields)
+                config = None if err else dict(msg.fields)
+                link.send(encode("ERROR", err) if err else encode("OK"))
+            elif msg.kind == "START":
+                if config is None:
+                    link.send(encode("ERROR", "START without an accepted CONFIG"))
+                elif not self._run(link, lines, config):
+                    return  # the connection was dropped (an injected fault)
+            elif msg.kind in ("CLEAR", "ABORT"):
+                link.send(encode("OK"))  # no run in progress: nothing to clear or abort
+            else:
+                link.send(encode("ERROR", f"the rig does not take {msg.kind}"))
+
+    def _check_config(self, cfg: Mapping[str, object]) -> str:
+        """Why the rig refuses a configuration (naming the field), or ""."""
+        try:
+            c = Controller(cfg, self.folder).config  # phoid_init's checks, the C types' ranges
         except ValueError as exc:
             return str(exc)
+        T = c.sample_time
+        if T < 1.0 / self.max_rate:
+            return (f"sample_time {T:g} s ({1 / T:g} Hz) is faster than this rig can sample "
+                    f"(at most {self.max_rate:g} Hz, its --max-rate)")
+        if T > MAX_SAMPLE_TIME:
+            return (f"sample_time {T:g} s is slower than this rig samples (at most "
+                    f"{MAX_SAMPLE_TIME:g} s, {1 / MAX_SAMPLE_TIME:g} Hz)")
+        try:
+            ExactPlant(self.plant, offset=self.offset).zoh_map(T)
+        except ValueError as exc:
+            return f"sample_time {T:g} s: {exc}"
+        if c.hold_samples == 0:
+            return ("hold_samples 0 (hold until a release) would hold for ever: the protocol "
+                    "has no release command; give hold_samples >= 1")
+        total = c.hold_samples + c.run_samples + 1
+        if total > self.max_samples:
+            return (f"hold_samples + run_samples = {total - 1} samples: more than this rig runs "
+                    f"at once (at most {self.max_samples - 1}, its --max-samples)")
+        if self.realtime and total * T > self.max_session:
+            return (f"hold_samples + run_samples at sample_time {T:g} s take {total * T:g} s "
+                    f"in real time, longer than a session may hold the rig "
+                    f"({self.max_session:g} s, its --max-session)")
+        if not math.isfinite(c.command_gain * c.u_max):
+            return (f"command_gain x u_max = {c.command_gain:g} x {c.u_max:g} is not a finite "
+                    "force: give a smaller u_max (command units)")
+        if c.has_force and self.force_noise is None:
+            return ("has_force 1: this rig has no force sensor (start it with --force-noise "
+                    "to simulate one)")
         return ""
 
-    def _run(self, link: Link, cfg: Mapping[str, object]) -> bool:
-        """One run, streamed; False when an injected fault dropped the connection."""
+    def _run(self, link: Link, lines: _Lines, cfg: Mapping[str, object]) -> bool:
+        """One run, streamed; False when an injected fault dropped the connection.
+
+        A simulation that diverges (the plant's position no longer a finite double) is read
+        by the controller as a sensor failure: it faults (``fault-input``), that sample is
+        not sent (a SAMPLE carries finite numbers only), and the run ends with its events
+        and ``END fault-input``.
+        """
         self.starts += 1
         ctrl = Controller(cfg, self.folder)
-        T = float(cfg["sample_time"])  # type: ignore[arg-type]
-        G = float(cfg.get("command_gain", 1.0))  # type: ignore[arg-type]
+        T, G = float(ctrl.config.sample_time), float(ctrl.config.command_gain)
+        total = int(ctrl.config.hold_samples) + int(ctrl.config.run_samples) + 1
         plant = ExactPlant(self.plant, offset=self.offset)
         fault = {kind: idx for kind, (run, idx) in self.faults.items() if run == self.starts}
         ctrl.start()
@@ -220,7 +416,12 @@ class VirtualRig:
         n = 0
         sensed = 0.0 if self.force_noise is not None else None  # the force read at nT, N
         while True:
+            if n > total:  # the controller stops by itself; a bound all the same
+                raise RuntimeError(f"the run went past its {total} samples")
             x = plant.x + (self.noise * float(self.rng.standard_normal()) if self.noise else 0.0)
+            if not (math.isfinite(x) and math.isfinite(plant.x)):  # diverged
+                ctrl.step(math.nan, 0.0, sensed)  # the controller faults: fault-input
+                break
             before = ctrl.state
             u = ctrl.step(x if self.noise_in_loop else plant.x, 0.0, sensed)
             state = ctrl.state
@@ -247,9 +448,10 @@ class VirtualRig:
             if self.realtime or len(out) >= FLUSH * 60:
                 link.send(bytes(out))
                 out.clear()
-                self._poll(link, ctrl)
+                lines.check()  # the rig closing, the session's time
+                self._poll(link, lines, ctrl)
                 if self.realtime:
-                    time.sleep(max(0.0, t0 + n * T - time.monotonic()))
+                    time.sleep(max(0.0, min(T, t0 + n * T - time.monotonic())))
         events = ctrl.events()
         for ev in events:
             out += encode("EVENT", ev.index, ev.name, ev.value)
@@ -260,13 +462,15 @@ class VirtualRig:
         return True
 
     @staticmethod
-    def _poll(link: Link, ctrl: Controller) -> None:
+    def _poll(link: Link, lines: _Lines, ctrl: Controller) -> None:
         """Take an ABORT (or anything) the host sent during the run, without waiting."""
-        line = link.readline(0)
-        if line is None:
-            return
         try:
+            line = lines.read(0)
+            if line is None:
+                return
             msg = parse(line)
+        except LinkClosed:
+            raise
         except ProtocolError as exc:
             link.send(encode("ERROR", str(exc)))
             return

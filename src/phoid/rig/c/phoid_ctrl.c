@@ -8,6 +8,8 @@
  */
 #include "phoid_ctrl.h"
 
+#include <limits.h> /* LONG_MAX (a freestanding header: no libc needed) */
+
 #define PHOID_NO_LIMIT 1e300
 
 /* finite: false for NaN and +/-inf (x - x is NaN for both); needs IEEE arithmetic, so do not
@@ -82,9 +84,21 @@ void phoid_config_default(phoid_config *cfg)
     cfg->has_force = 0;
 }
 
+/* 0 <= n <= PHOID_MAX_COUNT (the upper test only where a long can pass it: no warning about
+ * a comparison that is always false on a 32-bit long) */
+static int count_ok(long n)
+{
+#if LONG_MAX > 2147483647L
+    if (n > PHOID_MAX_COUNT) {
+        return 0;
+    }
+#endif
+    return n >= 0;
+}
+
 static int check_config(const phoid_config *g)
 {
-    if (!finite_(g->sample_time) || !(g->sample_time > 0.0)) {
+    if (!finite_(g->sample_time) || !(g->sample_time >= PHOID_MIN_SAMPLE_TIME)) {
         return PHOID_E_SAMPLE_TIME;
     }
     if (g->velocity != PHOID_VEL_BACKWARD && g->velocity != PHOID_VEL_CENTRAL
@@ -116,10 +130,11 @@ static int check_config(const phoid_config *g)
     if (!(g->growth_limit == 0.0 || (finite_(g->growth_limit) && g->growth_limit >= 1.0))) {
         return PHOID_E_GROWTH;
     }
-    if (g->stall_samples < 0 || !finite_(g->stall_epsilon) || !(g->stall_epsilon >= 0.0)) {
+    if (!count_ok(g->stall_samples) || !finite_(g->stall_epsilon)
+        || !(g->stall_epsilon >= 0.0)) {
         return PHOID_E_STALL;
     }
-    if (g->hold_samples < 0 || g->run_samples < 1) {
+    if (!count_ok(g->hold_samples) || !count_ok(g->run_samples) || g->run_samples < 1) {
         return PHOID_E_SAMPLES;
     }
     if (g->has_force != 0 && g->has_force != 1) {
@@ -265,6 +280,10 @@ double phoid_step_force(phoid_ctrl *c, double x, double r, double force)
     } else {
         u = 0.0;
     }
+    if (!finite_(u)) { /* overflow (inf) or inf - inf (NaN): never send it on */
+        fault(c, PHOID_EV_FAULT_COMMAND, x);
+        u = 0.0;
+    }
     clipped = 0;
     if (u > g->u_max) {
         clipped = 1;
@@ -341,6 +360,10 @@ void phoid_abort(phoid_ctrl *c, double reason)
 void phoid_clear_fault(phoid_ctrl *c)
 {
     if (c && c->state == PHOID_FAULT) {
+        if (!finite_(c->vhat)) { /* an overflowed estimate: start again at rest */
+            c->history = 0;
+            c->vhat = 0.0;
+        }
         c->state = PHOID_IDLE;
         c->held = c->ran = c->still = 0;
         push_event(c, c->n, PHOID_EV_CLEAR, 0.0);
@@ -374,9 +397,9 @@ const char *phoid_event_name(int code)
 {
     static const char *const names[] = {
         "unknown", "start", "release", "done", "clip", "fault-position", "fault-growth",
-        "fault-stall", "fault-input", "fault-host", "clear"
+        "fault-stall", "fault-input", "fault-host", "clear", "fault-command"
     };
-    if (code < 1 || code > PHOID_EV_CLEAR) {
+    if (code < 1 || code > PHOID_EV_FAULT_COMMAND) {
         return names[0];
     }
     return names[code];

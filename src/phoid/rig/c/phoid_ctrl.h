@@ -26,6 +26,8 @@
  *   --run_samples--> DONE;  any safety trip --> FAULT (command 0, latched until
  *   phoid_clear_fault, which returns to IDLE). phoid_start is accepted in IDLE and DONE.
  * Every state change and fault is pushed into a fixed-size event log with its sample index.
+ * A command that is not finite (gains so large that the product overflows) faults the
+ * controller (PHOID_EV_FAULT_COMMAND) instead of reaching the amplifier.
  */
 #ifndef PHOID_CTRL_H
 #define PHOID_CTRL_H
@@ -43,6 +45,13 @@ extern "C" {
 #ifndef PHOID_EVENT_LOG
 #define PHOID_EVENT_LOG 32
 #endif
+
+/** Largest sample count (hold_samples, run_samples, stall_samples): 2^31 - 1, what a 32-bit
+ * long holds, so that a configuration means the same on every target. */
+#define PHOID_MAX_COUNT 2147483647L
+
+/** Shortest sample time, s (1 ns): 1/sample_time must be a finite, sensible rate. */
+#define PHOID_MIN_SAMPLE_TIME 1e-9
 
 /** Velocity estimators (phoid's presets "backward-difference", "central-difference",
  * "filtered"). */
@@ -73,14 +82,16 @@ enum phoid_event_code {
     PHOID_EV_FAULT_INPUT = 8,     /**< x or r not finite (value 0), or the measured force
                                        not finite with has_force = 1 (value 1) */
     PHOID_EV_FAULT_HOST = 9,      /**< phoid_abort; value: the host's reason */
-    PHOID_EV_CLEAR = 10           /**< FAULT -> IDLE (phoid_clear_fault); value: 0 */
+    PHOID_EV_CLEAR = 10,          /**< FAULT -> IDLE (phoid_clear_fault); value: 0 */
+    PHOID_EV_FAULT_COMMAND = 11   /**< the command computed is not finite (the gains times the
+                                       state overflow a double); value: x (m) */
 };
 
 /** Error codes of phoid_init (0 is success); each names the field that is wrong. */
 enum phoid_error {
     PHOID_OK = 0,
     PHOID_E_NULL = -1,           /**< a NULL pointer */
-    PHOID_E_SAMPLE_TIME = -2,    /**< sample_time not finite and > 0 */
+    PHOID_E_SAMPLE_TIME = -2,    /**< sample_time not finite and >= PHOID_MIN_SAMPLE_TIME */
     PHOID_E_VELOCITY = -3,       /**< unknown velocity estimator */
     PHOID_E_FILTER_POLE = -4,    /**< filter_pole not in [0, 1) (filtered estimator) */
     PHOID_E_DELAY = -5,          /**< delay_samples < 0 or > PHOID_MAX_DELAY */
@@ -90,15 +101,18 @@ enum phoid_error {
     PHOID_E_START = -9,          /**< x_start not finite or outside [x_min, x_max] */
     PHOID_E_COMMAND_LIMIT = -10, /**< u_max not > 0 (or a NaN) */
     PHOID_E_GROWTH = -11,        /**< growth_limit neither 0 (off) nor finite and >= 1 */
-    PHOID_E_STALL = -12,         /**< stall_samples < 0, or stall_epsilon not finite and >= 0 */
-    PHOID_E_SAMPLES = -13,       /**< hold_samples < 0 or run_samples < 1 */
+    PHOID_E_STALL = -12,         /**< stall_samples not in [0, PHOID_MAX_COUNT], or
+                                      stall_epsilon not finite and >= 0 */
+    PHOID_E_SAMPLES = -13,       /**< hold_samples not in [0, PHOID_MAX_COUNT] or run_samples
+                                      not in [1, PHOID_MAX_COUNT] */
     PHOID_E_STATE = -14,         /**< (phoid_start, phoid_release) not allowed in this state */
     PHOID_E_HAS_FORCE = -15      /**< has_force neither 0 nor 1 */
 };
 
 /** The configuration of one run. Units: SI (m, s) and the command's own units. */
 typedef struct phoid_config {
-    double sample_time;    /**< T, s (> 0): the period at which phoid_step is called */
+    double sample_time;    /**< T, s (>= PHOID_MIN_SAMPLE_TIME, finite): the period at which
+                                phoid_step is called */
     double P;              /**< run proportional gain, command units per m (any sign) */
     double D;              /**< run derivative gain, command units per m/s (any sign) */
     double gain;           /**< K, dimensionless (finite; 1 for phoid's release loop) */
@@ -110,14 +124,17 @@ typedef struct phoid_config {
     double hold_P;         /**< hold loop proportional gain, command units per m */
     double hold_D;         /**< hold loop derivative gain, command units per m/s */
     double x_start;        /**< hold position, m */
-    long hold_samples;     /**< samples held before the release (0: until phoid_release) */
-    long run_samples;      /**< samples run from the release on (>= 1), then DONE */
+    long hold_samples;     /**< samples held before the release (0: until phoid_release;
+                                at most PHOID_MAX_COUNT) */
+    long run_samples;      /**< samples run from the release on (1..PHOID_MAX_COUNT), then
+                                DONE */
     double x_min;          /**< lowest allowed position in HOLD and RUN, m */
     double x_max;          /**< highest allowed position in HOLD and RUN, m */
     double u_max;          /**< command limit, command units (> 0): commands are clipped */
     double growth_limit;   /**< RUN aborts when |x - r| > growth_limit*A (0: off; else >= 1) */
     long stall_samples;    /**< RUN aborts after this many samples in a row with
-                                |x_n - x_{n-1}| < stall_epsilon (0: off) */
+                                |x_n - x_{n-1}| < stall_epsilon (0: off; at most
+                                PHOID_MAX_COUNT) */
     double stall_epsilon;  /**< m (>= 0) */
     int has_force;         /**< 1: a force sensor is declared, so every sample must bring a
                                 finite measured force (phoid_step_force), else FAULT_INPUT;
