@@ -241,16 +241,19 @@ def test_too_many_runs(tmp_path: Path) -> None:
                    f"{pio.MAX_RUNS + 1:,} [[run]] tables", "MAX_RUNS")
 
 
-@pytest.mark.parametrize(("limit", "setting", "words"), [
-    ("MAX_DATA_BYTES", 3 * 2**20, ("larger than", "after decompression", "MAX_DATA_BYTES")),
-    ("MAX_SET_ROWS", 600, ("more than 600 data rows in all", "MAX_SET_ROWS")),
+@pytest.mark.parametrize(("limit", "setting", "fill", "words"), [
+    # blank lines: a repeated data row would be refused first, at its repeated t
+    ("MAX_DATA_BYTES", 3 * 2**20, b" " * 127 + b"\n",
+     ("larger than", "after decompression", "MAX_DATA_BYTES")),
+    ("MAX_SET_ROWS", 600, b"0.5,1,2" + b" " * 120 + b"\n",
+     ("more than 600 data rows in all", "MAX_SET_ROWS")),
 ])
 def test_byte_and_row_caps(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, limit: str,
-                           setting: int, words: tuple[str, ...]) -> None:
+                           setting: int, fill: bytes, words: tuple[str, ...]) -> None:
     """The caps too large to reach in a test (4 GiB, 2e8 rows) enforced at a lowered value:
     the same code path, the limit read at call time. In-process (a CLI run cannot lower it)."""
     monkeypatch.setattr(io_limits, limit, setting)  # where the reader reads it
-    big = gzip_of(csv_bytes(0.02, 2), b"0.5,1,2" + b" " * 120 + b"\n", 40_000)  # 16 MiB
+    big = gzip_of(csv_bytes(0.02, 2), fill, 40_000)  # 16 MiB of lines of 128 bytes
     folder = make_set(tmp_path, run02_csv_gz=big)
     with pytest.raises(ExperimentError) as info:
         pio.read_experiment(folder)

@@ -33,7 +33,7 @@ import phoid.io.limits as limits
 from phoid.errors import ExperimentError
 from phoid.io._files import open_regular
 from phoid.io._format import fail, show
-from phoid.io._mat5 import check_mat5
+from phoid.io._mat5 import check_mat5, check_stream
 
 __all__ = ["CONTAINER_SUFFIXES", "container_suffix", "read_container"]
 
@@ -112,8 +112,7 @@ def read_container(
         _check_claim(where, suffix, kind)
         try:
             if kind == "mat5":
-                check_mat5(where, f, st.st_size)
-                source: _Source = _Mat5(where, f)
+                source: _Source = _Mat5(where, f, check_mat5(where, f, st.st_size))
             elif kind == "parquet":
                 source = _Parquet(where, f)
             else:
@@ -326,10 +325,11 @@ class _Mat5(_Source):
     """A MATLAB v5/v7 file: ``whosmat`` lists names, shapes and classes without reading the
     data; ``loadmat`` then reads only the variables asked for."""
 
-    def __init__(self, where: str, f: BinaryIO) -> None:
+    def __init__(self, where: str, f: BinaryIO, compressed: dict[str, tuple[int, int]]
+                 ) -> None:
         from scipy.io import whosmat
 
-        self.where, self.f = where, f
+        self.where, self.f, self.compressed = where, f, compressed
         try:
             listed = whosmat(f)
         except Exception as exc:  # hostile input: scipy raises many kinds
@@ -353,6 +353,8 @@ class _Mat5(_Source):
         if name not in self.cache:
             from scipy.io import loadmat
 
+            if name in self.compressed:  # scipy takes a cut or overlong stream silently
+                check_stream(self.where, self.f, *self.compressed[name], name)
             try:
                 self.f.seek(0)
                 data = loadmat(self.f, variable_names=[name], squeeze_me=False)

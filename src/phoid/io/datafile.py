@@ -148,12 +148,11 @@ def _line_chunks(where: str, blocks: Iterable[bytes]) -> Iterator[tuple[int, byt
         if chunk:
             count = chunk.count(b"\n")
             _check_lines(where, line + count - 1)
+            _check_line_lengths(where, chunk, line)
             yield line, chunk
             line += count
         if len(carry) > limits.MAX_LINE_BYTES:
-            fail(where, f"line {line} is longer than {limits.MAX_LINE_BYTES // 2**20} MiB, "
-                         "phoid's limit for one line (MAX_LINE_BYTES): is this a CSV file with "
-                         "one row per line?")
+            _long_line(where, line)
     if first and carry.startswith(codecs.BOM_UTF8):
         carry = carry[len(codecs.BOM_UTF8):]
     if carry:
@@ -162,6 +161,24 @@ def _line_chunks(where: str, blocks: Iterable[bytes]) -> Iterator[tuple[int, byt
             carry += b"\n"
         _check_lines(where, line + carry.count(b"\n") - 1)
         yield line, carry
+
+
+def _check_line_lengths(where: str, chunk: bytes, first: int) -> None:
+    """Refuse a line of ``chunk`` (whole LF-terminated lines, the first numbered ``first``)
+    longer than MAX_LINE_BYTES, wherever it lies: the line a block began in the middle of
+    (its start carried over from the previous block) as well as any other."""
+    if len(chunk) <= limits.MAX_LINE_BYTES:
+        return  # no line can be longer than the chunk
+    ends = np.flatnonzero(np.frombuffer(chunk, dtype=np.uint8) == 10)
+    lengths = np.diff(ends, prepend=-1) - 1  # without the LF
+    if lengths.max() > limits.MAX_LINE_BYTES:
+        _long_line(where, first + int(np.argmax(lengths > limits.MAX_LINE_BYTES)))
+
+
+def _long_line(where: str, line: int) -> None:
+    fail(where, f"line {line} is longer than {limits.MAX_LINE_BYTES // 2**20} MiB, phoid's "
+                 "limit for one line (MAX_LINE_BYTES): is this a CSV file with one row per "
+                 "line?")
 
 
 def _check_lines(where: str, last: int) -> None:
@@ -252,6 +269,14 @@ def _parse_csv(where: str, chunks: Iterator[tuple[int, bytes]], *, need_F: bool 
     parts: list[np.ndarray] = []   # per chunk: rows × wanted columns
     where_rows: list[tuple[int, int, np.ndarray | None]] = []  # (first row, first line, lines)
     n = 0
+    it = keys.index("t")
+    last_t: tuple[float, int] | None = None  # the previous chunk's last t and its line
+
+    def line_of(row: int) -> int:
+        i = bisect.bisect_right([w[0] for w in where_rows], row) - 1
+        first_row, line0, lines = where_rows[i]
+        return int(lines[row - first_row]) if lines is not None else line0 + row - first_row
+
     bodies = itertools.chain([(start + 1, body)], ((s, c) for s, c in chunks))
     for line0, text in bodies:
         if not text:
@@ -265,15 +290,22 @@ def _parse_csv(where: str, chunks: Iterator[tuple[int, bytes]], *, need_F: bool 
         where_rows.append((n, line0, lines))
         parts.append(table)
         n += table.shape[0]
+        # t is checked chunk by chunk, so that a file that repeats one row (a gzip bomb of
+        # 60 million '0,0' lines is 233 kB) is refused at its first block, not after
+        # MAX_LINES rows have been parsed and held
+        t = table[:, it]
+        if last_t is not None and not t[0] > last_t[0]:
+            _not_increasing(where, wanted[it], float(t[0]), line_of(n - t.size), *last_t)
+        up = t[1:] > t[:-1]
+        if not up.all():
+            j = int(np.argmin(up)) + 1  # in this chunk; row n - t.size + j of the file
+            _not_increasing(where, wanted[it], float(t[j]), line_of(n - t.size + j),
+                            float(t[j - 1]), line_of(n - t.size + j - 1))
+        last_t = (float(t[-1]), line_of(n - 1))
     if n == 0:
         fail(where, "the data file has a header but no data rows")
     if n < 2:
         fail(where, f"only {n} data row; at least 2 are needed")
-
-    def line_of(row: int) -> int:
-        i = bisect.bisect_right([w[0] for w in where_rows], row) - 1
-        first_row, line0, lines = where_rows[i]
-        return int(lines[row - first_row]) if lines is not None else line0 + row - first_row
 
     cols: dict[str, np.ndarray] = {}
     for i, key in enumerate(keys):
@@ -282,13 +314,13 @@ def _parse_csv(where: str, chunks: Iterator[tuple[int, bytes]], *, need_F: bool 
         col.flags.writeable = False
         cols[key] = col
     parts.clear()
-    t = cols["t"]
-    up = t[1:] > t[:-1]
-    if not up.all():
-        r = int(np.argmin(up)) + 1
-        fail(where, f"column {wanted[0]} is not strictly increasing at line {line_of(r)}: "
-                     f"{float(t[r])!r} s follows {float(t[r - 1])!r} s (line {line_of(r - 1)})")
     return cols
+
+
+def _not_increasing(where: str, name: str, value: float, line: int, before: float,
+                    line_before: int) -> None:
+    fail(where, f"column {name} is not strictly increasing at line {line}: {value!r} s "
+                 f"follows {before!r} s (line {line_before})")
 
 
 def _parse_chunk(where: str, body: bytes, line0: int, ncols: int, position: dict[str, int],
