@@ -35,6 +35,17 @@ SHARED_ABSENT = (
 )
 
 
+@pytest.fixture(autouse=True)
+def _fresh_working_directory(tmp_path_factory, monkeypatch):
+    """Every test runs in an empty working directory of its own.
+
+    A test that read or wrote a relative path would otherwise depend on where pytest was
+    started and on what an earlier command left there (``make demo`` writes ``phoid-out/``
+    into the checkout, and ``phoid paper`` then refuses to replace it), and could leave files
+    in the user's checkout. Paths into the repository are built from ``ROOT``."""
+    monkeypatch.chdir(tmp_path_factory.mktemp("cwd"))
+
+
 @dataclass(frozen=True)
 class SampleSet:
     """An independent (jitcdde-made) paper-sample set: where it is, its truth, and its source."""

@@ -298,9 +298,19 @@ def test_digital_pho_in_ms_without_units_names_them(tmp_path):
     si = phoid.identify(read_experiment(si_folder))
     assert not any("[units]" in w for w in si.warnings), si.warnings
     folder = convert(si_folder, tmp_path / "ms", {"t": "ms"}, declare=False)
-    result = phoid.identify(read_experiment(folder))
-    # the records' step (2 "s") is 1000 controller periods (sample_time 0.002 s)
-    hint = [w for w in result.warnings if "sampled every" in w]
-    assert hint and '[units] t = "ms"' in hint[0], result.warnings
+    # the records' step (2 "s") is 1000 controller periods (sample_time 0.002 s). Read as
+    # seconds, every mode is 1000× too slow; whether the weighted fit of m, c, k still
+    # converges on such rates depends on the CPU's rounding (it does on some x86-64 machines,
+    # not on others), so either outcome is right as long as it names the cause and the cure:
+    # a result with the hint among its warnings, or a refusal whose one line gives it.
+    try:
+        result = phoid.identify(read_experiment(folder))
+    except phoid.PhoidError as exc:
+        message = str(exc)
+        assert "\n" not in message, message
+        assert "ms" in message and '[units] t = "ms"' in message, message
+    else:
+        hint = [w for w in result.warnings if "sampled every" in w]
+        assert hint and '[units] t = "ms"' in hint[0], result.warnings
     declared = phoid.identify(read_experiment(convert(si_folder, tmp_path / "d", {"t": "ms"})))
     np.testing.assert_allclose(estimates(declared), estimates(si), rtol=REL)
