@@ -1,17 +1,20 @@
 r"""The host driver: run a designed plan on a rig (``PHOID-RIG 1``), write the ``phoid/1`` set.
 
-:func:`run_plan` reads a plan (``phoid design --out``), checks every run's gains against the
-rig's limits before anything moves, connects, says hello, and for each run sends ``CONFIG`` and
-``START`` and streams the samples into the run's CSV (``t, x, u``: the samples from the release
-on) as they arrive; ``u`` is the measured force when the rig's SAMPLE lines carry one (a rig
-with a force sensor), else the command it applied (N with the command gain 1). After every run
-it rewrites the manifest ``experiment.toml`` (atomically):
-the complete runs as ``[[run]]`` tables with the digital loop in ``[loop]`` (``sample_time``,
-``delay_samples``, ``velocity``), so that ``phoid identify`` reads the set as it stands, and
-every attempt — complete, aborted by the controller, or incomplete (the link failed) — in
-``[[rig.attempt]]`` with its reason, events and measured sample times (docs/format.md, "Keys
-written by `phoid run`"). Aborted and incomplete runs keep their samples in their own files
-(``run03.aborted.csv``, ``run03.incomplete.csv``) and are never listed as ``[[run]]``.
+:func:`run_plan` checks every option, the plan's runs against the rig's limits and every file
+name it will write before anything moves; then, for each run, ``CONFIG`` and ``START``, and
+the samples streamed into the run's CSV (``t, x, u`` from the release on; ``u`` the measured
+force when the SAMPLE lines carry one, else the command). After every run it rewrites
+``experiment.toml`` (atomically): the complete runs as ``[[run]]`` with the digital loop in
+``[loop]``, so that ``phoid identify`` reads the set as it stands, and every attempt —
+complete, aborted by the controller, or incomplete — in ``[[rig.attempt]]`` (docs/format.md,
+"Keys written by `phoid run`"). Aborted and incomplete runs keep their samples in their own
+files (``run03.aborted.csv``, ``run03.incomplete.csv``), never listed as ``[[run]]``.
+
+A run is complete only when its stream is exactly the run configured: END ``done`` after
+``hold_samples + run_samples + 1`` samples, indices consecutive from 0, states in order with
+those counts, times strictly increasing. Every read is bounded (docs/rig-protocol.md, "Limits
+of the host"); the manifest stays within the reader's limit whatever the rig sends; nothing
+in ``--out`` is replaced but the set's own manifest.
 
 Each run's configuration: T = 1/fs, the plan's P and D, K = G = 1, backward-difference
 velocity, d = Δt/T whole samples of command delay (the plan's ``[loop] delay``), the hold at
@@ -25,6 +28,7 @@ from __future__ import annotations
 import contextlib
 import math
 import os
+import secrets
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
@@ -36,6 +40,7 @@ import tomli_w
 
 from phoid._output import OutputFolder
 from phoid.errors import ExperimentError, PhoidError
+from phoid.io.limits import MAX_LINES, MAX_MANIFEST_BYTES, MAX_SET_ROWS
 from phoid.io.manifest import read_manifest
 from phoid.planning.schedule import read_schedule
 from phoid.rig.link import Link, LinkClosed, connect, open_serial
@@ -44,6 +49,18 @@ from phoid.rig.protocol import ProtocolError, check_hello, encode, encode_config
 __all__ = ["RigError", "RunPlanResult", "open_port", "parse_port", "plan_configs", "run_plan"]
 
 MANIFEST = "experiment.toml"
+# the limits of the host (docs/rig-protocol.md, "Limits of the host")
+MAX_COUNT = 2**31 - 1  # samples of one run, hold + run + 1: a C long of 32 bits (an MCU's)
+MAX_DELAY = 2**15 - 1  # samples of command delay: a C int of 16 bits
+MIN_SAMPLE_TIME = 1e-9  # s: the controller's shortest sample time
+MAX_TIMEOUT = 86400.0  # s: the longest --timeout (a day)
+MAX_DAMAGED = 100  # damaged lines (checksum, syntax, too long) in a run before the link is given up
+EXTRA_EVENTS = 64  # EVENT lines a run may bring beyond one per sample
+STORED_EVENTS = 64  # events recorded per attempt; the rest are counted (events_dropped)
+EVENT_CHARS = 96  # the longest event text recorded, characters
+REASON_CHARS = 400  # the longest reason recorded (and printed), characters
+LINE_BYTES = 160  # bytes per line in a run's deadline on a serial line
+LINE_TIME = 1e-4  # s per sample in a run's deadline for the host's and a fast rig's own work
 
 
 class RigError(PhoidError):
@@ -74,36 +91,105 @@ class RunPlanResult:
         return all(s == "complete" for s in self.statuses)
 
 
+def _digits(text: str) -> bool:
+    return text.isascii() and text.isdigit() and len(text) <= 9
+
+
 def parse_port(port: str) -> tuple[str, int]:
     """``tcp://HOST:PORT`` (or ``HOST:PORT``) → (host, port); RigError otherwise."""
     text = port[6:] if port.startswith("tcp://") else port
     host, sep, num = text.rpartition(":")
-    if "://" in text or not sep or not host or not num.isdigit() or not 0 < int(num) < 65536:
+    if "://" in text or not sep or not host or not _digits(num) or not 0 < int(num) < 65536:
         raise RigError(f"--port must be tcp://HOST:PORT or serial:///dev/DEVICE[?baud=N] "
-                       f"(port 1 to 65535); got {port!r}")
+                       f"(port 1 to 65535); got {_clip(port, 200)!r}")
     return host.strip("[]"), int(num)
 
 
 def open_port(port: str, timeout: float) -> Link:
-    """Connect to the rig: ``tcp://HOST:PORT`` or ``serial:///dev/DEVICE[?baud=N]`` (115200)."""
+    """Connect to the rig: ``tcp://HOST:PORT`` or ``serial:///dev/DEVICE[?baud=N]`` (115200).
+
+    ``timeout`` bounds the connection and every send on the link.
+    """
     if port.startswith("serial://"):
         path, _, query = port[len("serial://"):].partition("?")
         key, _, val = query.partition("=")
-        if not path or (query and (key != "baud" or not val.isdigit())):
+        if not path or (query and (key != "baud" or not _digits(val) or int(val) == 0)):
             raise RigError(f"--port must be serial:///dev/DEVICE or serial:///dev/DEVICE?baud=N; "
-                           f"got {port!r}")
-        return open_serial(path, int(val) if query else 115200)
+                           f"got {_clip(port, 200)!r}")
+        return open_serial(path, int(val) if query else 115200, timeout)
     host, num = parse_port(port)
     return connect(host, num, timeout)
 
 
-def _prior_value(prior: Mapping[str, Any], key: str, pick: Callable) -> float | None:
+def _clip(text: object, limit: int) -> str:
+    """``text`` as one line of ASCII (other characters escaped), at most ``limit`` characters."""
+    line = " ".join(str(text).split()).encode("ascii", "backslashreplace").decode("ascii")
+    return line if len(line) <= limit else line[:limit - 3] + "..."
+
+
+def _option(name: str, value: Any, ok: Callable[[float], bool], what: str) -> float:
+    """``value`` as a float when it is a finite number with ``ok(value)``; else one RigError."""
+    try:
+        num = float(value) if not isinstance(value, (bool, str)) else math.nan
+    except (TypeError, ValueError, OverflowError):
+        num = math.nan
+    if not (math.isfinite(num) and ok(num)):
+        raise RigError(f"{name} must be {what}; got {_clip(value, 60)}; nothing was sent")
+    return num
+
+
+def _options(pmax: Any, dmax: Any, hold_p: Any, hold_d: Any, hold: Any, x_limit: Any,
+             u_max: Any, growth_limit: Any) -> dict[str, float | None]:
+    """Every limit option checked (finite, in range), by its name; one RigError otherwise."""
+    checks: dict[str, tuple[str, Any, Callable[[float], bool], str]] = {
+        "pmax": ("--pmax", pmax, lambda v: v >= 0, "a finite number >= 0 (N/m)"),
+        "dmax": ("--dmax", dmax, lambda v: v >= 0, "a finite number >= 0 (N s/m)"),
+        "hold_p": ("--hold-p", hold_p, lambda v: v > 0, "a finite number > 0 (N/m)"),
+        "hold_d": ("--hold-d", hold_d, lambda v: v >= 0, "a finite number >= 0 (N s/m)"),
+        "hold": ("--hold", hold, lambda v: v > 0, "a finite number of seconds > 0"),
+        "x_limit": ("--x-limit", x_limit, lambda v: v > 0, "a finite number > 0 (m)"),
+        "u_max": ("--u-max", u_max, lambda v: v > 0, "a finite number > 0 (N)"),
+        "growth_limit": ("--growth-limit", growth_limit, lambda v: v == 0 or v >= 1,
+                         "0 (off) or a finite number >= 1"),
+    }
+    return {key: None if val is None else _option(name, val, ok, what)
+            for key, (name, val, ok, what) in checks.items()}
+
+
+def _prior_value(prior: Mapping[str, Any], key: str, pick: Callable, least: float
+                 ) -> float | None:
+    """The prior's ``key`` (a value or ``[lo, hi]`` through ``pick``) when finite and > least."""
     val = prior.get(key)
-    if isinstance(val, list) and len(val) == 2:
-        val = pick(val)
-    if isinstance(val, (int, float)) and not isinstance(val, bool) and math.isfinite(val):
+    if isinstance(val, list) and len(val) == 2 and all(
+            isinstance(v, (int, float)) and not isinstance(v, bool) for v in val):
+        with np.errstate(all="ignore"):
+            val = float(pick([float(v) for v in val]))
+    if isinstance(val, (int, float)) and not isinstance(val, bool) and math.isfinite(val) \
+            and val > least:
         return float(val)
     return None
+
+
+def _variant(name: str, kind: str) -> str:
+    """``run03.csv`` → ``run03.KIND.csv`` (``aborted``, ``incomplete``)."""
+    return f"{name[:-4]}.{kind}{name[-4:]}"
+
+
+def _check_names(manifest: Path, files: list[str]) -> None:
+    """The plan's file names: plain ``*.csv`` names, none the same as another's or a variant."""
+    seen: dict[str, int] = {}
+    for i, name in enumerate(files, start=1):
+        if (not name.lower().endswith(".csv") or len(name) > 200 or name.startswith(".")
+                or any(ch in name for ch in "/\\:") or not name.isprintable()
+                or name.lower() in (".csv", MANIFEST)):
+            raise RigError(f"{manifest}: run {i}: file {_clip(name, 80)!r} must be a plain file "
+                           "name ending in .csv (no folder, not hidden, at most 200 "
+                           "characters); nothing was sent")
+        for each in (name, _variant(name, "aborted"), _variant(name, "incomplete")):
+            other = seen.setdefault(each.casefold(), i)
+            if other != i:
+                raise RigError(f"{manifest}: runs {other} and {i} would both write "
+                               f"{_clip(each, 80)!r}; give each run its own file name")
 
 
 def plan_configs(plan: str | Path, *, pmax: float | None = None, dmax: float | None = None,
@@ -112,6 +198,13 @@ def plan_configs(plan: str | Path, *, pmax: float | None = None, dmax: float | N
                  u_max: float | None = None, growth_limit: float = 2.0
                  ) -> tuple[dict[str, Any], list[dict[str, Any]]]:
     """The plan and each run's controller configuration (CONFIG fields); nothing is sent.
+
+    Every option must be a finite number in its range (``pmax``, ``dmax``, ``hold_d`` ≥ 0;
+    ``hold_p``, ``hold``, ``x_limit``, ``u_max`` > 0; ``growth_limit`` 0 or ≥ 1), and what
+    the plan and the options make must fit the controller (docs/rig-protocol.md, "Limits of
+    the host"): a finite sample time of at least 1 ns, at most :data:`MAX_DELAY` samples of
+    delay, at most :data:`MAX_COUNT` samples per run (hold + run + 1), runs the reader can read
+    back (``phoid.io.limits``), finite gains and limits, the release inside the limits.
 
     Returns
     -------
@@ -123,9 +216,11 @@ def plan_configs(plan: str | Path, *, pmax: float | None = None, dmax: float | N
     Raises
     ------
     RigError
-        One line naming the plan, run and field: no plan, not a plan, no ``fs``, a delay that
-        is not a whole number of samples, a gain beyond ``pmax``/``dmax``.
+        One line naming the option, or the plan, run and field: an option that is not a
+        finite number in its range, no plan, not a plan, no ``fs``, a delay that is not a
+        whole number of samples, a gain beyond ``pmax``/``dmax``, a run too long.
     """
+    opts = _options(pmax, dmax, hold_p, hold_d, hold, x_limit, u_max, growth_limit)
     path = Path(plan)
     manifest = path / MANIFEST if path.is_dir() else path
     if not manifest.is_file():
@@ -140,116 +235,258 @@ def plan_configs(plan: str | Path, *, pmax: float | None = None, dmax: float | N
         if key not in sched:
             raise RigError(f"{manifest}: not a plan of `phoid design --out`: [design] {key} "
                            "is missing")
+    _check_names(manifest, sched["files"])
     fs, amp = sched["fs"], sched["amplitude"]
     T = 1.0 / fs
+    if not (math.isfinite(T) and T >= MIN_SAMPLE_TIME):
+        raise RigError(f"{manifest}: [design] fs = {fs:g} Hz: the sample time 1/fs must be "
+                       f"finite and at least {MIN_SAMPLE_TIME:g} s")
     delay = sched["delay"] if sched["delay"] is not None else 0.0
-    d = round(delay * fs)
-    if abs(d - delay * fs) > 1e-6 * max(1.0, d):
+    ds = delay * fs
+    if not (math.isfinite(ds) and ds <= MAX_DELAY):
+        raise RigError(f"{manifest}: [loop] delay = {delay:g} s is more than {MAX_DELAY} "
+                       f"samples at fs = {fs:g} Hz")
+    d = round(ds)
+    if abs(d - ds) > 1e-6 * max(1.0, d):
         raise RigError(f"{manifest}: [loop] delay = {delay:g} s is not a whole number of "
                        f"samples at fs = {fs:g} Hz (T = {T:g} s); design with --delay d/fs")
     for i, (P, D) in enumerate(zip(sched["P"], sched["D"], strict=True), start=1):
-        if pmax is not None and abs(P) > pmax:
+        if opts["pmax"] is not None and abs(P) > opts["pmax"]:
             raise RigError(f"{manifest}: run {i}: |P| = {abs(P):g} N/m exceeds the rig's limit "
-                           f"--pmax {pmax:g}; nothing was sent")
-        if dmax is not None and abs(D) > dmax:
-            raise RigError(f"{manifest}: run {i}: |D| = {abs(D):g} N·s/m exceeds the rig's limit "
-                           f"--dmax {dmax:g}; nothing was sent")
+                           f"--pmax {opts['pmax']:g}; nothing was sent")
+        if opts["dmax"] is not None and abs(D) > opts["dmax"]:
+            raise RigError(f"{manifest}: run {i}: |D| = {abs(D):g} N·s/m exceeds the rig's "
+                           f"limit --dmax {opts['dmax']:g}; nothing was sent")
     prior = design.get("prior") if isinstance(design.get("prior"), Mapping) else {}
-    m = _prior_value(prior, "m", lambda v: math.sqrt(abs(v[0] * v[1]))) or 1.0
-    c = _prior_value(prior, "c", min) or 0.0
-    k = _prior_value(prior, "k", max) or 0.0
-    hP = 3.0 * k if hold_p is None else hold_p
-    if hP + k <= 0:
-        hP = 16.0 * m
-    hD = max(0.0, 2.0 * math.sqrt(m * (k + hP)) - c) if hold_d is None else hold_d
-    if hold is None:
-        poles = np.roots([m, c + hD, k + hP])
-        slow = float(np.min(np.abs(poles.real))) if np.all(poles.real < 0) else 1.0
-        hold = min(30.0, max(0.5, 7.0 / slow))
+    m = _prior_value(prior, "m", lambda v: math.sqrt(abs(v[0] * v[1])), 0.0) or 1.0
+    c = _prior_value(prior, "c", min, -math.inf) or 0.0
+    k = _prior_value(prior, "k", max, -math.inf) or 0.0
+    k = max(k, 0.0)
+    with np.errstate(all="ignore"):
+        hP = 3.0 * k if opts["hold_p"] is None else opts["hold_p"]
+        if opts["hold_p"] is None and not hP + k > 0:
+            hP = 16.0 * m
+        hD = max(0.0, 2.0 * math.sqrt(m * (k + hP)) - c) if opts["hold_d"] is None \
+            else opts["hold_d"]
+        hold_s = opts["hold"]
+        if hold_s is None:
+            slow = 1.0
+            coef = [m, c + hD, k + hP]
+            if all(math.isfinite(v) for v in coef):
+                poles = np.roots(coef)
+                if poles.size and np.all(np.isfinite(poles)) and np.all(poles.real < 0):
+                    slow = float(np.min(np.abs(poles.real)))
+            hold_s = min(30.0, max(0.5, 7.0 / slow))
+    n_hold, n_run = hold_s * fs, sched["duration"] * fs
+    most = min(MAX_COUNT - 2, MAX_LINES - 1)  # the controller's count; the reader's rows
+    if not (math.isfinite(n_run) and round(n_run) <= most):
+        raise RigError(f"{manifest}: [design] duration = {sched['duration']:g} s at fs = "
+                       f"{fs:g} Hz is {n_run:.6g} samples; a run holds at most {most}")
+    n_run = max(2, round(n_run))
+    if not (math.isfinite(n_hold) and round(n_hold) + n_run + 1 <= MAX_COUNT):
+        what = "--hold" if opts["hold"] is not None else "the default --hold"
+        raise RigError(f"{what} {hold_s:g} s at fs = {fs:g} Hz is {n_hold:.6g} samples; with "
+                       f"the run's {n_run} the hold, run and last sample must be at most "
+                       f"{MAX_COUNT} (a 32-bit count); nothing was sent")
+    if n_run * len(sched["files"]) > MAX_SET_ROWS:
+        raise RigError(f"{manifest}: {len(sched['files'])} runs of {n_run} samples are more "
+                       f"rows than phoid reads in one set ({MAX_SET_ROWS})")
+    x_lim = 3.0 * amp if opts["x_limit"] is None else opts["x_limit"]
+    if not (math.isfinite(x_lim) and x_lim > amp):
+        what = "--x-limit" if opts["x_limit"] is not None else "the default --x-limit (3 A)"
+        raise RigError(f"{what} {x_lim:g} m must be finite and larger than the plan's release "
+                       f"amplitude A ([design] amplitude = {amp:g} m); nothing was sent")
     base = {
         "sample_time": T, "gain": 1.0, "command_gain": 1.0, "velocity": 0, "delay_samples": d,
         "hold_P": float(hP), "hold_D": float(hD), "x_start": amp,
-        "hold_samples": max(1, round(hold * fs)), "run_samples": max(2, round(sched["duration"]
-                                                                              * fs)),
-        "x_min": -(3.0 * amp if x_limit is None else x_limit),
-        "x_max": 3.0 * amp if x_limit is None else x_limit,
-        "growth_limit": float(growth_limit),
+        "hold_samples": max(1, round(n_hold)), "run_samples": n_run,
+        "x_min": -x_lim, "x_max": x_lim, "growth_limit": opts["growth_limit"],
     }
-    if u_max is not None:
-        base["u_max"] = float(u_max)
+    if opts["u_max"] is not None:
+        base["u_max"] = opts["u_max"]
+    source = {"hold_P": "--hold-p (default: 3 k of the plan's prior)",
+              "hold_D": "--hold-d (default: from the plan's prior m, c, k)"}
+    for key, val in base.items():
+        if not math.isfinite(val):
+            raise RigError(f"{manifest}: the hold loop's {key} = {val} is not finite; set "
+                           f"{source.get(key, key)}; nothing was sent")
     configs = [dict(base, P=float(P), D=float(D))
                for P, D in zip(sched["P"], sched["D"], strict=True)]
     sched.update(path=manifest, delay_samples=d, design=dict(design))
     return sched, configs
 
 
-class _Run:
-    """One attempt's bookkeeping and its streamed CSV."""
+_RANK = {"idle": 0, "hold": 0, "run": 1, "done": 2, "fault": 2}
 
-    def __init__(self, out: OutputFolder, name: str) -> None:
+
+class _Run:
+    """One attempt's bookkeeping and its streamed CSV (a new hidden ``.part`` file)."""
+
+    def __init__(self, out: OutputFolder, name: str, cfg: Mapping[str, Any]) -> None:
         self.out, self.name = out, name
-        self.part = f".{name}.part"
-        out.check([self.part])
+        self.hold, self.run = int(cfg["hold_samples"]), int(cfg["run_samples"])
+        self.total = self.hold + self.run + 1
         os.makedirs(out.folder, exist_ok=True)
-        flags = os.O_WRONLY | os.O_CREAT | os.O_TRUNC | getattr(os, "O_NOFOLLOW", 0)
-        self.fh: IO[str] = os.fdopen(os.open(out.path(self.part), flags, 0o666), "w")
+        flags = os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0)
+        for _ in range(100):  # a fresh name: never an existing file
+            self.part = f".{name}.{secrets.token_hex(4)}.part"
+            try:
+                fd = os.open(out.path(self.part), flags, 0o666)
+                break
+            except FileExistsError:
+                continue
+        else:
+            raise RigError(f"{out.folder}: no free temporary name for {name}")
+        self.fh: IO[str] = os.fdopen(fd, "w")
         self.fh.write("t,x,u\n")
-        self.samples = 0
-        self.last_index = -1
-        self.times: list[float] = []
+        self.samples = self.count = 0  # rows written; SAMPLE lines received
+        self.last_index, self.last_t, self.rank = -1, None, 0  # rank of the state (_RANK)
+        self.states = {"hold": 0, "run": 0, "done": 0, "fault": 0}
+        self.dt = [0, 0.0, math.inf, -math.inf]  # intervals: count, sum, min, max
         self.events: list[str] = []
+        self.event_lines = self.damaged_lines = 0
+        self.damaged = ""  # the first damage: the run goes on, its record is incomplete
+        self.faulted = False
         self.u_source = ""  # "measured" (SAMPLE's force) or "command", from the first run sample
 
-    def sample(self, f: Mapping[str, Any]) -> str:
-        """Record one SAMPLE; a message when its force field breaks the run's (else "")."""
-        self.times.append(float(f["t"]))
-        if f["state"] == "run":
-            source = "measured" if "force" in f else "command"
-            if self.u_source and source != self.u_source:
-                return (f"sample {f['index']}: the force field "
+    def damage(self, why: str) -> None:
+        self.damaged = self.damaged or why
+
+    def sample(self, f: Mapping[str, Any]) -> None:
+        """Record one SAMPLE: check its index, time and state; write it when a run sample."""
+        self.count += 1
+        idx, t, state = int(f["index"]), float(f["t"]), str(f["state"])
+        if idx != self.last_index + 1:
+            self.damage(f"sample gap: index {idx} after {self.last_index}" if idx > self.last_index
+                        else f"sample out of order: index {idx} after {self.last_index}")
+        if self.last_t is not None:
+            step = t - self.last_t
+            if not (math.isfinite(step) and step > 0):
+                self.damage(f"the rig's time did not increase at sample {idx}: t = {t!r} s "
+                            f"after {self.last_t!r} s")
+            if math.isfinite(step):
+                n, s, lo, hi = self.dt
+                self.dt = [n + 1, s + step, min(lo, step), max(hi, step)]
+        if _RANK[state] < self.rank or self.rank == 2:
+            self.damage(f"sample {idx} in state {state} after a sample in state "
+                        f"{'done or fault' if self.rank == 2 else 'run'}")
+        self.last_index, self.last_t, self.rank = idx, t, max(self.rank, _RANK[state])
+        self.states["hold" if state == "idle" else state] += 1
+        if state != "run":
+            return
+        source = "measured" if "force" in f else "command"
+        if self.u_source and source != self.u_source:
+            self.damage(f"sample {idx}: the force field "
                         f"{'appears' if source == 'measured' else 'is missing'} mid-run (u "
                         f"would mix the measured force and the command); the samples "
                         f"{'with' if source == 'measured' else 'without'} it are left out")
-            self.u_source = source
-            u = float(f["force"] if source == "measured" else f["u"])
-            self.fh.write(f"{float(f['t'])!r},{float(f['x'])!r},{u!r}\n")
-            self.samples += 1
-            if self.samples % 100 == 0:
-                self.fh.flush()
+            return
+        self.u_source = source
+        u = float(f["force"] if source == "measured" else f["u"])
+        self.fh.write(f"{t!r},{float(f['x'])!r},{u!r}\n")
+        self.samples += 1
+        if self.samples % 100 == 0:
+            self.fh.flush()
+
+    def event(self, f: Mapping[str, Any]) -> None:
+        self.event_lines += 1
+        name = str(f["name"])
+        self.faulted = self.faulted or name.startswith("fault-")
+        if len(self.events) < STORED_EVENTS:
+            self.events.append(_clip(f"{name} {f['index']} {float(f['value'])!r}", EVENT_CHARS))
+
+    def shortfall(self) -> str:
+        """Why a run that ended ``done`` is not the run configured ("" when it is)."""
+        want = {"hold": self.hold, "run": self.run, "done": 1, "fault": 0}
+        if self.count != self.total or self.states != want:
+            got = ", ".join(f"{v} {k}" for k, v in self.states.items() if v)
+            return (f"the rig ended the run after {self.count} samples ({got or 'none'}); the "
+                    f"run configured has {self.total} ({self.hold} hold, {self.run} run, 1 done)")
         return ""
 
     def finish(self, target: str) -> str:
-        """Close the file and move it to ``target`` (a free name if that one is taken)."""
+        """Close the file and move it to ``target``, or a free name if that one is taken."""
         self.fh.flush()
         os.fsync(self.fh.fileno())
         self.fh.close()
-        name = target
-        if target != self.name:  # an aborted or incomplete attempt: never replace another
-            stem = target[:-len(".csv")]
-            i = 1
-            while self.out.path(name).exists() or self.out.path(name).is_symlink():
-                i += 1
-                name = f"{stem}-{i}.csv"
-        self.out.check([name])
-        os.replace(self.out.path(self.part), self.out.path(name))
-        return name
+        part = self.out.path(self.part)
+        stem, suffix = target[:-4], target[-4:]
+        for i in range(1, 10000):
+            name = target if i == 1 else f"{stem}-{i}{suffix}"
+            path = self.out.path(name)
+            if path.exists() or path.is_symlink():
+                continue
+            try:  # a hard link never replaces a file that appeared meanwhile
+                os.link(part, path, follow_symlinks=False)
+            except FileExistsError:
+                continue
+            except OSError:  # no hard links on this file system: rename (checked just above)
+                os.replace(part, path)
+                return name
+            os.unlink(part)
+            return name
+        raise RigError(f"{self.out.folder}: no free name for {target}; its samples are in "
+                       f"{self.part}")
 
     def timing(self) -> dict[str, float]:
-        if len(self.times) < 2:
+        n, s, lo, hi = self.dt
+        if not n or not math.isfinite(s):
             return {}
-        dt = np.diff(np.asarray(self.times))
-        return {"sample_time_mean": float(np.mean(dt)), "sample_time_min": float(np.min(dt)),
-                "sample_time_max": float(np.max(dt))}
+        return {"sample_time_mean": s / n, "sample_time_min": lo, "sample_time_max": hi}
 
 
-def _read_state(out: OutputFolder) -> dict[str, Any] | None:
+def _read_state(out: OutputFolder, sched: Mapping[str, Any]) -> list[dict[str, Any]] | None:
+    """The attempts of the set in ``out`` (None: no manifest), checked to be this plan's."""
     path = out.path(MANIFEST)
-    if not path.exists():
+    if not (path.exists() or path.is_symlink()):
         return None
     try:
-        return read_manifest(str(path), path)
+        doc = read_manifest(str(path), path)
     except ExperimentError as exc:
         raise RigError(f"--resume: {exc}") from None
+    rig = doc.get("rig")
+    if not isinstance(rig, Mapping) or rig.get("tool") != "phoid run":
+        raise RigError(f"{path} exists and is not a set of `phoid run` (no [rig] tool = "
+                       "\"phoid run\"); choose another --out")
+    if str(rig.get("plan")) != str(Path(sched["path"]).resolve()):
+        raise RigError(f"--resume: {path} was run from another plan "
+                       f"({_clip(rig.get('plan'), 200)!r})")
+    attempts = rig.get("attempt", [])
+    if not isinstance(attempts, list):
+        raise RigError(f"--resume: {path}: [rig] attempt must be an array of tables")
+    n = len(sched["files"])
+    for j, a in enumerate(attempts, start=1):
+        bad = ""
+        if not isinstance(a, Mapping):
+            bad = "not a table"
+        elif not (isinstance(a.get("run"), int) and 1 <= a["run"] <= n):
+            bad = f"run must be a whole number from 1 to {n}"
+        elif not isinstance(a.get("file"), str) or a.get("status") not in (
+                "complete", "aborted", "incomplete"):
+            bad = "file must be a name and status complete, aborted or incomplete"
+        elif a["status"] == "complete" and not all(
+                isinstance(a.get(k), (int, float)) and not isinstance(a.get(k), bool)
+                and math.isfinite(a[k]) for k in ("P", "D")):
+            bad = "a complete attempt needs finite P and D"
+        if bad:
+            raise RigError(f"--resume: {path}: [[rig.attempt]] {j}: {bad}")
+    return [dict(a) for a in attempts]
+
+
+def _check_targets(folder: OutputFolder, files: list[str], status: list[str],
+                   own: set[str]) -> None:
+    """Refuse, before anything moves, a file in the way of a run that this set did not write."""
+    names = [MANIFEST]
+    for name, st in zip(files, status, strict=True):
+        if st == "pending":
+            names += [name, _variant(name, "aborted"), _variant(name, "incomplete")]
+    for name in names[1:]:
+        path = folder.path(name)
+        if (path.exists() or path.is_symlink()) and name not in own:
+            raise RigError(f"{path} exists already and is not a file of this set; phoid run "
+                           "never replaces a file (move it away or choose another --out); "
+                           "nothing was sent")
+    folder.check(names)  # links, folders, special files in the way
 
 
 def run_plan(plan: str | Path, port: str, out: str | Path, *, resume: bool = False,
@@ -265,11 +502,15 @@ def run_plan(plan: str | Path, port: str, out: str | Path, *, resume: bool = Fal
         The rig: ``tcp://HOST:PORT`` or ``serial:///dev/DEVICE[?baud=N]`` (POSIX).
     out : str or Path
         The set's folder (created); its ``experiment.toml`` is rewritten after every run.
+        No other file in it is ever replaced: a file in the way of a run is refused before
+        anything moves.
     resume : bool
         Continue a set written before: the runs complete or aborted there are kept, the rest
         run. Without it an existing manifest in ``out`` is refused.
     timeout : float
-        Seconds to wait for the connection and for each line of the rig.
+        Seconds (finite, > 0, at most a day) to wait for the connection, for each line of the
+        rig and for each send; each run also ends within a deadline derived from it and from
+        the run's samples (docs/rig-protocol.md, "Limits of the host").
     progress : callable, optional
         Called as ``progress(run, samples, total)`` while samples arrive.
     **limits
@@ -279,26 +520,27 @@ def run_plan(plan: str | Path, port: str, out: str | Path, *, resume: bool = Fal
     Raises
     ------
     RigError
-        Bad input, found before anything moves (plan, limits, port, protocol version, a
-        configuration the rig refuses): one line.
+        Bad input, found before anything moves (an option, the plan, a file in the way, the
+        port, the protocol version, a configuration the rig refuses), or a rig that answers
+        CONFIG or CLEAR wrongly: one line.
     """
+    timeout = _option("--timeout", timeout, lambda v: 0 < v <= MAX_TIMEOUT,
+                      f"a finite number of seconds > 0 and at most {MAX_TIMEOUT:g}")
     sched, configs = plan_configs(plan, **limits)
     folder = OutputFolder(out, overwrite=True, error=RigError)
-    state = _read_state(folder)
-    if state is not None and not resume:
-        raise RigError(f"{folder.path(MANIFEST)} exists already (pass --resume to continue it, "
-                       "or choose another --out)")
-    rig_state = state.get("rig", {}) if state else {}
-    attempts: list[dict[str, Any]] = list(rig_state.get("attempt", []))
-    if state is not None and str(rig_state.get("plan")) != str(Path(sched["path"]).resolve()):
-        raise RigError(f"--resume: {folder.path(MANIFEST)} was run from another plan "
-                       f"({rig_state.get('plan')!r})")
+    mpath = folder.path(MANIFEST)
+    if (mpath.exists() or mpath.is_symlink()) and not resume:
+        raise RigError(f"{mpath} exists already (pass --resume to continue it, or choose "
+                       "another --out)")
+    state = _read_state(folder, sched)
+    attempts = state or []
     files = sched["files"]
     status = ["pending"] * len(files)
     for a in attempts:
-        i = int(a.get("run", 0)) - 1
-        if 0 <= i < len(files) and a.get("status") in ("complete", "aborted"):
-            status[i] = a["status"]
+        if a["status"] in ("complete", "aborted"):
+            status[a["run"] - 1] = a["status"]
+    _check_targets(folder, files, status, {a["file"] for a in attempts})
+    _fits(folder, sched, configs, attempts, status)
     try:
         link = open_port(port, timeout)
     except LinkClosed as exc:
@@ -307,21 +549,22 @@ def run_plan(plan: str | Path, port: str, out: str | Path, *, resume: bool = Fal
     try:
         link.send(hello())
         try:
-            check_hello(parse(_line(link, timeout, "hello")), f"the rig at {port}")
+            check_hello(_reply(link, timeout, "hello"), f"the rig at {port}")
         except ProtocolError as exc:
-            raise RigError(str(exc)) from None
+            raise RigError(_clip(exc, REASON_CHARS)) from None
         for i, cfg in enumerate(configs):
             if status[i] != "pending":
                 continue
             link.send(encode_config(cfg))
-            reply = parse(_line(link, timeout, "the reply to CONFIG"))
+            reply = _reply(link, timeout, "the reply to CONFIG", f"run {i + 1}: ")
             if reply.kind == "ERROR":
                 raise RigError(f"the rig refused run {i + 1} ({files[i]}): "
-                               f"{reply.fields['message']}")
+                               f"{_clip(reply.fields['message'], REASON_CHARS)}")
             if reply.kind != "OK":
-                raise RigError(f"the rig answered CONFIG with {reply.kind}, not OK")
-            attempt, msg, stop, alive = _one_run(link, folder, i, files[i], cfg, timeout,
-                                                 progress)
+                raise RigError(f"the rig answered CONFIG of run {i + 1} with {reply.kind}, "
+                               "not OK")
+            attempt, msg, stop, alive, faulted = _one_run(link, folder, i, files[i], cfg,
+                                                          timeout, progress)
             attempts.append(attempt)
             status[i] = attempt["status"]
             _write_manifest(folder, sched, configs, attempts, status)
@@ -331,69 +574,93 @@ def run_plan(plan: str | Path, port: str, out: str | Path, *, resume: bool = Fal
                 messages.append(msg)
             if not alive:
                 break  # the link failed: stop; --resume runs the rest
-            if any(e.startswith("fault-") for e in attempt["events"]):  # latched: clear it
+            if faulted:  # latched: clear it
                 link.send(encode("CLEAR"))
-                reply = parse(_line(link, timeout, "the reply to CLEAR"))
+                reply = _reply(link, timeout, "the reply to CLEAR", f"after run {i + 1}: ")
                 if reply.kind != "OK":
                     raise RigError(f"the rig did not clear its fault after run {i + 1}: "
-                                   f"{reply.fields.get('message', reply.kind)}")
+                                   f"{_clip(reply.fields.get('message', reply.kind), 200)}")
         with contextlib.suppress(LinkClosed):  # the link may be gone after a failed run
             link.send(encode("BYE"))
     except LinkClosed as exc:
-        raise RigError(str(exc)) from None
+        raise RigError(_clip(exc, REASON_CHARS)) from None
     finally:
         link.close()
     return RunPlanResult(folder.path(MANIFEST), tuple(status), tuple(messages))
 
 
-def _line(link: Link, timeout: float, what: str) -> bytes:
+def _reply(link: Link, timeout: float, what: str, where: str = "") -> Any:
+    """The rig's next line, parsed: within ``timeout`` s and one line, else one RigError."""
     line = link.readline(timeout)
     if line is None:
-        raise RigError(f"the rig sent nothing for {timeout:g} s (waiting for {what})")
-    return line
+        raise RigError(f"{where}the rig sent nothing for {timeout:g} s (waiting for {what})")
+    try:
+        return parse(line)
+    except ProtocolError as exc:
+        raise RigError(f"{where}the rig's line is damaged (waiting for {what}): "
+                       f"{_clip(exc, REASON_CHARS)}") from None
 
 
 def _one_run(link: Link, folder: OutputFolder, i: int, name: str, cfg: Mapping[str, Any],
              timeout: float, progress: Callable | None
-             ) -> tuple[dict[str, Any], str, BaseException | None, bool]:
+             ) -> tuple[dict[str, Any], str, BaseException | None, bool, bool]:
     """START one run and stream it.
 
     Returns the attempt's record, a message when it did not complete, an interruption
-    (KeyboardInterrupt, …) to raise once the record is written, and whether the link still
-    works (a damaged line or a sample gap leaves it working: the run's record is incomplete,
-    every other sample is kept; a dropped connection, a timeout or an error does not).
+    (KeyboardInterrupt, …) to raise once the record is written, whether the link still
+    works (a damaged line, a sample gap, a clock that does not advance or a run of the wrong
+    length leaves it working: the run's record is incomplete, every other sample is kept; a
+    dropped connection, a timeout, an error, the run's deadline or a flood — more samples than
+    the run has, more events or damaged lines than the caps — does not) and whether the
+    controller faulted (the host then sends CLEAR).
     """
-    run = _Run(folder, name)
-    total = int(cfg["hold_samples"]) + int(cfg["run_samples"]) + 1
+    run = _Run(folder, name, cfg)
+    T, total = float(cfg["sample_time"]), run.total
+    wait = max(timeout, 2.0 * T)  # a rig streaming in real time sends a sample every T
+    budget = (timeout + total * (2.0 * T + LINE_TIME)
+              + (2 * total + EXTRA_EVENTS + 1) * LINE_BYTES * link.byte_time)
     link.send(encode("START"))
+    deadline = time.monotonic() + budget
     reason, end = "", ""
-    damaged = ""  # the first damaged line or gap: the run goes on, its record is incomplete
     stop: BaseException | None = None
     try:
         while True:
-            line = link.readline(timeout)
-            if line is None:
-                reason = f"the rig sent nothing for {timeout:g} s"
+            left = deadline - time.monotonic()
+            if left <= 0:
+                reason = (f"the run did not end within {budget:.4g} s (its {total} samples at "
+                          f"T = {T:g} s, and --timeout {timeout:g} s)")
                 break
+            line = link.readline(min(wait, left))
+            if line is None:
+                if left > wait:
+                    reason = f"the rig sent nothing for {wait:g} s"
+                    break
+                continue  # the deadline: said at the top
             try:
                 msg = parse(line)
             except ProtocolError as exc:  # keep reading: every later sample is kept
-                damaged = damaged or f"{exc} (after sample {run.last_index})"
+                run.damaged_lines += 1
+                run.damage(f"{exc} (after sample {run.last_index})")
+                if run.damaged_lines > MAX_DAMAGED:
+                    reason = f"more than {MAX_DAMAGED} damaged lines in one run"
+                    break
                 continue
             if msg.kind == "SAMPLE":
-                idx = int(msg.fields["index"])
-                if idx != run.last_index + 1:
-                    damaged = damaged or f"sample gap: index {idx} after {run.last_index}"
-                run.last_index = idx
-                mixed = run.sample(msg.fields)
-                damaged = damaged or mixed
-                if progress is not None and idx % 50 == 0:
-                    progress(i + 1, idx, total)
+                if run.count >= total:
+                    reason = (f"the rig sent more than the run's {total} samples ({run.hold} "
+                              f"hold, {run.run} run, 1 done)")
+                    break
+                run.sample(msg.fields)
+                if progress is not None and run.count % 50 == 0:
+                    progress(i + 1, run.count, total)
             elif msg.kind == "EVENT":
-                f = msg.fields
-                run.events.append(f"{f['name']} {f['index']} {float(f['value'])!r}")
+                if run.event_lines >= total + EXTRA_EVENTS:
+                    reason = (f"the rig sent more than {total + EXTRA_EVENTS} EVENT lines "
+                              f"(one per sample and {EXTRA_EVENTS})")
+                    break
+                run.event(msg.fields)
             elif msg.kind == "END":
-                end = str(msg.fields["reason"])
+                end = _clip(msg.fields["reason"], EVENT_CHARS)
                 break
             elif msg.kind == "ERROR":
                 reason = f"the rig reported an error: {msg.fields['message']}"
@@ -408,35 +675,39 @@ def _one_run(link: Link, folder: OutputFolder, i: int, name: str, cfg: Mapping[s
         stop = exc
     alive = not reason  # the link still works: the plan can go on
     if reason:  # the link failed: ask the rig to stop, keep what arrived
-        try:
+        with contextlib.suppress(LinkClosed):
             link.send(encode("ABORT", 1.0))
-        except LinkClosed:
-            pass
-    if reason or damaged:
-        reason = reason if not damaged else (f"{damaged}; {reason}" if reason else damaged)
-        status, target = "incomplete", f"{Path(name).stem}.incomplete.csv"
+    elif end == "done":
+        run.damage(run.shortfall())
+    faulted = run.faulted or end.startswith("fault")
+    if reason or run.damaged:
+        reason = reason if not run.damaged else (
+            f"{run.damaged}; {reason}" if reason else run.damaged)
+        status, target = "incomplete", _variant(name, "incomplete")
     elif end == "done":
         status, target = "complete", name
     else:
-        status, target = "aborted", f"{Path(name).stem}.aborted.csv"
+        status, target = "aborted", _variant(name, "aborted")
         fault = next((e for e in run.events if e.startswith(end)), end)
         reason = f"the controller aborted: {fault}"
+    reason = _clip(reason, REASON_CHARS)
     if progress is not None and stop is None:
         try:
-            progress(i + 1, run.last_index + 1, total)
+            progress(i + 1, run.count, total)
         except BaseException as exc:  # Ctrl-C here too: record the run first
             stop = exc
     written = run.finish(target)
     attempt = {"run": i + 1, "file": written, "P": cfg["P"], "D": cfg["D"], "status": status,
-               "samples": run.samples, "received": run.last_index + 1,
+               "samples": run.samples, "received": run.count,
                "u_source": run.u_source or "command",
                "events": run.events, "time": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
                **run.timing()}
+    if run.event_lines > len(run.events):
+        attempt["events_dropped"] = run.event_lines - len(run.events)
     if reason:
         attempt["reason"] = reason
     msg = "" if status == "complete" else (
         f"run {i + 1} ({name}) {status}: {reason}; its {run.samples} samples are in {written}")
-    T = float(cfg["sample_time"])
     if "sample_time_mean" in attempt and (
             abs(attempt["sample_time_mean"] - T) > 1e-3 * T
             or max(T - attempt["sample_time_min"], attempt["sample_time_max"] - T) > 0.1 * T):
@@ -445,19 +716,28 @@ def _one_run(link: Link, folder: OutputFolder, i: int, name: str, cfg: Mapping[s
                 f"{attempt['sample_time_mean']:.6g} s), not T = {T:g} s; the digital loop's "
                 "model assumes a fixed period")
         msg = f"{msg}; {late}" if msg else late
-    return attempt, msg, stop, alive
+    return attempt, msg, stop, alive, faulted
 
 
-def _write_manifest(folder: OutputFolder, sched: Mapping[str, Any],
-                    configs: list[dict[str, Any]], attempts: list[dict[str, Any]],
-                    status: list[str]) -> None:
+def _compose(sched: Mapping[str, Any], configs: list[dict[str, Any]],
+             attempts: list[dict[str, Any]], status: list[str], keep: int) -> bytes:
+    """The manifest's bytes, with at most ``keep`` events recorded per attempt."""
     cfg0 = configs[0]
-    runs = []
-    for a in sorted(attempts, key=lambda a: int(a["run"])):  # plan order
+    done: dict[int, dict[str, Any]] = {}
+    shown = []
+    for a in attempts:
+        events = a.get("events", [])
+        if isinstance(events, list) and len(events) > keep:
+            dropped = a.get("events_dropped", 0)
+            dropped = dropped if isinstance(dropped, int) and not isinstance(dropped, bool) \
+                else 0
+            a = dict(a, events=events[:keep], events_dropped=dropped + len(events) - keep)
+        shown.append(a)
         if a["status"] == "complete":
-            runs.append({"file": a["file"], "P": a["P"], "D": a["D"],
-                         **{f"rig_{k}": a[k] for k in ("sample_time_mean", "sample_time_max")
-                            if k in a}})
+            done[int(a["run"])] = a  # the last complete attempt of each run
+    runs = [{"file": a["file"], "P": a["P"], "D": a["D"],
+             **{f"rig_{k}": a[k] for k in ("sample_time_mean", "sample_time_max") if k in a}}
+            for _, a in sorted(done.items())]
     doc: dict[str, Any] = {
         "title": f"phoid run: {sum(s == 'complete' for s in status)} of {len(status)} runs of "
                  f"{sched['path']}",
@@ -468,10 +748,50 @@ def _write_manifest(folder: OutputFolder, sched: Mapping[str, Any],
                 "complete": all(s == "complete" for s in status),
                 "hold_P": cfg0["hold_P"], "hold_D": cfg0["hold_D"],
                 "hold_samples": cfg0["hold_samples"], "x_start": cfg0["x_start"],
-                "attempt": attempts},
+                "attempt": shown},
     }
     if sched.get("design"):
         doc["design"] = sched["design"]
     if runs:
         doc["run"] = runs
-    folder.write(MANIFEST, tomli_w.dumps(doc).encode())
+    return tomli_w.dumps(doc).encode()
+
+
+_KEEP = (STORED_EVENTS, 8, 0)  # events kept per attempt, tried in turn until the manifest fits
+
+
+def _write_manifest(folder: OutputFolder, sched: Mapping[str, Any],
+                    configs: list[dict[str, Any]], attempts: list[dict[str, Any]],
+                    status: list[str]) -> None:
+    for keep in _KEEP:
+        data = _compose(sched, configs, attempts, status, keep)
+        if len(data) <= MAX_MANIFEST_BYTES:
+            break
+    folder.write(MANIFEST, data)
+
+
+def _fits(folder: OutputFolder, sched: Mapping[str, Any], configs: list[dict[str, Any]],
+          attempts: list[dict[str, Any]], status: list[str]) -> None:
+    """Refuse, before anything moves, a set whose manifest could outgrow the reader's limit.
+
+    Every run still to do is counted with the largest record it can leave (its longest file
+    name, reason and events): the manifest written after any run then fits, with the events
+    cut by :func:`_write_manifest` when need be.
+    """
+    worst = list(attempts)
+    for i, (name, st) in enumerate(zip(sched["files"], status, strict=True)):
+        if st == "pending":
+            big = -1.2345678901234567e-300
+            worst.append({
+                "run": i + 1, "file": '"' * (len(name) + 20), "P": big, "D": big,
+                "status": "complete", "samples": MAX_COUNT, "received": MAX_COUNT,
+                "u_source": "measured", "events": [], "events_dropped": MAX_COUNT,
+                "time": "2000-01-01T00:00:00Z", "sample_time_mean": big,
+                "sample_time_min": big, "sample_time_max": big,
+                "reason": '"' * (REASON_CHARS + 8)})
+    size = len(_compose(sched, configs, worst, ["incomplete"] * len(status), 0))
+    if size + 4096 > MAX_MANIFEST_BYTES:
+        raise RigError(f"{folder.path(MANIFEST)}: the set's manifest could grow to {size} bytes, "
+                       f"more than the {MAX_MANIFEST_BYTES // 2**20} MiB phoid reads (a plan of "
+                       f"{len(status)} runs, its [design] table and the attempts recorded); "
+                       "split the plan; nothing was sent")

@@ -2,7 +2,11 @@
 
 :class:`Link` buffers what the socket delivers and hands out one line (LF included) at a time,
 so a caller can poll for a line without blocking (the virtual rig looks for ``ABORT`` between
-samples) or wait for one with a bounded timeout (the host).
+samples) or wait for one with a bounded timeout (the host). Nothing it does is unbounded: a
+line is at most :data:`~phoid.rig.protocol.MAX_LINE` bytes (a longer one is handed out in
+pieces the parser refuses), a wait for a line ends at its timeout however many bytes arrive
+meanwhile, and the host's links (:func:`connect`, :func:`open_serial`) give up sending after
+their timeout when the other side does not take the bytes.
 """
 
 from __future__ import annotations
@@ -32,10 +36,14 @@ class Link:
         and closes it in :meth:`close`.
     """
 
+    byte_time = 0.0
+    """Seconds one byte takes on the line (a serial line's 10/baud; 0 for a socket)."""
+
     def __init__(self, sock: socket.socket) -> None:
         self.sock = sock
         self._buf = bytearray()
         self._eof = False
+        self._skip = False  # inside a line longer than MAX_LINE: its rest is dropped
 
     def send(self, data: bytes) -> None:
         """Send bytes (whole lines); a dropped connection raises :class:`LinkClosed`."""
@@ -60,13 +68,20 @@ class Link:
     def readline(self, timeout: float | None) -> bytes | None:
         """The next line (with its LF), or None when none came within ``timeout`` s.
 
-        ``timeout`` 0 polls; None waits for ever. At the end of the stream a last partial line
-        is returned as it is (without LF: the parser calls it truncated); after that
-        :class:`LinkClosed` is raised.
+        ``timeout`` 0 polls; None waits for ever. A line longer than ``MAX_LINE`` bytes is
+        handed out as its first ``MAX_LINE + 1`` bytes (no LF: the parser refuses it); the rest
+        of it, up to its LF, is dropped, and every further ``MAX_LINE + 1`` bytes of it without
+        an LF are handed out the same way, so that each call returns within its timeout and at
+        most that many bytes. At the end of the stream a last partial line is returned as it is
+        (without LF: the parser calls it truncated); after that :class:`LinkClosed` is raised.
         """
         deadline = None if timeout is None else time.monotonic() + timeout
         while True:
-            i = self._buf.find(b"\n")
+            i = self._buf.find(b"\n", 0, MAX_LINE + 1)
+            if self._skip and i >= 0:  # the end of an over-long line: drop its rest
+                del self._buf[:i + 1]
+                self._skip = False
+                continue
             if i >= 0:
                 line = bytes(self._buf[:i + 1])
                 del self._buf[:i + 1]
@@ -74,6 +89,7 @@ class Link:
             if len(self._buf) > MAX_LINE:
                 line = bytes(self._buf[:MAX_LINE + 1])
                 del self._buf[:MAX_LINE + 1]
+                self._skip = True
                 return line  # too long: the parser refuses it
             if self._eof:
                 if self._buf:
@@ -85,7 +101,8 @@ class Link:
             if left <= 0 and timeout != 0:
                 return None
             self._fill(max(left, 0.0) if deadline is not None else 1.0)
-            if timeout == 0 and b"\n" not in self._buf and not self._eof:
+            if timeout == 0 and b"\n" not in self._buf and not self._eof \
+                    and len(self._buf) <= MAX_LINE:
                 return None
 
     def close(self) -> None:
@@ -100,7 +117,8 @@ def connect(host: str, port: int, timeout: float) -> Link:
     """Connect to ``host:port`` within ``timeout`` s; a :class:`LinkClosed` names the address.
 
     A refused connection is retried every 0.1 s until the timeout: a rig just started (the
-    virtual rig compiles its controller first) listens a moment later.
+    virtual rig compiles its controller first) listens a moment later. Sending on the link
+    gives up (:class:`LinkClosed`) when the rig takes no byte for ``timeout`` s.
     """
     deadline = time.monotonic() + timeout
     while True:
@@ -116,15 +134,25 @@ def connect(host: str, port: int, timeout: float) -> Link:
         except OSError as exc:
             raise LinkClosed(f"cannot connect to the rig at tcp://{host}:{port}: "
                              f"{exc.strerror or exc}") from None
-    sock.settimeout(None)
+    sock.settimeout(timeout)  # a send the rig does not take gives up (reads wait in select)
     return Link(sock)
 
 
 class FdStream:
-    """A file descriptor (a serial line) with the socket methods :class:`Link` uses."""
+    """A file descriptor (a serial line) with the socket methods :class:`Link` uses.
 
-    def __init__(self, fd: int) -> None:
+    Parameters
+    ----------
+    fd : int
+        The open descriptor (owned: :meth:`close` closes it).
+    timeout : float, optional
+        Seconds :meth:`sendall` waits for the line to take a byte before it gives up
+        (``TimeoutError``); None waits for ever.
+    """
+
+    def __init__(self, fd: int, timeout: float | None = None) -> None:
         self.fd = fd
+        self.timeout = timeout
 
     def fileno(self) -> int:
         return self.fd
@@ -132,7 +160,10 @@ class FdStream:
     def sendall(self, data: bytes) -> None:
         view = memoryview(data)
         while view:
-            n = os.write(self.fd, view)
+            _, ready, _ = select.select([], [self.fd], [], self.timeout)
+            if not ready:
+                raise TimeoutError(f"the line took no byte for {self.timeout:g} s")
+            n = os.write(self.fd, view[:256])  # a small piece: the write cannot block long
             view = view[n:]
 
     def recv(self, size: int) -> bytes:
@@ -145,8 +176,12 @@ class FdStream:
         os.close(self.fd)
 
 
-def open_serial(path: str, baud: int) -> Link:
+def open_serial(path: str, baud: int, timeout: float | None = None) -> Link:
     """Open a serial line (POSIX: a tty device) raw at ``baud``, 8 data bits, no parity.
+
+    The device is opened without waiting for a carrier and set to ignore the modem lines
+    (``CLOCAL``); sending gives up after ``timeout`` s without progress (None: never). The
+    link's :attr:`Link.byte_time` is 10/``baud`` s.
 
     Raises
     ------
@@ -161,17 +196,23 @@ def open_serial(path: str, baud: int) -> Link:
     speed = getattr(termios, f"B{baud}", None)
     if speed is None:
         raise LinkClosed(f"serial://{path}: baud rate {baud} is not one this system knows")
-    try:
-        fd = os.open(path, os.O_RDWR | os.O_NOCTTY)
+    try:  # O_NONBLOCK: a port waiting for its carrier does not hold the open
+        fd = os.open(path, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
     except OSError as exc:
         raise LinkClosed(f"cannot open the rig's serial port {path}: {exc.strerror or exc}") \
             from None
     try:
+        if not os.isatty(fd):
+            raise OSError("not a terminal device")
         tty.setraw(fd)
         attrs = termios.tcgetattr(fd)
+        attrs[2] |= termios.CLOCAL | termios.CREAD
         attrs[4] = attrs[5] = speed
         termios.tcsetattr(fd, termios.TCSANOW, attrs)
+        os.set_blocking(fd, True)
     except (OSError, termios.error) as exc:
         os.close(fd)
         raise LinkClosed(f"{path} is not a serial port that can be configured: {exc}") from None
-    return Link(FdStream(fd))  # type: ignore[arg-type]
+    link = Link(FdStream(fd, timeout))  # type: ignore[arg-type]
+    link.byte_time = 10.0 / baud
+    return link
