@@ -202,7 +202,7 @@ def _simulate_replay(ctx, out, replay, *, m, c, k, fc, offset_force, delay, gzip
                      plots, as_json) -> None:
     """``phoid simulate OUT --replay SET``: the set's loop with given parameters, validated."""
     from phoid.io import read_experiment
-    from phoid.methods.tracking_identification import replay_set
+    from phoid.methods.tracking_identification import check_parameters, replay_set
 
     def given(name: str) -> bool:
         return getattr(ctx.get_parameter_source(name), "name", "") != "DEFAULT"
@@ -224,6 +224,16 @@ def _simulate_replay(ctx, out, replay, *, m, c, k, fc, offset_force, delay, gzip
         if exp.method != "tracking":
             raise ValueError(f"{exp.path}: --replay needs a tracking set (method = "
                              f"\"tracking\"); this one is {exp.method!r}")
+        # every option by name before the loop divides by it (--m 0) or takes its exponential
+        # (--c inf): one line naming the option and the set
+        for option, key in (("--m", "m"), ("--c", "c"), ("--k", "k"), ("--fc", "fc"),
+                            ("--offset-force", "offset"), ("--delay", "delay")):
+            if key in params:
+                try:
+                    check_parameters({"m": 1.0, "c": 0.0, "k": 0.0, "fc": 0.0,
+                                      key: params[key]})
+                except ValueError as exc:
+                    raise ValueError(f"{exp.path}: {option} {params[key]:g}: {exc}") from None
         if exp.path is not None and Path(out).resolve() == Path(exp.path).parent.resolve():
             # --overwrite there would replace the recording with its own simulation
             raise ValueError(f"{out}: is the folder of the replayed set {exp.path}; write the "

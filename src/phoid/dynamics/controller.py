@@ -44,6 +44,7 @@ from __future__ import annotations
 
 import math
 import numbers
+import sys
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
@@ -60,6 +61,18 @@ __all__ = [
 ]
 
 VELOCITY_PRESETS = ("backward-difference", "central-difference", "filtered")
+
+# the smallest scale whose square is a normal float (≈ 1.5e-154): the loop's statistics square
+# forces, periods and filter gains, and below it they underflow to zero (a zero norm, a zero
+# covariance) — a period, command gain or saturation that small is refused, not computed
+_SMALLEST = math.sqrt(sys.float_info.min)
+# the largest period whose square is finite (≈ 1.3e154 s): the plant's ZOH map holds T²/m
+_LARGEST = 1.0 / _SMALLEST
+# the largest error of the "filtered" estimator's DC gain, cf·T/(1 − e^{−ω_c T}), accepted: the
+# pole e^{−ω_c T} is rounded to a float, and for ω_c·T below ≈ 1e-10 the rounding alone makes a
+# constant velocity read wrong by more than this (at ω_c·T < 1.1e-16 the pole is 1 exactly and
+# the estimator is a pure integrator with no DC gain at all)
+_FILTER_DC_RTOL = 1e-6
 
 
 @dataclass(frozen=True)
@@ -93,7 +106,9 @@ class SampledController:
     ValueError
         Naming the parameter, for a non-finite gain, a non-positive period or command gain, a
         negative delay, an unknown estimator, coefficients that are not finite numbers, or a
-        missing or superfluous cut-off.
+        missing or superfluous cut-off; a period, command gain or saturation whose square is
+        not a normal float (below ≈ 1.5e-154; a period above ≈ 1.3e154 s), and a cut-off so
+        low for the period that the rounded filter pole e^(−ω_c T) misstates its DC gain.
     """
 
     sample_time: float
@@ -108,20 +123,29 @@ class SampledController:
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__
-        set_(self, "sample_time", v.positive("sample_time", self.sample_time, "s"))
+        set_(self, "sample_time", _scale("sample_time", self.sample_time, "s", _LARGEST))
         set_(self, "P", v.finite("P", self.P, "command units/m"))
         set_(self, "D", v.finite("D", self.D, "command units/(m/s)"))
         set_(self, "gain", v.finite("gain", self.gain, ""))
-        set_(self, "command_gain", v.positive("command_gain", self.command_gain,
-                                              "N per command unit"))
+        set_(self, "command_gain", _scale("command_gain", self.command_gain,
+                                          "N per command unit"))
         set_(self, "delay", v.nonnegative("delay", self.delay, "s"))
         if self.saturation is not None:
-            set_(self, "saturation", v.positive("saturation", self.saturation, "command units"))
+            set_(self, "saturation", _scale("saturation", self.saturation, "command units"))
         set_(self, "velocity", _velocity(self.velocity))
         if self.velocity == "filtered":
             if self.cutoff is None:
                 raise ValueError("`cutoff` (rad/s) is required with velocity='filtered'; got None")
             set_(self, "cutoff", v.positive("cutoff", self.cutoff, "rad/s"))
+            wT = self.cutoff * self.sample_time
+            exact = -math.expm1(-wT)  # 1 − e^{−ω_c T}, to rounding
+            if not abs((1.0 - math.exp(-wT)) - exact) <= _FILTER_DC_RTOL * exact:
+                raise ValueError(
+                    f"`cutoff` ω_c = {self.cutoff:g} rad/s is too low for the period "
+                    f"T = {self.sample_time:g} s: ω_c·T = {wT:.3g}, and the filter's pole "
+                    f"e^(-ω_c·T) rounds so close to 1 that its DC gain is off by more than "
+                    f"{_FILTER_DC_RTOL:g} (give ω_c in rad/s, not Hz·T or similar)"
+                )
         elif self.cutoff is not None:
             raise ValueError(
                 "`cutoff` applies only to velocity='filtered'; got cutoff="
@@ -165,6 +189,19 @@ class SampledController:
     def with_delay(self, delay: float) -> SampledController:
         """The same controller with another command delay τ (s)."""
         return replace(self, delay=delay)
+
+
+def _scale(name: str, value, unit: str, largest: float = math.inf) -> float:
+    """``value`` as a float > 0 whose square is a normal float (at least ``_SMALLEST``) and at
+    most ``largest``, or a one-line ValueError naming ``name``."""
+    x = v.positive(name, value, unit)
+    if not _SMALLEST <= x <= largest:
+        bound = (f"at least {_SMALLEST:.2g}" if x < _SMALLEST else f"at most {largest:.2g}")
+        raise ValueError(
+            f"`{name}` = {x:g} {unit} is out of range: it must be {bound} {unit}, where its "
+            "square is still a normal floating-point number (the loop's statistics square it)"
+        )
+    return x
 
 
 def _velocity(value) -> str | tuple[float, ...]:
@@ -239,7 +276,15 @@ def closed_loop_poles(m: float, c: float, k: float, ctrl: SampledController) -> 
     -------
     numpy.ndarray of complex
         The roots of χ; the loop is stable when every |z| < 1.
+
+    Raises
+    ------
+    ValueError
+        Naming the parameter: m not finite or not > 0, c or k not finite.
     """
+    m = v.positive("m", m, "kg")
+    c = v.finite("c", c, "N·s/m")
+    k = v.finite("k", k, "N/m")
     T = ctrl.sample_time
     d, phi = ctrl.delay_split
     b, a = ctrl.velocity_filter()

@@ -302,23 +302,32 @@ def _regression(t, q, force, dt, cutoff, order, decimation, start, end):
 
 def _solve(x, y, sigma, names, units, fixed) -> IDIMFit:
     """Step 5: ordinary least squares and the fit's statistics."""
-    theta, _, rank, sv = np.linalg.lstsq(x, y, rcond=None)
     n, p = x.shape
-    if rank < p:
-        raise ValueError(f"q: the record does not excite all of {', '.join(names)} "
-                         f"(regressor rank {rank} < {p})")
     if not np.any(y):
         raise ValueError("force: the force to fit is zero at every sample (a recorded command "
                          "u of zeros?): it cannot determine " + ", ".join(names))
+    # the force in units of a power of two near its largest value: exact (every product and
+    # quotient scales by the same power of two, so the digits do not change), and the squares
+    # of a force of 1e-300 N (command_gain 1e-300) no longer underflow to a zero norm
+    scale = math.ldexp(1.0, math.frexp(float(np.max(np.abs(y))))[1])
+    theta, _, rank, sv = np.linalg.lstsq(x, y / scale, rcond=None)
+    if rank < p:
+        raise ValueError(f"q: the record does not excite all of {', '.join(names)} "
+                         f"(regressor rank {rank} < {p})")
     # values near the float range (a force of 1e300 N) overflow the statistics to inf/nan,
     # which the results report as undefined (null in JSON), not as a numpy warning
-    with np.errstate(over="ignore", invalid="ignore"):
-        residual = y - x @ theta
+    with np.errstate(over="ignore", invalid="ignore", under="ignore"):
+        residual = y / scale - x @ theta
         rss = float(residual @ residual)
         sigma2 = rss / (n - p) if sigma == "ols" else float(np.var(residual, ddof=1))
-        covariance = sigma2 * np.linalg.inv(x.T @ x)
-        stderr = np.sqrt(np.diag(covariance))
-        relative_error = 100.0 * math.sqrt(rss) / float(np.linalg.norm(y))
+        unit_covariance = sigma2 * np.linalg.inv(x.T @ x)
+        covariance = unit_covariance * scale * scale
+        # from the scaled covariance (a tiny force's stderr does not underflow to 0), and not
+        # finite where the covariance overflowed, so that the two agree
+        stderr = np.where(np.isfinite(np.diag(covariance)),
+                          np.sqrt(np.diag(unit_covariance)) * scale, np.inf)
+        relative_error = 100.0 * math.sqrt(rss) / float(np.linalg.norm(y / scale))
+        theta = theta * scale
         condition = float(sv[0] / sv[-1])
         rho1 = float(residual[1:] @ residual[:-1] / rss) if rss > 0 else 0.0
     warnings = (

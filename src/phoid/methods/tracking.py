@@ -512,7 +512,11 @@ def check_stable(records: Sequence[TrackingRecord], p: Mapping[str, float], what
         with np.errstate(all="ignore"):  # absurd parameters overflow: no poles, said below
             try:
                 poles = closed_loop_poles(p["m"], p["c"], p["k"], rec.controller)
-            except (ValueError, np.linalg.LinAlgError):
+            except ValueError as exc:
+                if str(exc).startswith("`"):  # a parameter refused, by name (m ≤ 0, c = inf)
+                    raise ValueError(f"{what}: {exc}") from None
+                poles = np.array([np.nan])
+            except (np.linalg.LinAlgError, OverflowError):
                 poles = np.array([np.nan])
         rho = float(np.max(np.abs(poles), initial=0.0))
         if not np.isfinite(rho):

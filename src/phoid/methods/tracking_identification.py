@@ -53,6 +53,7 @@ from phoid.reports.statistics import ratio_text
 __all__ = [
     "TrackingIdentification",
     "TrackingReplay",
+    "check_parameters",
     "command_input",
     "identify_tracking",
     "replay_set",
@@ -497,8 +498,12 @@ def replay_set(experiment: Any, parameters: Mapping[str, float]) -> TrackingRepl
     if "m" not in parameters:
         raise IdentificationError(f"{where}: the mass m is needed to simulate the loop")
     delay = parameters.get("delay", experiment.loop.get("delay")) or 0.0
-    values = {"c": 0.0, "k": 0.0, "fc": 0.0, "offset": 0.0, **parameters,
-              "delay": float(delay)}
+    values = {"c": 0.0, "k": 0.0, "fc": 0.0, "offset": 0.0, **parameters}
+    try:
+        # each value checked by name before any arithmetic (m = 0 divided in the loop's poles)
+        values = check_parameters({**values, "delay": delay})
+    except ValueError as exc:
+        raise IdentificationError(f"{where}: {exc}") from None
     runs = experiment.runs
     ctrls = [run_controller(experiment, r, delay=delay) for r in runs]  # errors name the run
     unstable: list[str] = []
@@ -519,6 +524,23 @@ def replay_set(experiment: Any, parameters: Mapping[str, float]) -> TrackingRepl
         path=getattr(experiment, "path", None), warnings=tuple(warnings),
         _inputs=tuple(None if rec.w is None else rec.w[rec.start:] for rec in records),
     )
+
+
+def check_parameters(values: Mapping[str, Any]) -> dict[str, float]:
+    """The plant's parameters as floats, each checked by name: m finite and > 0 (kg); c, k, fc
+    finite and ≥ 0; offset finite; delay finite and ≥ 0 (s). A ValueError names the first
+    that is not, e.g. "`m` must be > 0 kg; got 0"."""
+    out = {key: float(value) for key, value in values.items()
+           if not isinstance(value, bool) and isinstance(value, (int, float, np.floating))}
+    for key, value in values.items():
+        if key not in out:
+            raise ValueError(f"`{key}` must be a real number; got {value!r}")
+        if not math.isfinite(out[key]):
+            raise ValueError(f"`{key}` must be finite; got {out[key]}")
+    Plant(m=out["m"], c=out["c"], k=out["k"], fc=out["fc"])  # m > 0; c, k, fc ≥ 0, by name
+    if out.get("delay", 0.0) < 0:
+        raise ValueError(f"`delay` must be ≥ 0 s; got {out['delay']:g}")
+    return out
 
 
 def _records(experiment, runs, ctrls) -> tuple[TrackingRecord, ...]:
