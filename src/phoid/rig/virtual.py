@@ -78,10 +78,11 @@ class _SessionOver(Exception):
 class _Lines:
     """The host's lines, read within the session's bounds.
 
-    A line longer than the protocol's ``MAX_LINE`` is refused once (:class:`ProtocolError`)
-    and the rest of it, up to its LF, is skipped as it arrives: the link holds at most one
-    receive buffer of it, never the whole line. :meth:`check` ends the session when the rig
-    closes or the session has held the rig for ``max_session`` s.
+    A line longer than the protocol's ``MAX_LINE`` is refused once (:class:`ProtocolError`):
+    :meth:`Link.readline` hands it out in pieces of ``MAX_LINE + 1`` bytes without an LF
+    (never buffering it whole) and drops its end; the pieces after the first are skipped.
+    :meth:`check` ends the session when the rig closes or the session has held the rig for
+    ``max_session`` s (checked between pieces too: an endless line cannot hold the rig).
     """
 
     def __init__(self, link: Link, closing: threading.Event, max_session: float) -> None:
@@ -107,14 +108,14 @@ class _Lines:
                 if timeout <= 0 or time.monotonic() >= end:
                     return None
                 continue
-            if self.skipping:  # the tail of an overlong line
-                self.skipping = not line.endswith(b"\n")
-                continue
-            if len(line) > MAX_LINE and not line.endswith(b"\n"):
+            if len(line) > MAX_LINE and not line.endswith(b"\n"):  # a piece of a long line
+                if self.skipping:
+                    continue
                 self.skipping = True
                 raise ProtocolError(f"a line longer than {MAX_LINE} bytes (refused; the rig "
                                     "skips it to its end): "
                                     f"{line[:40].decode('latin-1')!a}...")
+            self.skipping = False
             return line
 
 
@@ -235,8 +236,8 @@ class VirtualRig:
             self._server = Server((host, port), Handler)
         except OSError as exc:
             raise ValueError(f"cannot listen on {host}:{port}: {exc.strerror or exc}") from None
-        self._thread = threading.Thread(target=self._server.serve_forever, daemon=True,
-                                        name="phoid-virtual-rig")
+        self._thread = threading.Thread(target=self._server.serve_forever, args=(0.1,),
+                                        daemon=True, name="phoid-virtual-rig")
         self._thread.start()
         addr = self._server.server_address
         return str(addr[0]), int(addr[1])

@@ -1,0 +1,382 @@
+"""The virtual rig against a hostile host: real sockets against a real VirtualRig (and the
+`phoid virtual-rig` subprocess), every failure an ERROR line, never a traceback.
+
+What is checked comes from docs/rig-protocol.md ("The rig's side"): a line the rig cannot use
+is answered `ERROR` (sendable: printable ASCII without `*`, at most 4096 bytes) and the session
+goes on; a line longer than 4096 bytes is refused once and skipped; CONFIG values are checked
+against the C types (counts at most 2^31 − 1, the portable bound of phoid_ctrl.h's
+PHOID_MAX_COUNT) and what the rig can run; a run whose simulation overflows ends with a fault;
+an idle host, a session over its time and a second host get an ERROR and are closed. Every test
+skips without a C compiler; idle timeouts here are a fraction of a second, so the file is fast.
+"""
+
+from __future__ import annotations
+
+import os
+import socket
+import subprocess
+import sys
+import time
+import zlib
+from pathlib import Path
+
+import pytest
+
+from phoid.dynamics.plant import Plant
+from phoid.rig.native import Controller, build_library, find_compiler
+from phoid.rig.protocol import MAX_LINE, ProtocolError, encode, encode_config, hello, parse
+
+NO_CC = "no C compiler (CC, cc, gcc, clang): the rig's controller cannot be built"
+PAPER = Plant(m=2.0, c=1.0, k=64.0)  # the seed paper's plant, as in test_rig_end_to_end.py
+# a run the rig accepts: 100 Hz, 10 samples held, 20 run (a few ms of simulation)
+GOOD = {"sample_time": 0.01, "P": 12.625, "D": 3.3, "hold_P": 150.0, "hold_D": 25.0,
+        "x_start": 0.01, "hold_samples": 10, "run_samples": 20}
+IDLE = 0.5  # s: the rigs' idle timeout in these tests (short, so the file is fast)
+WAIT = 5.0  # s a test waits for a line: far above every bound the rig keeps (≤ ~1.5 s here)
+
+
+@pytest.fixture(scope="module")
+def build(tmp_path_factory):
+    if find_compiler() is None:
+        pytest.skip(NO_CC)
+    folder = tmp_path_factory.mktemp("rig-build")
+    build_library(folder)
+    return folder
+
+
+@pytest.fixture
+def rig(build):
+    """A factory of listening rigs (closed after the test)."""
+    from phoid.rig.virtual import VirtualRig
+
+    made = []
+
+    def make(plant=PAPER, **kw):
+        kw.setdefault("idle_timeout", IDLE)
+        r = VirtualRig(plant, build=build, **kw)
+        made.append(r)
+        return r.listen("127.0.0.1", 0)
+
+    yield make
+    while _OPEN:  # the hosts first: a rig closed under an open session waits for it
+        _OPEN.pop().close()
+    for r in made:
+        r.close()
+
+
+_OPEN: list[Host] = []
+
+
+@pytest.fixture(autouse=True)
+def _close_hosts():
+    yield
+    while _OPEN:
+        _OPEN.pop().close()
+
+
+class Host:
+    """A host speaking the protocol by hand over a real socket (closed after the test)."""
+
+    def __init__(self, addr, say_hello=True):
+        self.sock = socket.create_connection(addr, timeout=WAIT)
+        self.f = self.sock.makefile("rb")
+        _OPEN.append(self)
+        if say_hello:
+            self.send(hello())
+            assert self.msg().kind == "HELLO"
+
+    def send(self, data: bytes) -> None:
+        self.sock.sendall(data)
+
+    def raw(self) -> bytes:
+        return self.f.readline()
+
+    def msg(self):
+        line = self.raw()
+        assert line, "the rig closed the connection"
+        assert len(line) <= MAX_LINE and line.endswith(b"\n")
+        return parse(line)  # a valid line: checksum, printable ASCII, no `*` in the payload
+
+    def error(self) -> str:
+        m = self.msg()
+        assert m.kind == "ERROR", m
+        return str(m.fields["message"])
+
+    def closed(self) -> bool:
+        return self.raw() == b""
+
+    def config_ok(self, cfg=GOOD) -> None:
+        self.send(encode_config(cfg))
+        assert self.msg().kind == "OK"
+
+    def run(self):
+        """START, and the run's lines up to END (all of them parsed)."""
+        self.send(encode("START"))
+        out = []
+        while True:
+            m = self.msg()
+            out.append(m)
+            if m.kind in ("END", "ERROR"):
+                return out
+
+    def close(self) -> None:
+        self.f.close()
+        self.sock.close()
+
+
+def _framed(payload: bytes) -> bytes:
+    return payload + b" *" + f"{zlib.crc32(payload):08x}".encode() + b"\n"
+
+
+# --- issue 5: lines the rig cannot use --------------------------------------------------------
+
+@pytest.mark.parametrize("line", [
+    b"hello\n",                                    # no checksum
+    b"\x00\xff\xfe*** \x1b[2J junk *\n",           # random bytes, stars, control characters
+    b"*\n",
+    b"START *zzzzzzzz\n",                          # a checksum that is not hex
+    b"START *0x682d97\n",                          # int(..., 16) would take it; not 8 hex digits
+    _framed(b"CONFIG P=1_000"),                    # not a decimal number (Python int() takes it)
+    _framed("CONFIG P=\u00e9".encode("latin-1")),  # not ASCII
+    b"START",                                      # no LF yet: completed by the next line
+])
+def test_a_line_the_rig_cannot_use_is_answered_error_and_the_session_goes_on(rig, line):
+    host = Host(rig())
+    host.send(line)
+    if not line.endswith(b"\n"):
+        host.send(b"\n")
+    assert host.error()  # an ERROR the host can parse (msg() checks checksum and framing)
+    host.config_ok()  # the same session goes on
+    assert host.run()[-1].fields == {"reason": "done"}
+    host.close()
+
+
+def test_error_text_is_always_sendable():
+    # the rig quotes hostile lines back: `*`, control and non-ASCII characters are escaped,
+    # and a long text is cut to one line of at most MAX_LINE bytes (docs/rig-protocol.md)
+    for text in ["a*b", "\x00\x1b\xff\u20ac\U0001f600", "x" * 10 * MAX_LINE, "", "a\nb\tc"]:
+        line = encode("ERROR", text)
+        assert len(line) <= MAX_LINE
+        back = parse(line).fields["message"]
+        assert "*" not in back and back.isascii() and back.isprintable()
+    assert parse(encode("ERROR", "a*b")).fields["message"] == "a\\x2ab"  # Python's escape
+    with pytest.raises(ProtocolError, match="not ASCII"):
+        parse("START \u20ac *00000000\n")
+
+
+def test_garbage_instead_of_the_hello_is_answered_and_closed(rig):
+    host = Host(rig(), say_hello=False)
+    host.send(b"\xff\xfe not a hello * at all\n")
+    assert "checksum" in host.error()
+    assert host.closed()
+
+
+def test_a_10_mb_line_is_refused_once_and_skipped_to_its_end(rig):
+    host = Host(rig())
+    host.send(b"A" * 10_000_000 + b"\n")
+    assert f"longer than {MAX_LINE} bytes" in host.error()
+    # one ERROR for the whole line: the next line the rig answers is this CONFIG's OK
+    host.config_ok()
+    # a long line that ends within the rig's receive buffer is refused the same way
+    host.send(b"B" * (MAX_LINE + 100) + b"\n")
+    assert f"longer than {MAX_LINE} bytes" in host.error()
+    host.config_ok()
+    host.close()
+
+
+def test_a_run_whose_commands_overflow_ends_with_a_fault(rig):
+    # the issue's CONFIG: P = D = 1e300 without a growth bound; the noise moves x off the
+    # reference, so P·x and D·v̂ overflow a double (u would be inf or NaN)
+    host = Host(rig(noise=1e-5, seed=3))
+    host.config_ok(dict(GOOD, P=1e300, D=1e300, growth_limit=0.0, run_samples=2000))
+    lines = host.run()
+    end = lines[-1]
+    assert end.kind == "END" and end.fields["reason"].startswith("fault-")
+    # the fault that ended it is in the event log (docs: END names the fault)
+    assert end.fields["reason"] in [m.fields["name"] for m in lines if m.kind == "EVENT"]
+    host.config_ok()  # the session goes on
+    host.close()
+
+
+def test_a_plant_that_overflows_faults_the_run_and_the_session_goes_on(rig):
+    # a free mass of 1 mg pushed by a constant 1e300 N: x = −f₀t²/(2m) = −5e305·n² m at
+    # T = 1 s passes the largest double (1.8e308) at n = 19 (1.62e308 at n = 18): the rig reads
+    # a non-finite position, the controller faults (fault-input, the C README) and that
+    # sample is not sent (a SAMPLE carries finite numbers only)
+    host = Host(rig(Plant(m=1e-6, c=0.0, k=0.0), offset_force=1e300))
+    host.config_ok({"sample_time": 1.0, "hold_samples": 1, "run_samples": 100,
+                    "x_min": -1.7e308, "x_max": 1.7e308})
+    lines = host.run()
+    samples = [m.fields["index"] for m in lines if m.kind == "SAMPLE"]
+    assert samples == list(range(19))
+    assert ("fault-input", 19) in [(m.fields["name"], m.fields["index"])
+                                   for m in lines if m.kind == "EVENT"]
+    assert lines[-1].fields == {"reason": "fault-input"}
+    host.config_ok()
+    host.close()
+
+
+def test_the_controller_faults_on_a_command_that_is_not_finite(build):
+    # phoid_ctrl.c: a command that is not finite faults (fault-command, value x) and 0 goes out
+    ctrl = Controller(dict(sample_time=0.01, P=1e300, hold_samples=1, run_samples=10), build)
+    ctrl.start()
+    assert ctrl.step(0.0) == 0.0  # hold (hold gains 0)
+    u = ctrl.step(1e10)  # released: u = −1e300·1e10 = −inf
+    assert u == 0.0 and ctrl.state == "fault"
+    assert [(e.name, e.index, e.value) for e in ctrl.events()][-1] == (
+        "fault-command", 1, 1e10)
+
+
+# --- issue 6: CONFIG values ---------------------------------------------------------------
+
+@pytest.mark.parametrize("field, value", [
+    ("hold_samples", 2**64),       # wrapped to 0 (hold for ever) before
+    ("hold_samples", 2**31),       # past a 32-bit long (PHOID_MAX_COUNT = 2^31 − 1)
+    ("hold_samples", -1),
+    ("hold_samples", 0),           # hold until a release: the protocol has none
+    ("run_samples", 2**31),
+    ("run_samples", 0),
+    ("stall_samples", 2**31),
+    ("stall_samples", -(2**63) - 1),
+    ("velocity", 2**32),           # a C int: would wrap to 0
+    ("delay_samples", 2**32 + 1),  # would wrap to 1
+    ("has_force", 2**32 + 1),
+    ("sample_time", 1e300),        # slower than the rig samples (1 s)
+    ("sample_time", 1e-300),       # faster than --max-rate
+    ("sample_time", -0.01),
+    ("growth_limit", 0.5),
+    ("x_start", 5.0),              # outside [x_min, x_max]
+    ("u_max", 0.0),
+    ("filter_pole", 1.0),
+    ("command_gain", 1e300),       # × the default u_max 1e300: no finite largest force
+    ("has_force", 1),              # this rig has no force sensor
+])
+def test_config_values_out_of_range_are_refused_naming_the_field(rig, field, value):
+    host = Host(rig())
+    cfg = dict(GOOD, x_min=-1.0, x_max=1.0, **{field: value})
+    if field == "filter_pole":
+        cfg["velocity"] = 2
+    host.send(encode_config(cfg))
+    assert field in host.error()
+    host.send(encode("START"))
+    assert "without an accepted CONFIG" in host.error()  # nothing runs
+    host.close()
+
+
+def test_a_run_longer_than_the_rig_runs_is_refused(rig):
+    addr = rig(max_samples=1000)
+    host = Host(addr)
+    host.send(encode_config(dict(GOOD, hold_samples=500, run_samples=500)))  # 1001 samples
+    err = host.error()
+    assert "run_samples" in err and "--max-samples" in err
+    host.config_ok(dict(GOOD, hold_samples=499, run_samples=500))  # 1000: the bound
+    host.close()
+
+
+def test_a_real_time_run_longer_than_a_session_is_refused(rig):
+    host = Host(rig(realtime=True, max_session=2.0))
+    host.send(encode_config(dict(GOOD, hold_samples=100, run_samples=200)))  # 3.01 s at 100 Hz
+    assert "--max-session" in host.error()
+    host.close()
+
+
+# --- issue 6: idle, busy, session time --------------------------------------------------------
+
+def test_an_idle_host_is_closed_and_a_second_host_is_refused_at_once(rig):
+    addr = rig()
+    idle = Host(addr)  # says hello, then nothing
+    t0 = time.monotonic()
+    second = Host(addr, say_hello=False)
+    second.send(hello())
+    assert second.error().startswith("busy: another host is connected")
+    assert second.closed()
+    assert time.monotonic() - t0 < 3.0  # never a silent wait (the rig's grace is 1 s)
+    assert "--idle-timeout" in idle.error()  # after IDLE s without a line
+    assert idle.closed()
+    assert time.monotonic() - t0 < IDLE + 3.0
+    third = Host(addr)  # the rig is free again
+    third.config_ok()
+    assert third.run()[-1].fields == {"reason": "done"}
+    for h in (idle, second, third):
+        h.close()
+
+
+def test_a_host_that_never_says_hello_is_closed(rig):
+    host = Host(rig(), say_hello=False)
+    t0 = time.monotonic()
+    assert "no hello" in host.error()
+    assert host.closed()
+    assert time.monotonic() - t0 < IDLE + 3.0
+
+
+def test_a_session_ends_at_its_time_limit_however_busy_the_host(rig):
+    host = Host(rig(max_session=1.0))
+    t0 = time.monotonic()
+    while True:  # a line every 0.1 s: never idle
+        host.send(encode("CLEAR"))
+        m = host.msg()
+        if m.kind == "ERROR":
+            break
+        assert m.kind == "OK" and time.monotonic() - t0 < WAIT
+        time.sleep(0.1)
+    assert "--max-session" in m.fields["message"]
+    assert host.closed()
+    host.close()
+
+
+def test_a_host_that_reads_nothing_is_dropped(rig, monkeypatch):
+    from phoid.rig import virtual
+
+    monkeypatch.setattr(virtual, "SEND_TIMEOUT", 0.5)  # the floor of the send timeout
+    addr = rig()
+    host = Host(addr)
+    host.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+    host.config_ok(dict(GOOD, sample_time=1e-4, hold_samples=10, run_samples=1_000_000))
+    host.send(encode("START"))  # ~60 MB of samples, and this host reads none of them
+    t0 = time.monotonic()
+    while True:  # the rig gives up on the stuck send and serves the next host
+        other = Host(addr, say_hello=False)
+        other.send(hello())
+        m = other.msg()
+        other.close()
+        if m.kind == "HELLO":
+            break
+        assert "busy" in m.fields["message"] and time.monotonic() - t0 < 15.0
+    host.close()
+
+
+# --- the command-line rig ---------------------------------------------------------------------
+
+def test_the_cli_rig_answers_hostile_hosts_without_a_traceback(build):
+    src = Path(__file__).resolve().parents[1] / "src"
+    env = {**os.environ, "PYTHONPATH": f"{src}{os.pathsep}{os.environ.get('PYTHONPATH', '')}"}
+    cmd = [sys.executable, "-c", "from phoid.cli import main; main()", "virtual-rig", "--m",
+           "2", "--c", "1", "--k", "64", "--noise", "1e-5", "--seed", "1", "--listen",
+           "127.0.0.1:0", "--build", str(build), "--idle-timeout", str(IDLE)]
+    proc = subprocess.Popen(cmd, stderr=subprocess.PIPE, text=True, env=env)
+    try:
+        line = proc.stderr.readline()
+        assert "listening on tcp://127.0.0.1:" in line, line
+        host_, port = line.split("listening on tcp://")[1].split(";")[0].rsplit(":", 1)
+        addr = (host_, int(port))
+        host = Host(addr)
+        host.send(b"no checksum * here\n")  # issue 5: the rig's own text held a `*`
+        host.error()
+        host.send(b"x" * 10_000_000 + b"\n")
+        host.error()
+        for cfg in ({"sample_time": 1e300}, {"hold_samples": 2**64}):
+            host.send(encode_config(dict(GOOD, **cfg)))
+            assert next(iter(cfg)) in host.error()
+        host.config_ok(dict(GOOD, P=1e300, D=1e300, growth_limit=0.0))
+        assert host.run()[-1].fields["reason"].startswith("fault-")
+        second = Host(addr, say_hello=False)
+        assert second.error().startswith("busy")
+        second.close()
+        assert "--idle-timeout" in host.error()
+        host.close()
+    finally:
+        proc.terminate()
+        rc = proc.wait(timeout=30)
+        rest = proc.stderr.read()
+        proc.stderr.close()
+    assert rc == 0 and rest == "", rest  # nothing on stderr after the listening line
