@@ -579,7 +579,12 @@ def main() -> None:
     (set PHOID_DEBUG=1 to see one).
     """
     import os
+    import warnings
 
+    if not os.environ.get("PHOID_DEBUG"):
+        # a library's Python warning (numpy's overflow, scipy's, h5py's) is no message for the
+        # user: an error is one line, and what the data deserve is in the result's warnings
+        warnings.simplefilter("ignore")
     if not sys.argv[1:]:
         app()  # no arguments: the help, as the root's no_args_is_help prints it
     if sys.stdout.isatty() and sys.stderr.isatty() and "--json" not in sys.argv[1:]:

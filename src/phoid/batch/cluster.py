@@ -22,6 +22,9 @@ import logging
 import math
 import os
 import pickle
+import socket
+import struct
+import time
 from collections.abc import Callable, Iterable, Iterator
 from typing import Any
 
@@ -75,6 +78,85 @@ async def _identity(address: str, timeout: float) -> Any:
         comm.abort()
 
 
+MAX_GREETING = 1 << 16
+"""Most bytes of a Dask scheduler's first message (its handshake: a few hundred bytes) that
+the probe reads; a larger declared length is not a scheduler's."""
+_MAX_FRAMES = 64
+
+
+class _NotDask(Exception):
+    """What answered at the scheduler's address is not a Dask scheduler (the reason)."""
+
+
+def _recv_exactly(sock: socket.socket, n: int, deadline: float) -> bytes:
+    """``n`` bytes from ``sock`` before ``deadline`` (time.monotonic); TimeoutError after."""
+    out = bytearray()
+    while len(out) < n:
+        left = deadline - time.monotonic()
+        if left <= 0:
+            raise TimeoutError
+        sock.settimeout(left)
+        piece = sock.recv(n - len(out))
+        if not piece:
+            raise _NotDask(f"it closed the connection after {len(out)} of the {n} bytes "
+                           "expected")
+        out += piece
+    return bytes(out)
+
+
+def _check_greeting(address: str, timeout: float) -> None:
+    """Read a TCP scheduler's first message with a bounded read and check its framing.
+
+    A Dask scheduler speaks first: on each new connection it sends its handshake, framed as
+    distributed's TCP comm frames every message (an 8-byte little-endian length, then that
+    many bytes: a frame count, the frames' lengths, the frames; the handshake's first frame a
+    msgpack map). distributed allocates
+    whatever length the first 8 bytes declare, so another service on the port (an HTTP
+    server's reply, random bytes) made it allocate exabytes and fail with a MemoryError;
+    here at most :data:`MAX_GREETING` bytes are read and the framing is checked before
+    distributed is let near the address. Addresses that are not ``tcp://`` (or a plain
+    host:port) are left to distributed.
+
+    Raises
+    ------
+    _NotDask
+        The reply is not framed as a Dask message.
+    TimeoutError, OSError
+        No connection, or no complete first message, within ``timeout`` seconds.
+    """
+    from distributed.comm.addressing import parse_address, parse_host_port
+
+    try:
+        scheme, location = parse_address(address)
+        host, port = parse_host_port(location)
+    except (ValueError, TypeError):
+        return  # distributed names what is wrong with the address
+    if scheme != "tcp" or not host:
+        return
+    deadline = time.monotonic() + timeout
+    with socket.create_connection((host, port), timeout=timeout) as sock:
+        (size,) = struct.unpack("<Q", _recv_exactly(sock, 8, deadline))
+        if not 16 <= size <= MAX_GREETING:
+            raise _NotDask(f"its first message declares {size:,} bytes, where a Dask "
+                           f"scheduler's handshake takes 16 to {MAX_GREETING:,}")
+        body = _recv_exactly(sock, size, deadline)
+    (frames,) = struct.unpack_from("<Q", body)
+    if not 1 <= frames <= _MAX_FRAMES or 8 * (1 + frames) > size:
+        raise _NotDask(f"its first message declares {frames:,} frames")
+    lengths = struct.unpack_from(f"<{frames}Q", body, 8)
+    if 8 * (1 + frames) + sum(lengths) != size:
+        raise _NotDask("its first message's frames do not add up to its length")
+    import msgpack  # distributed's own dependency: its messages are msgpack
+
+    start = 8 * (1 + frames)
+    try:
+        handshake = msgpack.loads(body[start:start + lengths[0]], raw=False)
+    except Exception:  # msgpack raises several kinds on bytes that are not msgpack
+        handshake = None
+    if not isinstance(handshake, dict):
+        raise _NotDask("its first message is not a handshake (a msgpack map)")
+
+
 def _probe_scheduler(address: str, timeout: float) -> None:
     """Ask the scheduler at ``address`` who it is; raise a one-line error unless it answers
     as a Dask scheduler within ``timeout`` seconds.
@@ -93,6 +175,18 @@ def _probe_scheduler(address: str, timeout: float) -> None:
     import asyncio
     import concurrent.futures
 
+    not_dask = f"{address!r} answers, but not as a Dask scheduler"
+    try:
+        _check_greeting(address, timeout)
+    except _NotDask as exc:
+        raise PhoidError(f"{not_dask} ({exc})") from None
+    except TimeoutError:
+        raise PhoidError(f"the Dask scheduler at {address!r} does not answer within "
+                         f"{timeout:g} s") from None
+    except OSError as exc:
+        raise PhoidError(f"the Dask scheduler at {address!r} does not answer within "
+                         f"{timeout:g} s ({type(exc).__name__}: {exc})") from None
+
     def run() -> Any:
         return asyncio.run(asyncio.wait_for(_identity(address, timeout), timeout))
 
@@ -105,13 +199,16 @@ def _probe_scheduler(address: str, timeout: float) -> None:
     except OSError as exc:
         raise PhoidError(f"the Dask scheduler at {address!r} does not answer within "
                          f"{timeout:g} s ({type(exc).__name__}: {exc})") from None
+    except MemoryError:  # a later reply declaring an absurd length: not Dask's either
+        raise PhoidError(f"{not_dask} (a reply declares more bytes than memory holds)"
+                         ) from None
     except Exception as exc:  # a bad address, a reply that is not Dask's
         raise PhoidError(f"the Dask scheduler at {address!r} cannot be used: "
                          f"{type(exc).__name__}: {' '.join(str(exc).split())}") from None
     finally:
         pool.shutdown(wait=False)
     if not (isinstance(reply, dict) and reply.get("type") == "Scheduler"):
-        raise PhoidError(f"{address!r} answers, but not as a Dask scheduler")
+        raise PhoidError(not_dask)
 
 
 def _cpus() -> int:

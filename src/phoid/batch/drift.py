@@ -294,19 +294,29 @@ def read_results(path: str | Path, *, by: str = "axis") -> Any:
     """
     import pandas as pd
 
+    from phoid.io import not_regular, open_regular
+
     path = Path(path)
-    if path.is_dir():
-        raise ExperimentError(f"{path}: is a folder; give the batch output file "
-                              "(results.parquet or results.csv)")
-    if not path.is_file():
-        raise ExperimentError(f"{path}: no such file")
+    give = "give the batch output file (results.parquet or results.csv)"
+    try:
+        mode = path.stat().st_mode
+    except FileNotFoundError:
+        raise ExperimentError(f"{path}: no such file") from None
+    except (OSError, RuntimeError, ValueError) as exc:  # a loop of links, a name too long
+        raise ExperimentError(f"{path}: cannot be read: {getattr(exc, 'strerror', None) or exc}"
+                              ) from None
+    kind = not_regular(mode)
+    if kind is not None:  # a named pipe would block the read, a device never end
+        raise ExperimentError(f"{path}: is {kind}, not a regular file; {give}")
     try:
         if path.suffix.lower() == ".csv":
             # the Parquet's floats exactly: pandas 3 parses them so by default (and deprecates
             # the argument), pandas 2 when asked
             exact = {} if int(pd.__version__.split(".")[0]) >= 3 else {
                 "float_precision": "round_trip"}
-            frame = pd.read_csv(path, dtype={"set": str, "checksum": str, by: str}, **exact)
+            f, _ = open_regular(str(path), path, "batch output")  # not swapped for a pipe
+            with f:
+                frame = pd.read_csv(f, dtype={"set": str, "checksum": str, by: str}, **exact)
         else:
             try:
                 import pyarrow  # noqa: F401
@@ -317,7 +327,9 @@ def read_results(path: str | Path, *, by: str = "axis") -> Any:
                         f"{path}: reading Parquet needs pyarrow (pip install 'phoid[batch]'), "
                         f"and there is no {csv.name} beside it") from None
                 return read_results(csv, by=by)
-            frame = pd.read_parquet(path)
+            f, _ = open_regular(str(path), path, "batch output")
+            with f:
+                frame = pd.read_parquet(f)
     except ExperimentError:
         raise
     except Exception as exc:  # a file that is not a table: pyarrow's and pandas' own errors

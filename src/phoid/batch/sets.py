@@ -10,15 +10,12 @@ from __future__ import annotations
 import glob
 import hashlib
 import os
-import stat
-import tomllib
 from collections.abc import Iterable
 from dataclasses import dataclass
-from pathlib import Path
+from pathlib import Path, PureWindowsPath
 from typing import Any
 
 from phoid.errors import ExperimentError
-from phoid.io.limits import MAX_MANIFEST_BYTES
 
 __all__ = ["SetDigest", "expand_sets", "set_digest"]
 
@@ -87,12 +84,17 @@ def expand_sets(specs: Iterable[str | os.PathLike[str]]) -> list[str]:
 
 
 def _canonical(path: Path) -> str:
-    """A set's name in a batch: the resolved folder (for ``DIR/experiment.toml`` too)."""
+    """A set's name in a batch: the resolved folder (for ``DIR/experiment.toml`` too).
+
+    A manifest given by its path keeps its own name, in its resolved folder: a manifest that
+    is a link is read as ``phoid identify`` reads it, with the data files beside the link
+    (not beside what it points to).
+    """
     try:
-        resolved = path.resolve()
+        resolved = path.resolve() if path.is_dir() else path.parent.resolve() / path.name
     except (OSError, RuntimeError):  # a loop of links: kept, its row carries the error
         resolved = Path(os.path.abspath(path))
-    if resolved.name == MANIFEST and resolved.is_file():
+    if resolved.name == MANIFEST and resolved.parent.is_dir() and not resolved.is_dir():
         resolved = resolved.parent
     name = str(resolved)
     try:
@@ -115,7 +117,8 @@ class SetDigest:
         SHA-256 (hex) over the manifest's bytes and then each data file's bytes, in the order
         of the manifest's ``[[run]]`` tables (a file named twice counted once; a link is
         followed while it resolves inside the set's folder; a name that would leave the
-        set's folder is not read: the reader refuses such a set).
+        set's folder is not read: the reader refuses such a set; a file missing, not a
+        regular file or unreadable counts as a marker of its name).
     metadata : dict
         The manifest's optional ``[metadata]`` table (its scalar values), or empty.
     """
@@ -125,28 +128,48 @@ class SetDigest:
     metadata: dict[str, Any]
 
 
-def _read_regular(path: Path, digest: Any, limit: int | None = None) -> bytes:
-    """Feed a regular file's bytes to ``digest``; return them when ``limit`` is given."""
-    flags = os.O_RDONLY | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_NONBLOCK", 0)
+def _digest_data(digest: Any, folder: Path, root: Path, name: str) -> None:
+    """Feed one run file's bytes to ``digest`` when ``phoid identify`` would read it.
+
+    The reader's path rules: relative, '/'-separated, no '..', resolving (links followed)
+    inside the set's folder (``root``), a regular file. A name that breaks them is not read
+    here (the reader refuses the set with its own message, in the set's row); a file that is
+    missing, not a regular file (a named pipe is never opened) or unreadable adds a marker,
+    so that the checksum changes when it appears.
+    """
+    from phoid.io import open_regular
+
+    parts = name.split("/")
+    if name.startswith("/") or ".." in parts or "\\" in name or "\0" in name \
+            or PureWindowsPath(name).drive:
+        return  # outside the set's folder: not read here (the reader refuses it)
+    where = str(folder / name)
     try:
-        fd = os.open(path, flags)
-    except OSError as exc:
-        raise ExperimentError(f"{path}: cannot be read: {exc.strerror or exc}") from None
-    with os.fdopen(fd, "rb") as fh:
-        if not stat.S_ISREG(os.fstat(fh.fileno()).st_mode):
-            raise ExperimentError(f"{path}: not a regular file")
-        kept = bytearray()
-        while block := fh.read(_BLOCK):
-            digest.update(block)
-            if limit is not None:
-                kept += block
-                if len(kept) > limit:
-                    raise ExperimentError(f"{path}: the manifest is over {limit} bytes")
-    return bytes(kept)
+        real = (folder / name).resolve()
+    except (OSError, RuntimeError, ValueError):  # a loop of links: the reader says so
+        digest.update(b"\0unreadable\0" + name.encode("utf-8"))
+        return
+    if not real.is_relative_to(root):
+        return  # a link leading outside: not read here (the reader refuses it)
+    try:
+        f, _ = open_regular(where, real, "data file")
+    except ExperimentError:  # missing, not a regular file, unreadable: the reader says so
+        digest.update(b"\0unreadable\0" + name.encode("utf-8"))
+        return
+    with f:
+        try:
+            while block := f.read(_BLOCK):
+                digest.update(block)
+        except OSError as exc:
+            raise ExperimentError(f"{where}: cannot be read: {exc.strerror or exc}") from None
 
 
 def set_digest(set_path: str | os.PathLike[str]) -> SetDigest:
     """Checksum a set's files and read its ``[metadata]`` table, without reading its data.
+
+    The manifest and the data files are found and opened as ``phoid identify`` opens them
+    (:func:`phoid.io.read_manifest_bytes`, :func:`phoid.io.open_regular`): links followed (a
+    run file's while it resolves inside the set's folder), only regular files read.
 
     Parameters
     ----------
@@ -160,34 +183,29 @@ def set_digest(set_path: str | os.PathLike[str]) -> SetDigest:
     Raises
     ------
     ExperimentError
-        One line naming the path: no manifest, a manifest that is not TOML, a data file that
-        cannot be read.
+        One line naming the path: no manifest, a manifest that cannot be read (not a regular
+        file, too large) or is not TOML (the reader's message), a data file that fails while
+        it is read.
     """
+    from phoid.io import parse_manifest, read_manifest_bytes
+
     path = Path(set_path)
     manifest = path / MANIFEST if path.is_dir() else path
     if not manifest.exists():
         raise ExperimentError(f"{path}: no experiment set here (no {MANIFEST})")
-    digest = hashlib.sha256()
-    raw = _read_regular(manifest, digest, limit=MAX_MANIFEST_BYTES)
-    try:
-        doc = tomllib.loads(raw.decode("utf-8"))
-    except (UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
-        raise ExperimentError(f"{manifest}: not a TOML manifest: {exc}") from None
+    where = str(manifest)
+    raw = read_manifest_bytes(where, manifest)
+    digest = hashlib.sha256(raw)
+    doc = parse_manifest(where, raw)
     runs = doc.get("run", [])
     files = [r.get("file") for r in runs if isinstance(r, dict)] if isinstance(runs, list) else []
-    root = manifest.parent.resolve()
+    folder = manifest.parent
+    try:
+        root = folder.resolve()
+    except (OSError, RuntimeError) as exc:
+        raise ExperimentError(f"{folder}: cannot be resolved: {exc}") from None
     for name in dict.fromkeys(f for f in files if isinstance(f, str)):
-        parts = name.split("/")
-        if name.startswith("/") or ".." in parts or "\\" in name or "\0" in name:
-            continue  # outside the set's folder: not read here (the reader refuses it)
-        try:  # a link is followed while it stays inside the set's folder, as the reader does
-            real = (manifest.parent / name).resolve()
-        except (OSError, RuntimeError) as exc:
-            raise ExperimentError(f"{manifest.parent / name}: cannot be resolved: {exc}"
-                                  ) from None
-        if not real.is_relative_to(root):
-            continue  # a link leading outside: not read here (the reader refuses it)
-        _read_regular(real, digest)
+        _digest_data(digest, folder, root, name)
     meta = doc.get("metadata", {})
     metadata = ({k: v for k, v in meta.items() if not isinstance(v, dict | list)}
                 if isinstance(meta, dict) else {})

@@ -51,9 +51,11 @@ Modules: :mod:`phoid.io.records` (:class:`Run`, :class:`ExperimentSet`,
 reader), :mod:`phoid.io.limits` (the limits), :mod:`phoid.io.writing`
 (:func:`write_experiment`), :mod:`phoid.io.tracking` (a tracking set's keys),
 :mod:`phoid.io.containers` (the MATLAB, HDF5 and Parquet readers); ``_format`` and ``_files``
-hold what they share.
+hold what they share (:func:`open_regular` and :func:`not_regular`, the rule that only regular
+files are read, are exported here for the other commands that read a file).
 """
 
+from phoid.io._files import not_regular, open_regular
 from phoid.io._format import FORMAT, MANIFEST, METHODS
 from phoid.io.containers import CONTAINER_SUFFIXES
 from phoid.io.limits import (
@@ -65,7 +67,7 @@ from phoid.io.limits import (
     MAX_RUNS,
     MAX_SET_ROWS,
 )
-from phoid.io.manifest import read_manifest
+from phoid.io.manifest import parse_manifest, read_manifest, read_manifest_bytes
 from phoid.io.reading import read_experiment
 from phoid.io.records import ExperimentSet, Run, run_from_arrays
 from phoid.io.tracking import (
@@ -98,8 +100,12 @@ __all__ = [
     "VELOCITY_PRESETS",
     "ExperimentSet",
     "Run",
+    "not_regular",
+    "open_regular",
+    "parse_manifest",
     "read_experiment",
     "read_manifest",
+    "read_manifest_bytes",
     "run_from_arrays",
     "write_experiment",
 ]

@@ -10,7 +10,7 @@ import phoid.io.limits as limits
 from phoid.io._files import open_regular
 from phoid.io._format import fail
 
-__all__ = ["read_manifest"]
+__all__ = ["parse_manifest", "read_manifest", "read_manifest_bytes"]
 
 
 def read_manifest(where: str, manifest: Path) -> dict[str, Any]:
@@ -18,8 +18,9 @@ def read_manifest(where: str, manifest: Path) -> dict[str, Any]:
     nested at most MAX_NESTING levels deep, with at most MAX_RUNS ``[[run]]`` tables
     (docs/limits.md).
 
-    The one manifest reader: :func:`~phoid.io.reading.read_experiment` and
-    :func:`phoid.planning.schedule.read_schedule` both read through it.
+    The one manifest reader: :func:`~phoid.io.reading.read_experiment`,
+    :func:`phoid.planning.schedule.read_schedule` and the batch's checksum
+    (:func:`read_manifest_bytes`, :func:`parse_manifest`) all read through it.
 
     Parameters
     ----------
@@ -34,6 +35,15 @@ def read_manifest(where: str, manifest: Path) -> dict[str, Any]:
     dict
         The parsed TOML document, unchecked beyond the limits.
     """
+    return parse_manifest(where, read_manifest_bytes(where, manifest))
+
+
+def read_manifest_bytes(where: str, manifest: Path) -> bytes:
+    """A manifest's bytes: a regular file (symbolic links followed; a named pipe, a device or
+    a socket refused before it is read) of at most MAX_MANIFEST_BYTES.
+
+    Raises :class:`~phoid.errors.ExperimentError` (one line, prefixed with ``where``).
+    """
     f, st = open_regular(where, manifest, "manifest")
     with f:
         if st.st_size > limits.MAX_MANIFEST_BYTES:
@@ -46,6 +56,15 @@ def read_manifest(where: str, manifest: Path) -> dict[str, Any]:
     if st.st_size > limits.MAX_MANIFEST_BYTES or len(raw) > limits.MAX_MANIFEST_BYTES:
         fail(where, f"the manifest is larger than {limits.MAX_MANIFEST_BYTES // 2**20} MiB, "
                      "phoid's limit for experiment.toml (MAX_MANIFEST_BYTES)")
+    return raw
+
+
+def parse_manifest(where: str, raw: bytes) -> dict[str, Any]:
+    """Parse a manifest's bytes (:func:`read_manifest_bytes`): UTF-8 TOML, nested at most
+    MAX_NESTING levels deep, with at most MAX_RUNS ``[[run]]`` tables.
+
+    Raises :class:`~phoid.errors.ExperimentError` (one line, prefixed with ``where``).
+    """
     try:
         text = raw.decode("utf-8-sig")
     except UnicodeDecodeError as exc:

@@ -165,7 +165,7 @@ def read_experiment(path: str | os.PathLike[str]) -> ExperimentSet:
     budget = limits.MAX_SET_ROWS
     for spec in specs:
         cols, digest = _read_data(spec, method, budget)
-        cols = to_si(cols, units)  # [units]: the columns in s, m, N from here on
+        cols = to_si(cols, units, spec["where"])  # [units]: the columns in s, m, N from here on
         budget -= cols["t"].size
         other = digests.get(digest)
         if other is not None:

@@ -92,18 +92,29 @@ def check_units(where: str, table: Any, method: str) -> dict[str, tuple[str, flo
     return out
 
 
-def to_si(cols: dict[str, np.ndarray], units: Mapping[str, tuple[str, float, float]]
-          ) -> dict[str, np.ndarray]:
+def to_si(cols: dict[str, np.ndarray], units: Mapping[str, tuple[str, float, float]],
+          where: str = "the data file") -> dict[str, np.ndarray]:
     """The columns with those named in ``units`` converted to SI (read-only arrays; the
-    others as they are)."""
+    others as they are).
+
+    A value the conversion takes beyond the largest double (1e308 kN) is an
+    :class:`~phoid.errors.ExperimentError` naming ``where`` and the column, not a warning
+    and an infinity.
+    """
     if not units:
         return cols
     out = dict(cols)
-    for key, (_unit, mul, div) in units.items():
+    for key, (unit, mul, div) in units.items():
         col = out.get(key)
         if col is None:
             continue
-        si = col / div if mul == 1.0 else col * mul
+        with np.errstate(over="ignore"):
+            si = col / div if mul == 1.0 else col * mul
+        if not np.isfinite(si).all():
+            i = int(np.argmin(np.isfinite(si)))
+            fail(where, f"column {key!r} overflows when converted from {unit} to SI: "
+                         f"{float(col[i])!r} {unit} (row {i + 1}) is beyond the largest "
+                         "double once converted")
         si.flags.writeable = False
         out[key] = si
     return out

@@ -19,11 +19,20 @@ import numpy as np
 
 import phoid._validate as v
 from phoid.errors import PhoidError
+from phoid.io.limits import MAX_LINES
 
 __all__ = ["UNITS", "DesignError", "DesignSettings", "Prior", "fmt_range", "make_prior"]
 
 
 _NYQUIST_FRACTION = 0.2  # ω_d ≤ 0.2 π f_s: at least 10 samples per period
+# amplitude / noise: beyond 1e15 the noise is below the rounding of a double position
+# (2.2e-16 relative), and the Fisher information overflows long before 1e300
+_MAX_SNR = 1e15
+# a nonzero delay below a millionth of a sample period puts the loop's roots out of the
+# range where they can be certified (1e-30 s at 1 kHz failed); 0 is the loop without delay
+_MIN_DELAY_SAMPLES = 1e-6
+_MIN_CYCLES = 0.01  # fewer cycles: the frequency grid spans hundreds of decades
+_MIN_ZETA = 1e-6  # a band from 1e-300 spreads the damping-ratio grid over 300 decades
 UNITS = {"m": "kg", "c": "N s/m", "k": "N/m"}
 """Units of m, c, k in reports (ASCII)."""
 
@@ -128,6 +137,26 @@ class DesignSettings:
         set_(self, "duration", v.positive("duration", self.duration, "s"))
         set_(self, "noise", v.positive("noise", self.noise, "m"))
         set_(self, "amplitude", v.positive("amplitude", self.amplitude, "m"))
+        # each option's range error names that option (a record of 1e300 s used to come out
+        # as "a delay of 0.01 s makes every useful gain unstable")
+        samples = self.fs * self.duration
+        if not samples >= 2:
+            raise ValueError(f"`duration` × `fs` = {self.duration:g} s × {self.fs:g} Hz is "
+                             f"{samples:.3g} samples per run, fewer than 2: is `duration` in "
+                             "s and `fs` in Hz?")
+        if samples > MAX_LINES:
+            raise ValueError(f"`duration` × `fs` = {self.duration:g} s × {self.fs:g} Hz is "
+                             f"{samples:.3g} samples per run, more than a data file phoid "
+                             f"reads holds ({MAX_LINES:,} lines, MAX_LINES): is `duration` "
+                             "in s and `fs` in Hz?")
+        if self.amplitude > _MAX_SNR * self.noise:
+            raise ValueError(f"`noise` = {self.noise:g} m is below 1e-15 × the release "
+                             f"`amplitude` {self.amplitude:g} m: positions recorded as doubles "
+                             "cannot resolve it; are `noise` and `amplitude` in m?")
+        if 0 < self.delay * self.fs < _MIN_DELAY_SAMPLES:
+            raise ValueError(f"`delay` = {self.delay:g} s is less than a millionth of a "
+                             f"sample period (`fs` = {self.fs:g} Hz), too short for the "
+                             "loop's roots to be computed: give 0 for a loop without delay")
         for name in ("pmax", "dmax", "max_freq"):
             val = getattr(self, name)
             if val is None:
@@ -145,12 +174,23 @@ class DesignSettings:
             raise ValueError(f"`zeta` must be a band (lo, hi); got {self.zeta!r}") from None
         if not 0 < lo < hi < 1:
             raise ValueError(f"`zeta` band must satisfy 0 < lo < hi < 1; got {lo:g}:{hi:g}")
+        if lo < _MIN_ZETA:
+            raise ValueError(f"`zeta` band must start at {_MIN_ZETA:g} or above (the design's "
+                             f"grid of damping ratios spans the band); got {lo:g}:{hi:g}")
         set_(self, "zeta", (lo, hi))
         set_(self, "min_cycles", v.positive("min_cycles", self.min_cycles))
+        if self.min_cycles < _MIN_CYCLES:
+            raise ValueError(f"`min_cycles` must be ≥ {_MIN_CYCLES:g} (a run that rings for "
+                             f"less does not ring); got {self.min_cycles:g}")
         dm = self.delay_margin
+        given = dm is not None
         if dm is None:
             dm = max(0.2 * self.delay, 1.0 / self.fs)
         set_(self, "delay_margin", v.nonnegative("delay_margin", dm, "s"))
+        if given and self.delay_margin > self.duration:  # the default's: the delay's message
+            raise ValueError(f"`delay_margin` = {self.delay_margin:g} s is longer than the "
+                             f"record (`duration` = {self.duration:g} s): no loop that rings "
+                             "within the record tolerates that much extra delay")
         sep = v.finite("separation", self.separation)
         if not sep >= 1.0:
             raise ValueError(f"`separation` must be ≥ 1; got {sep:g}")
