@@ -1,0 +1,565 @@
+"""`phoid run` against rigs that misbehave: every read bounded, every run's record true, every
+option checked before connecting, no file replaced.
+
+The rigs here are written in the test: small socket servers speaking PHOID-RIG 1 badly
+(:class:`FakeRig`), and a relay in front of the real virtual rig that damages one run's
+stream (:class:`Relay`), so that the other runs are real recordings `phoid identify` must
+still read. The limits asserted are the ones docs/rig-protocol.md ("Limits of the host")
+states: each line within --timeout, each run within --timeout + (hold + run + 1)·(2T + 0.1 ms)
+on a socket, at most 100 damaged lines and (samples + 64) EVENT lines a run, 64 events
+recorded, counts of at most 2^31 − 1, the manifest within the reader's 2 MiB.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import socket
+import threading
+import time
+import tomllib
+from pathlib import Path
+
+import pytest
+import tomli_w
+from typer.testing import CliRunner
+
+from phoid.cli import app
+from phoid.dynamics.plant import Plant
+from phoid.io.limits import MAX_MANIFEST_BYTES
+from phoid.rig.native import build_library, find_compiler
+from phoid.rig.protocol import encode, hello, parse
+
+runner = CliRunner()
+TIMEOUT = 1.0  # --timeout of the timing cases, s
+# the plan of the fake rigs: fs 200 Hz (T = 5 ms), 0.5 s runs (100 samples); with --hold 0.1
+# (20 samples) a run is 20 + 100 + 1 = 121 samples
+FAST = dict(fs=200.0, duration=0.5)
+HOLD, RUN = 20, 100
+TOTAL = HOLD + RUN + 1
+# the deadline docs/rig-protocol.md gives such a run on a socket: --timeout + 121·(2T + 0.1 ms)
+BUDGET = TIMEOUT + TOTAL * (2 * 0.005 + 1e-4)
+# what the host may take beyond it: the ABORT and BYE it sends (each bounded by --timeout) and
+# the interpreter's own start-up and scheduling on a loaded machine
+SLACK = 2 * TIMEOUT + 2.0
+
+
+def _cli(*args):
+    return runner.invoke(app, [str(a) for a in args])
+
+
+def _plan(tmp_path, runs=2, duration=FAST["duration"], name="plan"):
+    plan = tmp_path / name
+    r = _cli("design", "--m", 2, "--c", 1, "--k", 64, "--delay", 0.005, "--fs", FAST["fs"],
+             "--duration", duration, "--runs", runs, "--noise", 1e-5, "--amplitude", 0.01,
+             "--out", plan)
+    assert r.exit_code == 0, r.output
+    return plan
+
+
+def _manifest(folder):
+    return tomllib.loads((Path(folder) / "experiment.toml").read_text())
+
+
+def _fail_line(r):
+    err = r.stderr.strip().splitlines()
+    assert r.exit_code == 2, r.output
+    assert len(err) == 1 and err[0].startswith("phoid: error:"), r.stderr
+    return err[0]
+
+
+def _sample(n, T, state, t=None):
+    return encode("SAMPLE", n, n * T if t is None else t, 0.001, 0.0, state)
+
+
+def _state(n, cfg):
+    hold, run = cfg["hold_samples"], cfg["run_samples"]
+    return "hold" if n < hold else "run" if n < hold + run else "done"
+
+
+def _good_run(conn, cfg):
+    """The run configured, as a rig must send it (x constant: these runs are not identified)."""
+    T, total = cfg["sample_time"], cfg["hold_samples"] + cfg["run_samples"] + 1
+    conn.sendall(b"".join(_sample(n, T, _state(n, cfg)) for n in range(total))
+                 + encode("END", "done"))
+
+
+class FakeRig:
+    """A rig written for one test: it answers the hello (``greet``: True, or a function
+    ``greet(conn, stop)`` sending something else), OK to every CONFIG (``config``: a function
+    ``config(conn, stop)`` instead) and CLEAR, and to the k-th START calls
+    ``script(conn, cfg, k, stop)``; it counts the connections. ``stop`` (an Event) is set when
+    the test ends: endless scripts watch it."""
+
+    def __init__(self, script=None, greet=True, config=None):
+        self.script, self.greet, self.config = script, greet, config
+        self.connections = 0
+        self.stop = threading.Event()
+        self.srv = socket.create_server(("127.0.0.1", 0))
+        self.srv.settimeout(0.1)
+        self.port = f"tcp://127.0.0.1:{self.srv.getsockname()[1]}"
+        self.thread = threading.Thread(target=self._serve, daemon=True)
+        self.thread.start()
+
+    def _serve(self):
+        while not self.stop.is_set():
+            try:
+                conn, _ = self.srv.accept()
+            except TimeoutError:
+                continue
+            except OSError:
+                return
+            self.connections += 1
+            with conn, contextlib.suppress(OSError, ValueError):
+                conn.settimeout(None)
+                self._session(conn)
+
+    def _session(self, conn):
+        f = conn.makefile("rb")
+        f.readline()
+        if self.greet is not True:
+            if callable(self.greet):
+                self.greet(conn, self.stop)
+            self.stop.wait(30)
+            return
+        conn.sendall(hello())
+        cfg, starts = {}, 0
+        while (line := f.readline()):
+            msg = parse(line)
+            if msg.kind == "CONFIG" and self.config is not None:
+                return self.config(conn, self.stop)
+            if msg.kind == "CONFIG":
+                cfg = msg.fields
+                conn.sendall(encode("OK"))
+            elif msg.kind == "START":
+                starts += 1
+                self.script(conn, cfg, starts, self.stop)
+            elif msg.kind == "CLEAR":
+                conn.sendall(encode("OK"))
+            elif msg.kind == "BYE":
+                return
+
+    def close(self):
+        self.stop.set()
+        self.srv.close()
+        self.thread.join(timeout=10)
+
+
+@pytest.fixture
+def fake():
+    rigs = []
+
+    def make(script=None, greet=True, config=None):
+        rigs.append(FakeRig(script, greet, config))
+        return rigs[-1]
+
+    yield make
+    for rig in rigs:
+        rig.close()
+
+
+def _timed_run(plan, port, out, *extra):
+    t0 = time.monotonic()
+    r = _cli("run", plan, "--port", port, "--out", out, "--timeout", TIMEOUT, "--hold", 0.1,
+             *extra)
+    return r, time.monotonic() - t0
+
+
+def _endless(conn, stop, chunk):
+    while not stop.is_set():
+        conn.sendall(chunk)
+
+
+def _samples_for_ever(conn, stop, cfg):
+    """The rest of the run, then samples numbered on, for ever, and no END."""
+    n = HOLD + 30
+    while not stop.is_set():
+        conn.sendall(_sample(n, 0.005, _state(n, cfg)))
+        n += 1
+
+
+def _drip(conn, stop, cfg):
+    """One damaged line every 0.3 s: each wait is shorter than --timeout."""
+    while not stop.wait(0.3):
+        conn.sendall(b"noise\n")
+
+
+# ---------------------------------------------------------------------------------------------
+# 1. a flood ends the run as surely as silence
+
+
+def _half_then(flood):
+    """Run 2: the hold and 30 run samples, then ``flood(conn, stop, cfg)``; run 1 is good."""
+
+    def script(conn, cfg, k, stop):
+        if k == 1:
+            return _good_run(conn, cfg)
+        T = cfg["sample_time"]
+        conn.sendall(b"".join(_sample(n, T, _state(n, cfg)) for n in range(HOLD + 30)))
+        flood(conn, stop, cfg)
+
+    return script
+
+
+@pytest.mark.parametrize("flood, why", [
+    (lambda conn, stop, cfg: _endless(conn, stop, b"x" * 65536), "damaged lines"),
+    (lambda conn, stop, cfg: _endless(conn, stop, b"garbage\n" * 4096), "damaged lines"),
+    (_samples_for_ever, "more than the run's 121 samples"),
+    (_drip, "did not end within"),  # the run's deadline
+    # silence (the classic): the line timeout
+    (lambda conn, stop, cfg: stop.wait(30), "sent nothing for 1 s"),
+], ids=["bytes-without-newline", "newline-garbage", "samples-without-end", "slow-drip",
+        "silence"])
+def test_a_flooding_rig_is_cut_off_within_the_run_deadline(tmp_path, fake, flood, why):
+    plan = _plan(tmp_path)
+    rig = fake(_half_then(flood))
+    r, took = _timed_run(plan, rig.port, tmp_path / "set")
+    print(f"took {took:.2f} s; bound {BUDGET + SLACK:.2f} s")
+    assert took < BUDGET + SLACK, (took, r.output)
+    assert r.exit_code == 1, r.output
+    assert "run 2 (run02.csv) incomplete" in r.stderr and why in r.stderr
+    doc = _manifest(tmp_path / "set")
+    first, second = doc["rig"]["attempt"]
+    assert first["status"] == "complete" and second["status"] == "incomplete"
+    assert why in second["reason"] and len(second["reason"]) <= 400
+    # the 30 run samples before the flood are kept (the third case sends all 100)
+    assert second["samples"] == (RUN if "121" in why else 30)
+    rows = (tmp_path / "set" / second["file"]).read_text().splitlines()
+    assert len(rows) - 1 == second["samples"]
+    assert not list((tmp_path / "set").glob(".*.part"))  # no temporary file left
+
+
+@pytest.mark.parametrize("greet, why", [
+    (None, "sent nothing for 1 s (waiting for hello)"),
+    (lambda conn, stop: _endless(conn, stop, b"y" * 65536), "longer than 4096 bytes"),
+    (lambda conn, stop: _endless(conn, stop, b"PHOID-RIG 1\n"), "damaged"),
+], ids=["silent", "bytes", "lines"])
+def test_a_rig_that_never_says_hello_is_one_line_within_the_timeout(tmp_path, fake, greet,
+                                                                    why):
+    plan = _plan(tmp_path)
+    rig = fake(greet=greet or False)
+    t0 = time.monotonic()
+    line = _fail_line(_cli("run", plan, "--port", rig.port, "--out", tmp_path / "set",
+                           "--timeout", TIMEOUT))
+    assert time.monotonic() - t0 < TIMEOUT + SLACK
+    assert why in line and len(line) < 600
+    assert not (tmp_path / "set").exists()
+
+
+def test_a_config_reply_flood_is_one_line(tmp_path, fake):
+    # CONFIG answered with an endless line: the reply read is one line of at most 4096 bytes
+    rig = fake(config=lambda conn, stop: _endless(conn, stop, b"z" * 65536))
+    plan = _plan(tmp_path)
+    t0 = time.monotonic()
+    line = _fail_line(_cli("run", plan, "--port", rig.port, "--out", tmp_path / "set",
+                           "--timeout", TIMEOUT))
+    assert time.monotonic() - t0 < TIMEOUT + SLACK
+    assert "run 1:" in line and "reply to CONFIG" in line and "longer than 4096" in line
+
+
+# ---------------------------------------------------------------------------------------------
+# 2. a run is complete only as configured; the set stays readable
+
+
+@pytest.fixture(scope="module")
+def build(tmp_path_factory):
+    if find_compiler() is None:
+        pytest.skip("no C compiler: the virtual rig's controller cannot be built")
+    folder = tmp_path_factory.mktemp("rig-build")
+    build_library(folder)
+    return folder
+
+
+class Relay:
+    """A fake rig in front of the real virtual rig: the host's lines go to the virtual rig
+    unchanged; the virtual rig's lines come back through ``mangle(start, line)`` (start: the
+    STARTs the host sent so far), which returns the bytes to send instead (b"" drops the
+    line)."""
+
+    def __init__(self, upstream, mangle):
+        self.upstream, self.mangle = upstream, mangle
+        self.starts = 0
+        self.srv = socket.create_server(("127.0.0.1", 0))
+        self.port = f"tcp://127.0.0.1:{self.srv.getsockname()[1]}"
+        threading.Thread(target=self._serve, daemon=True).start()
+
+    def _serve(self):
+        with contextlib.suppress(OSError):
+            conn, _ = self.srv.accept()
+            up = socket.create_connection(self.upstream)
+            down = threading.Thread(target=self._down, args=(up, conn), daemon=True)
+            down.start()
+            with conn, up:
+                with contextlib.suppress(OSError):
+                    f = conn.makefile("rb")
+                    while (line := f.readline()):
+                        if line.startswith(b"START"):
+                            self.starts += 1
+                        up.sendall(line)
+                with contextlib.suppress(OSError):
+                    up.shutdown(socket.SHUT_RDWR)
+                down.join(timeout=10)
+
+    def _down(self, up, conn):
+        with contextlib.suppress(OSError):
+            f = up.makefile("rb")
+            while (line := f.readline()):
+                conn.sendall(self.mangle(self.starts, line))
+
+    def close(self):
+        self.srv.close()
+
+
+def _relayed_run(build, tmp_path, mangle, runs=4):
+    from phoid.rig.virtual import VirtualRig
+
+    plan = _plan(tmp_path, runs=runs, duration=1.0)
+    rig = VirtualRig(Plant(m=2.0, c=1.0, k=64.0), build=build, noise=1e-5, seed=2)
+    with rig:
+        relay = Relay(rig.listen("127.0.0.1", 0), mangle)
+        r = _cli("run", plan, "--port", relay.port, "--out", tmp_path / "set", "--timeout", 5)
+        relay.close()
+    return r, _manifest(tmp_path / "set")
+
+
+def _identifies(folder, files):
+    """`phoid identify` reads the set: exactly the complete runs ``files``."""
+    doc = _manifest(folder)
+    assert [run["file"] for run in doc["run"]] == files
+    assert len((Path(folder) / "experiment.toml").read_bytes()) <= MAX_MANIFEST_BYTES
+    r = _cli("identify", folder, "--json")
+    assert r.exit_code == 0, r.output
+    out = json.loads(r.stdout)
+    assert out["m"]["value"] > 0
+
+
+def _edit(run, change):
+    """mangle: on run ``run`` apply change(fields) -> bytes to each SAMPLE line."""
+
+    def mangle(start, line):
+        if start != run or not line.startswith(b"SAMPLE"):
+            return line
+        return change(parse(line).fields)
+
+    return mangle
+
+
+def _resample(f, **new):
+    f = {**f, **new}
+    return encode("SAMPLE", f["index"], f["t"], f["x"], f["u"], f["state"])
+
+
+@pytest.mark.parametrize("mangle, why", [
+    # the clock stands still at sample 150 (t of sample 149)
+    (_edit(2, lambda f: _resample(f, t=f["t"] - 0.005) if f["index"] == 150
+           else _resample(f)), "time did not increase at sample 150"),
+    # ... or goes back
+    (_edit(2, lambda f: _resample(f, t=-1.0) if f["index"] == 150
+           else _resample(f)), "time did not increase at sample 150"),
+    # END right after START: no sample at all
+    (lambda start, line: b"" if start == 2 and line[:5] in (b"SAMPL", b"EVENT") else line,
+     "after 0 samples"),
+    # the hold samples called run: 124 + 200 run rows for a run of 200
+    (_edit(2, lambda f: _resample(f, state="run") if f["state"] == "hold" else _resample(f)),
+     "after 325 samples (324 run, 1 done)"),
+], ids=["time-stands-still", "time-goes-back", "end-after-start", "extra-run-rows"])
+def test_a_run_that_is_not_the_run_configured_is_incomplete_and_the_plan_goes_on(
+        build, tmp_path, mangle, why):
+    r, doc = _relayed_run(build, tmp_path, mangle)
+    assert r.exit_code == 1, r.output
+    st = [a["status"] for a in doc["rig"]["attempt"]]
+    assert st == ["complete", "incomplete", "complete", "complete"], st
+    bad = doc["rig"]["attempt"][1]
+    assert why in bad["reason"] and bad["file"] == "run02.incomplete.csv"
+    _identifies(tmp_path / "set", ["run01.csv", "run03.csv", "run04.csv"])
+
+
+def test_sample_floods_and_event_floods_stop_the_plan_and_the_set_stays_readable(
+        build, tmp_path):
+    # run 4 sends each run sample six times (a run of 200 as 1 200 rows); in a second set run
+    # 4 ends with 300 000 EVENT lines (a 5 MB manifest if recorded). Both are cut off at the
+    # caps: the run's 325 samples, 325 + 64 EVENT lines
+    def sixfold(start, line):
+        return line * 6 if start == 4 and b" run *" in line else line
+
+    r, doc = _relayed_run(build, tmp_path, sixfold)
+    assert r.exit_code == 1, r.output
+    bad = doc["rig"]["attempt"][3]
+    assert bad["status"] == "incomplete" and "out of order" in bad["reason"]
+    assert "more than the run's 325 samples" in bad["reason"]
+    # at most the 325 lines read, less the 124 hold samples, are rows
+    assert len((tmp_path / "set" / bad["file"]).read_text().splitlines()) - 1 \
+        == bad["samples"] <= 325 - 124
+    _identifies(tmp_path / "set", ["run01.csv", "run02.csv", "run03.csv"])
+
+    flood = encode("EVENT", 7, "clip", 0.5) * 300_000
+
+    def events(start, line):
+        return flood + line if start == 4 and line.startswith(b"END") else line
+
+    (tmp_path / "plan").rename(tmp_path / "plan1")
+    (tmp_path / "set").rename(tmp_path / "set1")
+    r, doc = _relayed_run(build, tmp_path, events)
+    assert r.exit_code == 1, r.output
+    bad = doc["rig"]["attempt"][3]
+    assert bad["status"] == "incomplete" and "more than 389 EVENT lines" in bad["reason"]
+    assert len(bad["events"]) == 64 and bad["events_dropped"] == 389 - 64
+    _identifies(tmp_path / "set", ["run01.csv", "run02.csv", "run03.csv"])
+
+
+def test_events_beyond_the_record_are_counted_and_the_run_completes(build, tmp_path):
+    # 100 extra events in run 2 (fewer than one per sample): complete; 64 recorded
+    seen = []
+
+    def mangle(start, line):
+        if start == 2 and line.startswith(b"EVENT"):
+            seen.append(line)
+        if start == 2 and line.startswith(b"END"):
+            extra = encode("EVENT", 200, "clip", 0.25)
+            seen.extend([extra] * 100)
+            return extra * 100 + line
+        return line
+
+    r, doc = _relayed_run(build, tmp_path, mangle, runs=3)
+    assert r.exit_code == 0, r.output
+    a = doc["rig"]["attempt"][1]
+    assert a["status"] == "complete"
+    assert len(a["events"]) == 64 and a["events_dropped"] == len(seen) - 64
+    _identifies(tmp_path / "set", ["run01.csv", "run02.csv", "run03.csv"])
+
+
+# ---------------------------------------------------------------------------------------------
+# 3. every option and what it makes: finite, in range, refused before connecting
+
+
+@pytest.fixture
+def listener():
+    """A port that listens and records whether anything connected."""
+    srv = socket.create_server(("127.0.0.1", 0))
+
+    def connected():
+        srv.setblocking(False)
+        try:
+            srv.accept()[0].close()
+        except BlockingIOError:
+            return False
+        return True
+
+    yield f"tcp://127.0.0.1:{srv.getsockname()[1]}", connected
+    srv.close()
+
+
+@pytest.mark.parametrize("option, value", [
+    ("--pmax", "nan"), ("--pmax", "-1"), ("--dmax", "inf"), ("--hold", "1e300"),
+    ("--hold", "nan"), ("--hold", "0"), ("--hold-p", "nan"), ("--hold-p", "-5"),
+    ("--hold-d", "nan"), ("--hold-d", "-1"), ("--x-limit", "nan"), ("--x-limit", "0.005"),
+    ("--x-limit", "1e309"), ("--u-max", "0"), ("--u-max", "-inf"), ("--timeout", "1e300"),
+    ("--timeout", "nan"), ("--timeout", "0"), ("--timeout", "-1"),
+])
+def test_an_option_out_of_range_is_one_line_before_connecting(tmp_path, listener, option,
+                                                              value):
+    port, connected = listener
+    plan = _plan(tmp_path)
+    line = _fail_line(_cli("run", plan, "--port", port, "--out", tmp_path / "set", option,
+                           value))
+    assert option in line, line
+    assert not connected()
+    assert not (tmp_path / "set").exists()
+
+
+def _edited_plan(tmp_path, change):
+    plan = _plan(tmp_path)
+    doc = tomllib.loads((plan / "experiment.toml").read_text())
+    change(doc)
+    (plan / "experiment.toml").write_text(tomli_w.dumps(doc))
+    return plan
+
+
+@pytest.mark.parametrize("change, words", [
+    (lambda d: d["design"].update(fs=1e12), "[design] fs"),  # T = 1 ps < the 1 ns the C takes
+    (lambda d: d["design"].update(fs=1e-320), "[design] fs"),  # T = inf
+    (lambda d: d["design"].update(duration=1e9), "[design] duration"),  # 2e11 samples
+    (lambda d: d["design"].update(amplitude=1e308), "--x-limit"),  # 3 A overflows
+    (lambda d: d["loop"].update(delay=1e10), "[loop] delay"),  # 2e12 samples of delay
+    (lambda d: d["design"]["prior"].update(m=1e300, k=1e300), "hold_D"),  # √(m k) overflows
+    (lambda d: d["run"][1].update(file="../run02.csv"), "plain file name"),
+    (lambda d: d["run"][1].update(file="experiment.toml"), "plain file name"),
+    (lambda d: d["run"][1].update(file="run01.csv"), "would both write"),
+    (lambda d: d["run"][1].update(file="run01.aborted.csv"), "would both write"),
+    (lambda d: d["design"].update(padding="x" * (2 * 2**20 - 4000)), "2 MiB"),
+], ids=["fs-huge", "fs-tiny", "duration", "amplitude", "delay", "prior", "name-outside",
+        "name-manifest", "name-twice", "name-variant", "manifest-size"])
+def test_a_plan_that_cannot_run_is_one_line_before_connecting(tmp_path, listener, change,
+                                                              words):
+    port, connected = listener
+    plan = _edited_plan(tmp_path, change)
+    line = _fail_line(_cli("run", plan, "--port", port, "--out", tmp_path / "set"))
+    assert words in line, line
+    assert not connected()
+    assert not (tmp_path / "set").exists()
+
+
+def test_a_negative_prior_mass_falls_back_and_does_not_fail(tmp_path, fake):
+    # a prior m < 0 (a hand-edited plan) once raised "math domain error"; the hold loop's
+    # defaults then use m = 1 kg
+    plan = _edited_plan(tmp_path, lambda d: d["design"]["prior"].update(m=-2.0))
+    rig = fake(lambda conn, cfg, k, stop: _good_run(conn, cfg))
+    r = _cli("run", plan, "--port", rig.port, "--out", tmp_path / "set", "--hold", 0.1)
+    assert r.exit_code == 0, r.output
+
+
+# ---------------------------------------------------------------------------------------------
+# 4. no file in --out is replaced
+
+
+@pytest.mark.parametrize("name", ["run01.csv", "run02.incomplete.csv", "run01.aborted.csv"])
+def test_a_users_file_in_the_way_is_refused_before_connecting(tmp_path, listener, name):
+    port, connected = listener
+    plan = _plan(tmp_path)
+    out = tmp_path / "set"
+    out.mkdir()
+    (out / name).write_text("my own data\n")
+    line = _fail_line(_cli("run", plan, "--port", port, "--out", out))
+    assert name in line and "not a file of this set" in line
+    assert (out / name).read_text() == "my own data\n"
+    assert not connected()
+    assert sorted(p.name for p in out.iterdir()) == [name]
+
+
+def _cut(conn, cfg):
+    """The hold and 10 run samples, then the connection closed."""
+    conn.sendall(b"".join(_sample(n, 0.005, _state(n, cfg)) for n in range(HOLD + 10)))
+    conn.shutdown(socket.SHUT_RDWR)
+
+
+def test_resume_touches_only_the_files_of_its_own_set(tmp_path, fake, listener):
+    # run 2 of 3 is cut off (the rig closes mid-run): run01.csv complete, run02.incomplete.csv
+    def script(conn, cfg, k, stop):
+        return _good_run(conn, cfg) if k == 1 else _cut(conn, cfg)
+
+    plan = _plan(tmp_path, runs=3)
+    out = tmp_path / "set"
+    rig = fake(script)
+    r = _cli("run", plan, "--port", rig.port, "--out", out, "--hold", 0.1)
+    assert r.exit_code == 1, r.output
+    assert sorted(p.name for p in out.iterdir()) == [
+        "experiment.toml", "run01.csv", "run02.incomplete.csv"]
+    # a file of the user's where run 3 will write: refused, even with --resume
+    (out / "run03.csv").write_text("mine\n")
+    port, connected = listener
+    line = _fail_line(_cli("run", plan, "--port", port, "--out", out, "--resume"))
+    assert "run03.csv" in line and (out / "run03.csv").read_text() == "mine\n"
+    assert not connected()
+    (out / "run03.csv").unlink()
+    # its own incomplete file stays, and a new attempt takes a free name beside it
+    rig = fake(lambda conn, cfg, k, stop: _cut(conn, cfg))  # run 2 cut off again
+    r = _cli("run", plan, "--port", rig.port, "--out", out, "--hold", 0.1, "--resume")
+    assert r.exit_code == 1, r.output
+    files = [a["file"] for a in _manifest(out)["rig"]["attempt"]]
+    assert files == ["run01.csv", "run02.incomplete.csv", "run02.incomplete-2.csv"]
+    # a manifest that is not a set of `phoid run` is not resumed
+    other = tmp_path / "other"
+    other.mkdir()
+    (other / "experiment.toml").write_text('format = "phoid/1"\n')
+    line = _fail_line(_cli("run", plan, "--port", port, "--out", other, "--resume"))
+    assert "not a set of `phoid run`" in line
