@@ -301,6 +301,19 @@ def test_an_idle_host_is_closed_and_a_second_host_is_refused_at_once(rig):
         h.close()
 
 
+def test_a_flood_of_hosts_is_refused_and_the_session_goes_on(rig):
+    addr = rig(idle_timeout=30.0)
+    first = Host(addr)
+    t0 = time.monotonic()
+    others = [Host(addr, say_hello=False) for _ in range(40)]  # more than MAX_REFUSING (16)
+    for other in others:
+        assert other.error().startswith("busy: another host is connected")
+        assert other.closed()
+    assert time.monotonic() - t0 < WAIT  # each within the rig's 1 s grace, none waits on
+    first.config_ok()
+    assert first.run()[-1].fields == {"reason": "done"}
+
+
 def test_a_host_that_never_says_hello_is_closed(rig):
     host = Host(rig(), say_hello=False)
     t0 = time.monotonic()

@@ -68,6 +68,7 @@ BUSY_GRACE = 1.0  # s a new connection waits for the last session to finish clos
 LINGER = 1.0  # s the rig reads what the host still sends after its last ERROR, then closes
 SEND_TIMEOUT = 5.0  # s, at least: a host that reads nothing for this long is dropped
 FLUSH = 512  # samples per send when not in real time
+MAX_REFUSING = 16  # busy answers closed gracefully at once; more are answered and cut off
 BUSY = "busy: another host is connected to this rig; try again when it is done"
 
 
@@ -203,6 +204,7 @@ class VirtualRig:
         self.starts = 0
         self._closing = threading.Event()
         self._busy = threading.Lock()  # held by the session being served
+        self._refusing = threading.BoundedSemaphore(MAX_REFUSING)  # busy answers in progress
         self._socks: set[socket.socket] = set()  # the connections open now
         self._socks_lock = threading.Lock()
         self._server: socketserver.TCPServer | None = None
@@ -223,6 +225,7 @@ class VirtualRig:
 
         class Server(socketserver.ThreadingTCPServer):
             allow_reuse_address = True
+            request_queue_size = 64  # the listen backlog: a burst of hosts is answered at once
             daemon_threads = False
             block_on_close = True  # close() waits for the connections' threads
 
@@ -275,7 +278,15 @@ class VirtualRig:
             sock.settimeout(max(self.idle_timeout, SEND_TIMEOUT))  # bounds every send
             link = Link(sock)
             if not self._busy.acquire(timeout=BUSY_GRACE):
-                self._last_word(link, BUSY)
+                if self._refusing.acquire(blocking=False):
+                    try:
+                        self._last_word(link, BUSY)
+                    finally:
+                        self._refusing.release()
+                else:  # a flood of connections: no time for the graceful close
+                    with contextlib.suppress(OSError):
+                        sock.setblocking(False)
+                        sock.send(encode("ERROR", BUSY))
                 link.close()
                 return
             try:

@@ -8,8 +8,6 @@
  */
 #include "phoid_ctrl.h"
 
-#include <limits.h> /* LONG_MAX (a freestanding header: no libc needed) */
-
 #define PHOID_NO_LIMIT 1e300
 
 /* finite: false for NaN and +/-inf (x - x is NaN for both); needs IEEE arithmetic, so do not
@@ -84,16 +82,11 @@ void phoid_config_default(phoid_config *cfg)
     cfg->has_force = 0;
 }
 
-/* 0 <= n <= PHOID_MAX_COUNT (the upper test only where a long can pass it: no warning about
- * a comparison that is always false on a 32-bit long) */
+/* 0 <= n <= PHOID_MAX_COUNT (compared as unsigned long: never a comparison that is always
+ * false, and so no warning, where a long has 32 bits) */
 static int count_ok(long n)
 {
-#if LONG_MAX > 2147483647L
-    if (n > PHOID_MAX_COUNT) {
-        return 0;
-    }
-#endif
-    return n >= 0;
+    return n >= 0 && (unsigned long)n <= (unsigned long)PHOID_MAX_COUNT;
 }
 
 static int check_config(const phoid_config *g)
