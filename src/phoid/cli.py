@@ -202,7 +202,8 @@ def _simulate_replay(ctx, out, replay, *, m, c, k, fc, offset_force, delay, gzip
                      plots, as_json) -> None:
     """``phoid simulate OUT --replay SET``: the set's loop with given parameters, validated."""
     from phoid.io import read_experiment
-    from phoid.methods.tracking_identification import check_parameters, replay_set
+    from phoid.methods.tracking import check_parameters
+    from phoid.methods.tracking_identification import replay_set
 
     def given(name: str) -> bool:
         return getattr(ctx.get_parameter_source(name), "name", "") != "DEFAULT"

@@ -42,10 +42,12 @@ from phoid.methods.tracking import (
     PARAMETERS,
     UNITS,
     TrackingRecord,
+    check_parameters,
     check_stable,
     fit_tracking_runs,
     replay,
 )
+from phoid.methods.tracking import check_delay as check_stated_delay
 from phoid.methods.tracking_validation import validate_tracking
 from phoid.reports.display import NotebookDisplay
 from phoid.reports.statistics import ratio_text
@@ -53,7 +55,6 @@ from phoid.reports.statistics import ratio_text
 __all__ = [
     "TrackingIdentification",
     "TrackingReplay",
-    "check_parameters",
     "command_input",
     "identify_tracking",
     "replay_set",
@@ -88,6 +89,10 @@ class TrackingIdentification(PlantExports, NotebookDisplay):
     path : Path or None
         The set's manifest.
     warnings : tuple of str
+    delay_check : DelayCheck or None
+        The stated (or assumed) command delay checked against the record
+        (:func:`~phoid.methods.tracking.check_delay`); None where the delay was estimated or
+        the check was not made.
     """
 
     estimator: str
@@ -98,6 +103,7 @@ class TrackingIdentification(PlantExports, NotebookDisplay):
     run_names: tuple[str, ...]
     path: Path | None
     warnings: tuple[str, ...]
+    delay_check: Any = None
 
     @property
     def validation(self) -> Any:
@@ -307,7 +313,8 @@ def command_input(experiment: Any, run: Any, ctrl: SampledController) -> np.ndar
 
 
 def identify_tracking(experiment: Any, *, delay: float | None = None,
-                      estimator: str | None = None) -> TrackingIdentification:
+                      estimator: str | None = None,
+                      check_delay: bool = True) -> TrackingIdentification:
     """Identify m, c, k, f_c, f₀ (and τ) from a tracking set, and validate on every run.
 
     Parameters
@@ -319,6 +326,11 @@ def identify_tracking(experiment: Any, *, delay: float | None = None,
         (and refuses when the record does not determine it); IDIM validates with τ = 0.
     estimator : {"auto", "idim", "output-error"}, optional
         Overrides the set's ``estimator``.
+    check_delay : bool, default True
+        Check the delay given (or IDIM's assumed 0) against the record
+        (:func:`~phoid.methods.tracking.check_delay`: an output-error fit with the delay free,
+        one more fit of the loop) and warn, naming ``[loop] delay`` or ``--delay`` and the
+        delay the record implies, when it contradicts the given one.
 
     Returns
     -------
@@ -363,10 +375,44 @@ def identify_tracking(experiment: Any, *, delay: float | None = None,
     for name, v in zip((rec.name for rec in records), validations, strict=True):
         warnings += [f"{name}: {w}" for w in v.warnings]
     warnings += [w for w in map(_scale_mismatch, records) if w]
+    checked = None
+    if check_delay and source in ("given", "assumed-zero"):
+        if delay is not None:
+            label, fix = f"--delay {float(delay) * 1e3:g} ms", "check --delay"
+        elif given is None:
+            label = "[loop] delay (not given: 0 assumed)"
+            fix = "give the delay as [loop] delay (s) or --delay"
+        else:
+            label, fix = f"[loop] delay = {float(given) * 1e3:g} ms", "check [loop] delay (s)"
+        try:
+            if any(v.departs for v in validations):
+                # the loop as modelled does not follow the record (r and x in different units,
+                # a wrong gain, or a delay so wrong that the loop oscillates): the warnings
+                # above say so, and a fit with the delay free would wander, for seconds
+                raise ValueError("the simulated loop departs from the record at the stated "
+                                 "delay, so no delay can be read from the fit")
+            checked = check_stated_delay(records, stated=0.0 if given is None else float(given),
+                                         fixed=fixed)
+        except ValueError as exc:
+            warnings.append(f"{label} could not be checked against the record: {exc}")
+        else:
+            if checked.contradicts:
+                # the position misfit over the validations' windows (the loop simulated with
+                # the estimates at the stated delay), and the records' noise from third
+                # differences (independent of any model)
+                sq = sum(float(np.sum((v.x - v.x_sim)[v.window[0]:v.window[1]] ** 2))
+                         for v in validations)
+                n = sum(v.window[1] - v.window[0] for v in validations)
+                noise = float(np.sqrt(np.mean([difference_noise(rec.x) ** 2
+                                               for rec in records])))
+                warnings.insert(0, checked.message(label, fix, estimates,
+                                                   stated_misfit=math.sqrt(sq / max(n, 1)),
+                                                   noise=noise))
     return TrackingIdentification(
         estimator=choice, estimates=estimates, delay_source=source, fit=fit,
         validations=tuple(validations), run_names=tuple(rec.name for rec in records),
         path=getattr(experiment, "path", None), warnings=tuple(warnings),
+        delay_check=checked,
     )
 
 
@@ -524,23 +570,6 @@ def replay_set(experiment: Any, parameters: Mapping[str, float]) -> TrackingRepl
         path=getattr(experiment, "path", None), warnings=tuple(warnings),
         _inputs=tuple(None if rec.w is None else rec.w[rec.start:] for rec in records),
     )
-
-
-def check_parameters(values: Mapping[str, Any]) -> dict[str, float]:
-    """The plant's parameters as floats, each checked by name: m finite and > 0 (kg); c, k, fc
-    finite and ≥ 0; offset finite; delay finite and ≥ 0 (s). A ValueError names the first
-    that is not, e.g. "`m` must be > 0 kg; got 0"."""
-    out = {key: float(value) for key, value in values.items()
-           if not isinstance(value, bool) and isinstance(value, (int, float, np.floating))}
-    for key, value in values.items():
-        if key not in out:
-            raise ValueError(f"`{key}` must be a real number; got {value!r}")
-        if not math.isfinite(out[key]):
-            raise ValueError(f"`{key}` must be finite; got {out[key]}")
-    Plant(m=out["m"], c=out["c"], k=out["k"], fc=out["fc"])  # m > 0; c, k, fc ≥ 0, by name
-    if out.get("delay", 0.0) < 0:
-        raise ValueError(f"`delay` must be ≥ 0 s; got {out['delay']:g}")
-    return out
 
 
 def _records(experiment, runs, ctrls) -> tuple[TrackingRecord, ...]:

@@ -122,6 +122,14 @@ class TrackingValidation(NotebookDisplay):
         return next((e for e in self.errors if e.name == name), None)
 
     @property
+    def departs(self) -> bool:
+        """Whether the simulated position has left the record: the tracking error's relative
+        error is above 100 % (the residual is larger than what the loop did not follow) or not
+        finite — the case the warnings call "the simulation diverges"."""
+        e = self.error("tracking error")
+        return e is not None and not e.relative_error <= _DIVERGED
+
+    @property
     def e(self) -> np.ndarray:
         """Measured tracking error x − r, m."""
         return self.x - self.r
