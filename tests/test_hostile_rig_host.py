@@ -68,8 +68,8 @@ def _fail_line(r):
     return err[0]
 
 
-def _sample(n, T, state, t=None):
-    return encode("SAMPLE", n, n * T if t is None else t, 0.001, 0.0, state)
+def _sample(n, T, state, x=0.001):
+    return encode("SAMPLE", n, n * T, x, 0.0, state)
 
 
 def _state(n, cfg):
@@ -77,10 +77,10 @@ def _state(n, cfg):
     return "hold" if n < hold else "run" if n < hold + run else "done"
 
 
-def _good_run(conn, cfg):
+def _good_run(conn, cfg, x=0.001):
     """The run configured, as a rig must send it (x constant: these runs are not identified)."""
     T, total = cfg["sample_time"], cfg["hold_samples"] + cfg["run_samples"] + 1
-    conn.sendall(b"".join(_sample(n, T, _state(n, cfg)) for n in range(total))
+    conn.sendall(b"".join(_sample(n, T, _state(n, cfg), x) for n in range(total))
                  + encode("END", "done"))
 
 
@@ -428,6 +428,35 @@ def test_events_beyond_the_record_are_counted_and_the_run_completes(build, tmp_p
     _identifies(tmp_path / "set", ["run01.csv", "run02.csv", "run03.csv"])
 
 
+def test_a_repeated_recording_is_incomplete(tmp_path, fake):
+    # a rig that sends the same samples for every run: `phoid identify` refuses two data files
+    # of the same content (a recording counted twice), so only the first run is complete
+    plan = _plan(tmp_path, runs=3)
+    rig = fake(lambda conn, cfg, k, stop: _good_run(conn, cfg))
+    r = _cli("run", plan, "--port", rig.port, "--out", tmp_path / "set", "--hold", 0.1)
+    assert r.exit_code == 1, r.output
+    doc = _manifest(tmp_path / "set")
+    assert [a["status"] for a in doc["rig"]["attempt"]] == ["complete", "incomplete",
+                                                            "incomplete"]
+    assert all("the same samples, byte for byte, as run 1 (run01.csv)" in a["reason"]
+               for a in doc["rig"]["attempt"][1:])
+    assert [run["file"] for run in doc["run"]] == ["run01.csv"]
+
+
+def test_a_real_time_rig_completes_within_the_deadline(build, tmp_path):
+    # the virtual rig paced to the wall clock: each run takes its 121 samples · 5 ms = 0.6 s;
+    # the deadline (--timeout 1 + 121·(2T + 0.1 ms) = 2.2 s) leaves it room
+    from phoid.rig.virtual import VirtualRig
+
+    plan = _plan(tmp_path)
+    rig = VirtualRig(Plant(m=2.0, c=1.0, k=64.0), build=build, realtime=True)
+    with rig:
+        host, num = rig.listen("127.0.0.1", 0)
+        r, took = _timed_run(plan, f"tcp://{host}:{num}", tmp_path / "set")
+    assert r.exit_code == 0, r.output
+    assert took >= 2 * TOTAL * 0.005  # it did run in real time
+
+
 # ---------------------------------------------------------------------------------------------
 # 3. every option and what it makes: finite, in range, refused before connecting
 
@@ -478,6 +507,7 @@ def _edited_plan(tmp_path, change):
 @pytest.mark.parametrize("change, words", [
     (lambda d: d["design"].update(fs=1e12), "[design] fs"),  # T = 1 ps < the 1 ns the C takes
     (lambda d: d["design"].update(fs=1e-320), "[design] fs"),  # T = inf
+    (lambda d: d["design"].update(fs=1e-6), "[design] fs"),  # T = 11.6 days: over the day
     (lambda d: d["design"].update(duration=1e9), "[design] duration"),  # 2e11 samples
     (lambda d: d["design"].update(amplitude=1e308), "--x-limit"),  # 3 A overflows
     (lambda d: d["loop"].update(delay=1e10), "[loop] delay"),  # 2e12 samples of delay
@@ -487,7 +517,7 @@ def _edited_plan(tmp_path, change):
     (lambda d: d["run"][1].update(file="run01.csv"), "would both write"),
     (lambda d: d["run"][1].update(file="run01.aborted.csv"), "would both write"),
     (lambda d: d["design"].update(padding="x" * (2 * 2**20 - 4000)), "2 MiB"),
-], ids=["fs-huge", "fs-tiny", "duration", "amplitude", "delay", "prior", "name-outside",
+], ids=["fs-huge", "fs-tiny", "fs-slow", "duration", "amplitude", "delay", "prior", "name-outside",
         "name-manifest", "name-twice", "name-variant", "manifest-size"])
 def test_a_plan_that_cannot_run_is_one_line_before_connecting(tmp_path, listener, change,
                                                               words):
@@ -503,7 +533,7 @@ def test_a_negative_prior_mass_falls_back_and_does_not_fail(tmp_path, fake):
     # a prior m < 0 (a hand-edited plan) once raised "math domain error"; the hold loop's
     # defaults then use m = 1 kg
     plan = _edited_plan(tmp_path, lambda d: d["design"]["prior"].update(m=-2.0))
-    rig = fake(lambda conn, cfg, k, stop: _good_run(conn, cfg))
+    rig = fake(lambda conn, cfg, k, stop: _good_run(conn, cfg, x=0.001 * k))  # runs differ
     r = _cli("run", plan, "--port", rig.port, "--out", tmp_path / "set", "--hold", 0.1)
     assert r.exit_code == 0, r.output
 

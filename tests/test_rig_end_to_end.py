@@ -475,10 +475,11 @@ def _scripted_rig(sample):
 
 def test_a_rig_that_misses_its_sample_time_is_reported(build, tmp_path):
     # a scripted rig whose clock runs 2 % slow (intervals 1.02 T): the run completes, the host
-    # says so in one line (its bound: the mean interval within 0.1 % of T) and records them
+    # says so in one line (its bound: the mean interval within 0.1 % of T) and records them;
+    # x differs between the runs (two byte-identical runs would be a repeated recording)
     plan = _design(tmp_path, PAPER, runs=2)
-    srv, port = _scripted_rig(lambda start, n, T, n_hold, state: (1.02 * T * n, 0.001, 0.0,
-                                                                   state))
+    srv, port = _scripted_rig(lambda start, n, T, n_hold, state: (1.02 * T * n, 0.001 * start,
+                                                                   0.0, state))
     r = _cli("run", plan, "--port", port, "--out", tmp_path / "set")
     srv.close()
     assert r.exit_code == 0, r.output

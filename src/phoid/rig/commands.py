@@ -107,23 +107,26 @@ def run(
     hold_p: Annotated[float | None, typer.Option(
         "--hold-p", help="Hold loop P, N/m [3 k of the plan's prior].")] = None,
     hold_d: Annotated[float | None, typer.Option(
-        "--hold-d", help="Hold loop D, N s/m [about critical damping].")] = None,
+        "--hold-d", help="Hold loop D, N s/m (default: about critical damping).")] = None,
     hold: Annotated[float | None, typer.Option(
         help="Hold time before the release, s [7 time constants of the hold].")] = None,
     x_limit: Annotated[float | None, typer.Option(
         "--x-limit", help="Position limit |x|, m [3 x the release amplitude].")] = None,
     u_max: Annotated[float | None, typer.Option(
-        "--u-max", help="Command limit, N [none].")] = None,
+        "--u-max", help="Command limit, N (default: none).")] = None,
     timeout: Annotated[float, typer.Option(
-        help="Seconds to wait for the rig (connection, each line).")] = 10.0,
+        help="Seconds to wait for the rig (connection, each line, each send; at most a day); "
+             "each run also ends within --timeout + (its samples)·(2T + 0.1 ms).")] = 10.0,
 ) -> None:
     """Run a designed plan on a rig and write the phoid/1 set as the samples arrive.
 
     Reads the plan, refuses gains beyond --pmax/--dmax before anything moves, then for each
     run configures the rig, starts it and streams its samples into the run's CSV. The manifest
     is rewritten after every run; a run the controller aborts is kept (runNN.aborted.csv) and
-    marked, a run cut off by the link (runNN.incomplete.csv) is run again by --resume. Exit
-    status 0 when every run completed, 1 when some did not, 2 on bad input.
+    marked, a run cut off by the link or not as configured (runNN.incomplete.csv) is run again
+    by --resume. Every option is checked, and no file in --out is replaced, before anything
+    moves (docs/rig-protocol.md, "Limits of the host"). Exit status 0 when every run
+    completed, 1 when some did not, 2 on bad input.
     """
     from phoid.rig.host import RigError, run_plan
 

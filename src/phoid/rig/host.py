@@ -26,8 +26,10 @@ constants, position limits ±3A and the growth bound 2.
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import math
 import os
+import re
 import secrets
 import time
 from collections.abc import Callable, Mapping
@@ -61,6 +63,8 @@ EVENT_CHARS = 96  # the longest event text recorded, characters
 REASON_CHARS = 400  # the longest reason recorded (and printed), characters
 LINE_BYTES = 160  # bytes per line in a run's deadline on a serial line
 LINE_TIME = 1e-4  # s per sample in a run's deadline for the host's and a fast rig's own work
+_DIGITS = re.compile(r"[0-9]{1,9}")
+_RANK = {"idle": 0, "hold": 0, "run": 1, "done": 2, "fault": 2}  # the order of the states
 
 
 class RigError(PhoidError):
@@ -91,15 +95,12 @@ class RunPlanResult:
         return all(s == "complete" for s in self.statuses)
 
 
-def _digits(text: str) -> bool:
-    return text.isascii() and text.isdigit() and len(text) <= 9
-
-
 def parse_port(port: str) -> tuple[str, int]:
     """``tcp://HOST:PORT`` (or ``HOST:PORT``) → (host, port); RigError otherwise."""
     text = port[6:] if port.startswith("tcp://") else port
     host, sep, num = text.rpartition(":")
-    if "://" in text or not sep or not host or not _digits(num) or not 0 < int(num) < 65536:
+    if "://" in text or not sep or not host or not _DIGITS.fullmatch(num) \
+            or not 0 < int(num) < 65536:
         raise RigError(f"--port must be tcp://HOST:PORT or serial:///dev/DEVICE[?baud=N] "
                        f"(port 1 to 65535); got {_clip(port, 200)!r}")
     return host.strip("[]"), int(num)
@@ -113,7 +114,8 @@ def open_port(port: str, timeout: float) -> Link:
     if port.startswith("serial://"):
         path, _, query = port[len("serial://"):].partition("?")
         key, _, val = query.partition("=")
-        if not path or (query and (key != "baud" or not _digits(val) or int(val) == 0)):
+        if not path or (query and (key != "baud" or not _DIGITS.fullmatch(val)
+                                   or int(val) == 0)):
             raise RigError(f"--port must be serial:///dev/DEVICE or serial:///dev/DEVICE?baud=N; "
                            f"got {_clip(port, 200)!r}")
         return open_serial(path, int(val) if query else 115200, timeout)
@@ -149,7 +151,7 @@ def _options(pmax: Any, dmax: Any, hold_p: Any, hold_d: Any, hold: Any, x_limit:
         "hold": ("--hold", hold, lambda v: v > 0, "a finite number of seconds > 0"),
         "x_limit": ("--x-limit", x_limit, lambda v: v > 0, "a finite number > 0 (m)"),
         "u_max": ("--u-max", u_max, lambda v: v > 0, "a finite number > 0 (N)"),
-        "growth_limit": ("--growth-limit", growth_limit, lambda v: v == 0 or v >= 1,
+        "growth_limit": ("growth_limit", growth_limit, lambda v: v == 0 or v >= 1,
                          "0 (off) or a finite number >= 1"),
     }
     return {key: None if val is None else _option(name, val, ok, what)
@@ -162,8 +164,7 @@ def _prior_value(prior: Mapping[str, Any], key: str, pick: Callable, least: floa
     val = prior.get(key)
     if isinstance(val, list) and len(val) == 2 and all(
             isinstance(v, (int, float)) and not isinstance(v, bool) for v in val):
-        with np.errstate(all="ignore"):
-            val = float(pick([float(v) for v in val]))
+        val = float(pick([float(v) for v in val]))  # overflow: inf, refused below
     if isinstance(val, (int, float)) and not isinstance(val, bool) and math.isfinite(val) \
             and val > least:
         return float(val)
@@ -199,12 +200,8 @@ def plan_configs(plan: str | Path, *, pmax: float | None = None, dmax: float | N
                  ) -> tuple[dict[str, Any], list[dict[str, Any]]]:
     """The plan and each run's controller configuration (CONFIG fields); nothing is sent.
 
-    Every option must be a finite number in its range (``pmax``, ``dmax``, ``hold_d`` ≥ 0;
-    ``hold_p``, ``hold``, ``x_limit``, ``u_max`` > 0; ``growth_limit`` 0 or ≥ 1), and what
-    the plan and the options make must fit the controller (docs/rig-protocol.md, "Limits of
-    the host"): a finite sample time of at least 1 ns, at most :data:`MAX_DELAY` samples of
-    delay, at most :data:`MAX_COUNT` samples per run (hold + run + 1), runs the reader can read
-    back (``phoid.io.limits``), finite gains and limits, the release inside the limits.
+    Every option must be finite and in its range, and what the plan and the options make
+    must fit the controller and the reader (docs/rig-protocol.md, "Limits of the host").
 
     Returns
     -------
@@ -238,9 +235,9 @@ def plan_configs(plan: str | Path, *, pmax: float | None = None, dmax: float | N
     _check_names(manifest, sched["files"])
     fs, amp = sched["fs"], sched["amplitude"]
     T = 1.0 / fs
-    if not (math.isfinite(T) and T >= MIN_SAMPLE_TIME):
+    if not (math.isfinite(T) and MIN_SAMPLE_TIME <= T <= MAX_TIMEOUT):
         raise RigError(f"{manifest}: [design] fs = {fs:g} Hz: the sample time 1/fs must be "
-                       f"finite and at least {MIN_SAMPLE_TIME:g} s")
+                       f"from {MIN_SAMPLE_TIME:g} s to {MAX_TIMEOUT:g} s (a day)")
     delay = sched["delay"] if sched["delay"] is not None else 0.0
     ds = delay * fs
     if not (math.isfinite(ds) and ds <= MAX_DELAY):
@@ -316,7 +313,6 @@ def plan_configs(plan: str | Path, *, pmax: float | None = None, dmax: float | N
     return sched, configs
 
 
-_RANK = {"idle": 0, "hold": 0, "run": 1, "done": 2, "fault": 2}
 
 
 class _Run:
@@ -339,6 +335,7 @@ class _Run:
             raise RigError(f"{out.folder}: no free temporary name for {name}")
         self.fh: IO[str] = os.fdopen(fd, "w")
         self.fh.write("t,x,u\n")
+        self.digest = hashlib.blake2b(b"t,x,u\n", digest_size=32)  # the file's, as the reader's
         self.samples = self.count = 0  # rows written; SAMPLE lines received
         self.last_index, self.last_t, self.rank = -1, None, 0  # rank of the state (_RANK)
         self.states = {"hold": 0, "run": 0, "done": 0, "fault": 0}
@@ -383,7 +380,9 @@ class _Run:
             return
         self.u_source = source
         u = float(f["force"] if source == "measured" else f["u"])
-        self.fh.write(f"{t!r},{float(f['x'])!r},{u!r}\n")
+        row = f"{t!r},{float(f['x'])!r},{u!r}\n"
+        self.fh.write(row)
+        self.digest.update(row.encode())
         self.samples += 1
         if self.samples % 100 == 0:
             self.fh.flush()
@@ -461,9 +460,10 @@ def _read_state(out: OutputFolder, sched: Mapping[str, Any]) -> list[dict[str, A
             bad = "not a table"
         elif not (isinstance(a.get("run"), int) and 1 <= a["run"] <= n):
             bad = f"run must be a whole number from 1 to {n}"
-        elif not isinstance(a.get("file"), str) or a.get("status") not in (
+        elif not isinstance(a.get("file"), str) or a["file"].startswith(".") or any(
+                ch in a["file"] for ch in "/\\") or a.get("status") not in (
                 "complete", "aborted", "incomplete"):
-            bad = "file must be a name and status complete, aborted or incomplete"
+            bad = "file must be a plain file name and status complete, aborted or incomplete"
         elif a["status"] == "complete" and not all(
                 isinstance(a.get(k), (int, float)) and not isinstance(a.get(k), bool)
                 and math.isfinite(a[k]) for k in ("P", "D")):
@@ -501,16 +501,14 @@ def run_plan(plan: str | Path, port: str, out: str | Path, *, resume: bool = Fal
     port : str
         The rig: ``tcp://HOST:PORT`` or ``serial:///dev/DEVICE[?baud=N]`` (POSIX).
     out : str or Path
-        The set's folder (created); its ``experiment.toml`` is rewritten after every run.
-        No other file in it is ever replaced: a file in the way of a run is refused before
-        anything moves.
+        The set's folder (created); its ``experiment.toml`` is rewritten after every run, no
+        other file is replaced (one in the way of a run is refused before anything moves).
     resume : bool
         Continue a set written before: the runs complete or aborted there are kept, the rest
         run. Without it an existing manifest in ``out`` is refused.
     timeout : float
-        Seconds (finite, > 0, at most a day) to wait for the connection, for each line of the
-        rig and for each send; each run also ends within a deadline derived from it and from
-        the run's samples (docs/rig-protocol.md, "Limits of the host").
+        Seconds (finite, > 0, at most a day) to wait for the connection, each line and each
+        send; each run ends within a deadline from it and the run's samples.
     progress : callable, optional
         Called as ``progress(run, samples, total)`` while samples arrive.
     **limits
@@ -520,9 +518,8 @@ def run_plan(plan: str | Path, port: str, out: str | Path, *, resume: bool = Fal
     Raises
     ------
     RigError
-        Bad input, found before anything moves (an option, the plan, a file in the way, the
-        port, the protocol version, a configuration the rig refuses), or a rig that answers
-        CONFIG or CLEAR wrongly: one line.
+        One line: bad input, found before anything moves (an option, the plan, a file in the
+        way, the port, the protocol version), a CONFIG refused, a wrong reply to CONFIG/CLEAR.
     """
     timeout = _option("--timeout", timeout, lambda v: 0 < v <= MAX_TIMEOUT,
                       f"a finite number of seconds > 0 and at most {MAX_TIMEOUT:g}")
@@ -541,6 +538,7 @@ def run_plan(plan: str | Path, port: str, out: str | Path, *, resume: bool = Fal
             status[a["run"] - 1] = a["status"]
     _check_targets(folder, files, status, {a["file"] for a in attempts})
     _fits(folder, sched, configs, attempts, status)
+    digests = _digests(folder, attempts)
     try:
         link = open_port(port, timeout)
     except LinkClosed as exc:
@@ -564,7 +562,7 @@ def run_plan(plan: str | Path, port: str, out: str | Path, *, resume: bool = Fal
                 raise RigError(f"the rig answered CONFIG of run {i + 1} with {reply.kind}, "
                                "not OK")
             attempt, msg, stop, alive, faulted = _one_run(link, folder, i, files[i], cfg,
-                                                          timeout, progress)
+                                                          timeout, progress, digests)
             attempts.append(attempt)
             status[i] = attempt["status"]
             _write_manifest(folder, sched, configs, attempts, status)
@@ -601,19 +599,25 @@ def _reply(link: Link, timeout: float, what: str, where: str = "") -> Any:
                        f"{_clip(exc, REASON_CHARS)}") from None
 
 
-def _one_run(link: Link, folder: OutputFolder, i: int, name: str, cfg: Mapping[str, Any],
-             timeout: float, progress: Callable | None
-             ) -> tuple[dict[str, Any], str, BaseException | None, bool, bool]:
-    """START one run and stream it.
+def _digests(folder: OutputFolder, attempts: list[dict[str, Any]]) -> dict[bytes, str]:
+    """The complete runs' files by their content's digest (a repeat would be refused)."""
+    out: dict[bytes, str] = {}
+    for a in attempts:
+        path = folder.path(a["file"])
+        if a["status"] == "complete" and path.is_file() and not path.is_symlink():
+            with contextlib.suppress(OSError), open(path, "rb") as fh:
+                out[hashlib.file_digest(fh, lambda: hashlib.blake2b(digest_size=32)).digest()] \
+                    = f"run {a['run']} ({_clip(a['file'], 80)})"
+    return out
 
-    Returns the attempt's record, a message when it did not complete, an interruption
-    (KeyboardInterrupt, …) to raise once the record is written, whether the link still
-    works (a damaged line, a sample gap, a clock that does not advance or a run of the wrong
-    length leaves it working: the run's record is incomplete, every other sample is kept; a
-    dropped connection, a timeout, an error, the run's deadline or a flood — more samples than
-    the run has, more events or damaged lines than the caps — does not) and whether the
-    controller faulted (the host then sends CLEAR).
-    """
+
+def _one_run(link: Link, folder: OutputFolder, i: int, name: str, cfg: Mapping[str, Any],
+             timeout: float, progress: Callable | None, digests: dict[bytes, str]
+             ) -> tuple[dict[str, Any], str, BaseException | None, bool, bool]:
+    """START one run and stream it: the attempt's record, a message when it did not complete,
+    an interruption (Ctrl-C) to raise once the record is written, whether the link still works
+    (not after a drop, a timeout, an ERROR, the deadline or a cap) and whether the controller
+    faulted (the host then sends CLEAR)."""
     run = _Run(folder, name, cfg)
     T, total = float(cfg["sample_time"]), run.total
     wait = max(timeout, 2.0 * T)  # a rig streaming in real time sends a sample every T
@@ -679,10 +683,12 @@ def _one_run(link: Link, folder: OutputFolder, i: int, name: str, cfg: Mapping[s
             link.send(encode("ABORT", 1.0))
     elif end == "done":
         run.damage(run.shortfall())
+        if (same := digests.get(run.digest.digest())) is not None:
+            run.damage(f"the same samples, byte for byte, as {same}: a repeated recording, "
+                       "which phoid identify refuses")
     faulted = run.faulted or end.startswith("fault")
     if reason or run.damaged:
-        reason = reason if not run.damaged else (
-            f"{run.damaged}; {reason}" if reason else run.damaged)
+        reason = f"{run.damaged}; {reason}" if run.damaged and reason else run.damaged or reason
         status, target = "incomplete", _variant(name, "incomplete")
     elif end == "done":
         status, target = "complete", name
@@ -697,6 +703,8 @@ def _one_run(link: Link, folder: OutputFolder, i: int, name: str, cfg: Mapping[s
         except BaseException as exc:  # Ctrl-C here too: record the run first
             stop = exc
     written = run.finish(target)
+    if status == "complete":
+        digests[run.digest.digest()] = f"run {i + 1} ({written})"
     attempt = {"run": i + 1, "file": written, "P": cfg["P"], "D": cfg["D"], "status": status,
                "samples": run.samples, "received": run.count,
                "u_source": run.u_source or "command",
@@ -728,9 +736,7 @@ def _compose(sched: Mapping[str, Any], configs: list[dict[str, Any]],
     for a in attempts:
         events = a.get("events", [])
         if isinstance(events, list) and len(events) > keep:
-            dropped = a.get("events_dropped", 0)
-            dropped = dropped if isinstance(dropped, int) and not isinstance(dropped, bool) \
-                else 0
+            dropped = a.get("events_dropped") if type(a.get("events_dropped")) is int else 0
             a = dict(a, events=events[:keep], events_dropped=dropped + len(events) - keep)
         shown.append(a)
         if a["status"] == "complete":
@@ -772,12 +778,8 @@ def _write_manifest(folder: OutputFolder, sched: Mapping[str, Any],
 
 def _fits(folder: OutputFolder, sched: Mapping[str, Any], configs: list[dict[str, Any]],
           attempts: list[dict[str, Any]], status: list[str]) -> None:
-    """Refuse, before anything moves, a set whose manifest could outgrow the reader's limit.
-
-    Every run still to do is counted with the largest record it can leave (its longest file
-    name, reason and events): the manifest written after any run then fits, with the events
-    cut by :func:`_write_manifest` when need be.
-    """
+    """Refuse, before anything moves, a set whose manifest could outgrow the reader's limit
+    (each run to do counted with its largest record; :func:`_write_manifest` cuts events)."""
     worst = list(attempts)
     for i, (name, st) in enumerate(zip(sched["files"], status, strict=True)):
         if st == "pending":
