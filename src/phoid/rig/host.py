@@ -124,15 +124,16 @@ def open_port(port: str, timeout: float) -> Link:
 
 
 def _clip(text: object, limit: int) -> str:
-    """``text`` as one line of ASCII (other characters escaped), at most ``limit`` characters."""
-    line = " ".join(str(text).split()).encode("ascii", "backslashreplace").decode("ascii")
+    """``text`` as one line of printable ASCII (the rest escaped), at most ``limit`` characters."""
+    line = "".join(ch if " " <= ch <= "~" else ch.encode("unicode_escape").decode("ascii")
+                   for ch in " ".join(str(text)[:limit + 1].split()))
     return line if len(line) <= limit else line[:limit - 3] + "..."
 
 
 def _option(name: str, value: Any, ok: Callable[[float], bool], what: str) -> float:
     """``value`` as a float when it is a finite number with ``ok(value)``; else one RigError."""
     try:
-        num = float(value) if not isinstance(value, (bool, str)) else math.nan
+        num = math.nan if isinstance(value, (bool, str)) else float(value)
     except (TypeError, ValueError, OverflowError):
         num = math.nan
     if not (math.isfinite(num) and ok(num)):
@@ -424,8 +425,7 @@ class _Run:
                 return name
             os.unlink(part)
             return name
-        raise RigError(f"{self.out.folder}: no free name for {target}; its samples are in "
-                       f"{self.part}")
+        raise RigError(f"{self.out.folder}: no free name for {target} (samples in {self.part})")
 
     def timing(self) -> dict[str, float]:
         n, s, lo, hi = self.dt
@@ -785,7 +785,7 @@ def _fits(folder: OutputFolder, sched: Mapping[str, Any], configs: list[dict[str
         if st == "pending":
             big = -1.2345678901234567e-300
             worst.append({
-                "run": i + 1, "file": '"' * (len(name) + 20), "P": big, "D": big,
+                "run": i + 1, "file": '"' * (len(name.encode()) + 20), "P": big, "D": big,
                 "status": "complete", "samples": MAX_COUNT, "received": MAX_COUNT,
                 "u_source": "measured", "events": [], "events_dropped": MAX_COUNT,
                 "time": "2000-01-01T00:00:00Z", "sample_time_mean": big,
