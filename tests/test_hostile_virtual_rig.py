@@ -393,3 +393,21 @@ def test_the_cli_rig_answers_hostile_hosts_without_a_traceback(build):
         rest = proc.stderr.read()
         proc.stderr.close()
     assert rc == 0 and rest == "", rest  # nothing on stderr after the listening line
+
+
+@pytest.mark.parametrize(("option", "value"), [
+    ("--idle-timeout", "-1"), ("--idle-timeout", "nan"), ("--max-session", "inf"),
+    ("--max-rate", "0"), ("--max-samples", "1"), ("--noise", "-1"), ("--force-noise", "nan"),
+    ("--offset-force", "inf"), ("--m", "nan"), ("--c", "inf"), ("--k", "-1"), ("--fc", "nan"),
+])
+def test_the_cli_rig_names_the_option_out_of_range(option, value, tmp_path):
+    # the rig's and the plant's checks speak of keyword arguments (max_rate, `m`); the command
+    # line names the option the user typed, refused before anything is built or served
+    args = {"--m": "1", "--c": "1", "--k": "1", option: value}
+    cmd = [sys.executable, "-m", "phoid.cli", "virtual-rig", "--listen", "127.0.0.1:0",
+           "--build", str(tmp_path / "build"), *[a for kv in args.items() for a in kv]]
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=60, cwd=tmp_path)
+    assert proc.returncode == 2, proc.stderr
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"phoid: error: {option} "), proc.stderr
+    assert not (tmp_path / "build").exists()  # refused before the controller was built

@@ -5,6 +5,7 @@ Errors a user can cause print one line ``phoid: error: …`` and exit with statu
 
 from __future__ import annotations
 
+import re
 import sys
 import threading
 import time
@@ -21,6 +22,25 @@ __all__ = ["run", "virtual_rig"]
 def _fail(message: str) -> None:
     typer.echo(f"phoid: error: {' '.join(message.split())}", err=True)
     raise typer.Exit(2)
+
+
+# the names VirtualRig's and Plant's messages use, and the options they come from
+_RIG_OPTIONS = {"force_noise": "--force-noise", "offset_force": "--offset-force",
+                "idle_timeout": "--idle-timeout", "max_session": "--max-session",
+                "max_samples": "--max-samples", "max_rate": "--max-rate", "noise": "--noise",
+                "`offset`": "--offset-force", "`fc`": "--fc", "`m`": "--m", "`c`": "--c",
+                "`k`": "--k"}
+
+
+def _name_options(message: str) -> str:
+    """A VirtualRig or Plant message in the command's words: ``max_rate`` or `` `m` `` →
+    ``--max-rate``, ``--m`` (the user typed options, not keyword arguments)."""
+    for name, flag in _RIG_OPTIONS.items():
+        pattern = re.escape(name) if name.startswith("`") else rf"(?<![\w-]){name}(?![\w-])"
+        message, hits = re.subn(pattern, flag, message, count=1)
+        if hits:
+            return message
+    return message
 
 
 def virtual_rig(
@@ -77,7 +97,7 @@ def virtual_rig(
                          idle_timeout=idle_timeout, max_session=max_session,
                          max_samples=max_samples)
     except (ValueError, OSError) as exc:
-        _fail(str(exc))
+        _fail(_name_options(str(exc)))
     try:
         try:
             host, port = rig.listen(host, port)
