@@ -15,6 +15,11 @@ The rules, the same for every command and function that writes (``write_experime
   target (``os.replace``, which replaces a link rather than following it). A failure leaves the
   old file (or no file) and no temporary file behind.
 
+* No file is written over one of the running command's own inputs (the set's manifest and
+  data files, a schedule, a batch output read): :func:`protect_inputs` names them, and a
+  target that is one of them, by its resolved path or as the same file (a hard link, a link
+  to it), is refused with or without ``overwrite``, naming both.
+
 Problems raise :class:`OutputError` (a ``ValueError``) with one line naming the path. The
 remedy for an existing file is worded for the caller: ``pass overwrite=True`` from Python,
 ``pass --overwrite`` from the command line (:func:`cli_wording`).
@@ -33,10 +38,113 @@ from typing import IO, Any
 
 from phoid.errors import OutputError, PhoidError
 
-__all__ = ["OutputFolder", "cli_wording", "png_writer", "save_figure"]
+__all__ = ["OutputFolder", "check_not_input", "cli_wording", "png_writer", "protect_inputs",
+           "safe_text", "save_figure"]
+
+# characters never printed raw: controls (a line break, ESC), format characters (the bidi
+# overrides U+202A-U+202E and isolates U+2066-U+2069, zero-width ones), lone surrogates (a
+# file name's undecodable bytes) and the line and paragraph separators
+_UNSAFE_CATEGORIES = frozenset({"Cc", "Cf", "Cs", "Zl", "Zp"})
+
+
+def safe_text(text: object, *, newlines: bool = False) -> str:
+    """``text`` for a terminal or a text report: every unsafe character escaped.
+
+    User-supplied text (file and run names, units, paths, warnings quoting them) may hold a
+    line break that splits a table row, a terminal escape sequence or a right-to-left override
+    that makes a name read differently. Each character of the Unicode categories Cc, Cf, Cs,
+    Zl and Zp is written as its Python escape (``\\n``, ``\\x1b``, ``\\u202e``).
+
+    Parameters
+    ----------
+    text : object
+        The text (``str()`` of anything else).
+    newlines : bool
+        Keep ``"\\n"`` as it is (a whole report of several lines); every other line break
+        (``"\\r"``, U+2028, …) is still escaped.
+
+    Returns
+    -------
+    str
+
+    Examples
+    --------
+    >>> safe_text("a\\nb\\u202ec.csv")
+    'a\\\\nb\\\\u202ec.csv'
+    """
+    text = str(text)
+    if text.isprintable():  # the common case: nothing to escape (space is printable)
+        return text
+    import unicodedata
+
+    return "".join(
+        ch if (newlines and ch == "\n") or unicodedata.category(ch) not in _UNSAFE_CATEGORIES
+        else ch.encode("unicode_escape", "backslashreplace").decode("ascii")
+        for ch in text)
 
 _OVERWRITE_HINT: contextvars.ContextVar[str] = contextvars.ContextVar(
     "phoid_overwrite_hint", default="overwrite=True")
+
+# the running command's input files: (as the user names it, resolved path, (device, inode))
+_Input = tuple[str, str, "tuple[int, int] | None"]
+_INPUTS: contextvars.ContextVar[tuple[_Input, ...]] = contextvars.ContextVar(
+    "phoid_inputs", default=())
+
+
+def _identity(path: str | os.PathLike[str]) -> tuple[str, tuple[int, int] | None]:
+    """A file's resolved path and, when it exists, its (device, inode), links followed."""
+    try:
+        real = os.path.realpath(path)
+    except (OSError, ValueError):
+        real = os.path.abspath(path)
+    try:
+        st = os.stat(path)
+    except (OSError, ValueError):
+        return real, None
+    return real, (st.st_dev, st.st_ino)
+
+
+@contextlib.contextmanager
+def protect_inputs(paths: Iterable[str | os.PathLike[str]]) -> Iterator[None]:
+    """Within this context, no :class:`OutputFolder` writes over one of ``paths``.
+
+    Parameters
+    ----------
+    paths : iterable of str or path
+        The command's input files (a manifest, its data files, a schedule, a results file).
+        Each is known by its resolved path and, when it exists, by its device and inode, so
+        that a link or a hard link to it counts as the file itself. The protection adds to
+        any already in force.
+    """
+    added = []
+    for path in paths:
+        real, ident = _identity(path)
+        added.append((os.fspath(path), real, ident))
+    token = _INPUTS.set((*_INPUTS.get(), *added))
+    try:
+        yield
+    finally:
+        _INPUTS.reset(token)
+
+
+def check_not_input(target: str | os.PathLike[str],
+                    error: type[PhoidError] = OutputError) -> None:
+    """Refuse ``target`` when it is one of the inputs :func:`protect_inputs` names.
+
+    Raises
+    ------
+    PhoidError
+        ``error`` (default :class:`OutputError`): one line naming the target and the input.
+    """
+    inputs = _INPUTS.get()
+    if not inputs:
+        return
+    real, ident = _identity(target)
+    for shown, in_real, in_ident in inputs:
+        if real == in_real or (ident is not None and ident == in_ident):
+            raise _fail(target, f"is an input of this command ({shown}); phoid never "
+                                "replaces its own input, even with "
+                                f"{_OVERWRITE_HINT.get()} (write to another path)", error)
 
 
 @contextlib.contextmanager
@@ -130,6 +238,7 @@ class OutputFolder:
         if (not parts or PurePosixPath(name).is_absolute() or ".." in parts
                 or "\\" in name or "\x00" in name):
             raise self._fail(target, "must be a relative path inside the output folder")
+        check_not_input(target, self.error)
         here = self._root
         for i, part in enumerate(parts):
             here = os.path.join(here, part)

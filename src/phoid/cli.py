@@ -33,7 +33,9 @@ app = typer.Typer(
 
 
 def _fail(message: str) -> None:
-    typer.echo(f"phoid: error: {message}", err=True)
+    from phoid._output import safe_text
+
+    typer.echo(f"phoid: error: {safe_text(message)}", err=True)
     raise typer.Exit(2)
 
 
@@ -153,22 +155,36 @@ def identify(
     Prints the estimates with +- one standard error and units, the open-loop zeta and omega0,
     a per-run table and any warnings.
     """
+    from phoid._output import protect_inputs
+    from phoid.batch.sets import set_files
     from phoid.io import read_experiment
     from phoid.methods.dispatch import identify_set
 
     try:
-        if html is not None:  # a file in the way: refused before the work
-            from phoid.reports.html import check_report_target
+        # no output (--html, --plots) may replace the set's own files, even with --overwrite
+        with protect_inputs(set_files(experiment)):
+            if html is not None:  # a file in the way: refused before the work
+                from phoid.reports.html import check_report_target
 
-            check_report_target(html, overwrite=overwrite, figures=plots)
-        exp = read_experiment(experiment)
-        result = identify_set(exp, estimator=estimator, delay=delay, mass=mass,
-                              no_compensation=no_compensation, friction=friction)
-        written = result.plot(plots, overwrite=overwrite) if plots is not None else []
-        _write_html(result, html, exp, overwrite)
+                check_report_target(html, overwrite=overwrite, figures=plots)
+            exp = read_experiment(experiment)
+            with protect_inputs(_experiment_files(exp)):
+                result = identify_set(exp, estimator=estimator, delay=delay, mass=mass,
+                                      no_compensation=no_compensation, friction=friction)
+                written = result.plot(plots, overwrite=overwrite) if plots is not None else []
+                _write_html(result, html, exp, overwrite)
     except (ValueError, OSError) as exc:
         _fail(str(exc))
     _print_result(result, as_json, written, plots, html)
+
+
+def _experiment_files(experiment) -> list[Path]:
+    """The manifest and data files of a set as read (``path``, ``runs[i].file``)."""
+    if getattr(experiment, "path", None) is None:
+        return []
+    folder = Path(experiment.path).parent
+    return [Path(experiment.path), *(folder / r.file for r in experiment.runs
+                                     if getattr(r, "file", ""))]
 
 
 def _write_html(result, html: Path | None, experiment, overwrite: bool) -> None:
@@ -181,12 +197,14 @@ def _write_html(result, html: Path | None, experiment, overwrite: bool) -> None:
 
 def _print_result(result, as_json: bool, written, plots, html=None) -> None:
     """The result as JSON (warnings also on stderr) or as the text report; figures written."""
+    from phoid._output import safe_text
+
     if as_json:
         typer.echo(json.dumps(result.summary(), indent=1))
         for w in result.warnings:
-            typer.echo(f"phoid: warning: {w}", err=True)
-    else:
-        typer.echo(result.report())
+            typer.echo(f"phoid: warning: {safe_text(w)}", err=True)
+    else:  # the report's own fields are escaped; this catches any other control character
+        typer.echo(safe_text(result.report(), newlines=True))
     if written:
         typer.echo(f"{len(written)} figure{'s' * (len(written) != 1)} written to {plots}",
                    err=as_json)

@@ -18,7 +18,9 @@ __all__ = ["design"]
 
 
 def _fail(message: str) -> None:
-    typer.echo(f"phoid: error: {message}", err=True)
+    from phoid._output import safe_text
+
+    typer.echo(f"phoid: error: {safe_text(message)}", err=True)
     raise typer.Exit(2)
 
 
@@ -110,77 +112,81 @@ def design(
     replicas' SD, the mean reported stderr, the bias with its Monte Carlo error, RMSE/predicted
     and the coverage of +-3 reported stderr.
     """
+    from phoid._output import protect_inputs, safe_text
+    from phoid.batch.sets import set_files
     from phoid.planning import check_experiment
     from phoid.planning import design as make_design
 
     try:
-        settings = {key: val for key, val in {
-            "fs": fs, "duration": duration, "noise": noise, "amplitude": amplitude,
-            "pmax": pmax, "dmax": dmax, "max_freq": max_freq, "delay_margin": delay_margin,
-        }.items() if val is not None}
-        settings.update(zeta=_band(zeta), min_cycles=min_cycles, tolerance=tolerance)
-        if check_set is not None and out is not None:
-            raise ValueError("`--out` writes a designed schedule; it cannot be used with "
-                             "--check")
-        if out is not None or plot is not None:  # files in the way: refused before the work
-            from phoid._output import OutputFolder
-            from phoid.planning import schedule_target
+        # no output (--plot, --html) may replace the checked set's files
+        inputs = set_files(check_set) if check_set is not None else []
+        with protect_inputs(inputs):
+            settings = {key: val for key, val in {
+                "fs": fs, "duration": duration, "noise": noise, "amplitude": amplitude,
+                "pmax": pmax, "dmax": dmax, "max_freq": max_freq, "delay_margin": delay_margin,
+            }.items() if val is not None}
+            settings.update(zeta=_band(zeta), min_cycles=min_cycles, tolerance=tolerance)
+            if check_set is not None and out is not None:
+                raise ValueError("`--out` writes a designed schedule; it cannot be used with "
+                                 "--check")
+            if out is not None or plot is not None:  # files in the way: refused before the work
+                from phoid._output import OutputFolder
+                from phoid.planning import schedule_target
 
-            if out is not None:
-                schedule_target(out, overwrite=overwrite)
-            if plot is not None:
-                OutputFolder(plot.parent, overwrite=overwrite).check([plot.name])
-        stray = [name for name, val in (("--scheduler", scheduler), ("--workers", workers),
-                                        ("--seed", seed)) if val is not None]
-        if rehearse is None and stray:
-            raise ValueError(f"{stray[0]} applies to --rehearse only")
-        if rehearse is not None:
-            from phoid.batch.cluster import require_batch
-            from phoid.batch.rehearsal import MAX_REPLICAS
+                if out is not None:
+                    schedule_target(out, overwrite=overwrite)
+                if plot is not None:
+                    OutputFolder(plot.parent, overwrite=overwrite).check([plot.name])
+            stray = [name for name, val in (("--scheduler", scheduler), ("--workers", workers),
+                                            ("--seed", seed)) if val is not None]
+            if rehearse is None and stray:
+                raise ValueError(f"{stray[0]} applies to --rehearse only")
+            if rehearse is not None:
+                from phoid.batch.cluster import require_batch
+                from phoid.batch.rehearsal import MAX_REPLICAS
 
-            if not 2 <= rehearse <= MAX_REPLICAS:
-                raise ValueError(f"--rehearse must be from 2 to {MAX_REPLICAS} replicas; "
-                                 f"got {rehearse}")
-            require_batch("design --rehearse")
-        if html is not None:
-            from phoid.reports.html import check_report_target
+                if not 2 <= rehearse <= MAX_REPLICAS:
+                    raise ValueError(f"--rehearse must be from 2 to {MAX_REPLICAS} replicas; "
+                                     f"got {rehearse}")
+                require_batch("design --rehearse")
+            if html is not None:
+                from phoid.reports.html import check_report_target
 
-            check_report_target(html, overwrite=overwrite, figures=plot)
-        if check_set is not None:
-            result = check_experiment(check_set, m, c, k, delay=delay, **settings)
-        else:
-            missing = [f"--{n}" for n, val in (("m", m), ("c", c), ("k", k)) if val is None]
-            if missing:
-                raise ValueError(f"give the prior plant: {', '.join(missing)} missing "
-                                 "(a value or a range lo:hi each)")
-            if delay is None:
-                raise ValueError("give the loop delay --delay (s)")
-            from phoid.planning import MAX_RUNS
-
-            if not 2 <= runs <= MAX_RUNS:
-                raise ValueError(f"--runs must be from 2 to {MAX_RUNS} (the design's work and "
-                                 f"memory grow with the runs); got {runs}")
-            result = make_design(m, c, k, delay=delay, runs=runs, **settings)
-        rehearsal = None
-        if rehearse is not None:
-            from phoid.batch.cluster import cluster_client
-            from phoid.batch.rehearsal import rehearse as run_rehearsal
-
-            if scheduler is None and workers == 0:  # as `phoid batch --workers 0`
-                rehearsal = run_rehearsal(result, rehearse, client=None, seed=seed)
+                check_report_target(html, overwrite=overwrite, figures=plot)
+            if check_set is not None:
+                result = check_experiment(check_set, m, c, k, delay=delay, **settings)
             else:
-                with cluster_client(scheduler, workers) as client:
-                    rehearsal = run_rehearsal(result, rehearse, client=client, seed=seed)
-        written = result.write(out, overwrite=overwrite) if out is not None else None
-        if plot is not None:
-            import matplotlib.pyplot as plt
+                missing = [f"--{n}" for n, val in (("m", m), ("c", c), ("k", k)) if val is None]
+                if missing:
+                    raise ValueError(f"give the prior plant: {', '.join(missing)} missing "
+                                     "(a value or a range lo:hi each)")
+                if delay is None:
+                    raise ValueError("give the loop delay --delay (s)")
+                from phoid.planning import MAX_RUNS
 
-            plt.close(result.plot(plot, overwrite=overwrite))
-        if html is not None:  # a checked set: its manifest's checksum (a skeleton has no data)
-            from phoid.reports.html import write_report
+                if not 2 <= runs <= MAX_RUNS:
+                    raise ValueError(f"--runs must be from 2 to {MAX_RUNS} (the design's work and "
+                                     f"memory grow with the runs); got {runs}")
+                result = make_design(m, c, k, delay=delay, runs=runs, **settings)
+            rehearsal = None
+            if rehearse is not None:
+                from phoid.batch.cluster import cluster_client
+                from phoid.batch.rehearsal import rehearse as run_rehearsal
 
-            write_report(result, html, overwrite=overwrite, inputs=[] if check_set is None else [
-                check_set / "experiment.toml" if check_set.is_dir() else check_set])
+                if scheduler is None and workers == 0:  # as `phoid batch --workers 0`
+                    rehearsal = run_rehearsal(result, rehearse, client=None, seed=seed)
+                else:
+                    with cluster_client(scheduler, workers) as client:
+                        rehearsal = run_rehearsal(result, rehearse, client=client, seed=seed)
+            written = result.write(out, overwrite=overwrite) if out is not None else None
+            if plot is not None:
+                import matplotlib.pyplot as plt
+
+                plt.close(result.plot(plot, overwrite=overwrite))
+            if html is not None:  # a checked set: its manifest's checksum (a skeleton has no data)
+                from phoid.reports.html import write_report
+
+                write_report(result, html, overwrite=overwrite, inputs=inputs[:1])
     except (ValueError, OSError) as exc:
         _fail(str(exc))
     if as_json:
@@ -189,11 +195,11 @@ def design(
             summary["rehearsal"] = rehearsal.summary()
         typer.echo(json.dumps(summary, indent=1))
         for w in (*result.warnings, *(rehearsal.warnings if rehearsal is not None else ())):
-            typer.echo(f"phoid: warning: {w}", err=True)
+            typer.echo(f"phoid: warning: {safe_text(w)}", err=True)
     else:
-        typer.echo(result.report())
+        typer.echo(safe_text(result.report(), newlines=True))
         if rehearsal is not None:
-            typer.echo("\n" + rehearsal.report())
+            typer.echo("\n" + safe_text(rehearsal.report(), newlines=True))
     if written is not None:
         typer.echo(f"schedule written to {written}", err=as_json)
     if plot is not None:

@@ -31,7 +31,7 @@ from typing import Any
 from phoid._progress import task
 from phoid.errors import PhoidError
 
-__all__ = ["cluster_client", "map_unordered", "require_batch"]
+__all__ = ["MAX_TIMEOUT", "check_timeout", "cluster_client", "map_unordered", "require_batch"]
 
 # the modules of the batch extra, as imported
 _BATCH_MODULES = ("distributed", "pandas", "pyarrow")
@@ -218,6 +218,25 @@ def _cpus() -> int:
     return os.cpu_count() or 1
 
 
+MAX_TIMEOUT = 86400.0
+"""The longest wait for a scheduler, s (a day): beyond it the socket layer overflows."""
+
+
+def check_timeout(timeout: float) -> float:
+    """``timeout`` checked: a number of seconds, finite, > 0 and at most :data:`MAX_TIMEOUT`.
+
+    Raises
+    ------
+    PhoidError
+        One line naming ``--timeout`` and the value.
+    """
+    if isinstance(timeout, bool) or not isinstance(timeout, int | float) or not (
+            math.isfinite(timeout) and 0 < timeout <= MAX_TIMEOUT):
+        raise PhoidError(f"--timeout must be a number of seconds, finite, > 0 and at most "
+                         f"{MAX_TIMEOUT:g} (a day); got {timeout!r}")
+    return float(timeout)
+
+
 @contextlib.contextmanager
 def cluster_client(scheduler: str | None = None, workers: int | None = None, *,
                    timeout: float = 10.0, dashboard: bool = False) -> Iterator[Any]:
@@ -234,10 +253,10 @@ def cluster_client(scheduler: str | None = None, workers: int | None = None, *,
         number of CPUs this process may use (``os.sched_getaffinity``, else
         ``os.cpu_count()``). Ignored with ``scheduler``.
     timeout : float, default 10.0
-        Seconds (finite, > 0) to wait for the scheduler to answer before giving up: the
-        connection, its handshake and a first request each bounded by it (see
-        ``_probe_scheduler``), so a call with ``scheduler`` that fails ends within about
-        ``2 * timeout`` seconds.
+        Seconds (finite, > 0, at most a day: :data:`MAX_TIMEOUT`) to wait for the scheduler
+        to answer before giving up: the connection, its handshake and a first request each
+        bounded by it (see ``_probe_scheduler``), so a call with ``scheduler`` that fails
+        ends within about ``2 * timeout`` seconds.
     dashboard : bool, default False
         Serve the local cluster's dashboard on a free port (``client.dashboard_link``; needs
         bokeh). Off: no dashboard, no port taken for it.
@@ -258,8 +277,7 @@ def cluster_client(scheduler: str | None = None, workers: int | None = None, *,
     require_batch("batch")
     from distributed import Client, LocalCluster
 
-    if isinstance(timeout, bool) or not (math.isfinite(timeout) and timeout > 0):
-        raise PhoidError(f"--timeout must be finite and > 0 s; got {timeout!r}")
+    check_timeout(timeout)
     if scheduler is not None:
         _probe_scheduler(scheduler, timeout)
         try:

@@ -16,8 +16,21 @@ __all__ = ["batch"]
 
 
 def _fail(message: str, code: int = 2) -> None:
-    typer.echo(f"phoid: error: {' '.join(message.split())}", err=True)
+    from phoid._output import safe_text
+
+    typer.echo(f"phoid: error: {safe_text(' '.join(message.split()))}", err=True)
     raise typer.Exit(code)
+
+
+def _finished(store) -> str:
+    """Where the sets finished before a failure are: only a file that exists is named."""
+    from phoid._output import safe_text
+
+    held = [p for p in (store.parquet, store.journal) if p.is_file()]
+    if not held:
+        return f"no set was finished (nothing was written to {safe_text(store.parquet)})"
+    return (f"the sets finished are in {' and '.join(safe_text(p) for p in held)} (run the "
+            "same command again to finish the batch)")
 
 
 def batch(
@@ -71,7 +84,10 @@ def batch(
 
     options = {"estimator": estimator, "delay": delay, "no_compensation": no_compensation,
                "mass": mass, "friction": friction}
+    from phoid.batch.cluster import check_timeout
+
     try:
+        check_timeout(timeout)  # before anything: a bad --timeout is refused whatever runs
         require_batch("batch")
         options_key(options)
         store = BatchStore(out)
@@ -91,15 +107,13 @@ def batch(
                 report = run_batch(sets, client=client, options=options, store=store,
                                    retry_errors=retry_errors)
     except KeyboardInterrupt:
-        typer.echo(f"phoid: interrupted; the sets finished are in {out} (run the same "
-                   "command again to finish the batch)", err=True)
+        typer.echo(f"phoid: interrupted; {_finished(store)}", err=True)
         raise typer.Exit(130) from None
     except ValueError as exc:  # a glob that matches nothing, an output that cannot be written
         _fail(str(exc))
     except Exception as exc:  # the cluster failed (a worker lost, the scheduler gone)
         what = "the batch" if scheduler is None and workers == 0 else "the Dask cluster"
-        _fail(f"{what} failed ({type(exc).__name__}: {exc}); the sets finished are "
-              f"in {out} (run the same command again to finish the batch)", code=1)
+        _fail(f"{what} failed ({type(exc).__name__}: {exc}); {_finished(store)}", code=1)
     counts = {"sets": len(report.rows), "computed": report.computed, "skipped": report.skipped,
               "errors": report.errors, "parquet": str(store.parquet), "csv": str(store.csv)}
     if as_json:

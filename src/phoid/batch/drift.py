@@ -18,9 +18,12 @@ checked instead: χ² = Σ wᵢ(xᵢ − b)² on ``baseline − 1`` degrees of f
 its upper tail is below 0.001 (the baseline moved, or the stderrs are too small — either makes
 the chart's limits wrong).
 
-An estimate that is not finite or has no finite stderr > 0 cannot be weighed or tested: it
-is left out of its chart with a warning naming its set (a parameter with no stderr in any
-row, e.g. a delay given rather than estimated, is not charted).
+An estimate that is not finite or has no finite stderr > 0 (a normal float: a subnormal one,
+below 2.2e-308, is no measured uncertainty) cannot be weighed or tested: it is left out of
+its chart with a warning naming its set (a parameter with no stderr in any row, e.g. a
+delay given rather than estimated, is not charted). The sums are scaled (values by their
+largest magnitude, weights by the largest weight), so that estimates near the largest float
+do not overflow.
 
 Units whose rows all carry a ``time`` are ordered by it; a unit with a row without one is
 ordered by ``finished`` (when each set was identified) with a warning.
@@ -46,6 +49,9 @@ REQUIRED_COLUMNS = ("set", "checksum", "status", "method", "time", "finished")
 # the estimated parameters in the order a report lists them; any other column p with a
 # p_stderr column beside it is charted after these
 _ORDER = ("m", "c", "k", "fc", "delay", "omega0", "zeta", "sigma", "omega_d")
+
+
+_TINY = float(np.finfo(float).tiny)  # the smallest normal float: a stderr below it is no stderr
 
 
 def _normal_tail(z: float) -> float:
@@ -189,7 +195,11 @@ class Trend:
     def report(self) -> str:
         """A text table: per unit and parameter the last value ± stderr, its change from the
         baseline, z, and the number of flagged points."""
-        lines = [f"trend of {self.source} by {self.by}: baseline = weighted mean of the first "
+        from phoid._output import safe_text
+        from phoid.reports.text import format_number
+
+        lines = [f"trend of {safe_text(self.source)} by {safe_text(self.by)}: baseline = "
+                 "weighted mean of the first "
                  f"{self.baseline} points; flag |z| > {self.threshold:g} "
                  f"(false alarm rate {100 * self.false_alarm_rate:.2g} % per point)"]
         head = (f"{'unit':<12} {'param':<7} {'n':>4} {'last':>13} {'± stderr':>11} "
@@ -198,19 +208,28 @@ class Trend:
         for u in self.units:
             for ch in u.charts:
                 last = ch.points[-1]
-                change = "" if ch.baseline is None else f"{last.value - ch.baseline:12.5g}"
-                z = "" if last.z is None else f"{last.z:7.2f}"
-                lines.append(f"{u.unit:<12} {ch.name:<7} {len(ch.points):>4} "
+                change = "" if ch.baseline is None else f"{_change(last.value, ch):12.5g}"
+                z = "" if last.z is None else format_number(last.z, 2)
+                lines.append(f"{safe_text(u.unit):<12} {safe_text(ch.name):<7} "
+                             f"{len(ch.points):>4} "
                              f"{last.value:13.6g} {last.stderr:11.3g} {change:>12} {z:>7} "
                              f"{ch.flagged:>8}")
         flagged = [(u.unit, ch.name, p) for u in self.units for ch in u.charts
                    for p in ch.points if p.flagged]
         if flagged:
             lines += ["", "flagged points:"]
-            lines += [f"  {unit} {name} at {p.order}: {p.value:.6g} ± {p.stderr:.3g} "
-                      f"(z = {p.z:.2f}; {p.set})" for unit, name, p in flagged]
-        lines += [f"warning: {w}" for w in self.warnings]
+            lines += [f"  {safe_text(unit)} {safe_text(name)} at {p.order}: {p.value:.6g} ± "
+                      f"{p.stderr:.3g} (z = {format_number(p.z or 0.0, 2)}; "
+                      f"{safe_text(p.set)})" for unit, name, p in flagged]
+        lines += [f"warning: {safe_text(w)}" for w in self.warnings]
         return "\n".join(lines)
+
+
+def _change(value: float, chart: ParameterChart) -> float:
+    """value − baseline without overflow where both are near the largest float (inf when the
+    difference itself is beyond it)."""
+    b = chart.baseline if chart.baseline is not None else value
+    return 0.0 if value == b else float(value) - float(b)  # Python floats: inf, no warning
 
 
 def control_chart(values: Any, stderrs: Any, *, baseline: int = 5,
@@ -247,8 +266,9 @@ def control_chart(values: Any, stderrs: Any, *, baseline: int = 5,
     if x.shape != s.shape or x.ndim != 1:
         raise ValueError(f"`values` and `stderrs` must be 1-D of one length; got shapes "
                          f"{x.shape} and {s.shape}")
-    if not (np.all(np.isfinite(x)) and np.all(np.isfinite(s)) and np.all(s > 0)):
-        raise ValueError("`values` must be finite and `stderrs` finite and > 0")
+    if not (np.all(np.isfinite(x)) and np.all(np.isfinite(s)) and np.all(s >= _TINY)):
+        raise ValueError("`values` must be finite and `stderrs` finite and ≥ "
+                         f"{_TINY:.3g} (a normal float > 0)")
     if int(baseline) != baseline or baseline < 1:
         raise ValueError(f"`baseline` must be a whole number ≥ 1; got {baseline!r}")
     if not threshold > 0:
@@ -258,16 +278,27 @@ def control_chart(values: Any, stderrs: Any, *, baseline: int = 5,
                            "z": z, "flagged": np.zeros(x.shape, bool)}
     if len(x) <= baseline:
         return out
-    w = 1.0 / s[:baseline] ** 2
-    b = float(np.sum(w * x[:baseline]) / np.sum(w))
-    sb = float(1.0 / math.sqrt(np.sum(w)))
-    z[baseline:] = (x[baseline:] - b) / np.sqrt(s[baseline:] ** 2 + sb ** 2)
-    out.update(baseline=b, baseline_stderr=sb, z=z, flagged=np.abs(np.nan_to_num(z)) > threshold)
-    if baseline > 1:
-        from phoid.methods.chi2 import chi2_sf
+    # scaled so that nothing overflows or underflows between values near the largest float and
+    # stderrs near the smallest: values by their largest magnitude, weights by the largest one
+    # (w_i / w_max = (s_min / s_i)^2 in (0, 1])
+    scale = float(np.max(np.abs(x))) or 1.0
+    xs = x / scale
+    s_min = float(np.min(s[:baseline]))
+    w = (s_min / s[:baseline]) ** 2
+    bs = float(np.sum(w * xs[:baseline]) / np.sum(w))
+    b = bs * scale
+    sb = s_min / math.sqrt(float(np.sum(w)))
+    with np.errstate(over="ignore", under="ignore", divide="ignore", invalid="ignore"):
+        diff = xs[baseline:] - bs  # |diff| ≤ 2: the difference in units of the scale
+        spread = np.hypot(s[baseline:], sb) / scale
+        z[baseline:] = np.where(diff == 0.0, 0.0, diff / spread)
+        if baseline > 1:
+            from phoid.methods.chi2 import chi2_sf
 
-        chi2 = float(np.sum(w * (x[:baseline] - b) ** 2))
-        out.update(chi2=chi2, p=float(chi2_sf(chi2, baseline - 1)))
+            dev = xs[:baseline] - bs
+            chi2 = float(np.sum(w * np.where(dev == 0.0, 0.0, dev * (scale / s_min)) ** 2))
+            out.update(chi2=chi2, p=float(chi2_sf(chi2, baseline - 1)))
+    out.update(baseline=b, baseline_stderr=sb, z=z, flagged=np.abs(np.nan_to_num(z)) > threshold)
     return out
 
 
@@ -427,14 +458,16 @@ def trend(results: str | Path | Any, *, by: str = "axis", baseline: int = 5,
         for name in _parameters(rows):
             estimated = rows[rows[name].notna()]
             spread = estimated[f"{name}_stderr"].to_numpy(float)
-            usable = (np.isfinite(estimated[name].to_numpy(float)) & np.isfinite(spread)
-                      & (spread > 0))
+            with np.errstate(invalid="ignore"):
+                usable = (np.isfinite(estimated[name].to_numpy(float)) & np.isfinite(spread)
+                          & (spread >= _TINY))
             sel = estimated[usable]
             if len(sel) == 0 and not np.isfinite(spread).any():
                 continue  # never estimated with an uncertainty (e.g. a delay given)
             if (left := len(estimated) - len(sel)):
                 warnings.append(f"{by} {unit}, {name}: {left} of {len(estimated)} estimates "
-                                "without a finite value and stderr > 0 left out of the chart "
+                                "without a finite value and a finite stderr > 0 (at least "
+                                f"{_TINY:.3g}, a normal float) left out of the chart "
                                 f"(first: {estimated['set'][~usable].iloc[0]})")
             if len(sel) == 0:
                 continue

@@ -164,13 +164,23 @@ def run_batch(sets: Iterable[str | os.PathLike[str]], *, client: Any = None,
         if store is not None:
             store.append(row)
 
-    if store is not None:
-        store.begin()
+    digests: list[Any] = []
     for name in names:
         try:
-            digest = set_digest(name)
+            digests.append(set_digest(name))
         except (ValueError, OSError) as exc:
-            record(error_row(name, None, key, {}, exc, worker=_worker(),
+            digests.append(exc)
+    if store is not None:  # no output file may be one of the sets' files (--overwrite or not)
+        from phoid._output import check_not_input, protect_inputs
+
+        with protect_inputs(f for d in digests if not isinstance(d, BaseException)
+                            for f in d.files):
+            for path in (store.parquet, store.csv, store.journal):
+                check_not_input(path)
+        store.begin()
+    for name, digest in zip(names, digests, strict=True):
+        if isinstance(digest, BaseException):
+            record(error_row(name, None, key, {}, digest, worker=_worker(),
                              finished=datetime.now(UTC), version=_version()))
             continue
         before = done.get((name, key))

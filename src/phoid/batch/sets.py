@@ -17,7 +17,7 @@ from typing import Any
 
 from phoid.errors import ExperimentError
 
-__all__ = ["SetDigest", "expand_sets", "set_digest"]
+__all__ = ["SetDigest", "expand_sets", "set_digest", "set_files"]
 
 MANIFEST = "experiment.toml"
 _GLOB_CHARS = set("*?[")
@@ -126,6 +126,47 @@ class SetDigest:
     manifest: str
     checksum: str
     metadata: dict[str, Any]
+    files: tuple[str, ...] = ()
+
+
+def _run_files(folder: Path, doc: Any) -> list[Path]:
+    """The data files a parsed manifest names (relative names only), in its folder."""
+    runs = doc.get("run", []) if isinstance(doc, dict) else []
+    names = [r.get("file") for r in runs if isinstance(r, dict)] if isinstance(runs, list) \
+        else []
+    out = []
+    for name in dict.fromkeys(n for n in names if isinstance(n, str) and n):
+        if name.startswith("/") or "\0" in name or "\\" in name:
+            continue
+        out.append(folder / name)
+    return out
+
+
+def set_files(set_path: str | os.PathLike[str]) -> list[Path]:
+    """A set's input files as a command reads them: its manifest and the data files it names.
+
+    The manifest is parsed, the data are not read: a command protects these files from its
+    own outputs (:func:`phoid._output.protect_inputs`) before any work. A manifest that
+    cannot be read or parsed gives just itself (the reader then says what is wrong).
+
+    Parameters
+    ----------
+    set_path : str or path
+        The set's folder (holding ``experiment.toml``) or its manifest.
+
+    Returns
+    -------
+    list of Path
+    """
+    from phoid.io import parse_manifest, read_manifest_bytes
+
+    path = Path(set_path)
+    manifest = path / MANIFEST if path.is_dir() else path
+    try:
+        doc = parse_manifest(str(manifest), read_manifest_bytes(str(manifest), manifest))
+    except (ValueError, OSError):
+        return [manifest]
+    return [manifest, *_run_files(manifest.parent, doc)]
 
 
 def _digest_data(digest: Any, folder: Path, root: Path, name: str) -> None:
@@ -209,4 +250,5 @@ def set_digest(set_path: str | os.PathLike[str]) -> SetDigest:
     meta = doc.get("metadata", {})
     metadata = ({k: v for k, v in meta.items() if not isinstance(v, dict | list)}
                 if isinstance(meta, dict) else {})
-    return SetDigest(manifest=str(manifest), checksum=digest.hexdigest(), metadata=metadata)
+    return SetDigest(manifest=str(manifest), checksum=digest.hexdigest(), metadata=metadata,
+                     files=tuple(map(str, [manifest, *_run_files(folder, doc)])))

@@ -15,7 +15,9 @@ __all__ = ["trend"]
 
 
 def _fail(message: str) -> None:
-    typer.echo(f"phoid: error: {' '.join(message.split())}", err=True)
+    from phoid._output import safe_text
+
+    typer.echo(f"phoid: error: {safe_text(' '.join(message.split()))}", err=True)
     raise typer.Exit(2)
 
 
@@ -45,6 +47,7 @@ def trend(
     flagged when |z| > --threshold. Prints per unit and parameter the last value +- stderr,
     its change from the baseline, z and the number of flagged points.
     """
+    from phoid._output import protect_inputs, safe_text
     from phoid.batch.cluster import require_batch
     from phoid.batch.drift import trend as make_trend
 
@@ -55,15 +58,17 @@ def trend(
         if plots is not None:
             from phoid.batch.drift_plot import plot_trend
 
-            written = plot_trend(result, plots, overwrite=overwrite)
+            # a figure never replaces the results read (or the CSV beside them)
+            with protect_inputs([results, results.with_suffix(".csv")]):
+                written = plot_trend(result, plots, overwrite=overwrite)
     except (ValueError, OSError) as exc:
         _fail(str(exc))
     if as_json:
         typer.echo(json.dumps(result.summary(), indent=1))
         for w in result.warnings:
-            typer.echo(f"phoid: warning: {w}", err=True)
+            typer.echo(f"phoid: warning: {safe_text(w)}", err=True)
     else:
-        typer.echo(result.report())
+        typer.echo(safe_text(result.report(), newlines=True))
     if written:
         typer.echo(f"{len(written)} figure{'s' * (len(written) != 1)} written to {plots}",
                    err=as_json)

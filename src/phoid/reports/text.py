@@ -9,16 +9,86 @@ from __future__ import annotations
 import math
 from typing import Any
 
+from phoid._output import safe_text
 from phoid.reports.statistics import correlation_lines, ratio_text, statistics_lines
 
 __all__ = [
     "fit_statistics_lines",
     "forced_text",
     "format_estimate",
+    "format_number",
+    "format_ratio",
     "free_text",
     "friction_text",
     "identification_text",
 ]
+
+
+# fixed-point notation is used between these magnitudes; beyond them exponent notation
+_FIXED_MIN, _FIXED_MAX = 1e-4, 1e9
+
+
+def format_number(value: float, decimals: int = 4) -> str:
+    """``value`` with ``decimals`` decimals, in exponent notation when very large or small.
+
+    Fixed-point notation of 1e300 has 300 digits and that of 1e-300 shows 0: between 1e-4 and
+    1e9 in magnitude (and 0) the value is printed with ``decimals`` decimals, beyond them with
+    ``decimals`` decimals of the mantissa (``1.0000e+300``); inf and nan as they are.
+
+    Parameters
+    ----------
+    value : float
+    decimals : int
+
+    Returns
+    -------
+    str
+
+    Examples
+    --------
+    >>> format_number(0.98765)
+    '0.9877'
+    >>> format_number(1e300, 2)
+    '1.00e+300'
+    """
+    value = float(value)
+    if not math.isfinite(value) or value == 0 or _FIXED_MIN <= abs(value) < _FIXED_MAX:
+        return f"{value:.{decimals}f}"
+    return f"{value:.{decimals}e}"
+
+
+def format_ratio(numerator: float, denominator: float, digits: int = 3) -> str:
+    """``numerator / denominator`` to ``digits`` significant digits, also where the quotient
+    overflows (a 5e-324 s delay against a 1 ms sample step): computed from the logarithms.
+
+    Parameters
+    ----------
+    numerator, denominator : float
+        Finite and > 0 (anything else is printed as the plain quotient).
+    digits : int
+
+    Returns
+    -------
+    str
+
+    Examples
+    --------
+    >>> format_ratio(1e-3, 5e-324)
+    '2.02e+320'
+    >>> format_ratio(3.0, 2.0)
+    '1.5'
+    """
+    a, b = float(numerator), float(denominator)
+    with_floats = a / b if b != 0 else math.inf
+    if (math.isfinite(with_floats) and with_floats != 0) or not (
+            math.isfinite(a) and math.isfinite(b) and a > 0 and b > 0):
+        return f"{with_floats:.{digits}g}"
+    exponent = math.log10(a) - math.log10(b)
+    whole = math.floor(exponent)
+    mantissa = 10.0 ** (exponent - whole)
+    if round(mantissa, digits - 1) >= 10.0:
+        mantissa, whole = mantissa / 10.0, whole + 1
+    return f"{mantissa:.{digits - 1}f}e{whole:+03d}"
 
 
 def format_estimate(value: float, se: float | None) -> str:
@@ -31,7 +101,10 @@ def format_estimate(value: float, se: float | None) -> str:
     se : float or None
         Its standard error; None, non-finite or ≤ 0 prints ``value`` alone (6 significant
         digits). A standard error below the value's double-precision resolution prints the
-        value to 17 significant digits (all a float64 has), not to the stderr's place.
+        value to 17 significant digits (all a float64 has), not to the stderr's place. Where
+        the larger of the value and the stderr is below 1e-4 or from 1e9 on in magnitude, the
+        value is printed in exponent notation (its mantissa to the stderr's place), never as
+        hundreds of digits.
 
     Returns
     -------
@@ -48,11 +121,19 @@ def format_estimate(value: float, se: float | None) -> str:
     """
     if se is None or not math.isfinite(se) or se <= 0:
         return f"{value:.6g}"
-    digits = max(0, 1 - math.floor(math.log10(se)))
+    # the place of the stderr's second significant digit, and of the value's first
+    se_exp = math.floor(math.log10(se))
+    lead = math.floor(math.log10(abs(value))) if math.isfinite(value) and value else se_exp
+    if not math.isfinite(value) or max(abs(value), se) >= _FIXED_MAX or (
+            max(abs(value), se) < _FIXED_MIN):
+        # exponent notation: the mantissa to the stderr's place, at most the 17 significant
+        # digits a float64 has (a value of 1e300 or of 1e-300 has no useful fixed-point form)
+        shown = min(16, max(1, lead - se_exp + 1))
+        return f"{value:.{shown}e} ± {se:.2g}"
+    digits = max(0, 1 - se_exp)
     # significant digits that fixed-point notation would print: beyond 17 they are not the
     # float's (and a tiny stderr would ask for hundreds of them)
-    lead = math.floor(math.log10(abs(value))) + 1 if math.isfinite(value) and value else 1
-    if lead + digits > 17:
+    if lead + 1 + digits > 17:
         return f"{value:.17g} ± {se:.2g}"
     return f"{value:.{digits}f} ± {se:.2g}"
 
@@ -73,7 +154,7 @@ def identification_text(ident: Any) -> str:
     -------
     str
     """
-    lines = [f"phoid identify: {ident.source}" if ident.source else "phoid identify"]
+    lines = [f"phoid identify: {safe_text(ident.source)}" if ident.source else "phoid identify"]
     delay = (f"{ident.delay:g} s" if ident.delay_stderr is None
              else f"{format_estimate(ident.delay, ident.delay_stderr)} s")
     origin = {"x": " from x", "x+u": " from x and u"}.get(getattr(ident, "delay_from", None), "")
@@ -94,7 +175,7 @@ def identification_text(ident: Any) -> str:
     for r, q in zip(ident.runs, ident.residual_noise_ratios(), strict=True):
         mark = "" if r.used else "  (set aside)"
         lines.append(
-            f"  {r.file:<16}{r.P:>10.4g}{r.D:>10.4g}"
+            f"  {safe_text(r.file):<16}{r.P:>10.4g}{r.D:>10.4g}"
             f" {format_estimate(r.sigma, r.sigma_stderr):>19}"
             f" {format_estimate(r.omega_d, r.omega_d_stderr):>19}"
             f"{r.c_prime:>11.5g}{r.k_prime:>11.5g}"
@@ -104,7 +185,7 @@ def identification_text(ident: Any) -> str:
     if ident.warnings:
         lines.append("")
         lines.append("warnings:")
-        lines.extend(f"  - {w}" for w in ident.warnings)
+        lines.extend(f"  - {safe_text(w)}" for w in ident.warnings)
     return "\n".join(lines)
 
 
@@ -167,14 +248,14 @@ def friction_text(fit: Any) -> str:
     for r, q in zip(fit.runs, fit.residual_noise_ratios(), strict=True):
         stick = f"{r.stick_time:.4g}" if r.stick_time is not None else "-"
         mark = "" if r.used else "  (set aside)"
-        lines.append(f"  {r.name:<16}{r.P:>10.4g}{r.D:>10.4g}{r.sigma:>10.4g}"
+        lines.append(f"  {safe_text(r.name):<16}{r.P:>10.4g}{r.D:>10.4g}{r.sigma:>10.4g}"
                      f"{r.omega_d:>11.5g}{r.x0:>11.3g}{stick:>13}{r.residual_rms:>10.2g}"
                      f"{ratio_text(q):>12}{mark}")
     lines.extend(fit_statistics_lines(fit))
     if fit.warnings:
         lines.append("")
         lines.append("warnings:")
-        lines.extend(f"  - {w}" for w in fit.warnings)
+        lines.extend(f"  - {safe_text(w)}" for w in fit.warnings)
     return "\n".join(lines)
 
 
@@ -196,7 +277,7 @@ def free_text(result: Any) -> str:
     -------
     str
     """
-    lines = [f"phoid identify (free decay): {result.source}" if result.source
+    lines = [f"phoid identify (free decay): {safe_text(result.source)}" if result.source
              else "phoid identify (free decay)", ""]
     for name, est in (("σ", result.sigma), ("ω₀", result.omega0), ("ζ", result.zeta),
                       ("c/m", result.c_over_m), ("k/m", result.k_over_m)):
@@ -221,12 +302,12 @@ def free_text(result: Any) -> str:
                  f"{'samples':>9}{'resid m':>10}{'resid/noise':>12}")
     for r, q in zip(result.runs, result.residual_noise_ratios(), strict=True):
         mark = "" if r.used else "  (set aside)"
-        lines.append(f"  {r.file:<18}{r.release:>11.5g}{'yes' if r.held else 'no':>6}"
+        lines.append(f"  {safe_text(r.file):<18}{r.release:>11.5g}{'yes' if r.held else 'no':>6}"
                      f"{r.x0:>12.4g}{r.v0:>12.4g}{r.n_samples:>9d}"
                      f"{r.residual_rms:>10.2g}{ratio_text(q):>12}{mark}")
     lines.extend(fit_statistics_lines(result))
     if result.warnings:
-        lines += ["", "warnings:"] + [f"  - {w}" for w in result.warnings]
+        lines += ["", "warnings:"] + [f"  - {safe_text(w)}" for w in result.warnings]
     return "\n".join(lines)
 
 
@@ -247,7 +328,7 @@ def forced_text(result: Any) -> str:
     -------
     str
     """
-    lines = [f"phoid identify (forced): {result.source}" if result.source
+    lines = [f"phoid identify (forced): {safe_text(result.source)}" if result.source
              else "phoid identify (forced)", ""]
     for name, est in (("m", result.m), ("c", result.c), ("k", result.k)):
         lines.append(f"  {name} = {format_estimate(est.value, est.stderr)} {est.unit}")
@@ -261,10 +342,10 @@ def forced_text(result: Any) -> str:
     for r, q in zip(result.runs, result.residual_noise_ratios(), strict=True):
         mark = "" if r.used else "  (set aside)"
         lines.append(
-            f"  {r.file:<16}{r.omega:>12.6g}{r.B:>10.4g}{r.C:>11.4g} "
+            f"  {safe_text(r.file):<16}{r.omega:>12.6g}{r.B:>10.4g}{r.C:>11.4g} "
             f"{format_estimate(r.R, r.R_stderr):>22} {format_estimate(r.rho, r.rho_stderr):>22}"
             f"{r.settle_time - r.t_start:>11.3g}{ratio_text(q):>12}{mark}")
     lines.extend(fit_statistics_lines(result))
     if result.warnings:
-        lines += ["", "warnings:"] + [f"  - {w}" for w in result.warnings]
+        lines += ["", "warnings:"] + [f"  - {safe_text(w)}" for w in result.warnings]
     return "\n".join(lines)

@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from phoid._output import save_figure
+from phoid._output import safe_text, save_figure
 from phoid.reports.statistics import correlation_lines, ratio_text, statistics_lines
 
 if TYPE_CHECKING:
@@ -79,7 +79,7 @@ def tracking_text(result: Any) -> str:
     validation = _validation_of(result)
     lines = ["phoid tracking validation", *validation_lines(validation)]
     if validation.warnings:
-        lines += ["", "warnings:"] + [f"  - {w}" for w in validation.warnings]
+        lines += ["", "warnings:"] + [f"  - {safe_text(w)}" for w in validation.warnings]
     return "\n".join(lines)
 
 
@@ -184,7 +184,7 @@ def identification_text(result: Any) -> str:
     title = {"idim": "inverse dynamics least squares (IDIM-LS)",
              "output-error": "output error through the simulated loop"}
     fit = result.fit.summary()
-    lines = [f"phoid tracking identification: {result.path}",
+    lines = [f"phoid tracking identification: {safe_text(result.path)}",
              f"  estimator: {title.get(result.estimator, result.estimator)}", ""]
     for key, est in result.estimates.items():
         value, se, unit = est.value, est.stderr, est.unit
@@ -220,9 +220,9 @@ def identification_text(result: Any) -> str:
               *correlation_lines(blocks["correlation"])]
     for name, v, q in zip(result.run_names, result.validations, result.residual_noise_ratios(),
                           strict=True):
-        lines += ["", f"validation, {name}:", *validation_lines(v),
+        lines += ["", f"validation, {safe_text(name)}:", *validation_lines(v),
                   f"  position residual / noise (noise from the record's third differences): "
                   f"{ratio_text(q)}"]
     if result.warnings:
-        lines += ["", "warnings:"] + [f"  - {w}" for w in result.warnings]
+        lines += ["", "warnings:"] + [f"  - {safe_text(w)}" for w in result.warnings]
     return "\n".join(lines)
