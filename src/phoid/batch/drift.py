@@ -466,8 +466,8 @@ def trend(results: str | Path | Any, *, by: str = "axis", baseline: int = 5,
                 continue  # never estimated with an uncertainty (e.g. a delay given)
             if (left := len(estimated) - len(sel)):
                 warnings.append(f"{by} {unit}, {name}: {left} of {len(estimated)} estimates "
-                                "without a finite value and a finite stderr > 0 (at least "
-                                f"{_TINY:.3g}, a normal float) left out of the chart "
+                                "without a finite value and stderr > 0 (a finite, normal "
+                                f"float: at least {_TINY:.3g}) left out of the chart "
                                 f"(first: {estimated['set'][~usable].iloc[0]})")
             if len(sel) == 0:
                 continue

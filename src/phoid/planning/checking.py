@@ -163,6 +163,15 @@ def check_experiment(
     for key, val in from_data.items():
         if settings.get(key) is None:
             settings[key] = val
+    where = exp.path if exp is not None else experiment
+    dur, given_delay = settings.get("duration"), settings.get("delay")
+    if (isinstance(given_delay, int | float) and isinstance(dur, int | float)
+            and math.isfinite(dur) and not 3.0 * given_delay < dur):
+        # before the loop's roots: a delay in the wrong unit names itself, not the plant
+        raise DesignError(f"{where}: the loop delay (--delay, else the set's [loop] delay) = "
+                          f"{given_delay:g} s is too long for the set's records ({dur:g} s "
+                          "after the release; --duration): the identification fits each decay "
+                          "from 3 delays after the release; is the delay in seconds?")
     settings = {key: val for key, val in settings.items() if val is not None}
     d = check(P, D, m, c, k, **settings)
     negative = [name for name, g in (("P", P), ("D", D)) if g.size and np.all(g < 0)]

@@ -153,6 +153,14 @@ class DesignSettings:
             raise ValueError(f"`noise` = {self.noise:g} m is below 1e-15 × the release "
                              f"`amplitude` {self.amplitude:g} m: positions recorded as doubles "
                              "cannot resolve it; are `noise` and `amplitude` in m?")
+        if 3.0 * self.delay >= self.duration:
+            # the identification fits each decay from 3 delays after the release (the loop's
+            # fast transient): a longer delay leaves nothing to fit, and the loop's roots for
+            # it are many and slow to certify
+            raise ValueError(f"`delay` (--delay) = {self.delay:g} s is too long for the record "
+                             f"(`duration` = {self.duration:g} s): the identification fits "
+                             "each decay from 3 delays after the release; is the delay in "
+                             "seconds?")
         if 0 < self.delay * self.fs < _MIN_DELAY_SAMPLES:
             raise ValueError(f"`delay` = {self.delay:g} s is less than a millionth of a "
                              f"sample period (`fs` = {self.fs:g} Hz), too short for the "
