@@ -3,8 +3,9 @@
 Formats (docs/format.md, "Tracking sets"), recognised by content, the name's suffix being the
 user's claim (a mismatch is an error that says what the content is):
 
-* ``.mat``: MATLAB v5/v7 (a 128-byte header, "MATLAB 5.0 MAT-file …"; read by
-  :func:`scipy.io.loadmat`) or MATLAB v7.3 (HDF5 behind a 512-byte header; read by h5py);
+* ``.mat``: MATLAB v5/v7 (a 128-byte header, "MATLAB 5.0 MAT-file …"; listed by
+  :func:`scipy.io.whosmat`, values read by :mod:`phoid.io._mat5`) or MATLAB v7.3 (HDF5
+  behind a 512-byte header; read by h5py);
 * ``.h5``, ``.hdf5``: HDF5 (the signature ``\\x89HDF\\r\\n\\x1a\\n`` at offset 0, 512, 1024, …;
   read by h5py); datasets by name, nested paths ``"group/name"`` allowed;
 * ``.parquet``: Apache Parquet (``PAR1`` at both ends; read by pyarrow); signals are columns,
@@ -14,8 +15,12 @@ A signal is a real numeric vector, stored N×1, 1×N or 1-D; a matrix is refused
 A scalar (a gain) is a real number stored 1×1 (or with one element, any shape). The sizes are
 checked before anything is read (:data:`~phoid.io.limits.MAX_DATA_BYTES` for the file and for
 the values read, :data:`~phoid.io.limits.MAX_LINES` samples per run, the set's remaining
-:data:`~phoid.io.limits.MAX_SET_ROWS`). HDF5 links and storage that lead outside the file
-(external links, external or virtual datasets) are refused. h5py and pyarrow are optional
+:data:`~phoid.io.limits.MAX_SET_ROWS`). Values are then read piece by piece (about a MiB at a
+time) into float64 arrays of the declared size, ``t`` first, each piece checked as it comes
+(finite; ``t`` strictly increasing): a file of zeros declared huge is refused at its first
+piece, and memory is the signals kept (8 bytes per value) plus one piece. HDF5 links and
+storage that lead outside the file (external links, external or virtual datasets) are
+refused. h5py and pyarrow are optional
 (``pip install 'phoid[io]'``) and imported only when such a file is read.
 """
 
@@ -23,7 +28,7 @@ from __future__ import annotations
 
 import hashlib
 import re
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any, BinaryIO
 
@@ -33,7 +38,7 @@ import phoid.io.limits as limits
 from phoid.errors import ExperimentError
 from phoid.io._files import open_regular
 from phoid.io._format import fail, show
-from phoid.io._mat5 import check_mat5, check_stream
+from phoid.io._mat5 import check_mat5, read_values
 
 __all__ = ["CONTAINER_SUFFIXES", "container_suffix", "read_container"]
 
@@ -49,6 +54,7 @@ _MAT_NUMERIC = ("double", "single", "int8", "uint8", "int16", "uint16", "int32",
                 "int64", "uint64")
 _LISTED = 30  # names shown in a message
 _WALKED = 10_000  # HDF5 objects visited to list a file's datasets
+_PIECE = limits.BLOCK // 8  # samples read at a time (8 MiB of float64 at most per piece)
 
 _DESCRIPTION = {"mat5": "a MATLAB v5 file", "mat73": "a MATLAB v7.3 file (HDF5)",
                 "hdf5": "an HDF5 file", "parquet": "a Parquet file", "gzip": "a gzip file"}
@@ -112,7 +118,7 @@ def read_container(
         _check_claim(where, suffix, kind)
         try:
             if kind == "mat5":
-                source: _Source = _Mat5(where, f, check_mat5(where, f, st.st_size))
+                source: _Source = _Mat5(where, f, st.st_size)
             elif kind == "parquet":
                 source = _Parquet(where, f)
             else:
@@ -214,7 +220,10 @@ class _Source:
         """The variable's shape (None: absent), after checking it holds real numbers."""
         raise NotImplementedError
 
-    def load(self, name: str) -> np.ndarray:
+    def pieces(self, name: str, n: int) -> Iterator[np.ndarray]:
+        """The ``n`` values of a vector (its shape checked before), in order, in pieces of
+        about :data:`_PIECE` values (any real type; one-dimensional or not, each piece is
+        read in order): memory is one piece, not the variable."""
         raise NotImplementedError
 
     def scalar(self, name: str, key: str) -> float:
@@ -224,7 +233,9 @@ class _Source:
         if int(np.prod(shape)) != 1:
             fail(self.where, f"{self.what} {show(name, 60)} for {key} is "
                               f"{_shape_text(shape)}, not a scalar (1×1)")
-        value = float(np.asarray(self.load(name), dtype=np.float64).reshape(-1)[0])
+        out = np.empty(1)
+        _fill(self, name, key, out, increasing=False, finite=False)
+        value = float(out[0])
         if not np.isfinite(value):
             fail(self.where, f"{self.what} {show(name, 60)} for {key} is not finite: {value}")
         return value
@@ -283,28 +294,50 @@ def _read(where: str, source: _Source, columns: Mapping[str, str], required: Seq
         values[key] = source.scalar(name, key)
     digest = hashlib.blake2b(digest_size=32)
     signals: dict[str, np.ndarray] = {}
-    for key in lengths:
-        name = columns[key]
-        a = np.array(source.load(name), dtype=np.float64, copy=True).reshape(-1)
-        if a.size != n:  # the content contradicts the shape it declared
-            fail(where, f"{source.what} {show(name, 60)} for {key}: read {a.size} values, "
-                         f"its shape says {n}")
-        bad = ~np.isfinite(a)
-        if bad.any():
-            i = int(np.argmax(bad))
-            fail(where, f"{source.what} {show(name, 60)} for {key} has a non-finite value at "
-                         f"index {i}: {a[i]}")
+    for key in lengths:  # t first: a t that does not increase is refused at its first piece
+        a = np.empty(n)
+        _fill(source, columns[key], key, a, increasing=(key == "t"))
         a.flags.writeable = False
         signals[key] = a
         digest.update(f"{key}:{a.size};".encode())
-        digest.update(a.tobytes())
-    t = signals["t"]
-    up = t[1:] > t[:-1]
-    if not up.all():
-        i = int(np.argmin(up)) + 1
-        fail(where, f"{source.what} {show(columns['t'], 60)} for t is not strictly increasing "
-                     f"at index {i}: {float(t[i])!r} s follows {float(t[i - 1])!r} s")
+        digest.update(memoryview(a).cast("B"))
     return signals, values, digest.digest()
+
+
+def _fill(source: _Source, name: str, key: str, out: np.ndarray, *, increasing: bool,
+          finite: bool = True) -> None:
+    """Read a variable's values into ``out`` (float64, its declared size) piece by piece,
+    checking each piece as it comes: finite, strictly increasing (``t``), no more values
+    than declared. Nothing is held but ``out`` and one piece."""
+    what, where, n = source.what, source.where, out.size
+    at = 0
+    for piece in source.pieces(name, n):
+        piece = np.ravel(piece)
+        if at + piece.size > n:  # the content contradicts the shape it declared
+            fail(where, f"{what} {show(name, 60)} for {key}: it holds more values than its "
+                         f"shape says ({n})")
+        chunk = out[at:at + piece.size]
+        with np.errstate(over="ignore", invalid="ignore"):  # a float128 beyond float64: inf
+            np.copyto(chunk, piece, casting="unsafe")
+        bad = ~np.isfinite(chunk) if finite else None
+        if bad is not None and bad.any():
+            i = int(np.argmax(bad))
+            fail(where, f"{what} {show(name, 60)} for {key} has a non-finite value at index "
+                         f"{at + i}: {chunk[i]}")
+        if increasing and chunk.size:
+            up = chunk[1:] > chunk[:-1]
+            if at and not chunk[0] > out[at - 1]:
+                _not_increasing(where, what, name, at, out)
+            if not up.all():
+                _not_increasing(where, what, name, at + int(np.argmin(up)) + 1, out)
+        at += piece.size
+    if at != n:
+        fail(where, f"{what} {show(name, 60)} for {key}: read {at} values, its shape says {n}")
+
+
+def _not_increasing(where: str, what: str, name: str, i: int, t: np.ndarray) -> None:
+    fail(where, f"{what} {show(name, 60)} for t is not strictly increasing at index {i}: "
+                 f"{float(t[i])!r} s follows {float(t[i - 1])!r} s")
 
 
 def _exc(exc: BaseException) -> str:
@@ -322,20 +355,16 @@ def _missing_package(package: str, what: str) -> str:
 
 
 class _Mat5(_Source):
-    """A MATLAB v5/v7 file: ``whosmat`` lists names, shapes and classes without reading the
-    data; ``loadmat`` then reads only the variables asked for."""
+    """A MATLAB v5/v7 file, listed and read by :mod:`phoid.io._mat5` (names, shapes and
+    classes before any value; the values of the variables asked for, in blocks)."""
 
-    def __init__(self, where: str, f: BinaryIO, compressed: dict[str, tuple[int, int]]
-                 ) -> None:
-        from scipy.io import whosmat
-
-        self.where, self.f, self.compressed = where, f, compressed
-        try:
-            listed = whosmat(f)
-        except Exception as exc:  # hostile input: scipy raises many kinds
-            fail(where, f"cannot read the MATLAB file: {_exc(exc)}")
+    def __init__(self, where: str, f: BinaryIO, size: int) -> None:
+        self.where, self.f = where, f
+        listed, self.located = check_mat5(where, f, size)
         self.vars = {name: (tuple(int(d) for d in shape), cls) for name, shape, cls in listed}
-        self.cache: dict[str, np.ndarray] = {}
+        names = [name for name, _, _ in listed]
+        self.twice = {name for name in self.vars if names.count(name) > 1} \
+            if len(self.vars) < len(names) else set()
 
     def names(self) -> list[str]:
         return list(self.vars)
@@ -343,31 +372,19 @@ class _Mat5(_Source):
     def shape(self, name: str, role: str) -> tuple[int, ...] | None:
         if name not in self.vars:
             return None
+        if name in self.twice:
+            fail(self.where, f"the MATLAB file holds two variables named {show(name, 60)}")
         shape, cls = self.vars[name]
-        if cls not in _MAT_NUMERIC:
+        if cls not in _MAT_NUMERIC or name not in self.located:
             fail(self.where, f"variable {show(name, 60)} for {role} is a MATLAB {cls} array, "
                               "not real numbers")
+        if self.located[name].complex:
+            fail(self.where, f"variable {show(name, 60)} for {role} is complex, not real "
+                              "numbers")
         return shape
 
-    def load(self, name: str) -> np.ndarray:
-        if name not in self.cache:
-            from scipy.io import loadmat
-
-            if name in self.compressed:  # scipy takes a cut or overlong stream silently
-                check_stream(self.where, self.f, *self.compressed[name], name)
-            try:
-                self.f.seek(0)
-                data = loadmat(self.f, variable_names=[name], squeeze_me=False)
-            except Exception as exc:  # hostile input: scipy raises many kinds
-                fail(self.where, f"cannot read variable {show(name, 60)} of the MATLAB file: "
-                                  f"{_exc(exc)}")
-            value = data.get(name)
-            if not isinstance(value, np.ndarray) or value.dtype.kind not in "fiu":
-                fail(self.where, f"variable {show(name, 60)} is not an array of real numbers "
-                                  f"({'complex' if np.iscomplexobj(value) else 'other'} "
-                                  "content)")
-            self.cache[name] = value
-        return self.cache[name]
+    def pieces(self, name: str, n: int) -> Iterator[np.ndarray]:
+        return read_values(self.where, self.f, self.located[name], name)
 
 
 # --------------------------------------------------------------------------------------------
@@ -472,12 +489,27 @@ class _Hdf5(_Source):
         shape = tuple(int(d) for d in ds.shape)
         return shape[::-1] if self.matlab else shape
 
-    def load(self, name: str) -> np.ndarray:
+    def pieces(self, name: str, n: int) -> Iterator[np.ndarray]:
+        ds = self._dataset(name)
+        dims = ds.shape
+        if not dims or n == 1:
+            yield self._read(name, ds, ())
+            return
+        axis = next(i for i, d in enumerate(dims) if d != 1)
+        step = _PIECE
+        if ds.chunks:  # whole chunks per read: each decompressed once, whatever its shape
+            size = ds.chunks[axis]
+            step = max(size, step // size * size)
+        for start in range(0, n, step):
+            stop = min(start + step, n)
+            yield self._read(name, ds, tuple(slice(start, stop) if i == axis else 0
+                                             for i in range(len(dims))))
+
+    def _read(self, name: str, ds: Any, index: tuple[Any, ...]) -> np.ndarray:
         try:
-            return np.asarray(self._dataset(name)[()])
+            return np.asarray(ds[index])
         except Exception as exc:  # hostile input: a corrupt chunk, a failing filter
-            fail(self.where, f"cannot read {self.what} {show(name, 60)}: "
-                              f"{_exc(exc)}")
+            fail(self.where, f"cannot read {self.what} {show(name, 60)}: {_exc(exc)}")
 
 
 # --------------------------------------------------------------------------------------------
@@ -498,10 +530,15 @@ class _Parquet(_Source):
         try:
             self.file = pq.ParquetFile(f)
             self.schema = self.file.schema_arrow
-            self.rows = int(self.file.metadata.num_rows)
-            raw = self.file.metadata.metadata or {}
+            meta = self.file.metadata
+            self.rows = int(meta.num_rows)
+            groups = [int(meta.row_group(i).num_rows) for i in range(meta.num_row_groups)]
+            raw = meta.metadata or {}
         except Exception as exc:  # hostile input: pyarrow raises many kinds
             fail(where, f"cannot read the Parquet file: {_exc(exc)}")
+        if sum(groups) != self.rows or min(groups, default=0) < 0:
+            fail(where, f"the Parquet file declares {self.rows} rows, but its row groups "
+                         f"{sum(groups)}: the file is damaged")
         self.meta = {k.decode("utf-8", "replace"): v for k, v in raw.items()
                      if k not in (b"ARROW:schema", b"pandas")}
 
@@ -525,15 +562,23 @@ class _Parquet(_Source):
                               "numbers")
         return (self.rows,)
 
-    def load(self, name: str) -> np.ndarray:
-        try:
-            column = self.file.read(columns=[name]).column(0)
-        except Exception as exc:  # hostile input
-            fail(self.where, f"cannot read column {show(name, 60)}: {_exc(exc)}")
-        if column.null_count:
-            i = int(np.flatnonzero(column.is_null().to_numpy(zero_copy_only=False))[0])
-            fail(self.where, f"column {show(name, 60)} has a missing (null) value at index {i}")
-        return column.to_numpy()
+    def pieces(self, name: str, n: int) -> Iterator[np.ndarray]:
+        at = 0
+        batches = self.file.iter_batches(batch_size=_PIECE, columns=[name], use_threads=False)
+        while True:
+            try:
+                batch = next(batches, None)
+            except Exception as exc:  # hostile input
+                fail(self.where, f"cannot read column {show(name, 60)}: {_exc(exc)}")
+            if batch is None:
+                return
+            column = batch.column(0)
+            if column.null_count:
+                i = int(np.flatnonzero(column.is_null().to_numpy(zero_copy_only=False))[0])
+                fail(self.where, f"column {show(name, 60)} has a missing (null) value at index "
+                                  f"{at + i}")
+            at += len(column)
+            yield column.to_numpy(zero_copy_only=False)
 
     def scalar(self, name: str, key: str) -> float:
         text = self.meta[name].decode("utf-8", "replace")
