@@ -718,6 +718,10 @@ def _idim(where, records, fixed, given):
         force = _delayed(force, ctrl)
         t = rec.t0 + ctrl.sample_time * np.arange(rec.x.size)
         rows.append((t, rec.x, force))
+    if not any(np.any(force) for _, _, force in rows):  # a message naming the runs and files
+        names = ", ".join(rec.name for rec in records[:3]) + (", …" if len(records) > 3 else "")
+        raise ValueError(f"{names}: u: the force to fit, G·(u + w), is zero at every sample (a "
+                         "recorded command u of zeros?): IDIM cannot determine m, c, fc, offset")
     # the benchmark's own script's conventions (samples 50:end, std of the residual), so that
     # a published IDIM-LS is reproduced to its printed digits (design-notes/idim.md)
     fit = idim_ls_runs(rows, fixed={_IDIM_NAMES[k]: v for k, v in fixed.items()
