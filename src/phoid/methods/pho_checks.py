@@ -19,6 +19,7 @@ from phoid.errors import IdentificationError
 from phoid.io.units import unit_hint
 from phoid.methods.pho import fit_lines
 from phoid.methods.savgol import savgol_filter
+from phoid.reports.text import format_ratio
 
 __all__ = [
     "DIGITAL_KEYS",
@@ -74,8 +75,8 @@ def check_delay(delay: float, data: Sequence[tuple[np.ndarray, np.ndarray]], sou
     h = float(np.median(steps))
     if 0.0 < delay < _MIN_DELAY_PER_STEP * h:
         raise IdentificationError(
-            f"{where}{what} = {delay:.3g} s is {h / delay:.3g} times shorter than the records' "
-            f"sample step ({h:.3g} s): is it in seconds? Give 0 for a loop without delay")
+            f"{where}{what} = {delay:.3g} s is {format_ratio(h, delay)} times shorter than the "
+            f"records' sample step ({h:.3g} s): is it in seconds? Give 0 for a loop without delay")
     if 3.0 * delay >= max(spans):
         raise IdentificationError(
             f"{where}{what} = {delay:.4g} s is too long for the records: the fit starts 3 "
@@ -167,14 +168,14 @@ def check_sample_time(experiment: Any, digital: Any, runs: Sequence[Any]) -> str
         hint = unit_hint("t", h / digital.sample_time)
         raise IdentificationError(
             f"{experiment.path}: [loop] sample_time = {digital.sample_time:.3g} s is "
-            f"{h / digital.sample_time:.3g} times shorter than the records' sample step "
+            f"{format_ratio(h, digital.sample_time)} times shorter than the records' sample step "
             f"({h:.3g} s): is it in seconds? {hint + ' ' if hint else ''}A controller that "
             "fast is a continuous loop: give [loop] delay instead of sample_time")
     hint = unit_hint("t", h / digital.sample_time) if h > 20 * digital.sample_time else ""
     if hint:
         return (f"the records are sampled every {h:.3g} s but the controller's period "
                 f"([loop] sample_time) is {digital.sample_time:.3g} s, "
-                f"{h / digital.sample_time:.3g} times shorter: {hint}")
+                f"{format_ratio(h, digital.sample_time)} times shorter: {hint}")
     return None
 
 

@@ -39,6 +39,7 @@ from phoid.dynamics.plant import Plant
 from phoid.fits.hac import hac_covariance
 from phoid.methods.pho import Estimate
 from phoid.reports.display import NotebookDisplay
+from phoid.reports.text import format_number
 from phoid.simulation.tracking import TrackingSimulation, simulate_tracking
 
 __all__ = [
@@ -702,8 +703,8 @@ def check_stable(records: Sequence[TrackingRecord], p: Mapping[str, float], what
             raise ValueError(
                 f"{rec.name}: the loop is unstable for the given gains with {what} (m = "
                 f"{p['m']:.4g} kg, c = {p['c']:.4g} N s/m, k = {p['k']:.4g} N/m): largest "
-                f"closed-loop pole |z| = {rho:.4f} ≥ 1; check P, D, gain, command_gain and the "
-                "sign convention u = K·(P·(r − x) − D·v̂)"
+                f"closed-loop pole |z| = {format_number(rho, 4)} ≥ 1; check P, D, gain, "
+                "command_gain and the sign convention u = K·(P·(r − x) − D·v̂)"
             )
 
 
