@@ -138,6 +138,8 @@ class Rehearsal:
 
     def report(self) -> str:
         """The predicted stderr against the replicas' spread, bias and coverage, as text."""
+        from phoid.reports.text import format_number
+
         lines = [f"rehearsal: {self.replicas} simulated replicas of the schedule "
                  f"(seed {self.seed}), {self.identified} identified",
                  "",
@@ -148,8 +150,9 @@ class Rehearsal:
             lo, hi = p.sd_ratio_range
             lines.append(
                 f"{p.name:<3}{p.true:10.4g} {p.predicted:10.3g} {p.observed_sd:11.3g} "
-                f"{p.sd_ratio:8.3f} [{lo:.3f}, {hi:.3f}]{'':>0} {p.mean_stderr:11.3g} "
-                f"{p.bias:10.2g} ± {p.bias_mc:8.2g} {p.rmse_ratio:9.3f} "
+                f"{format_number(p.sd_ratio, 3):>8} [{format_number(lo, 3)}, "
+                f"{format_number(hi, 3)}]{'':>0} {p.mean_stderr:11.3g} "
+                f"{p.bias:10.2g} ± {p.bias_mc:8.2g} {format_number(p.rmse_ratio, 3):>9} "
                 f"{100 * p.coverage:7.1f}%")
         lines.append(f"(units {', '.join(f'{p.name}: {p.unit}' for p in self.parameters)}; "
                      f"cover ±3: share of replicas within 3 reported stderr, "

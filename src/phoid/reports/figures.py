@@ -20,6 +20,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from phoid._output import OutputFolder, png_writer
+from phoid.reports.text import format_number
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
@@ -265,11 +266,12 @@ def figure1(result: Any, out_dir: str | Path, *,
         xx = np.linspace(0.0, max(line_w.x.max(), line_wo.x.max()) * 1.05, 50)
         ax.plot(line_w.x, line_w.y, "o", mfc="none", color="C0", label="with delay compensation")
         ax.plot(xx, line_w.slope * xx + line_w.intercept, "-", color="C0",
-                label=f"fit: slope {line_w.slope:.4f} kg, intercept {line_w.intercept:.4f} {unit}")
+                label=f"fit: slope {format_number(line_w.slope)} kg, intercept "
+                      f"{format_number(line_w.intercept)} {unit}")
         ax.plot(line_wo.x, line_wo.y, "x", color="C3", label="without compensation")
         ax.plot(xx, line_wo.slope * xx + line_wo.intercept, "--", color="C3",
-                label=f"fit: slope {line_wo.slope:.4f} kg, "
-                      f"intercept {line_wo.intercept:.4f} {unit}")
+                label=f"fit: slope {format_number(line_wo.slope)} kg, "
+                      f"intercept {format_number(line_wo.intercept)} {unit}")
         ax.set_xlabel(xlabel)
         ax.set_ylabel(ylabel)
         ax.set_title(title)

@@ -15,6 +15,7 @@ import numpy as np
 
 from phoid._output import safe_text, save_figure
 from phoid.reports.statistics import correlation_lines, ratio_text, statistics_lines
+from phoid.reports.text import format_number
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
@@ -201,12 +202,14 @@ def identification_text(result: Any) -> str:
     lines.append(f"  delay: {result.delay_source}")
     lines.append("")
     if result.estimator == "idim":
-        lines.append(f"  force relative error {fit['relative_error_percent']:.4f} %, condition "
+        rel = format_number(fit["relative_error_percent"])
+        lines.append(f"  force relative error {rel} %, condition "
                      f"number {fit['condition_number']:.4g}, residual lag-1 autocorrelation "
                      f"{fit['lag1_autocorrelation']:.3f}, {fit['n_samples']} rows")
     else:
         white = ", ".join(f"{k} {v:.3g}" for k, v in fit["white_noise_stderr"].items())
-        lines.append(f"  tracking-error relative error {fit['relative_error_percent']:.4f} %, "
+        rel = format_number(fit["relative_error_percent"])
+        lines.append(f"  tracking-error relative error {rel} %, "
                      f"rms residual {fit['rms_residual']:.3g} m, residual lag-1 "
                      f"autocorrelation {fit['lag1_autocorrelation']:.4f}")
         lines.append(f"  stderrs: Newey–West, lag window {fit['hac_bandwidth']} samples; the "
