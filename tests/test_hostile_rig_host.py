@@ -14,7 +14,12 @@ from __future__ import annotations
 
 import contextlib
 import json
+import os
+import resource
+import signal
 import socket
+import subprocess
+import sys
 import threading
 import time
 import tomllib
@@ -593,3 +598,279 @@ def test_resume_touches_only_the_files_of_its_own_set(tmp_path, fake, listener):
     (other / "experiment.toml").write_text('format = "phoid/1"\n')
     line = _fail_line(_cli("run", plan, "--port", port, "--out", other, "--resume"))
     assert "not a set of `phoid run`" in line
+
+
+# ---------------------------------------------------------------------------------------------
+# 5. a resumed set is the set recorded: its complete runs' files, its configuration
+
+
+def _partial_set(tmp_path, fake, runs=2):
+    """A set whose run 1 completed and run 2 was cut off (exit status 1)."""
+    def script(conn, cfg, k, stop):
+        return _good_run(conn, cfg) if k == 1 else _cut(conn, cfg)
+
+    plan = _plan(tmp_path, runs=runs)
+    out = tmp_path / "set"
+    r = _cli("run", plan, "--port", fake(script).port, "--out", out, "--hold", 0.1)
+    assert r.exit_code == 1, r.output
+    return plan, out
+
+
+def _point_run1_at(name):
+    def change(out):
+        doc = _manifest(out)
+        doc["rig"]["attempt"][0]["file"] = name
+        (out / "experiment.toml").write_text(tomli_w.dumps(doc))
+    return change
+
+
+def _fifo(out):
+    (out / "run01.csv").unlink()
+    os.mkfifo(out / "run01.csv")
+
+
+def _link(out):
+    (out / "run01.csv").unlink()
+    (out / "run01.csv").symlink_to("/etc/hostname")
+
+
+@pytest.mark.parametrize("change, words", [
+    (lambda out: (out / "run01.csv").unlink(), "is missing"),
+    (_point_run1_at("experiment.toml"), "is not the file the plan names"),
+    (_point_run1_at("run02.csv"), "is not the file the plan names"),
+    (_point_run1_at("run02.incomplete.csv"), "is not the file the plan names"),
+    (_point_run1_at("run01.csv\n"), "is not the file the plan names"),
+    (lambda out: ((out / "run01.csv").unlink(), (out / "run01.csv").mkdir()),
+     "is not a regular file"),
+    (_fifo, "is not a regular file"),
+    (_link, "is a symbolic link"),
+    (lambda out: (out / "run01.csv").write_text("t,x,u\n0,0,0\n0.005,0,0\n"),
+     "its bytes changed"),
+], ids=["missing", "manifest", "other-run", "other-attempt", "newline", "folder", "fifo", "link",
+        "edited"])
+def test_resume_refuses_a_complete_run_whose_file_is_not_its_own(tmp_path, fake, listener,
+                                                                  change, words):
+    # run 1 is recorded complete; its file gone, replaced or renamed in the manifest would
+    # give a set phoid identify refuses (or reads the wrong data): one line naming run 1,
+    # before connecting (docs/rig-protocol.md, "Limits of the host": Files)
+    plan, out = _partial_set(tmp_path, fake)
+    change(out)
+    port, connected = listener
+    line = _fail_line(_cli("run", plan, "--port", port, "--out", out, "--hold", 0.1,
+                           "--resume"))
+    assert "run 1 is recorded complete" in line and words in line, line
+    assert not connected()
+
+
+@pytest.mark.parametrize("change, extra, words", [
+    (lambda d: d["design"].update(fs=400.0), (), "sample_time"),
+    (lambda d: d["loop"].update(delay=0.01), (), "delay_samples"),
+    (lambda d: d["design"].update(duration=1.0), (), "run_samples"),
+    (lambda d: d["run"][0].update(P=d["run"][0]["P"] + 1.0), (), "P = "),
+    (lambda d: None, ("--u-max", 5), "u_max"),
+    (lambda d: None, ("--hold", 0.2), "hold_samples"),
+], ids=["fs", "delay", "duration", "gain", "u-max", "hold"])
+def test_resume_refuses_a_changed_configuration(tmp_path, fake, listener, change, extra, words):
+    # a plan edited (or an option changed) between sessions would give a set whose [loop]
+    # is not the loop its recorded runs were sampled with: refused before connecting, naming
+    # the field that changed
+    plan, out = _partial_set(tmp_path, fake)
+    doc = tomllib.loads((plan / "experiment.toml").read_text())
+    change(doc)
+    (plan / "experiment.toml").write_text(tomli_w.dumps(doc))
+    port, connected = listener
+    args = ("--hold", 0.1, *extra) if "--hold" not in extra else extra
+    line = _fail_line(_cli("run", plan, "--port", port, "--out", out, "--resume", *args))
+    assert words in line and "--resume" in line, line
+    assert not connected()
+
+
+# ---------------------------------------------------------------------------------------------
+# 6. a rig whose clock is not the configured period
+
+
+@pytest.mark.parametrize("clock, complete", [
+    (lambda n, T: n * T * 1e6, False),  # t in µs read as s: identify refuses such a set
+    (lambda n, T: n * T * 1e300, False),  # finite, absurd
+    (lambda n, T: n * T * 1e-3, False),  # t in ks: every step 1000 times short
+    (lambda n, T: n * T * 1.5, False),  # 50 % slow: not the loop configured
+    # a mean of T but a median step 1000 times short: the file's sample step identify reads
+    (lambda n, T: n * T * 1e-3 + (n >= 2 * HOLD) * (TOTAL - 1) * T * 0.999, False),
+    (lambda n, T: n * T * 1.02, True),  # 2 % slow: kept, with the documented note
+], ids=["us", "1e300", "ks", "slow-50%", "median", "slow-2%"])
+def test_a_rig_clock_off_the_configured_period_is_incomplete(tmp_path, fake, clock, complete):
+    # docs/rig-protocol.md: the mean or the median interval more than 10 % from T makes the run
+    # incomplete (identify would refuse the set, or model the wrong loop); within it a note
+    def script(conn, cfg, k, stop):
+        T = cfg["sample_time"]
+        conn.sendall(b"".join(encode("SAMPLE", n, clock(n, T), 0.001 * k, 0.0, _state(n, cfg))
+                              for n in range(TOTAL)) + encode("END", "done"))
+
+    plan = _plan(tmp_path)
+    r = _cli("run", plan, "--port", fake(script).port, "--out", tmp_path / "set", "--hold", 0.1)
+    attempts = _manifest(tmp_path / "set")["rig"]["attempt"]
+    if complete:
+        assert r.exit_code == 0, r.output
+        assert "the rig's sample intervals were" in r.stderr
+        assert [a["status"] for a in attempts] == ["complete", "complete"]
+    else:
+        assert r.exit_code == 1, r.output
+        assert [a["status"] for a in attempts] == ["incomplete", "incomplete"]
+        assert "not the configured T = 0.005 s" in attempts[0]["reason"]
+
+
+# ---------------------------------------------------------------------------------------------
+# 7. the file system: names, a folder that cannot be written, a write that fails mid-run
+
+
+def test_a_file_name_too_long_for_the_file_system_is_refused_before_connecting(tmp_path,
+                                                                              listener):
+    # 62 emoji: 66 characters (under the plan check's 200) but 252 bytes; its hidden .part
+    # name is 267 bytes, over the 255 of NAME_MAX on Linux file systems
+    plan = _edited_plan(tmp_path, lambda d: d["run"][0].update(file="\U0001F600" * 62 + ".csv"))
+    port, connected = listener
+    line = _fail_line(_cli("run", plan, "--port", port, "--out", tmp_path / "set"))
+    assert "too long for the file system" in line, line
+    assert not connected()
+    assert not (tmp_path / "set").exists()
+
+
+def test_a_folder_that_cannot_be_written_is_refused_before_connecting(tmp_path, listener):
+    plan = _plan(tmp_path)
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    if os.geteuid() == 0:  # root writes through modes: a read-only mount instead
+        r = subprocess.run(["mount", "-t", "tmpfs", "-o", "ro,size=64k", "tmpfs", str(ro)],
+                           capture_output=True)
+        if r.returncode:
+            pytest.skip(f"root, and no read-only tmpfs to test with: {r.stderr!r}")
+    else:
+        ro.chmod(0o555)
+    try:
+        port, connected = listener
+        line = _fail_line(_cli("run", plan, "--port", port, "--out", ro / "set"))
+        assert "cannot write its files there" in line and str(ro / "set") in line, line
+        assert not connected()
+    finally:
+        if os.geteuid() == 0:
+            subprocess.run(["umount", str(ro)], capture_output=True)
+        ro.chmod(0o755)
+
+
+PHOID = [sys.executable, "-c", "from phoid.cli import main; main()"]  # `phoid` in a subprocess
+
+
+def _limit_file_size(limit):
+    def preexec():
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # EFBIG instead of the signal
+        resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))
+    return preexec
+
+
+def test_a_write_that_fails_mid_run_is_one_line_and_the_run_is_recorded(tmp_path, fake):
+    # the file system refuses bytes beyond 8 kB (RLIMIT_FSIZE: the same failure as a full
+    # disk, EFBIG for ENOSPC); a 2 s run at 200 Hz is 400 rows of about 45 bytes, written 256
+    # (11 kB) at a time, so the first write fails mid-run (the manifest, about 4 kB, fits): ABORT to the rig, the attempt recorded
+    # incomplete, no hidden .part left, one line naming the run and the file
+    got = []
+
+    def script(conn, cfg, k, stop):
+        _good_run(conn, cfg, x=0.0012345678901234567)  # rows of about 45 bytes
+        conn.settimeout(5)
+        with contextlib.suppress(OSError):
+            while b"ABORT" not in b"".join(got) and (data := conn.recv(4096)):
+                got.append(data)
+
+    plan = _plan(tmp_path, duration=2.0)
+    out = tmp_path / "set"
+    r = subprocess.run([*PHOID, "run", str(plan), "--port",
+                        fake(script).port, "--out", str(out), "--hold", "0.1", "--timeout", "5"],
+                       capture_output=True, text=True, timeout=60,
+                       preexec_fn=_limit_file_size(8192))
+    err = r.stderr.strip().splitlines()
+    assert r.returncode == 2 and len(err) == 1, r.stderr
+    assert "run 1 (run01.csv): cannot write" in err[0] and ".part" in err[0], err
+    assert b"ABORT" in b"".join(got)
+    attempt = _manifest(out)["rig"]["attempt"][0]
+    assert attempt["status"] == "incomplete" and "cannot write" in attempt["reason"]
+    assert sorted(p.name for p in out.iterdir()) == ["experiment.toml", "run01.incomplete.csv"]
+    # the file holds what its record says: the rows written whole (none here: the first write
+    # of 256 rows was cut)
+    rows = (out / "run01.incomplete.csv").read_text().splitlines()
+    assert max(len(rows) - 1, 0) == attempt["samples"]
+
+
+# ---------------------------------------------------------------------------------------------
+# 8. SIGTERM, paths and ports
+
+
+def test_sigterm_records_the_run_and_aborts_like_ctrl_c(tmp_path, fake):
+    got, started = [], threading.Event()
+
+    def script(conn, cfg, k, stop):  # a slow run: one sample every 20 ms
+        conn.settimeout(0.02)
+        for n in range(TOTAL):
+            conn.sendall(_sample(n, cfg["sample_time"], _state(n, cfg)))
+            started.set()
+            with contextlib.suppress(TimeoutError):
+                if (data := conn.recv(4096)):
+                    got.append(data)
+            if b"ABORT" in b"".join(got) or stop.is_set():
+                return
+
+    plan = _plan(tmp_path)
+    out = tmp_path / "set"
+    proc = subprocess.Popen([*PHOID, "run", str(plan), "--port",
+                             fake(script).port, "--out", str(out), "--hold", "0.1",
+                             "--timeout", "5"], stderr=subprocess.PIPE, text=True)
+    assert started.wait(30)
+    time.sleep(0.2)
+    proc.send_signal(signal.SIGTERM)
+    _, stderr = proc.communicate(timeout=30)
+    assert proc.returncode == 143, stderr  # 128 + SIGTERM, as documented in phoid run's help
+    assert "SIGTERM" in stderr and "Traceback" not in stderr
+    assert b"ABORT" in b"".join(got)
+    attempt = _manifest(out)["rig"]["attempt"][0]
+    assert attempt["status"] == "incomplete" and "SIGTERM" in attempt["reason"]
+    assert sorted(p.name for p in out.iterdir()) == ["experiment.toml", "run01.incomplete.csv"]
+
+
+def test_the_default_out_is_beside_the_plan_even_as_dot(tmp_path, fake, monkeypatch):
+    plan = _plan(tmp_path)
+    rig = fake(lambda conn, cfg, k, stop: _good_run(conn, cfg, x=0.001 * k))
+    monkeypatch.chdir(plan)
+    r = _cli("run", ".", "--port", rig.port, "--hold", 0.1)
+    assert r.exit_code == 0, r.output
+    assert (tmp_path / "plan-run" / "experiment.toml").is_file()
+    assert sorted(p.name for p in plan.iterdir()) == ["experiment.toml"]
+
+
+@pytest.mark.parametrize("args, words", [
+    (("--out", ""), "--out"),
+    (("--out", "   "), "--out"),
+    (("--port", "tcp://" + "a" * 64 + ":80"), "--port"),  # a DNS label is at most 63
+    (("--port", "tcp://a b:80"), "--port"),
+    (("--port", "tcp://" + "a." * 130 + ":80"), "--port"),  # a name is at most 253
+], ids=["out-empty", "out-blank", "label", "space", "name"])
+def test_an_empty_out_or_a_bad_host_name_is_one_line(tmp_path, listener, args, words):
+    plan = _plan(tmp_path)
+    port, connected = listener
+    extra = ("--port", port, *args) if args[0] == "--out" else ("--out", tmp_path / "s", *args)
+    line = _fail_line(_cli("run", plan, *extra))
+    assert words in line, line
+    assert not connected()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["plan"]
+
+
+def test_a_plan_whose_path_is_not_utf8_is_one_line(tmp_path, listener):
+    folder = Path(os.fsdecode(bytes(tmp_path) + b"/\xff"))
+    try:
+        folder.mkdir()
+    except (OSError, UnicodeError):
+        pytest.skip("the file system takes no name that is not UTF-8")
+    plan = folder / "plan"
+    _plan(tmp_path).rename(plan)  # designed where its path prints, then moved
+    port, connected = listener
+    line = _fail_line(_cli("run", plan, "--port", port, "--out", tmp_path / "set"))
+    assert "not UTF-8" in line and "\\udcff" in line, line
+    assert not connected()

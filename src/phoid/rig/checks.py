@@ -142,6 +142,12 @@ def plan_configs(plan: str | Path, *, pmax: float | None = None, dmax: float | N
     if not manifest.is_file():
         raise RigError(f"{manifest}: no such plan (write one with `phoid design --out`)")
     try:
+        str(manifest.resolve()).encode("utf-8")
+    except UnicodeEncodeError:
+        raise RigError(f"{clip(manifest.resolve(), 300)}: the plan's path is not UTF-8 text, "
+                       "and the set's manifest (UTF-8 TOML) records it; rename its folder; "
+                       "nothing was sent") from None
+    try:
         sched = read_schedule(manifest)
         doc = read_manifest(str(manifest), manifest)
     except (PhoidError, ValueError) as exc:

@@ -113,12 +113,20 @@ def virtual_rig(
         rig.close()
 
 
+class _Terminated(KeyboardInterrupt):
+    """SIGTERM on `phoid run`: handled as Ctrl-C is (the run in progress recorded, ABORT sent)."""
+
+
+def _terminate(signum: int, frame: object) -> None:
+    raise _Terminated("SIGTERM")
+
+
 def run(
     plan: Annotated[Path, typer.Argument(help="The plan: a folder (or experiment.toml) "
                                               "written by `phoid design --out`.")],
     port: Annotated[str, typer.Option(
         help="The rig: tcp://HOST:PORT or serial:///dev/DEVICE[?baud=N] (POSIX; 115200).")],
-    out: Annotated[Path | None, typer.Option(
+    out: Annotated[str | None, typer.Option(
         "--out", "-o", help="The set's folder [PLAN-run beside the plan].")] = None,
     resume: Annotated[bool, typer.Option(
         "--resume", help="Continue a set begun before: run the runs not done.")] = False,
@@ -146,13 +154,24 @@ def run(
     marked, a run cut off by the link or not as configured (runNN.incomplete.csv) is run again
     by --resume. Every option is checked, and no file in --out is replaced, before anything
     moves (docs/rig-protocol.md, "Limits of the host"). Exit status 0 when every run
-    completed, 1 when some did not, 2 on bad input.
+    completed, 1 when some did not, 2 on bad input; Ctrl-C (130) and SIGTERM (143) stop it
+    after the run in progress is recorded (incomplete) and the rig is sent ABORT.
     """
+    import os
+    import signal
+
     from phoid.rig.host import RigError, run_plan
 
-    if out is None:
-        base = plan.parent if plan.suffix == ".toml" else plan
-        out = base.parent / f"{base.name}-run"
+    if out is not None and not out.strip():
+        _fail("--out must name a folder; got an empty name")
+    if out is None:  # beside the plan: `phoid run .` inside the plan's folder too
+        where = Path(os.path.abspath(plan))
+        base = where.parent if where.suffix == ".toml" else where
+        out_path = base.parent / f"{base.name}-run"
+    else:
+        out_path = Path(out)
+    main = threading.current_thread() is threading.main_thread()
+    previous = signal.signal(signal.SIGTERM, _terminate) if main else None
     try:
         # the bar of phoid._progress: drawn only where the CLI switched progress on
         with task("run", total=None) as advance:
@@ -160,11 +179,18 @@ def run(
             def progress(i: int, n: int, total: int) -> None:
                 advance(0, description=f"run {i}: samples", completed=n, total=total)
 
-            result = run_plan(plan, port, out, resume=resume, timeout=timeout,
+            result = run_plan(plan, port, out_path, resume=resume, timeout=timeout,
                               progress=progress, pmax=pmax, dmax=dmax, hold_p=hold_p,
                               hold_d=hold_d, hold=hold, x_limit=x_limit, u_max=u_max)
     except (RigError, ValueError, OSError) as exc:
         _fail(str(exc))
+    except _Terminated:
+        typer.echo(f"phoid: stopped by SIGTERM; the runs recorded are in {out_path} (pass "
+                   "--resume to run the rest)", err=True)
+        raise typer.Exit(143) from None
+    finally:
+        if main:
+            signal.signal(signal.SIGTERM, signal.SIG_DFL if previous is None else previous)
     for msg in result.messages:
         typer.echo(f"phoid: {msg}", err=True)
     done = sum(s == "complete" for s in result.statuses)

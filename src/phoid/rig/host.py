@@ -24,9 +24,12 @@ manifest, a resumed set).
 from __future__ import annotations
 
 import contextlib
+import ipaddress
+import os
 import re
+import signal
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -36,12 +39,14 @@ from phoid.rig.checks import MANIFEST, MAX_TIMEOUT, RigError, clip, option, plan
 from phoid.rig.link import Link, LinkClosed, connect, open_serial
 from phoid.rig.protocol import ProtocolError, check_hello, encode, encode_config, hello, parse
 from phoid.rig.runfiles import (
+    DIGEST,
     EVENT_CHARS,
     REASON_CHARS,
     RunFile,
+    check_resumed,
     check_size,
     check_targets,
-    complete_digests,
+    check_writable,
     read_state,
     write_manifest,
 )
@@ -87,7 +92,20 @@ def parse_port(port: str) -> tuple[str, int]:
             or not 0 < int(num) < 65536:
         raise RigError(f"--port must be tcp://HOST:PORT or serial:///dev/DEVICE[?baud=N] "
                        f"(port 1 to 65535); got {clip(port, 200)!r}")
-    return host.strip("[]"), int(num)
+    host = host.strip("[]")
+    try:
+        ipaddress.ip_address(host)
+    except ValueError:
+        try:
+            size = len(host.encode("idna"))  # each label 1 to 63 characters
+        except UnicodeError:
+            size = 0
+        if not 0 < size <= 253 or any(not ch.isprintable() or ch.isspace() or ch in "/@?#"
+                                      for ch in host):
+            raise RigError(f"--port: {clip(host, 80)!r} is not a host name (labels of 1 to 63 "
+                           "characters, 253 in all, no spaces) nor an IP address; got "
+                           f"{clip(port, 200)!r}") from None
+    return host, int(num)
 
 
 def open_port(port: str, timeout: float) -> Link:
@@ -139,8 +157,10 @@ def run_plan(plan: str | Path, port: str, out: str | Path, *, resume: bool = Fal
         One line: bad input, found before anything moves (an option, the plan, a file in the
         way, the port, the protocol version), a CONFIG refused, a wrong reply to CONFIG/CLEAR.
     """
+    if not str(out).strip():
+        raise RigError("--out must name a folder; got an empty name; nothing was sent")
     timeout = option("--timeout", timeout, lambda v: 0 < v <= MAX_TIMEOUT,
-                      f"a finite number of seconds > 0 and at most {MAX_TIMEOUT:g}")
+                     f"a finite number of seconds > 0 and at most {MAX_TIMEOUT:g}")
     sched, configs = plan_configs(plan, **limits)
     folder = OutputFolder(out, overwrite=True, error=RigError)
     mpath = folder.path(MANIFEST)
@@ -148,7 +168,7 @@ def run_plan(plan: str | Path, port: str, out: str | Path, *, resume: bool = Fal
         raise RigError(f"{mpath} exists already (pass --resume to continue it, or choose "
                        "another --out)")
     state = read_state(folder, sched)
-    attempts = state or []
+    attempts, recorded = state or ([], {})
     files = sched["files"]
     status = ["pending"] * len(files)
     for a in attempts:
@@ -156,53 +176,104 @@ def run_plan(plan: str | Path, port: str, out: str | Path, *, resume: bool = Fal
             status[a["run"] - 1] = a["status"]
     check_targets(folder, files, status, {a["file"] for a in attempts})
     check_size(folder, sched, configs, attempts, status)
-    digests = complete_digests(folder, attempts)
+    digests = check_resumed(folder, sched, configs, attempts, recorded) if state else {}
+    created = check_writable(folder, [f for f, s in zip(files, status, strict=True)
+                                      if s == "pending"])
     try:
         link = open_port(port, timeout)
+        try:
+            messages = _session(link, port, timeout, folder, sched, configs, attempts, status,
+                                digests, progress)
+        except LinkClosed as exc:
+            raise RigError(clip(exc, REASON_CHARS)) from None
+        finally:
+            link.close()
     except LinkClosed as exc:
         raise RigError(str(exc)) from None
+    finally:
+        if created:  # a folder made for a set that wrote nothing: removed (only when empty)
+            with contextlib.suppress(OSError):
+                os.rmdir(folder.folder)
+    return RunPlanResult(folder.path(MANIFEST), tuple(status), tuple(messages))
+
+
+def _session(link: Link, port: str, timeout: float, folder: OutputFolder,
+             sched: Mapping[str, Any], configs: list[dict[str, Any]],
+             attempts: list[dict[str, Any]], status: list[str], digests: dict[bytes, str],
+             progress: Callable | None) -> list[str]:
+    """The session on the rig: hello, then each pending run; the messages of runs that did
+    not complete."""
+    files = sched["files"]
     messages: list[str] = []
+    link.send(hello())
     try:
-        link.send(hello())
+        check_hello(_reply(link, timeout, "hello"), f"the rig at {port}")
+    except ProtocolError as exc:
+        raise RigError(clip(exc, REASON_CHARS)) from None
+    for i, cfg in enumerate(configs):
+        if status[i] != "pending":
+            continue
+        where = f"run {i + 1} ({clip(files[i], 80)})"
+        try:  # the file first: nothing is configured for a run that cannot be written
+            run = RunFile(folder, files[i], cfg)
+        except RigError as exc:
+            raise RigError(f"{where}: {exc}; nothing was started") from None
         try:
-            check_hello(_reply(link, timeout, "hello"), f"the rig at {port}")
-        except ProtocolError as exc:
-            raise RigError(clip(exc, REASON_CHARS)) from None
-        for i, cfg in enumerate(configs):
-            if status[i] != "pending":
-                continue
             link.send(encode_config(cfg))
             reply = _reply(link, timeout, "the reply to CONFIG", f"run {i + 1}: ")
             if reply.kind == "ERROR":
-                raise RigError(f"the rig refused run {i + 1} ({files[i]}): "
+                raise RigError(f"the rig refused {where}: "
                                f"{clip(reply.fields['message'], REASON_CHARS)}")
             if reply.kind != "OK":
                 raise RigError(f"the rig answered CONFIG of run {i + 1} with {reply.kind}, "
                                "not OK")
-            attempt, msg, stop, alive, faulted = _one_run(link, folder, i, files[i], cfg,
-                                                          timeout, progress, digests)
+            reason, end, stop = _stream(link, run, i, timeout, progress)
+        except BaseException:
+            run.discard()
+            raise
+        with _signals_deferred():  # Ctrl-C or SIGTERM now: after the record is on disk
+            attempt, msg = _record(run, i, cfg, reason, end, stop, progress, digests)
             attempts.append(attempt)
             status[i] = attempt["status"]
-            write_manifest(folder, sched, configs, attempts, status)
-            if stop is not None:  # Ctrl-C: the samples and the manifest are on disk first
-                raise stop
-            if msg:
-                messages.append(msg)
-            if not alive:
-                break  # the link failed: stop; --resume runs the rest
-            if faulted:  # latched: clear it
-                link.send(encode("CLEAR"))
-                reply = _reply(link, timeout, "the reply to CLEAR", f"after run {i + 1}: ")
-                if reply.kind != "OK":
-                    raise RigError(f"the rig did not clear its fault after run {i + 1}: "
-                                   f"{clip(reply.fields.get('message', reply.kind), 200)}")
-        with contextlib.suppress(LinkClosed):  # the link may be gone after a failed run
-            link.send(encode("BYE"))
-    except LinkClosed as exc:
-        raise RigError(clip(exc, REASON_CHARS)) from None
+            try:
+                write_manifest(folder, sched, configs, attempts, status)
+            except RigError as exc:
+                told = "the rig was sent ABORT; " if reason and run.error else ""
+                raise RigError(f"{where}: {run.error + '; ' if run.error else ''}{told}its "
+                               f"samples are in {attempt['file']}, but {exc}") from None
+        if run.error:  # the disk: the rig was told to stop, the plan stops here
+            told = "the rig was sent ABORT; " if reason else ""
+            raise RigError(f"{where}: {run.error}; {told}the run is recorded incomplete, its "
+                           f"{run.samples} samples in {attempt['file']}")
+        if stop is not None:  # Ctrl-C: the samples and the manifest are on disk first
+            raise stop
+        if msg:
+            messages.append(msg)
+        if reason:
+            break  # the link failed: stop; --resume runs the rest
+        if run.faulted or end.startswith("fault"):
+            link.send(encode("CLEAR"))  # latched: clear it
+            reply = _reply(link, timeout, "the reply to CLEAR", f"after run {i + 1}: ")
+            if reply.kind != "OK":
+                raise RigError(f"the rig did not clear its fault after run {i + 1}: "
+                               f"{clip(reply.fields.get('message', reply.kind), 200)}")
+    with contextlib.suppress(LinkClosed):  # the link may be gone after a failed run
+        link.send(encode("BYE"))
+    return messages
+
+
+@contextlib.contextmanager
+def _signals_deferred() -> Iterator[None]:
+    """Hold SIGINT and SIGTERM back (POSIX) while a run's file is moved and recorded: they
+    arrive when the block ends, so that no file is left that the manifest does not name."""
+    if not hasattr(signal, "pthread_sigmask"):
+        yield
+        return
+    old = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})
+    try:
+        yield
     finally:
-        link.close()
-    return RunPlanResult(folder.path(MANIFEST), tuple(status), tuple(messages))
+        signal.pthread_sigmask(signal.SIG_SETMASK, old)
 
 
 def _reply(link: Link, timeout: float, what: str, where: str = "") -> Any:
@@ -217,16 +288,13 @@ def _reply(link: Link, timeout: float, what: str, where: str = "") -> Any:
                        f"{clip(exc, REASON_CHARS)}") from None
 
 
-
-def _one_run(link: Link, folder: OutputFolder, i: int, name: str, cfg: Mapping[str, Any],
-             timeout: float, progress: Callable | None, digests: dict[bytes, str]
-             ) -> tuple[dict[str, Any], str, BaseException | None, bool, bool]:
-    """START one run and stream it: the attempt's record, a message when it did not complete,
-    an interruption (Ctrl-C) to raise once the record is written, whether the link still works
-    (not after a drop, a timeout, an ERROR, the deadline or a cap) and whether the controller
-    faulted (the host then sends CLEAR)."""
-    run = RunFile(folder, name, cfg)
-    T, total = float(cfg["sample_time"]), run.total
+def _stream(link: Link, run: RunFile, i: int, timeout: float, progress: Callable | None
+            ) -> tuple[str, str, BaseException | None]:
+    """START one run and stream it into ``run``: why the link failed ("" when it still works:
+    not after a drop, a timeout, an ERROR, the deadline, a cap or a file that cannot be
+    written; the host then sends ABORT), the END reason, and an interruption (Ctrl-C,
+    SIGTERM) to raise once the record is written."""
+    T, total = run.T, run.total
     wait = max(timeout, 2.0 * T)  # a rig streaming in real time sends a sample every T
     budget = (timeout + total * (2.0 * T + LINE_TIME)
               + (2 * total + EXTRA_EVENTS + 1) * LINE_BYTES * link.byte_time)
@@ -262,6 +330,9 @@ def _one_run(link: Link, folder: OutputFolder, i: int, name: str, cfg: Mapping[s
                               f"hold, {run.run} run, 1 done)")
                     break
                 run.sample(msg.fields)
+                if run.error:
+                    reason = run.error
+                    break
                 if progress is not None and run.count % 50 == 0:
                     progress(i + 1, run.count, total)
             elif msg.kind == "EVENT":
@@ -281,19 +352,31 @@ def _one_run(link: Link, folder: OutputFolder, i: int, name: str, cfg: Mapping[s
                 break
     except LinkClosed as exc:
         reason = str(exc)
-    except BaseException as exc:  # Ctrl-C: keep what arrived, then re-raise
-        reason = f"interrupted on the host ({type(exc).__name__})"
+    except BaseException as exc:  # Ctrl-C, SIGTERM: keep what arrived, then re-raise
+        why = exc.args[0] if exc.args and isinstance(exc.args[0], str) else type(exc).__name__
+        reason = f"interrupted on the host ({why})"
         stop = exc
-    alive = not reason  # the link still works: the plan can go on
-    if reason:  # the link failed: ask the rig to stop, keep what arrived
+    if reason:  # ask the rig to stop, keep what arrived
         with contextlib.suppress(LinkClosed):
             link.send(encode("ABORT", 1.0))
-    elif end == "done":
-        run.damage(run.shortfall())
+    return reason, end, stop
+
+
+def _record(run: RunFile, i: int, cfg: Mapping[str, Any], reason: str, end: str,
+            stop: BaseException | None, progress: Callable | None, digests: dict[bytes, str]
+            ) -> tuple[dict[str, Any], str]:
+    """Close the run's file, judge the run (complete, aborted, incomplete), move the file to
+    its name and make the attempt's record; and the message when it did not complete or its
+    clock was off."""
+    name, T, total = run.name, run.T, run.total
+    run.close()
+    if run.error and run.error not in reason:
+        reason = f"{reason}; {run.error}" if reason else run.error
+    elif not reason and end == "done":
+        run.damage(run.shortfall() or run.clock())
         if (same := digests.get(run.digest.digest())) is not None:
             run.damage(f"the same samples, byte for byte, as {same}: a repeated recording, "
                        "which phoid identify refuses")
-    faulted = run.faulted or end.startswith("fault")
     if reason or run.damaged:
         reason = f"{run.damaged}; {reason}" if run.damaged and reason else run.damaged or reason
         status, target = "incomplete", variant(name, "incomplete")
@@ -305,11 +388,15 @@ def _one_run(link: Link, folder: OutputFolder, i: int, name: str, cfg: Mapping[s
         reason = f"the controller aborted: {fault}"
     reason = clip(reason, REASON_CHARS)
     if progress is not None and stop is None:
-        try:
+        with contextlib.suppress(Exception):
             progress(i + 1, run.count, total)
-        except BaseException as exc:  # Ctrl-C here too: record the run first
-            stop = exc
-    written = run.finish(target)
+    try:
+        written = run.finish(target)
+    except OSError as exc:
+        run.discard()
+        raise RigError(f"run {i + 1} ({clip(name, 80)}): its samples could not be moved to "
+                       f"{run.out.path(target)} ({exc.strerror or exc}) and are lost; "
+                       f"{reason or 'the run had completed'}") from None
     if status == "complete":
         digests[run.digest.digest()] = f"run {i + 1} ({written})"
     attempt = {"run": i + 1, "file": written, "P": cfg["P"], "D": cfg["D"], "status": status,
@@ -317,20 +404,20 @@ def _one_run(link: Link, folder: OutputFolder, i: int, name: str, cfg: Mapping[s
                "u_source": run.u_source or "command",
                "events": run.events, "time": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
                **run.timing()}
+    if status == "complete":
+        attempt["digest"] = f"{DIGEST}:{run.digest.hexdigest()}"
     if run.event_lines > len(run.events):
         attempt["events_dropped"] = run.event_lines - len(run.events)
     if reason:
         attempt["reason"] = reason
     msg = "" if status == "complete" else (
         f"run {i + 1} ({name}) {status}: {reason}; its {run.samples} samples are in {written}")
-    if "sample_time_mean" in attempt and (
+    if status == "complete" and "sample_time_mean" in attempt and (
             abs(attempt["sample_time_mean"] - T) > 1e-3 * T
             or max(T - attempt["sample_time_min"], attempt["sample_time_max"] - T) > 0.1 * T):
         late = (f"run {i + 1} ({name}): the rig's sample intervals were "
                 f"{attempt['sample_time_min']:.6g}–{attempt['sample_time_max']:.6g} s (mean "
                 f"{attempt['sample_time_mean']:.6g} s), not T = {T:g} s; the digital loop's "
                 "model assumes a fixed period")
-        msg = f"{msg}; {late}" if msg else late
-    return attempt, msg, stop, alive, faulted
-
-
+        msg = late
+    return attempt, msg

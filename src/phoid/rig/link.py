@@ -131,9 +131,9 @@ def connect(host: str, port: int, timeout: float) -> Link:
                 raise LinkClosed(f"cannot connect to the rig at tcp://{host}:{port}: "
                                  f"{exc.strerror or exc} (for {timeout:g} s)") from None
             time.sleep(0.1)
-        except OSError as exc:
+        except (OSError, UnicodeError) as exc:  # UnicodeError: a name the resolver refuses
             raise LinkClosed(f"cannot connect to the rig at tcp://{host}:{port}: "
-                             f"{exc.strerror or exc}") from None
+                             f"{getattr(exc, 'strerror', None) or exc}") from None
     sock.settimeout(timeout)  # a send the rig does not take gives up (reads wait in select)
     return Link(sock)
 

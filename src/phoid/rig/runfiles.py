@@ -15,10 +15,12 @@ import contextlib
 import hashlib
 import math
 import os
+import re
 import secrets
+import stat
 from collections.abc import Mapping
 from pathlib import Path
-from typing import IO, Any
+from typing import Any
 
 import tomli_w
 
@@ -32,9 +34,10 @@ __all__ = [
     "EVENT_CHARS",
     "REASON_CHARS",
     "RunFile",
+    "check_resumed",
     "check_size",
     "check_targets",
-    "complete_digests",
+    "check_writable",
     "compose",
     "read_state",
     "write_manifest",
@@ -43,6 +46,10 @@ __all__ = [
 STORED_EVENTS = 64  # events recorded per attempt; the rest are counted (events_dropped)
 EVENT_CHARS = 96  # the longest event text recorded, characters
 REASON_CHARS = 400  # the longest reason recorded (and printed), characters
+CLOCK_TOLERANCE = 0.1  # a run whose mean or median interval is further from T is incomplete
+FLUSH_ROWS = 256  # rows written to the file at a time
+STEPS_KEPT = 64  # the file's first intervals kept for their median (as identify reads them)
+DIGEST = "blake2b-256"  # the content digest a complete attempt records (its file's bytes)
 _RANK = {"idle": 0, "hold": 0, "run": 1, "done": 2, "fault": 2}  # the order of the states
 
 
@@ -52,20 +59,24 @@ class RunFile:
     def __init__(self, out: OutputFolder, name: str, cfg: Mapping[str, Any]) -> None:
         self.out, self.name = out, name
         self.hold, self.run = int(cfg["hold_samples"]), int(cfg["run_samples"])
+        self.T = float(cfg["sample_time"])
         self.total = self.hold + self.run + 1
-        os.makedirs(out.folder, exist_ok=True)
         flags = os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0)
         for _ in range(100):  # a fresh name: never an existing file
             self.part = f".{name}.{secrets.token_hex(4)}.part"
             try:
+                os.makedirs(out.folder, exist_ok=True)
                 fd = os.open(out.path(self.part), flags, 0o666)
                 break
             except FileExistsError:
                 continue
+            except OSError as exc:
+                raise RigError(f"cannot create {out.path(self.part)}: "
+                               f"{exc.strerror or exc}") from None
         else:
             raise RigError(f"{out.folder}: no free temporary name for {name}")
-        self.fh: IO[str] = os.fdopen(fd, "w")
-        self.fh.write("t,x,u\n")
+        self.fd = fd
+        self.pending = ["t,x,u\n"]  # rows not yet written (written every FLUSH_ROWS)
         self.digest = hashlib.blake2b(b"t,x,u\n", digest_size=32)  # the file's, as the reader's
         self.samples = self.count = 0  # rows written; SAMPLE lines received
         self.last_index, self.last_t, self.rank = -1, None, 0  # rank of the state (_RANK)
@@ -76,6 +87,11 @@ class RunFile:
         self.damaged = ""  # the first damage: the run goes on, its record is incomplete
         self.faulted = False
         self.u_source = ""  # "measured" (SAMPLE's force) or "command", from the first run sample
+        self.error = ""  # the file could not be written: the run stops, the plan too
+        self.written = [0, 0]  # bytes and rows on disk
+        self.bytes = 6  # bytes of the rows taken (written or pending)
+        self.steps: list[float] = []  # the file's first intervals (identify's sample step)
+        self.last_row_t: float | None = None
 
     def damage(self, why: str) -> None:
         self.damaged = self.damaged or why
@@ -112,11 +128,17 @@ class RunFile:
         self.u_source = source
         u = float(f["force"] if source == "measured" else f["u"])
         row = f"{t!r},{float(f['x'])!r},{u!r}\n"
-        self.fh.write(row)
+        if self.error:
+            return
+        self.pending.append(row)
+        self.bytes += len(row)  # ASCII: characters are bytes
         self.digest.update(row.encode())
         self.samples += 1
-        if self.samples % 100 == 0:
-            self.fh.flush()
+        if len(self.pending) >= FLUSH_ROWS:
+            self._write()
+        if self.last_row_t is not None and len(self.steps) < STEPS_KEPT:
+            self.steps.append(t - self.last_row_t)
+        self.last_row_t = t
 
     def event(self, f: Mapping[str, Any]) -> None:
         self.event_lines += 1
@@ -134,11 +156,55 @@ class RunFile:
                     f"run configured has {self.total} ({self.hold} hold, {self.run} run, 1 done)")
         return ""
 
+    def clock(self) -> str:
+        """Why the rig's clock is not the configured period T ("" when it is): the mean
+        interval, or the median of the file's first intervals (what ``phoid identify`` takes
+        as the records' sample step), more than :data:`CLOCK_TOLERANCE` away from T."""
+        n, s, _, _ = self.dt
+        mean = s / n if n and math.isfinite(s) else math.nan
+        mid = sorted(self.steps)[len(self.steps) // 2] if self.steps else mean
+        for what, val in (("mean", mean), ("median", mid)):
+            if not abs(val - self.T) <= CLOCK_TOLERANCE * self.T:
+                return (f"the rig's sample intervals have a {what} of {val:.6g} s, not the "
+                        f"configured T = {self.T:g} s (more than {CLOCK_TOLERANCE:.0%} off: a "
+                        "clock in other units, or a rig not running the configured loop)")
+        return ""
+
+    def _write(self) -> None:
+        """Write the pending rows; on failure :attr:`error` names the file and why."""
+        data = memoryview("".join(self.pending).encode())
+        self.pending = []
+        try:
+            while data:
+                n = os.write(self.fd, data)
+                data = data[n:]
+        except OSError as exc:
+            self.error = f"cannot write {self.out.path(self.part)}: {exc.strerror or exc}"
+            return
+        self.written = [self.bytes, self.samples]
+
+    def close(self) -> None:
+        """Write the rest, flush the file to disk and close it; when that fails, or a write
+        failed before, :attr:`error` says so and the file is cut back to its last row written
+        whole (:attr:`samples` then counts the rows it holds)."""
+        if not self.error:
+            self._write()
+        if not self.error:
+            try:
+                os.fsync(self.fd)
+            except OSError as exc:
+                self.error = f"cannot write {self.out.path(self.part)}: {exc.strerror or exc}"
+        if self.error:
+            self.bytes, self.samples = self.written
+            with contextlib.suppress(OSError):  # a cut frees space: it needs none
+                os.ftruncate(self.fd, self.bytes)
+        with contextlib.suppress(OSError):
+            os.close(self.fd)
+        self.fd = -1
+
     def finish(self, target: str) -> str:
-        """Close the file and move it to ``target``, or a free name if that one is taken."""
-        self.fh.flush()
-        os.fsync(self.fh.fileno())
-        self.fh.close()
+        """Move the closed file to ``target``, or a free name if that one is taken (an
+        ``OSError`` when it cannot be moved; :meth:`discard` then removes it)."""
         part = self.out.path(self.part)
         stem, suffix = target[:-4], target[-4:]
         for i in range(1, 10000):
@@ -157,6 +223,15 @@ class RunFile:
             return name
         raise RigError(f"{self.out.folder}: no free name for {target} (samples in {self.part})")
 
+    def discard(self) -> None:
+        """Remove the hidden file (a run that cannot be kept: nothing hidden is left)."""
+        if self.fd >= 0:
+            with contextlib.suppress(OSError):
+                os.close(self.fd)
+            self.fd = -1
+        with contextlib.suppress(OSError):
+            os.unlink(self.out.path(self.part))
+
     def timing(self) -> dict[str, float]:
         n, s, lo, hi = self.dt
         if not n or not math.isfinite(s):
@@ -164,8 +239,10 @@ class RunFile:
         return {"sample_time_mean": s / n, "sample_time_min": lo, "sample_time_max": hi}
 
 
-def read_state(out: OutputFolder, sched: Mapping[str, Any]) -> list[dict[str, Any]] | None:
-    """The attempts of the set in ``out`` (None: no manifest), checked to be this plan's."""
+def read_state(out: OutputFolder, sched: Mapping[str, Any]
+               ) -> tuple[list[dict[str, Any]], dict[str, Any]] | None:
+    """The attempts of the set in ``out`` and the configuration it recorded (None: no
+    manifest), checked to be this plan's (:func:`check_resumed` checks the rest)."""
     path = out.path(MANIFEST)
     if not (path.exists() or path.is_symlink()):
         return None
@@ -200,7 +277,118 @@ def read_state(out: OutputFolder, sched: Mapping[str, Any]) -> list[dict[str, An
             bad = "a complete attempt needs finite P and D"
         if bad:
             raise RigError(f"--resume: {path}: [[rig.attempt]] {j}: {bad}")
-    return [dict(a) for a in attempts]
+    config = rig.get("config")
+    if isinstance(config, Mapping):
+        recorded = dict(config)
+    else:  # a set written before [rig.config]: what its [loop] and [rig] record
+        loop = doc.get("loop") if isinstance(doc.get("loop"), Mapping) else {}
+        recorded = {k: loop[k] for k in ("sample_time", "delay_samples") if k in loop}
+        recorded.update({k: rig[k] for k in ("hold_P", "hold_D", "hold_samples", "x_start")
+                         if k in rig})
+    return [dict(a) for a in attempts], recorded
+
+
+# where each CONFIG field comes from, to name what changed between sessions
+_SOURCE = {"sample_time": "the plan's [design] fs", "delay_samples": "the plan's [loop] delay",
+           "hold_P": "--hold-p, or the plan's prior", "hold_D": "--hold-d, or the plan's prior",
+           "hold_samples": "--hold, or the plan's fs and prior",
+           "run_samples": "the plan's [design] duration and fs",
+           "x_start": "the plan's [design] amplitude",
+           "x_min": "--x-limit, or the plan's [design] amplitude",
+           "x_max": "--x-limit, or the plan's [design] amplitude", "u_max": "--u-max",
+           "growth_limit": "the growth limit", "gain": "the host's loop gain K",
+           "command_gain": "the host's command gain G", "velocity": "the host's velocity",
+           "P": "the plan's [[run]] P",
+           "D": "the plan's [[run]] D"}
+
+
+def _same(was: Any, now: Any) -> bool:
+    """Two recorded values the same (numbers to 1e-12, TOML's round trip is exact)."""
+    if was is None or now is None:
+        return was is None and now is None
+    if isinstance(was, bool) or not isinstance(was, (int, float)):
+        return False
+    return was == now or math.isclose(was, now, rel_tol=1e-12, abs_tol=0.0)
+
+
+def check_resumed(folder: OutputFolder, sched: Mapping[str, Any], configs: list[dict[str, Any]],
+                  attempts: list[dict[str, Any]], recorded: Mapping[str, Any]
+                  ) -> dict[bytes, str]:
+    """Refuse, before anything moves, a resume the set cannot take: a configuration other
+    than the one recorded (the plan or an option changed between sessions), or a run
+    recorded complete whose file is not that run's file as it was written.
+
+    A complete run's file must be a regular file (no link, folder or special file) in
+    ``folder``, named as the plan names the run (or a later free name of it, ``-2``, …), the
+    file of no other attempt, and — when the attempt records its ``digest`` — the same bytes.
+
+    Returns
+    -------
+    dict
+        The complete runs' files by their content's digest (a repeat would be refused).
+    """
+    path = folder.path(MANIFEST)
+    cfg0 = configs[0]
+    keys = [k for k in _SOURCE if k not in ("P", "D")]
+    for key in keys if "run_samples" in recorded else list(recorded):
+        was, now = recorded.get(key), cfg0.get(key)
+        if not _same(was, now):
+            raise RigError(f"--resume: {path} was recorded with {key} = {clip(was, 40)}, but "
+                           f"the plan and options now give {key} = "
+                           f"{'none' if now is None else f'{now:g}'} ({_SOURCE[key]} changed); "
+                           "a set is one configuration: run the changed plan into another "
+                           "--out; nothing was sent")
+    for j, a in enumerate(attempts, start=1):
+        for key in ("P", "D"):
+            now = configs[a["run"] - 1][key]
+            if key in a and not _same(a[key], now):
+                raise RigError(f"--resume: {path}: [[rig.attempt]] {j} ran run {a['run']} with "
+                               f"{key} = {clip(a[key], 40)}, but the plan now gives {now:g} "
+                               f"({_SOURCE[key]} changed); run the changed plan into another "
+                               "--out; nothing was sent")
+    last = {a["run"]: a for a in attempts if a["status"] == "complete"}
+    out: dict[bytes, str] = {}
+    for run, a in sorted(last.items()):
+        name, planned = a["file"], sched["files"][run - 1]
+        later = re.escape(planned[:-4]) + r"-[0-9]{1,4}" + re.escape(planned[-4:])
+        others = [j for j, b in enumerate(attempts, start=1) if b is not a
+                  and b["file"].casefold() == name.casefold()
+                  and not (b["run"] == run and b["status"] == "complete")]
+        what, digest = "", None
+        if name != planned and not re.fullmatch(later, name):
+            what = f"is not the file the plan names for run {run} ({clip(planned, 80)!r})"
+        elif others:
+            what = f"is also the file of [[rig.attempt]] {others[0]}"
+        else:
+            what, digest = _file_digest(folder.path(name))
+            recorded_digest = a.get("digest")
+            if not what and recorded_digest is not None \
+                    and recorded_digest != f"{DIGEST}:{digest.hex()}":
+                what = "is not the file recorded (its bytes changed since the run)"
+        if what:
+            raise RigError(f"--resume: run {run} is recorded complete in {path}, but its file "
+                           f"{clip(name, 80)!r} {what}; put the run's own file back, or run the "
+                           "plan into another --out; nothing was sent")
+        assert digest is not None
+        out[digest] = f"run {run} ({clip(name, 80)})"
+    return out
+
+
+def _file_digest(path: Path) -> tuple[str, bytes | None]:
+    """("", the file's digest) for a regular file; (what is wrong, None) otherwise."""
+    try:
+        st = os.lstat(path)
+        if stat.S_ISLNK(st.st_mode):
+            return "is a symbolic link", None
+        if not stat.S_ISREG(st.st_mode):
+            return "is not a regular file", None
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NOFOLLOW", 0) | os.O_NONBLOCK)
+        with open(fd, "rb") as fh:
+            return "", hashlib.file_digest(fh, lambda: hashlib.blake2b(digest_size=32)).digest()
+    except FileNotFoundError:
+        return "is missing", None
+    except OSError as exc:
+        return f"cannot be read ({exc.strerror or exc})", None
 
 
 def check_targets(folder: OutputFolder, files: list[str], status: list[str],
@@ -217,19 +405,6 @@ def check_targets(folder: OutputFolder, files: list[str], status: list[str],
                            "never replaces a file (move it away or choose another --out); "
                            "nothing was sent")
     folder.check(names)  # links, folders, special files in the way
-
-
-
-def complete_digests(folder: OutputFolder, attempts: list[dict[str, Any]]) -> dict[bytes, str]:
-    """The complete runs' files by their content's digest (a repeat would be refused)."""
-    out: dict[bytes, str] = {}
-    for a in attempts:
-        path = folder.path(a["file"])
-        if a["status"] == "complete" and path.is_file() and not path.is_symlink():
-            with contextlib.suppress(OSError), open(path, "rb") as fh:
-                out[hashlib.file_digest(fh, lambda: hashlib.blake2b(digest_size=32)).digest()] \
-                    = f"run {a['run']} ({clip(a['file'], 80)})"
-    return out
 
 
 
@@ -260,6 +435,7 @@ def compose(sched: Mapping[str, Any], configs: list[dict[str, Any]],
                 "complete": all(s == "complete" for s in status),
                 "hold_P": cfg0["hold_P"], "hold_D": cfg0["hold_D"],
                 "hold_samples": cfg0["hold_samples"], "x_start": cfg0["x_start"],
+                "config": {k: v for k, v in cfg0.items() if k not in ("P", "D")},
                 "attempt": shown},
     }
     if sched.get("design"):
@@ -296,10 +472,58 @@ def check_size(folder: OutputFolder, sched: Mapping[str, Any], configs: list[dic
                 "u_source": "measured", "events": [], "events_dropped": MAX_COUNT,
                 "time": "2000-01-01T00:00:00Z", "sample_time_mean": big,
                 "sample_time_min": big, "sample_time_max": big,
-                "reason": '"' * (REASON_CHARS + 8)})
+                "digest": f"{DIGEST}:{'0' * 64}", "reason": '"' * (REASON_CHARS + 8)})
     size = len(compose(sched, configs, worst, ["incomplete"] * len(status), 0))
     if size + 4096 > MAX_MANIFEST_BYTES:
         raise RigError(f"{folder.path(MANIFEST)}: the set's manifest could grow to {size} bytes, "
                        f"more than the {MAX_MANIFEST_BYTES // 2**20} MiB phoid reads (a plan of "
                        f"{len(status)} runs, its [design] table and the attempts recorded); "
                        "split the plan; nothing was sent")
+
+
+def check_writable(folder: OutputFolder, names: list[str]) -> bool:
+    """Refuse, before anything moves, a folder phoid cannot write its files in: a file name
+    (with its hidden ``.part`` and later ``-NNNN`` variants) longer than the file system's
+    NAME_MAX bytes, a path longer than its PATH_MAX, a folder that cannot be created or
+    written (a probe file is created and removed). Returns whether the folder was created.
+    """
+    root = Path(os.path.abspath(folder.folder))
+    here = root
+    while not here.exists() and here != here.parent:
+        here = here.parent
+    limits = []
+    for key, default in (("PC_NAME_MAX", 255), ("PC_PATH_MAX", 4096)):
+        try:
+            limits.append(int(os.pathconf(here, key)))
+        except (OSError, ValueError, AttributeError):
+            limits.append(default)
+    name_max, path_max = limits
+    for name in names:
+        longest = max((f".{name}.{'0' * 8}.part", f"{variant(name, 'incomplete')[:-4]}-9999.csv",
+                       f"{variant(name, 'aborted')[:-4]}-9999.csv"),
+                      key=lambda s: len(os.fsencode(s)))
+        size = len(os.fsencode(longest))
+        if size > name_max:
+            raise RigError(f"{folder.path(name)}: the file name is too long for the file system "
+                           f"there: with the hidden .part or a later -NNNN name phoid writes "
+                           f"it takes {size} bytes, more than its {name_max}; shorten the "
+                           "plan's file names; nothing was sent")
+        if len(os.fsencode(str(root / longest))) >= path_max:
+            raise RigError(f"{folder.path(name)}: the path is longer than the {path_max} bytes "
+                           "the file system takes; choose a shorter --out; nothing was sent")
+    created = not root.exists()
+    probe = root / f".phoid-run.{secrets.token_hex(4)}.probe"
+    try:
+        os.makedirs(root, exist_ok=True)
+        fd = os.open(probe, os.O_WRONLY | os.O_CREAT | os.O_EXCL
+                     | getattr(os, "O_NOFOLLOW", 0), 0o666)
+        os.close(fd)
+        os.unlink(probe)
+    except OSError as exc:
+        if created:
+            with contextlib.suppress(OSError):
+                os.rmdir(root)
+        raise RigError(f"{folder.folder}: phoid run cannot write its files there "
+                       f"({exc.strerror or exc}); choose another --out; nothing was sent") \
+            from None
+    return created
