@@ -399,6 +399,10 @@ def test_the_cli_rig_answers_hostile_hosts_without_a_traceback(build):
     ("--idle-timeout", "-1"), ("--idle-timeout", "nan"), ("--max-session", "inf"),
     ("--max-rate", "0"), ("--max-samples", "1"), ("--noise", "-1"), ("--force-noise", "nan"),
     ("--offset-force", "inf"), ("--m", "nan"), ("--c", "inf"), ("--k", "-1"), ("--fc", "nan"),
+    # a day at most: socket.settimeout overflowed for every connection at 1e10 s
+    ("--idle-timeout", "1e10"), ("--max-session", "1e6"),
+    ("--force-noise", "1e308"),  # G·u + noise would overflow: at most 1e300 N
+    ("--max-rate", "1e12"),      # faster than the controller's 1 ns
 ])
 def test_the_cli_rig_names_the_option_out_of_range(option, value, tmp_path):
     # the rig's and the plant's checks speak of keyword arguments (max_rate, `m`); the command
@@ -410,4 +414,136 @@ def test_the_cli_rig_names_the_option_out_of_range(option, value, tmp_path):
     assert proc.returncode == 2, proc.stderr
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith(f"phoid: error: {option} "), proc.stderr
+    assert not (tmp_path / "build").exists()  # refused before the controller was built
+
+
+# --- the prober's round A: a refused line, options and plants that overflow -------------------
+
+def _corrupt_crc(line: bytes) -> bytes:
+    """The line with its checksum's last digit changed (a damaged line that may be a CONFIG)."""
+    last = line[-2:-1]
+    return line[:-2] + (b"0" if last != b"0" else b"1") + b"\n"
+
+
+def _upper_crc() -> bytes:
+    """A good CONFIG line with its checksum in upper case (the first P whose CRC has a letter)."""
+    for p in range(1, 100):
+        line = encode_config(dict(GOOD, P=float(p)))
+        upper = line[:-9] + line[-9:].upper()
+        if upper != line:
+            return upper
+    raise AssertionError("no CRC with a hex letter among 99 lines")  # 16^-8·... never
+
+
+@pytest.mark.parametrize("bad", [
+    _framed(b"CONFIG P=nan"),                                   # a field refused
+    _framed(b"CONFIG P=1 P=2"),                                 # a field given twice
+    _corrupt_crc(encode_config(dict(GOOD, P=5000.0))),          # a CONFIG with a broken checksum
+    _upper_crc(),                                               # a CONFIG, crc in upper case
+    encode_config(dict(GOOD, x_start=5.0, x_min=-1.0, x_max=1.0)),  # refused by its value
+    _framed(b"SAMPLE 1 0.1 0.0 0.0 run"),                       # a line the rig does not take
+    b"Z" * (MAX_LINE + 10) + b"\n",                             # an overlong line
+])
+def test_a_refused_line_leaves_no_configuration(rig, bad):
+    # docs/rig-protocol.md: "A refused CONFIG leaves no configuration: a START after it is
+    # refused too" — and a line refused whole may have been a CONFIG, so every line the rig
+    # refuses clears the configuration accepted before it
+    host = Host(rig())
+    host.config_ok()
+    host.send(bad)
+    assert host.error()
+    host.send(encode("START"))
+    assert "without an accepted CONFIG" in host.error()  # the old configuration did not run
+    host.config_ok()  # a new CONFIG is taken again
+    assert host.run()[-1].fields == {"reason": "done"}
+
+
+def test_a_line_refused_during_a_run_leaves_no_configuration(rig):
+    # real time: the rig reads the host's lines between samples (0.01 s apart, 31 samples)
+    host = Host(rig(realtime=True))
+    host.config_ok()
+    host.send(encode("START"))
+    assert host.msg().kind == "SAMPLE"  # the run is under way
+    host.send(_corrupt_crc(encode_config(GOOD)))
+    kinds = []
+    while (m := host.msg()).kind != "END":
+        kinds.append(m.kind)
+    assert "ERROR" in kinds  # the damaged line was refused while the run went on
+    host.send(encode("START"))
+    assert "without an accepted CONFIG" in host.error()
+
+
+@pytest.mark.parametrize("line", [
+    b"START *682D973F\n",   # zlib.crc32(b"START") in upper case (docs: lower-case hex)
+    _framed(b"PHOID-RIG 01"),  # a version with a leading zero
+    _framed(b"PHOID-RIG +1"),
+])
+def test_the_parser_takes_only_what_the_protocol_writes(line):
+    with pytest.raises(ProtocolError):
+        parse(line)
+    assert parse(b"START *682d973f\n").kind == "START"  # the docs' example, lower case
+
+
+@pytest.mark.parametrize("kw", [
+    dict(plant=Plant(m=2.0, c=1e300, k=64.0)),    # (c/2m)^2 overflows in the plant's setup
+    dict(plant=Plant(m=1e-200, c=1.0, k=64.0)),
+    dict(plant=Plant(m=5e-324, c=1.0, k=64.0)),   # c/m = inf: the map at 50 us overflows
+    dict(plant=Plant(m=5e-309, c=0.0, k=0.0)),    # 1/m·T = 2e308 at T = 1 s (Γ's velocity)
+    dict(plant=Plant(m=2.0, c=1.0, k=1e300)),     # oscillates too fast even at 20 kHz
+])
+def test_a_plant_the_rig_cannot_simulate_is_refused_when_the_rig_is_made(build, kw):
+    from phoid.rig.virtual import VirtualRig
+
+    with pytest.raises(ValueError, match=r"`m` .*`k` .*cannot simulate this plant") as err:
+        VirtualRig(build=build, **kw)
+    assert "\n" not in str(err.value)
+
+
+def test_a_sample_time_too_slow_for_the_plant_is_refused_naming_it(rig):
+    # k = 1e12 N/m, m = 2 kg: ω = 7.1e5 rad/s, 2.2 us a quarter period — 23 in a 50 us sample
+    # (served), 450 000 in a 1 s one (more than the simulation cuts a sample into, 1000)
+    host = Host(rig(Plant(m=2.0, c=1.0, k=1e12)))
+    host.send(encode_config(dict(GOOD, sample_time=1.0)))
+    err = host.error()
+    assert err.startswith("sample_time 1 s") and "the rig failed" not in err
+    host.send(encode("START"))
+    assert "without an accepted CONFIG" in host.error()
+    host.config_ok(dict(GOOD, sample_time=1e-4, x_min=-1.0, x_max=1.0))
+
+
+def test_a_measured_force_that_overflows_faults_the_run_and_the_session_goes_on(rig):
+    # command_gain·u_max is the largest double, so G·u = ±1.8e308 N at every sample (|u| is
+    # clipped to u_max = 1); adding noise of 1e300 N overflows whenever the draw has u's sign
+    # and is not tiny (about half the samples: the chance that none of 31 does is ~5e-10).
+    # A heavy mass (1e300 kg) keeps the position finite and inside its limits meanwhile.
+    big = 1.7976931348623157e308  # the largest double (sys.float_info.max)
+    host = Host(rig(Plant(m=1e300, c=1.0, k=64.0), force_noise=1e300, seed=5))
+    host.config_ok(dict(GOOD, command_gain=big, u_max=1.0, x_start=1.0, x_min=-1e300,
+                        x_max=1e300, has_force=1))
+    lines = host.run()
+    assert lines[-1].fields == {"reason": "fault-input"}
+    samples = [m.fields["index"] for m in lines if m.kind == "SAMPLE"]
+    assert samples == list(range(len(samples)))  # every one sent parsed: finite forces
+    faults = [(m.fields["index"], m.fields["value"]) for m in lines
+              if m.kind == "EVENT" and m.fields["name"] == "fault-input"]
+    # the sample whose force overflowed is not sent; the controller reads that force at the
+    # next sample and faults (value 1: the measured force, src/phoid/rig/c/README.md)
+    assert faults == [(len(samples) + 1, 1.0)]
+    host.config_ok()  # the session goes on
+
+
+@pytest.mark.parametrize(("option", "value", "named"), [
+    ("--c", "1e300", "--c 1e+300"),        # overflows in the plant's setup ((c/2m)^2)
+    ("--m", "5e-324", "--m 4.94066e-324"),  # overflows in its map (c/m = inf)
+])
+def test_the_cli_rig_refuses_a_plant_it_cannot_simulate_in_one_line(option, value, named,
+                                                                   tmp_path):
+    args = {"--m": "2", "--c": "1", "--k": "64", option: value}
+    cmd = [sys.executable, "-m", "phoid.cli", "virtual-rig", "--listen", "127.0.0.1:0",
+           "--build", str(tmp_path / "build"), *[a for kv in args.items() for a in kv]]
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=60, cwd=tmp_path)
+    assert proc.returncode == 2, proc.stderr
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("phoid: error: --m "), proc.stderr
+    assert named in lines[0] and "cannot simulate this plant" in lines[0]
     assert not (tmp_path / "build").exists()  # refused before the controller was built

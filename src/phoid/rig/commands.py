@@ -29,15 +29,24 @@ _RIG_OPTIONS = {"force_noise": "--force-noise", "offset_force": "--offset-force"
                 "idle_timeout": "--idle-timeout", "max_session": "--max-session",
                 "max_samples": "--max-samples", "max_rate": "--max-rate", "noise": "--noise",
                 "`offset`": "--offset-force", "`fc`": "--fc", "`m`": "--m", "`c`": "--c",
-                "`k`": "--k"}
+                "`k`": "--k", "`max_rate`": "--max-rate"}
 
 
 def _name_options(message: str) -> str:
     """A VirtualRig or Plant message in the command's words: ``max_rate`` or `` `m` `` →
-    ``--max-rate``, ``--m`` (the user typed options, not keyword arguments)."""
+    ``--max-rate``, ``--m`` (the user typed options, not keyword arguments).
+
+    Every quoted name (`` `m` ``) is replaced; without one, the first bare name is (a bare
+    word could also be plain text further on)."""
+    quoted = 0
     for name, flag in _RIG_OPTIONS.items():
-        pattern = re.escape(name) if name.startswith("`") else rf"(?<![\w-]){name}(?![\w-])"
-        message, hits = re.subn(pattern, flag, message, count=1)
+        if name.startswith("`"):
+            message, hits = re.subn(re.escape(name), flag, message)
+            quoted += hits
+    if quoted:
+        return message
+    for name, flag in _RIG_OPTIONS.items():
+        message, hits = re.subn(rf"(?<![\w-]){name}(?![\w-])", flag, message, count=1)
         if hits:
             return message
     return message

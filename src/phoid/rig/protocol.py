@@ -55,7 +55,8 @@ STATES = ("idle", "hold", "run", "done", "fault")
 
 # the decimal numbers the protocol allows (no `_` separators, no hex, no words like `inf`)
 _INT = re.compile(r"[+-]?[0-9]+")
-_CRC = re.compile(rb"[0-9a-fA-F]{8}")
+_CRC = re.compile(rb"[0-9a-f]{8}")  # lower case only (the docs: exactly 8 lower-case hex digits)
+_VERSION = re.compile(r"0|[1-9][0-9]*")  # a version number, without leading zeros
 _FLOAT = re.compile(r"[+-]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]+)?")
 
 # each kind: the names of its fields and their types ("i" whole number, "f" finite number,
@@ -225,7 +226,7 @@ def _unframe(line: bytes | str) -> str:
         raise ProtocolError("line without its checksum (a space, an asterisk and 8 hex digits "
                             f"at its end; truncated?): {shown}")
     if not _CRC.fullmatch(crc):
-        raise ProtocolError(f"checksum is not 8 hex digits: {shown}")
+        raise ProtocolError(f"checksum is not 8 lower-case hex digits: {shown}")
     want = int(crc, 16)
     if zlib.crc32(payload) != want:
         raise ProtocolError(f"checksum mismatch (a corrupted line): {shown}")
@@ -270,8 +271,9 @@ def parse(line: bytes | str) -> Message:
     words = text.split(" ")
     kind = words[0]
     if kind == HELLO:
-        if len(words) != 2 or not words[1].isdigit():
-            raise ProtocolError(f"hello must be '{HELLO} <version>'; got {text!r}")
+        if len(words) != 2 or not _VERSION.fullmatch(words[1]):
+            raise ProtocolError(f"hello must be '{HELLO} <version>' (a whole number without "
+                                f"leading zeros); got {text!r}")
         return Message("HELLO", {"version": int(words[1])})
     if kind == "CONFIG":
         return Message("CONFIG", parse_config(words[1:]))

@@ -23,9 +23,11 @@ the first sample) through ``phoid_step_force``. At the end come the controller's
 The rig trusts nothing the host sends. Every ``CONFIG`` is checked against what the C
 controller holds (``phoid_init``'s checks and the C types' ranges) and what this rig can run
 (the sample time within ``max_rate`` and 1 s, a hold that ends, at most ``max_samples``
-samples, a finite largest force); a refusal is ``ERROR`` naming the field. Every failure of a
-session becomes an ``ERROR`` line to the host, never a traceback: a line it cannot use is
-answered and the session goes on; a host silent for ``idle_timeout`` s, a session older than
+samples, a finite largest force, a plant motion over one sample that does not overflow); a
+refusal is ``ERROR`` naming the field, and every line the rig refuses (a damaged line may have
+been a CONFIG) leaves no configuration: START is refused until a CONFIG is accepted. Every
+failure of a session becomes an ``ERROR`` line to the host, never a traceback: a line it cannot
+use is answered and the session goes on; a host silent for ``idle_timeout`` s, a session older than
 ``max_session`` s or a failure of the rig ends the session with a last ``ERROR``. One host is
 served at a time; another gets ``ERROR busy: …`` at once and is closed. A line longer than the
 protocol allows is refused once and skipped as it arrives, never buffered whole.
@@ -55,7 +57,7 @@ import numpy as np
 from phoid.rig.link import Link, LinkClosed
 from phoid.rig.native import Controller, build_library
 from phoid.rig.protocol import MAX_LINE, ProtocolError, check_hello, encode, hello, parse
-from phoid.simulation.tracking import ExactPlant
+from phoid.simulation.tracking import MAX_SUBSTEPS, ExactPlant
 
 __all__ = ["VirtualRig"]
 
@@ -64,6 +66,9 @@ HELLO_TIMEOUT = 10.0  # s for the host's hello (at most the idle timeout)
 MAX_SESSION = 3600.0  # s a session may hold the rig
 MAX_SAMPLES = 2_000_000  # samples of one run (hold, run and the sample after it)
 MAX_SAMPLE_TIME = 1.0  # s: the slowest sample rate the rig runs (1 Hz)
+MAX_RATE = 1e9  # Hz: the fastest --max-rate (the controller's shortest sample time is 1 ns)
+MAX_WAIT = 86400.0  # s: the longest --idle-timeout and --max-session (a day)
+MAX_FORCE_NOISE = 1e300  # N: the largest --force-noise (G·u + η stays a finite double)
 BUSY_GRACE = 1.0  # s a new connection waits for the last session to finish closing
 LINGER = 1.0  # s the rig reads what the host still sends after its last ERROR, then closes
 SEND_TIMEOUT = 5.0  # s, at least: a host that reads nothing for this long is dropped
@@ -120,6 +125,56 @@ class _Lines:
             return line
 
 
+def _zoh_map(plant: ExactPlant, T: float) -> tuple[str, bool]:
+    """Why the plant's motion over a sample of T s cannot be simulated ("" when it can), and
+    whether that is an overflow (else: the plant is too fast for T).
+
+    The exact discretisation (:meth:`ExactPlant.zoh_map`) of an extreme plant overflows
+    (``m`` so small or ``c``, ``k`` so large that c/m, k/m or 1/m·T pass the largest double):
+    an arithmetic error or a map that is not finite is refused here, never met in a run.
+    """
+    try:
+        with np.errstate(over="raise", divide="raise", invalid="raise", under="ignore"):
+            mp = plant.zoh_map(T)
+    except ValueError:  # more quarter periods in T than the simulation cuts it into
+        return (f"the plant oscillates far faster than a sample of {T:g} s can follow (more "
+                f"than {MAX_SUBSTEPS} quarter periods in one sample)"), False
+    except ArithmeticError as exc:  # FloatingPointError, OverflowError, ZeroDivisionError
+        return (f"its motion over a sample of {T:g} s overflows a double "
+                f"({type(exc).__name__})"), True
+    if not all(math.isfinite(val) for val in mp[:6]):
+        return f"its motion over a sample of {T:g} s overflows a double", True
+    return "", False
+
+
+def _check_plant(plant, offset: float, max_rate: float) -> None:
+    """Refuse (ValueError naming `m`, `c`, `k`) a plant the rig cannot simulate.
+
+    The plant is checked (:class:`ExactPlant`) and its exact discretisation tried at the
+    fastest sample time the rig accepts (1/``max_rate``) and at the slowest (1 s): an overflow
+    at either, or a plant too fast to simulate even at the fastest, would fail every run.
+    A plant only too fast for slow sample times is served (CONFIG refuses those).
+    """
+    try:
+        with np.errstate(over="raise", divide="raise", invalid="raise", under="ignore"):
+            exact = ExactPlant(plant, offset=offset)  # checks the plant and the offset
+    except ArithmeticError as exc:
+        why = f"its parameters overflow a double ({type(exc).__name__})"
+    else:
+        fast, slow = 1.0 / max_rate, MAX_SAMPLE_TIME
+        why, _ = _zoh_map(exact, fast)
+        if why:
+            why += ", the fastest sample time the rig accepts (1/`max_rate`)"
+        else:
+            why, overflow = _zoh_map(exact, slow)
+            if not overflow:
+                why = ""  # at most too fast for slow sample times: CONFIG refuses those
+    if why:
+        m, c, k, fc = (float(getattr(plant, name)) for name in ("m", "c", "k", "fc"))
+        raise ValueError(f"`m` {m:g} kg, `c` {c:g} N s/m, `k` {k:g} N/m, `fc` {fc:g} N: the "
+                         f"rig cannot simulate this plant: {why}")
+
+
 class VirtualRig:
     """A rig simulator speaking ``PHOID-RIG 1``.
 
@@ -138,8 +193,8 @@ class VirtualRig:
     build : str or Path, optional
         Where the C controller is built; default a temporary folder removed by :meth:`close`.
     max_rate : float, default 20000
-        The fastest sample rate the rig accepts, Hz: a CONFIG with a shorter ``sample_time``
-        is refused (``ERROR``).
+        The fastest sample rate the rig accepts, Hz (1 to 1e9): a CONFIG with a shorter
+        ``sample_time`` is refused (``ERROR``).
     faults : mapping, optional
         Injected faults (module docstring).
     noise_in_loop : bool, default True
@@ -148,14 +203,15 @@ class VirtualRig:
         streamed x carries the noise (phoid's simulate model: pure measurement noise).
     force_noise : float, optional
         Standard deviation of the force sensor's white noise, N: the SAMPLE lines then carry
-        the measured force G·uₙ + ηₙ. None (default): no force sensor, no force field.
+        the measured force G·uₙ + ηₙ (at most 1e300 N). None (default): no force sensor, no
+        force field.
     idle_timeout : float, default 30
         Seconds without a line from the host (outside a run) after which the rig ends the
         session (``ERROR``, then it closes); the hello must come within
-        min(10 s, ``idle_timeout``).
+        min(10 s, ``idle_timeout``). At most a day (86 400 s).
     max_session : float, default 3600
         Seconds one session may hold the rig; then it ends (``ERROR``, close), a run in
-        progress too.
+        progress too. At most a day (86 400 s).
     max_samples : int, default 2000000
         The most samples one run may take (hold_samples + run_samples + 1); a CONFIG asking
         for more is refused.
@@ -165,7 +221,9 @@ class VirtualRig:
     CompilerNotFoundError
         Without a C compiler (the library is built when the rig is made).
     ValueError
-        For a parameter out of its range (named).
+        For a parameter out of its range (named), or a plant whose exact discretisation
+        overflows at the fastest or the slowest sample time the rig accepts (naming `m`,
+        `c`, `k`, `fc`).
     """
 
     def __init__(self, plant, *, offset_force: float = 0.0, noise: float = 0.0,
@@ -179,15 +237,19 @@ class VirtualRig:
             raise ValueError(f"noise must be a finite number ≥ 0 m; got {noise!r}")
         if force_noise is not None and not (math.isfinite(force_noise) and force_noise >= 0):
             raise ValueError(f"force_noise must be a finite number ≥ 0 N; got {force_noise!r}")
-        if not (math.isfinite(max_rate) and max_rate >= 1.0 / MAX_SAMPLE_TIME):
-            raise ValueError(f"max_rate must be a finite number ≥ {1 / MAX_SAMPLE_TIME:g} Hz; "
-                             f"got {max_rate!r}")
+        if force_noise is not None and force_noise > MAX_FORCE_NOISE:
+            raise ValueError(f"force_noise must be at most {MAX_FORCE_NOISE:g} N (the measured "
+                             f"force must stay a finite double); got {force_noise!r}")
+        if not (math.isfinite(max_rate) and 1.0 / MAX_SAMPLE_TIME <= max_rate <= MAX_RATE):
+            raise ValueError(f"max_rate must be a number from {1 / MAX_SAMPLE_TIME:g} to "
+                             f"{MAX_RATE:g} Hz (the controller's 1 ns); got {max_rate!r}")
         for name, val in (("idle_timeout", idle_timeout), ("max_session", max_session)):
-            if not (math.isfinite(val) and val > 0):
-                raise ValueError(f"{name} must be a finite number > 0 s; got {val!r}")
+            if not (math.isfinite(val) and 0 < val <= MAX_WAIT):
+                raise ValueError(f"{name} must be a number > 0 and at most {MAX_WAIT:g} s "
+                                 f"(a day); got {val!r}")
         if isinstance(max_samples, bool) or not isinstance(max_samples, int) or max_samples < 3:
             raise ValueError(f"max_samples must be a whole number ≥ 3; got {max_samples!r}")
-        ExactPlant(plant, offset=offset_force)  # checks the plant and the offset
+        _check_plant(plant, float(offset_force), float(max_rate))
         self.plant, self.offset, self.noise = plant, float(offset_force), float(noise)
         self.rng = np.random.default_rng(seed)
         # the force noise has its own stream, so the position noise is the same with or without
@@ -354,6 +416,9 @@ class VirtualRig:
             except LinkClosed:
                 raise
             except ProtocolError as exc:
+                # a line refused whole may have been a CONFIG (a damaged checksum, a bad
+                # field): no configuration survives it (docs/rig-protocol.md)
+                config = None
                 link.send(encode("ERROR", str(exc)))
                 continue
             if msg.kind == "BYE":
@@ -365,11 +430,16 @@ class VirtualRig:
             elif msg.kind == "START":
                 if config is None:
                     link.send(encode("ERROR", "START without an accepted CONFIG"))
-                elif not self._run(link, lines, config):
+                    continue
+                ran = self._run(link, lines, config)
+                if ran is None:
                     return  # the connection was dropped (an injected fault)
+                if not ran:
+                    config = None  # the host sent a line the rig refused during the run
             elif msg.kind in ("CLEAR", "ABORT"):
                 link.send(encode("OK"))  # no run in progress: nothing to clear or abort
             else:
+                config = None  # every line the rig refuses clears the configuration
                 link.send(encode("ERROR", f"the rig does not take {msg.kind}"))
 
     def _check_config(self, cfg: Mapping[str, object]) -> str:
@@ -385,10 +455,9 @@ class VirtualRig:
         if T > MAX_SAMPLE_TIME:
             return (f"sample_time {T:g} s is slower than this rig samples (at most "
                     f"{MAX_SAMPLE_TIME:g} s, {1 / MAX_SAMPLE_TIME:g} Hz)")
-        try:
-            ExactPlant(self.plant, offset=self.offset).zoh_map(T)
-        except ValueError as exc:
-            return f"sample_time {T:g} s: {exc}"
+        why, _ = _zoh_map(ExactPlant(self.plant, offset=self.offset), T)
+        if why:
+            return f"sample_time {T:g} s: {why}; give another sample_time"
         if c.hold_samples == 0:
             return ("hold_samples 0 (hold until a release) would hold for ever: the protocol "
                     "has no release command; give hold_samples >= 1")
@@ -408,13 +477,17 @@ class VirtualRig:
                     "to simulate one)")
         return ""
 
-    def _run(self, link: Link, lines: _Lines, cfg: Mapping[str, object]) -> bool:
-        """One run, streamed; False when an injected fault dropped the connection.
+    def _run(self, link: Link, lines: _Lines, cfg: Mapping[str, object]) -> bool | None:
+        """One run, streamed; True when it ran, False when it ran but the host sent a line
+        the rig refused meanwhile, None when an injected fault dropped the connection.
 
-        A simulation that diverges (the plant's position no longer a finite double) is read
-        by the controller as a sensor failure: it faults (``fault-input``), that sample is
-        not sent (a SAMPLE carries finite numbers only), and the run ends with its events
-        and ``END fault-input``.
+        A simulation that diverges (the plant's position no longer a finite double, or an
+        arithmetic error in its motion) is read by the controller as a sensor failure: it
+        faults (``fault-input``), that sample is not sent (a SAMPLE carries finite numbers
+        only), and the run ends with its events and ``END fault-input``. A measured force
+        that is not a finite double is a sensor failure too: its sample is not sent and the
+        controller faults (``fault-input``) at the next sample, where it reads that force
+        (value 1 with ``has_force`` 1, else through the position input, value 0).
         """
         self.starts += 1
         ctrl = Controller(cfg, self.folder)
@@ -427,6 +500,7 @@ class VirtualRig:
         t0 = time.monotonic()
         n = 0
         sensed = 0.0 if self.force_noise is not None else None  # the force read at nT, N
+        refused = False  # a line of the host's refused during the run
         while True:
             if n > total:  # the controller stops by itself; a bound all the same
                 raise RuntimeError(f"the run went past its {total} samples")
@@ -443,25 +517,32 @@ class VirtualRig:
                 line = encode("SAMPLE", n, n * T, x, u, state)
             else:
                 sensed = G * u + self.force_noise * float(self.force_rng.standard_normal())
+                if not math.isfinite(sensed):  # the force sensor failed: fault-input
+                    ctrl.step(x if ctrl.config.has_force else math.nan, 0.0, math.nan)
+                    break
                 line = encode("SAMPLE", n, n * T, x, u, state, sensed)
             if fault.get("drop") == n:
                 link.send(bytes(out))
                 with contextlib.suppress(OSError):
                     link.sock.shutdown(socket.SHUT_RDWR)
-                return False
+                return None
             if fault.get("corrupt") == n:
                 line = line.replace(b"SAMPLE", b"SAMPLF", 1)
             if fault.get("gap") != n:
                 out += line
             if ctrl.state in ("done", "fault") and state != "run":
                 break
-            plant.advance(G * u, T)
+            try:
+                with np.errstate(all="ignore"):  # an overflow makes x non-finite: fault-input
+                    plant.advance(G * u, T)
+            except (ArithmeticError, ValueError):  # the motion itself failed (math's errors)
+                plant.x = math.nan
             n += 1
             if self.realtime or len(out) >= FLUSH * 60:
                 link.send(bytes(out))
                 out.clear()
                 lines.check()  # the rig closing, the session's time
-                self._poll(link, lines, ctrl)
+                refused |= self._poll(link, lines, ctrl)
                 if self.realtime:
                     time.sleep(max(0.0, min(T, t0 + n * T - time.monotonic())))
         events = ctrl.events()
@@ -471,22 +552,24 @@ class VirtualRig:
         end = "done" if ctrl.state == "done" else (faults[-1] if faults else "fault")
         out += encode("END", end)
         link.send(bytes(out))
-        return True
+        return not refused
 
     @staticmethod
-    def _poll(link: Link, lines: _Lines, ctrl: Controller) -> None:
-        """Take an ABORT (or anything) the host sent during the run, without waiting."""
+    def _poll(link: Link, lines: _Lines, ctrl: Controller) -> bool:
+        """Take an ABORT (or anything) the host sent during the run, without waiting; True
+        when the rig refused a line (answered ``ERROR``)."""
         try:
             line = lines.read(0)
             if line is None:
-                return
+                return False
             msg = parse(line)
         except LinkClosed:
             raise
         except ProtocolError as exc:
             link.send(encode("ERROR", str(exc)))
-            return
+            return True
         if msg.kind == "ABORT":
             ctrl.abort(float(msg.fields["reason"]))  # type: ignore[arg-type]
-        else:
-            link.send(encode("ERROR", f"{msg.kind} during a run: abort it first"))
+            return False
+        link.send(encode("ERROR", f"{msg.kind} during a run: abort it first"))
+        return True
