@@ -770,8 +770,9 @@ def _limit_file_size(limit):
 def test_a_write_that_fails_mid_run_is_one_line_and_the_run_is_recorded(tmp_path, fake):
     # the file system refuses bytes beyond 8 kB (RLIMIT_FSIZE: the same failure as a full
     # disk, EFBIG for ENOSPC); a 2 s run at 200 Hz is 400 rows of about 45 bytes, written 256
-    # (11 kB) at a time, so the first write fails mid-run (the manifest, about 4 kB, fits): ABORT to the rig, the attempt recorded
-    # incomplete, no hidden .part left, one line naming the run and the file
+    # (11 kB) at a time, so the first write fails mid-run (the manifest, about 4 kB, fits):
+    # ABORT to the rig, the attempt recorded incomplete, no hidden .part left, one line naming
+    # the run and the file
     got = []
 
     def script(conn, cfg, k, stop):
