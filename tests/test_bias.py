@@ -349,9 +349,9 @@ def test_cli_simulate_writes_bias_per_run(tmp_path):
     assert np.any(np.abs(sim.u[1] + 200.0 * np.roll(sim.x_true[1], 10)) > 0.1)  # bias shows
     r = CliRunner().invoke(app, ["simulate", str(tmp_path / "b"), "--P", "1,2", "--D", "1",
                                  "--bias", "0.1,0.2,0.3"])
-    assert r.exit_code == 2 and "`bias` must have one value, or one per run (2)" in r.stderr
+    assert r.exit_code == 2 and "--bias must have one value, or one per run (2)" in r.stderr
     r = CliRunner().invoke(app, ["simulate", str(tmp_path / "c"), "--bias", "-1"])
-    assert r.exit_code == 2 and "`bias` must be finite and ≥ 0 N" in r.stderr
+    assert r.exit_code == 2 and "--bias must be ≥ 0 N" in r.stderr
     r = CliRunner().invoke(app, ["simulate", str(tmp_path / "d"), "--method", "free",
                                  "--bias", "0.1"])
     assert r.exit_code == 2 and "--bias does not apply to --method free" in r.stderr

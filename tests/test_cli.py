@@ -96,10 +96,10 @@ def test_identify_same_gains(tmp_path):
 
 
 def test_simulate_bad_values(tmp_path):
-    one_line_error(runner.invoke(app, ["simulate", str(tmp_path / "a"), "--m", "-1"]), "`m`")
+    one_line_error(runner.invoke(app, ["simulate", str(tmp_path / "a"), "--m", "-1"]), "--m")
     one_line_error(runner.invoke(app, ["simulate", str(tmp_path / "b"), "--P", "1,2",
                                        "--D", "1,2,3"]), "same number")
-    one_line_error(runner.invoke(app, ["simulate", str(tmp_path / "c"), "--P", "1:x:3"]), "`P`")
+    one_line_error(runner.invoke(app, ["simulate", str(tmp_path / "c"), "--P", "1:x:3"]), "--P")
     one_line_error(runner.invoke(app, ["simulate", str(tmp_path / "d"), "--delay", "-0.1"]),
                    "delay")
 

@@ -267,25 +267,103 @@ def _simulate_replay(ctx, out, replay, *, m, c, k, fc, offset_force, delay, gzip
     typer.echo(f"simulated set written to {manifest}", err=as_json)
 
 
-def _numbers(name: str, text: str) -> list[float]:
-    """Parse '1,2,3' or 'start:stop:count' (inclusive linspace) into floats."""
+# the largest magnitude (and the smallest non-zero one) a number given to `simulate` may have,
+# in SI units: nothing on a rig is 1e30 kg or 1e-30 s, and within these bounds the simulator's
+# products and ratios of a few options (rates (c + D)/m, (k + P)/m and their squares) stay
+# inside the floating-point range, where its own limits (samples, steps) can refuse them
+_MAGNITUDE = 1e30
+
+
+def _number(option: str, value: float, unit: str, sign: str = "any") -> float:
+    """Check one number of ``simulate`` by its option: finite, of the sign ``sign`` ('> 0',
+    '≥ 0' or 'any') and of magnitude 0 or 1e-30 … 1e30 (ValueError naming the option)."""
+    u = f" {unit}" if unit else ""
+    if not math.isfinite(value):
+        raise ValueError(f"{option} must be a finite number{u}; got {value:g}")
+    if sign == "> 0" and not value > 0:
+        raise ValueError(f"{option} must be > 0{u}; got {value:g}")
+    if sign == "≥ 0" and value < 0:
+        raise ValueError(f"{option} must be ≥ 0{u}; got {value:g}")
+    if value != 0 and not 1 / _MAGNITUDE <= abs(value) <= _MAGNITUDE:
+        zero = "" if sign == "> 0" else "0 or "
+        raise ValueError(f"{option} must be {zero}of magnitude {1 / _MAGNITUDE:g} … "
+                         f"{_MAGNITUDE:g}{u} (SI units); got {value:g}")
+    return float(value)
+
+
+def _numbers(option: str, text: str, unit: str, sign: str = "any") -> list[float]:
+    """Parse '1,2,3' or 'start:stop:count' (inclusive linspace) into floats, each checked by
+    :func:`_number`; the count is checked against MAX_RUNS before any list is built."""
     import numpy as np
 
+    from phoid.io import MAX_RUNS
+
+    form = f"{option} must be comma-separated numbers or start:stop:count"
     text = text.strip()
-    try:
-        if ":" in text:
-            parts = text.split(":")
-            if len(parts) != 3:
-                raise ValueError
-            a, b, n = float(parts[0]), float(parts[1]), int(parts[2])
-            if n < 1:
-                raise ValueError
-            return np.linspace(a, b, n).tolist()
-        return [float(v) for v in text.split(",") if v.strip()]
-    except ValueError:
-        raise ValueError(
-            f"`{name}` must be comma-separated numbers or start:stop:count; got {text!r}"
-        ) from None
+    parts = text.split(":") if ":" in text else text.split(",")
+    if ":" in text and len(parts) != 3:
+        raise ValueError(f"{form}; got {text[:40]!r}")
+    if len(parts) > MAX_RUNS:  # (the text itself is bounded by the command line)
+        raise ValueError(f"{option} gives {len(parts):,} values; a set holds at most "
+                         f"{MAX_RUNS:,} runs (MAX_RUNS)")
+    values = []
+    for i, part in enumerate(parts):
+        if not part.strip():
+            raise ValueError(f"{form}; got {text[:40]!r} (value {i + 1} is empty)")
+        try:
+            values.append(int(part) if ":" in text and i == 2 else float(part))
+        except ValueError:
+            raise ValueError(f"{form}; got {text[:40]!r} ({part.strip()[:20]!r} is not "
+                             f"{'a whole count' if ':' in text and i == 2 else 'a number'})"
+                             ) from None
+    if ":" in text:
+        a, b, n = values
+        if not 1 <= n <= MAX_RUNS:
+            raise ValueError(f"{option} {text[:40]}: the count must be 1 … {MAX_RUNS:,} (a set "
+                             f"holds at most {MAX_RUNS:,} runs, MAX_RUNS); got {n}")
+        for end in (a, b):
+            _number(option, end, unit, sign)
+        values = np.linspace(a, b, n).tolist()
+    for val in values:
+        _number(option, val, unit, sign)
+    return values
+
+
+# simulate's numeric options: (parameter, option, unit, sign)
+_SIMULATE_NUMBERS = (
+    ("m", "--m", "kg", "> 0"), ("c", "--c", "N s/m", "any"), ("k", "--k", "N/m", "any"),
+    ("fc", "--fc", "N", "≥ 0"), ("delay", "--delay", "s", "≥ 0"),
+    ("duration", "--duration", "s", "> 0"), ("fs", "--fs", "Hz", "> 0"),
+    ("x0", "--x0", "m", "any"), ("hold", "--hold", "s", "≥ 0"), ("noise", "--noise", "m", "≥ 0"),
+    ("quantum", "--quantum", "m", "≥ 0"), ("offset", "--offset", "m", "any"),
+    ("u_noise", "--u-noise", "N", "≥ 0"), ("sample_time", "--sample-time", "s", "> 0"),
+    ("cutoff", "--cutoff", "rad/s", "> 0"), ("B", "--B", "N", "any"),
+    ("v0", "--v0", "m/s", "any"), ("offset_force", "--offset-force", "N", "any"),
+)
+_OPTION_OF = {name: option for name, option, _u, _s in _SIMULATE_NUMBERS} | {
+    "P": "--P", "D": "--D", "bias": "--bias", "omega": "--omega",
+    "delay_samples": "--delay-samples", "velocity": "--velocity", "seed": "--seed"}
+
+
+def _check_simulate_options(params: dict) -> None:
+    """Every number of ``simulate`` by its option, before anything is built (ValueError)."""
+    for name, option, unit, sign in _SIMULATE_NUMBERS:
+        if params.get(name) is not None:
+            _number(option, params[name], unit, sign)
+    seed = params.get("seed")
+    if seed is not None and not 0 <= seed < 2**63:
+        raise ValueError(f"--seed must be a whole number 0 … 2^63 − 1; got {seed}")
+    d = params.get("delay_samples", 0)
+    if not 0 <= d < 2**63:
+        raise ValueError(f"--delay-samples must be a whole number ≥ 0; got {d}")
+
+
+def _in_option_words(message: str) -> str:
+    """A simulator's message in the command's words: `fs` → --fs, `sample_time` →
+    --sample-time (the keyword arguments it names are the options)."""
+    import re
+
+    return re.sub(r"`(\w+)`", lambda mt: _OPTION_OF.get(mt.group(1), mt.group(0)), message)
 
 
 @app.command()
@@ -396,6 +474,10 @@ def simulate(
     from phoid.io import run_from_arrays, write_experiment
     from phoid.simulation import simulate as _simulate
 
+    try:
+        _check_simulate_options(ctx.params)
+    except ValueError as exc:
+        _fail(str(exc))
     if replay is not None:
         _simulate_replay(ctx, out, replay, m=m, c=c, k=k, fc=fc, offset_force=offset_force,
                          delay=delay, gzip=gzip, overwrite=overwrite, plots=plots,
@@ -405,8 +487,6 @@ def simulate(
                         ("--json", as_json)):
         if given:
             _fail(f"{flag} applies to --replay only")
-    if not (math.isfinite(u_noise) and u_noise >= 0.0):
-        _fail(f"--u-noise must be finite and ≥ 0 N; got {u_noise}")
     if method != "pho":
         if u_noise:
             _fail("--u-noise applies to --method pho only (the other methods record no u)")
@@ -439,23 +519,21 @@ def simulate(
             duration = sched.get("duration", duration) if "duration" not in given else duration
             noise = sched.get("noise", noise) if "noise" not in given else noise
             x0 = sched.get("amplitude", x0) if "x0" not in given else x0
-        Ps = _numbers("P", P)
-        Ds = _numbers("D", D)
+        Ps = _numbers("--P", P, "N/m")
+        Ds = _numbers("--D", D, "N s/m")
         if len(Ds) == 1:
             Ds = Ds * len(Ps)
         if len(Ps) == 1:
             Ps = Ps * len(Ds)
         if len(Ps) != len(Ds) or not Ps:
-            raise ValueError(f"`P` and `D` must have the same number of runs; "
+            raise ValueError(f"--P and --D must have the same number of runs; "
                              f"got {len(Ps)} and {len(Ds)}")
-        bs = _numbers("bias", bias)
+        bs = _numbers("--bias", bias, "N", "≥ 0")
         if len(bs) == 1:
             bs = bs * len(Ps)
         if len(bs) != len(Ps):
-            raise ValueError(f"`bias` must have one value, or one per run ({len(Ps)}); "
+            raise ValueError(f"--bias must have one value, or one per run ({len(Ps)}); "
                              f"got {len(bs)}")
-        if not all(np.isfinite(bs)) or min(bs) < 0:
-            raise ValueError(f"`bias` must be finite and ≥ 0 N; got {bias!r}")
         _check_simulation_size(len(Ps), hold, duration, fs)
         plant = Plant(m, c, k, fc)
         rng = np.random.default_rng(seed)
@@ -498,7 +576,7 @@ def simulate(
             extra={"simulated": truth}, gzip=gzip, overwrite=overwrite, names=names,
         )
     except (ValueError, OSError) as exc:
-        _fail(str(exc))
+        _fail(_in_option_words(str(exc)))
     typer.echo(f"wrote {len(Ps)} runs to {path}")
 
 
@@ -551,7 +629,7 @@ def _simulate_other(ctx, out, *, method, m, c, k, fc, B, omega, duration, fs, x0
         if method == "forced":
             from phoid.methods.forced import simulate_forced
 
-            omegas = _numbers("omega", omega)
+            omegas = _numbers("--omega", omega, "rad/s", "> 0")
             _check_simulation_size(len(omegas), hold, duration, fs)
             rest = x0 if given("x0") else 0.0
             runs = simulate_forced(plant, omegas, B=B, duration=duration, fs=fs, hold=hold,
@@ -573,7 +651,7 @@ def _simulate_other(ctx, out, *, method, m, c, k, fc, B, omega, duration, fs, x0
                                     mass=m if write_mass else None,
                                     extra={"simulated": truth}, gzip=gzip, overwrite=overwrite)
     except (ValueError, OSError) as exc:
-        _fail(str(exc))
+        _fail(_in_option_words(str(exc)))
     typer.echo(f"wrote {len(runs)} runs to {path}")
 
 

@@ -100,6 +100,7 @@ __all__ = [
     "digital_residues",
     "digital_roots",
     "expm_stack",
+    "record_problem",
     "zoh_plant",
 ]
 
@@ -210,6 +211,38 @@ class DigitalPD:
     def order(self) -> int:
         """Degree of the characteristic polynomial, d + 3."""
         return self.delay_samples + 3
+
+
+def record_problem(loop: DigitalPD, span: float) -> tuple[str, str] | None:
+    """What a record of ``span`` seconds after the release cannot show of ``loop``, or None.
+
+    A sample time longer than the record (the controller never samples the motion), a command
+    delay d·T_s longer than it (the command never reaches the plant within it; the loop's
+    polynomial would have degree d + 3) or a velocity filter whose time constant 1/ω_c is longer
+    than it (the filtered velocity hardly moves: the D term is not in the record).
+
+    Returns
+    -------
+    tuple of str or None
+        (key, reason): the :class:`DigitalPD` field at fault and the rest of a one-line message
+        (it begins with `` = value``).
+    """
+    if not (math.isfinite(span) and span > 0):
+        return None
+    T = loop.sample_time
+    if T > span:
+        return ("sample_time", f" = {T:g} s is longer than the record ({span:.4g} s): the "
+                               "controller would not sample it")
+    if loop.delay_samples * T > span:
+        return ("delay_samples", f" = {loop.delay_samples} periods ({loop.delay_samples * T:.4g} "
+                                 f"s at sample_time {T:g} s) is longer than the record "
+                                 f"({span:.4g} s): the command would never reach the plant")
+    if loop.velocity == "filtered" and loop.cutoff * span < 1.0:
+        return ("cutoff", f" = {loop.cutoff:g} rad/s: the velocity filter's time constant "
+                          f"1/cutoff = {1.0 / loop.cutoff:.3g} s is longer than the record "
+                          f"({span:.4g} s), so the filtered velocity would hardly move; is it "
+                          "in rad/s?")
+    return None
 
 
 # --------------------------------------------------------------------------------------------

@@ -84,7 +84,30 @@ def parse_manifest(where: str, raw: bytes) -> dict[str, Any]:
     if isinstance(tables, list) and len(tables) > limits.MAX_RUNS:
         fail(where, f"the manifest has {len(tables):,} [[run]] tables; phoid reads at most "
                      f"{limits.MAX_RUNS:,} runs per set (MAX_RUNS)")
+    _misplaced_tables(where, doc)
     return doc
+
+
+# the manifest's top-level tables: a key of one of these names inside another table is a
+# top-level key written below a table's header (TOML puts it in that table), which the reader
+# would otherwise keep as that table's unknown key and ignore (the stated delay lost)
+_TOP_TABLES = ("loop", "units", "fixed", "run")
+
+
+def _misplaced_tables(where: str, doc: dict[str, Any]) -> None:
+    """Refuse a top-level table's name used as a key inside another table (one line)."""
+    for name, value in doc.items():
+        runs = name == "run" and isinstance(value, list)
+        for i, table in enumerate(value if runs else [value], start=1):
+            if not isinstance(table, dict):
+                continue
+            for key in _TOP_TABLES:
+                if key in table:
+                    label = f"[[run]] {i}" if runs else f"[{name}]"
+                    fail(where, f"{label} {key}: '{key}' names a top-level table of the "
+                                 f"manifest ([{key}]), but below the {label} header TOML puts "
+                                 f"it in that table, where phoid would ignore it: move it above "
+                                 "the first table header, or write it as its own table")
 
 
 def _depth(doc: Any) -> int:

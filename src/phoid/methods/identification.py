@@ -26,8 +26,10 @@ from phoid.methods.pho import Estimate, MCKFit, delay_profile, fit_lines, fit_mo
 from phoid.methods.pho_checks import (
     check_added_mass,
     check_delay,
+    check_gain_magnitudes,
     check_sample_time,
     coarse_sampling,
+    extreme_gain,
     read_digital_loop,
     refuse_bias,
     u_contradicts_gains,
@@ -231,6 +233,7 @@ def identify_pho_data(
         if np.ndim(seq) != 1 or len(seq) != n:
             raise ValueError(f"`{label}` must give one entry per run ({n} runs); got "
                              f"{'shape ' + str(np.shape(seq)) if np.ndim(seq) != 1 else len(seq)}")
+    check_gain_magnitudes(P, D, names, source)
     if added_mass is not None:
         added_mass = np.broadcast_to(np.asarray(added_mass, dtype=float), (n,)).copy()
         if not np.all(np.isfinite(added_mass) & (added_mass >= 0)):
@@ -429,9 +432,12 @@ def _identify_core(data, P, D, delay, *, files, names, estimator="gls", compensa
     except IdentificationError as exc:
         cause = _probable_cause(first, data, P, D, None if digital is not None else delay,
                                 names, dm, estimate_delay)
-        if cause is None:
-            raise
         where = f"{source}: " if source else ""
+        if cause is None:
+            text = str(exc)
+            if source and not text.startswith(source):
+                text = f"{where}{text}{extreme_gain(P, D, names)}"
+            raise IdentificationError(text) from None
         raise IdentificationError(f"{where}{cause} ({exc})") from None
     # The second pass took the loop's fast modes from a rough plant (first pass). Where that
     # plant was poor — a run whose next root is slow biases the first pass — the runs then

@@ -10,6 +10,7 @@ checked.
 from __future__ import annotations
 
 import math
+import numbers
 from collections.abc import Sequence
 from typing import Any
 
@@ -25,8 +26,10 @@ __all__ = [
     "DIGITAL_KEYS",
     "check_added_mass",
     "check_delay",
+    "check_gain_magnitudes",
     "check_sample_time",
     "coarse_sampling",
+    "extreme_gain",
     "read_digital_loop",
     "refuse_bias",
     "u_contradicts_gains",
@@ -181,36 +184,132 @@ def check_sample_time(experiment: Any, digital: Any, runs: Sequence[Any]) -> str
 
 DIGITAL_KEYS = ("sample_time", "delay_samples", "velocity", "cutoff")
 
+#: the longest command delay of a digital loop phoid identifies, in controller periods: each
+#: evaluation of the loop's roots is an eigenvalue problem of order delay_samples + 3 per run
+#: (about 1 s at 1000); a real controller's delay is a few periods
+MAX_DELAY_SAMPLES = 1000
+
 
 def read_digital_loop(experiment: Any) -> Any:
-    """The manifest's digital loop ([loop] sample_time, …) as a DigitalPD, or None."""
-    from phoid.dynamics.digital import DigitalPD
+    """The manifest's digital loop ([loop] sample_time, …) as a DigitalPD, or None.
+
+    Every key is checked by type and range, one line naming the manifest and the key:
+    ``sample_time`` a number > 0 (s), ``delay_samples`` a whole number ≥ 0, ``velocity`` one of
+    the estimators' names, ``cutoff`` a number > 0 (rad/s); and against the records
+    (:func:`phoid.dynamics.digital.record_problem`): no sample time, command delay or velocity
+    filter time constant longer than the longest record.
+    """
+    from phoid.dynamics.digital import VELOCITY_ESTIMATORS, DigitalPD, record_problem
 
     loop = dict(getattr(experiment, "loop", {}) or {})
+    where = f"{experiment.path}: [loop]"
     unknown = sorted(set(loop) - {"delay", *DIGITAL_KEYS})
     if unknown:
         raise IdentificationError(
-            f"{experiment.path}: [loop] {unknown[0]}: unknown key (known: delay, "
-            + ", ".join(DIGITAL_KEYS) + ")"
+            f"{where} {unknown[0]}: unknown key (known: delay, " + ", ".join(DIGITAL_KEYS) + ")"
         )
     if "sample_time" not in loop:
         extra = [key for key in DIGITAL_KEYS if key in loop]
         if extra:
             raise IdentificationError(
-                f"{experiment.path}: [loop] {extra[0]}: needs [loop] sample_time (s), the "
-                "controller's sampling period"
+                f"{where} {extra[0]}: needs [loop] sample_time (s), the controller's sampling "
+                "period"
             )
         return None
+    T = _loop_number(where, "sample_time", loop["sample_time"], "s")
+    d = loop.get("delay_samples", 0)
+    whole = isinstance(d, numbers.Integral) or (isinstance(d, float) and d.is_integer())
+    if isinstance(d, bool) or not whole or not 0 <= d <= 2**62:
+        raise IdentificationError(
+            f"{where} delay_samples must be a whole number ≥ 0 (controller periods); got "
+            f"{_shown(d)}")
+    if d > MAX_DELAY_SAMPLES:
+        raise IdentificationError(
+            f"{where} delay_samples = {int(d)}: phoid models a command delay of at most "
+            f"{MAX_DELAY_SAMPLES} controller periods (the loop's polynomial has degree "
+            "delay_samples + 3, its roots cost the cube of that)")
+    velocity = loop.get("velocity", "backward-difference")
+    if not isinstance(velocity, str) or velocity not in VELOCITY_ESTIMATORS:
+        raise IdentificationError(
+            f"{where} velocity must be one of {', '.join(map(repr, VELOCITY_ESTIMATORS))}; got "
+            f"{_shown(velocity)}")
+    cutoff = loop.get("cutoff")
+    if cutoff is not None:
+        cutoff = _loop_number(where, "cutoff", cutoff, "rad/s")
     try:
-        return DigitalPD(
-            P=0.0, D=0.0, sample_time=loop["sample_time"],
-            delay_samples=loop.get("delay_samples", 0),
-            velocity=loop.get("velocity", "backward-difference"), cutoff=loop.get("cutoff"),
-        )
+        digital = DigitalPD(P=0.0, D=0.0, sample_time=T, delay_samples=int(d),
+                            velocity=velocity, cutoff=cutoff)
     except (ValueError, TypeError) as exc:
-        raise IdentificationError(f"{experiment.path}: [loop]: {exc}") from None
+        raise IdentificationError(f"{where}: {exc}") from None
+    spans = []
+    for r in getattr(experiment, "runs", ()):
+        t = getattr(r, "t", None)
+        if t is not None and np.size(t) >= 2:
+            spans.append(float(t[-1]) - float(t[0]))
+    problem = record_problem(digital, max(spans)) if spans else None
+    if problem is not None:
+        raise IdentificationError(f"{where} {problem[0]}{problem[1]}")
+    return digital
 
 
+def _loop_number(where: str, key: str, value: Any, unit: str) -> float:
+    """A [loop] number > 0 (a TOML number, not a string or a boolean), or one line."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+        raise IdentificationError(
+            f"{where} {key} must be a number > 0 ({unit}); got {_shown(value)}")
+    v = float(value)
+    if not (math.isfinite(v) and v > 0):
+        raise IdentificationError(f"{where} {key} must be a finite number > 0 ({unit}); got {v:g}")
+    return v
+
+
+def _shown(value: Any) -> str:
+    """A manifest value as messages quote it: repr, cut, with its TOML kind."""
+    kind = {bool: "a boolean", str: "a string", int: "an integer", float: "a number",
+            list: "an array", dict: "a table"}.get(type(value), type(value).__name__)
+    text = repr(value)
+    return f"{text[:40] + '…' if len(text) > 40 else text} ({kind})"
+
+
+#: the largest gain magnitude (N/m, N·s/m) a run may give: beyond any loop a rig closes, and
+#: where a gain times a record's positions and rates (and the loop's squared rates) would leave
+#: the floating-point range
+MAX_GAIN = 1e30
+# a run's gain this many times the others' median magnitude is named when the fit fails
+_EXTREME_GAIN = 1e3
+
+
+def check_gain_magnitudes(P: np.ndarray, D: np.ndarray, names: Sequence[str], source: str
+                          ) -> None:
+    """Refuse a run whose gain P or D exceeds :data:`MAX_GAIN` in magnitude (one line naming
+    the set, the run and the key)."""
+    where = f"{source}: " if source else ""
+    for key, gains, unit in (("P", P, "N/m"), ("D", D, "N·s/m")):
+        with np.errstate(invalid="ignore"):
+            bad = np.flatnonzero(~(np.abs(gains) <= MAX_GAIN))
+        if bad.size:
+            i = int(bad[0])
+            raise IdentificationError(
+                f"{where}{names[i]}: {key} = {float(gains[i]):.6g} {unit} is beyond any loop's "
+                f"gain (|{key}| ≤ {MAX_GAIN:g} {unit}): check its value and unit")
+
+
+def extreme_gain(P: np.ndarray, D: np.ndarray, names: Sequence[str]) -> str:
+    """A hint for a failed fit: the run whose gain is farthest (over 1000×) from the others'
+    median magnitude, or the general advice to check the gains and the delay."""
+    best = (1.0, "", "", 0.0)
+    n = len(names)
+    for key, gains in (("P", np.asarray(P, dtype=float)), ("D", np.asarray(D, dtype=float))):
+        mags = np.abs(gains)
+        for i in range(n if n >= 2 else 0):
+            others = np.delete(mags, i)
+            ref = float(np.median(others[others > 0])) if np.any(others > 0) else 0.0
+            if ref > 0 and mags[i] / ref > max(best[0], _EXTREME_GAIN):
+                best = (float(mags[i] / ref), names[i], key, float(gains[i]))
+    if best[1]:
+        return (f"; {best[1]} has {best[2]} = {best[3]:.6g}, {best[0]:.3g} times the other runs' "
+                f"(median magnitude): check its gains")
+    return "; check the runs' gains P, D and the loop delay"
 
 
 _MAX_ADDED_RATIO = 1e6

@@ -231,12 +231,31 @@ class _Grid:
     unit: bool  # ... and sample j0 + n is grid point n
 
 
+def _too_many_steps(steps: float, runs: int, span: float, h: float) -> None:
+    raise PhoidError(
+        f"the simulation would take {steps:.3g} internal steps ({runs} runs × {span:g} s in "
+        f"steps of {h:.3g} s, the shortest of the delay, the sample interval and 0.1/(fastest "
+        f"rate)), above the limit of {MAX_STEPS:.0e}: check the units of the delay and the "
+        "sample rate, and the plant's m, c, k, or shorten the duration")
+
+
 def _make_grid(delay, fs, hold, N, rho, runs: int = 1) -> _Grid:
     """The step h = Δt/d (or 1/(M f_s) for Δt = 0) and the samples' places on it.
 
     PhoidError where the steps of all runs would exceed :data:`MAX_STEPS`.
     """
+    if not math.isfinite(rho):
+        raise PhoidError(
+            f"the loop's fastest rate overflows ({rho:g} 1/s: check the plant's m, c, k and the "
+            "gains P, D: a rate that large cannot be simulated)")
     h_acc = RHO_H / rho if rho > 0 else math.inf
+    # the step can be no longer than h_acc, the delay or the sample interval: a simulation
+    # beyond MAX_STEPS at that bound is refused before the step counts are computed (whose
+    # ratios overflow for a delay or a rate of 1e300)
+    span = max(N / fs - hold, 0.0)
+    h_max = min(h_acc, 1.0 / fs, delay if delay > 0 else math.inf)
+    if runs * span > MAX_STEPS * h_max:
+        _too_many_steps(runs * span / h_max, runs, span, h_max)
     if delay > 0:
         d_min = max(1, math.ceil(delay / h_acc - 1e-9), math.ceil(delay * fs - 1e-9))
         r = delay * fs
@@ -251,13 +270,9 @@ def _make_grid(delay, fs, hold, N, rho, runs: int = 1) -> _Grid:
         d = 0
         M = max(1, math.ceil(1.0 / (fs * h_acc) - 1e-9))
         h = 1.0 / (fs * M)
-    steps = runs * max(N / fs - hold, 0.0) / h
+    steps = runs * span / h
     if steps > MAX_STEPS:
-        raise PhoidError(
-            f"the simulation would take {steps:.3g} internal steps ({runs} runs × "
-            f"{max(N / fs - hold, 0.0):g} s in steps of {h:.3g} s, the shortest of the delay, "
-            f"the sample interval and 0.1/(fastest rate)), above the limit of {MAX_STEPS:.0e}: "
-            "check the units of the delay and the sample rate, or shorten the duration")
+        _too_many_steps(steps, runs, span, h)
     j = np.arange(N)
     t = j / fs
     j0 = int(np.searchsorted(t, hold - 1e-12 / fs))
@@ -279,7 +294,13 @@ def _make_grid(delay, fs, hold, N, rho, runs: int = 1) -> _Grid:
 
 def continuous_grid(m, c, k, P, D, delay, hold, fs, N) -> _Grid:
     """The internal grid of the continuous loop (sample-rate rule checked: ValueError)."""
-    roots = _closed_loop_roots(m, c, k, P, D, delay)
+    with np.errstate(all="ignore"):
+        roots = _closed_loop_roots(m, c, k, P, D, delay)
+    if not np.all(np.isfinite(roots)):  # (c + D)/m or (k + P)/m beyond the float range
+        raise PhoidError(
+            "the loop's rates overflow: (c + D)/m or (k + P)/m is beyond the floating-point "
+            f"range (m = {m:g} kg, c = {c:g} N·s/m, k = {k:g} N/m, P up to "
+            f"{float(np.max(np.abs(P))):g} N/m, D up to {float(np.max(np.abs(D))):g} N·s/m)")
     omega = float(np.max(np.abs(roots.imag))) if roots.size else 0.0
     fs_min = _SAMPLES_PER_PERIOD * omega / (2 * np.pi)
     if not fs >= fs_min:

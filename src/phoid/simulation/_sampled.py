@@ -57,6 +57,8 @@ from phoid.dynamics.digital import (
     expm_stack,
 )
 from phoid.dynamics.plant import quadratic_roots
+from phoid.errors import PhoidError
+from phoid.simulation._checks import MAX_STEPS
 from phoid.simulation._propagation import NQ, RHO_H, Engine, force_coeffs
 from phoid.simulation._recursion import recurse
 from phoid.simulation._stickslip import Friction
@@ -83,6 +85,11 @@ def run_sampled(m, c, k, fc, P, D, x0, v0, hold, fs, N, force, loop: DigitalPD, 
             f"sampled controller; got {hold:g} s"
         )
     h = T / Mr
+    n_last = (N - 1) // Mr  # last controller instant in the record
+    if d > n_last + 1:  # its companion arrays hold d + 4 values per run: bounded by the record
+        raise ValueError(
+            f"`delay_samples` = {d} periods ({d * T:.4g} s) is longer than the record "
+            f"({n_last + 1} controller periods): the command would never reach the plant")
     x_true = np.empty((B, N))
     vel = np.empty((B, N))
     jr = min(j_rel, N)
@@ -90,7 +97,6 @@ def run_sampled(m, c, k, fc, P, D, x0, v0, hold, fs, N, force, loop: DigitalPD, 
     vel[:, :jr] = 0.0
     n1 = -(-j_rel // Mr)  # first controller instant at or after the release
     r0 = n1 * Mr - j_rel  # recorder intervals from the release to it
-    n_last = (N - 1) // Mr  # last controller instant in the record
     U = np.repeat((-P * x0)[:, None], n_last + 1, axis=1)  # commands u_n (held: −P x₀)
     if bias is not None:  # sign(v̂_n) of each command: prescribed, or recorded here
         S_out = np.zeros((B, n_last + 1))
@@ -104,7 +110,14 @@ def run_sampled(m, c, k, fc, P, D, x0, v0, hold, fs, N, force, loop: DigitalPD, 
             rho = float(np.max(np.abs(quadratic_roots(m, c, k))))
             dom = digital_roots(m, c, k, P, D, loop).dominant
             rho = max(rho, float(np.max(np.abs(dom[np.isfinite(dom)]), initial=0.0)))
-            S = max(1, math.ceil(rho * h / RHO_H - 1e-9))
+            subs = rho * h / RHO_H
+            if not B * (N - 1 - j_rel) * subs <= MAX_STEPS:  # an infinite rate too
+                raise PhoidError(
+                    f"the simulation would take {B * (N - 1 - j_rel) * subs:.3g} internal steps "
+                    f"({B} runs, {N - 1 - j_rel} recorder intervals in sub-steps of 0.1/(fastest "
+                    f"rate {rho:.3g} 1/s)), above the limit of {MAX_STEPS:.0e}: check the "
+                    "plant's m, c, k and the gains, or shorten the duration")
+            S = max(1, math.ceil(subs - 1e-9))
         k_total = (N - 1 - j_rel) * S  # sub-steps simulated after the release
         cF = force_coeffs(force, hold, h / S, k_total)
         geo = _SampledGeometry(Mr, S, h, j_rel, n1, r0, n_last, k_total)

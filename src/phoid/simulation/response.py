@@ -32,7 +32,7 @@ import numpy as np
 
 from phoid import _validate as v
 from phoid._progress import task
-from phoid.dynamics.digital import DigitalPD
+from phoid.dynamics.digital import DigitalPD, record_problem
 from phoid.errors import PhoidError
 from phoid.simulation._checks import MAX_SAMPLES, batch_array, broadcast_batch, plant_params
 from phoid.simulation._continuous import (
@@ -209,6 +209,9 @@ def simulate(
                 f"delay in whole samples as `delay_samples`; got delay={delay:g} s"
             )
         loop = DigitalPD(0.0, 0.0, sample_time, delay_samples, velocity, cutoff)
+        problem = record_problem(loop, duration)  # the record after the release
+        if problem is not None:
+            raise ValueError(f"`{problem[0]}`{problem[1]}")
         if bias_signs is not None:
             bias_signs = np.asarray(bias_signs, dtype=float)
             if bias_signs.ndim != 2 or bias_signs.shape[0] != B \
@@ -219,6 +222,10 @@ def simulate(
             x_true, vel, u, signs = run_sampled(m, c, k, fc, P, D, x0a, v0a, hold, fs, N,
                                                  force, loop, biased, bias_signs)
     else:
+        if delay > duration:  # (and its grid would hold delay/h steps of history)
+            raise ValueError(
+                f"`delay` = {delay:g} s is longer than `duration` ({duration:g} s): the "
+                "feedback would never act on the released motion within the record")
         if delay_samples != 0 or velocity != "backward-difference" or cutoff is not None:
             name = "delay_samples" if delay_samples != 0 else (
                 "velocity" if velocity != "backward-difference" else "cutoff")
@@ -231,11 +238,21 @@ def simulate(
             )
         loop = None
 
-    x = x_true + offset
-    if noise > 0:
-        x = x + noise * rng.standard_normal((B, N))
-    if quantum > 0:
-        x = np.round(x / quantum) * quantum
+    if not (_finite(x_true) and _finite(vel) and _finite(u)):
+        raise PhoidError(
+            "the simulated motion overflows the floating-point range: check the plant's m, c, "
+            "k, the gains P, D, the release state x0, v0 and the force")
+    with np.errstate(all="ignore"):
+        x = x_true + offset
+        if noise > 0:
+            x = x + noise * rng.standard_normal((B, N))
+        if quantum > 0:
+            x = np.round(x / quantum) * quantum
+    if not _finite(x):
+        raise PhoidError(
+            f"the measured position overflows the floating-point range: check `offset` "
+            f"({offset:g} m), `noise` ({noise:g} m) and `quantum` ({quantum:g} m) against the "
+            "motion")
     return Simulation(
         t=np.arange(N) / fs,
         x=x,
@@ -254,6 +271,13 @@ def simulate(
         bias=arr["bias"].copy(),
         bias_signs=signs,
     )
+
+
+def _finite(a: np.ndarray) -> bool:
+    """Every element finite (one pass: a NaN or inf makes the sum NaN or inf; an overflowing
+    sum of finite values is looked at closely)."""
+    with np.errstate(all="ignore"):
+        return bool(np.isfinite(np.add.reduce(a, axis=None)) or np.all(np.isfinite(a)))
 
 
 _LONG_SAMPLES = 10_000_000  # runs × samples from which a progress bar is shown (~1 s)
