@@ -403,6 +403,8 @@ def test_the_cli_rig_answers_hostile_hosts_without_a_traceback(build):
     ("--idle-timeout", "1e10"), ("--max-session", "1e6"),
     ("--force-noise", "1e308"),  # G·u + noise would overflow: at most 1e300 N
     ("--max-rate", "1e12"),      # faster than the controller's 1 ns
+    ("--seed", "-1"),            # NumPy's own message named no option
+    ("--listen", "127.0.0.1:99999"),  # parse_port's message named --port
 ])
 def test_the_cli_rig_names_the_option_out_of_range(option, value, tmp_path):
     # the rig's and the plant's checks speak of keyword arguments (max_rate, `m`); the command

@@ -29,7 +29,7 @@ _RIG_OPTIONS = {"force_noise": "--force-noise", "offset_force": "--offset-force"
                 "idle_timeout": "--idle-timeout", "max_session": "--max-session",
                 "max_samples": "--max-samples", "max_rate": "--max-rate", "noise": "--noise",
                 "`offset`": "--offset-force", "`fc`": "--fc", "`m`": "--m", "`c`": "--c",
-                "`k`": "--k", "`max_rate`": "--max-rate"}
+                "`k`": "--k", "`max_rate`": "--max-rate", "seed": "--seed"}
 
 
 def _name_options(message: str) -> str:
@@ -50,6 +50,30 @@ def _name_options(message: str) -> str:
         if hits:
             return message
     return message
+
+
+def _parse_listen(listen: str) -> tuple[str, int]:
+    """--listen's ``HOST:PORT`` (or ``tcp://HOST:PORT``; port 0: a free one) → (host, port).
+
+    Raises
+    ------
+    ValueError
+        One line naming --listen.
+    """
+    from phoid.rig.host import parse_port
+
+    text = listen[6:] if listen.startswith("tcp://") else listen
+    host, sep, num = text.rpartition(":")
+    if (not sep or not host or "://" in text or not re.fullmatch(r"[0-9]{1,5}", num)
+            or int(num) > 65535):
+        shown = listen if len(listen) <= 200 else listen[:200] + "..."
+        raise ValueError(f"--listen must be HOST:PORT (port 1 to 65535, or 0 for a free one); "
+                         f"got {shown!r}")
+    try:
+        host, _ = parse_port(f"{host}:1")  # the host's checks (a name or an IP address)
+    except ValueError as exc:
+        raise ValueError(re.sub(r"^--port\b", "--listen", str(exc))) from None
+    return host, int(num)
 
 
 def virtual_rig(
@@ -95,11 +119,10 @@ def virtual_rig(
     import signal
 
     from phoid.dynamics.plant import Plant
-    from phoid.rig.host import parse_port
     from phoid.rig.virtual import VirtualRig
 
     try:
-        host, port = parse_port(listen) if not listen.endswith(":0") else (listen[:-2], 0)
+        host, port = _parse_listen(listen)
         rig = VirtualRig(Plant(m=m, c=c, k=k, fc=fc), offset_force=offset_force, noise=noise,
                          seed=seed, realtime=realtime, build=build, max_rate=max_rate,
                          noise_in_loop=not noise_outside_loop, force_noise=force_noise,

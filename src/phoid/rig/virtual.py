@@ -247,6 +247,9 @@ class VirtualRig:
             if not (math.isfinite(val) and 0 < val <= MAX_WAIT):
                 raise ValueError(f"{name} must be a number > 0 and at most {MAX_WAIT:g} s "
                                  f"(a day); got {val!r}")
+        if seed is not None and (isinstance(seed, bool) or not isinstance(seed, int)
+                                 or not 0 <= seed < 2**128):
+            raise ValueError(f"seed must be a whole number from 0 to 2^128 - 1; got {seed!r}")
         if isinstance(max_samples, bool) or not isinstance(max_samples, int) or max_samples < 3:
             raise ValueError(f"max_samples must be a whole number ≥ 3; got {max_samples!r}")
         _check_plant(plant, float(offset_force), float(max_rate))
