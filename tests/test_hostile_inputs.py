@@ -176,6 +176,16 @@ def test_identify_misplaced_or_mistyped_top_level_tables(small: Path, tmp_path: 
     _one_line_error(runner.invoke(app, ["identify", str(folder)]), "experiment.toml", words)
 
 
+def test_identify_metadata_keys_are_the_users_whatever_their_names(small: Path,
+                                                                   tmp_path: Path) -> None:
+    # docs/format.md: [metadata]'s keys are the user's own (phoid batch copies them as
+    # meta_<key>): a key named like a top-level table is metadata, not a misplaced table
+    folder = _edited(small, tmp_path, "[loop]\n",
+                     '[metadata]\nrun = "A12"\nunits = "mm"\nloop = "inner"\n\n[loop]\n')
+    res = runner.invoke(app, ["identify", str(folder), "--json"])
+    assert res.exit_code == 0, res.output
+
+
 @pytest.mark.parametrize(("old", "new", "words"), [
     # a gain beyond 1e30 (SI) is refused by name; before: "the gains look like they have the
     # other sign" (P = 1e300) or "the weighted fit … did not converge" naming nothing

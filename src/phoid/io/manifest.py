@@ -92,11 +92,15 @@ def parse_manifest(where: str, raw: bytes) -> dict[str, Any]:
 # top-level key written below a table's header (TOML puts it in that table), which the reader
 # would otherwise keep as that table's unknown key and ignore (the stated delay lost)
 _TOP_TABLES = ("loop", "units", "fixed", "run")
+# tables whose keys are the user's own (docs/format.md): any name is theirs to use
+_FREE_TABLES = ("metadata",)
 
 
 def _misplaced_tables(where: str, doc: dict[str, Any]) -> None:
     """Refuse a top-level table's name used as a key inside another table (one line)."""
     for name, value in doc.items():
+        if name in _FREE_TABLES:
+            continue
         runs = name == "run" and isinstance(value, list)
         for i, table in enumerate(value if runs else [value], start=1):
             if not isinstance(table, dict):
