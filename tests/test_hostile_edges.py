@@ -11,6 +11,7 @@ from __future__ import annotations
 import contextlib
 import gzip
 import io
+import json
 import os
 import shutil
 import socket
@@ -18,6 +19,7 @@ import struct
 import subprocess
 import sys
 import threading
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -369,3 +371,216 @@ def test_a_gzip_bomb_of_one_repeated_row_is_refused_at_its_first_block(tmp_path:
     msg = str(info.value)
     assert "run 2 (run02.csv.gz)" in msg
     assert "not strictly increasing at line 3" in msg and "MAX_LINES" not in msg, msg
+
+
+# --- container bombs: sizes declared huge, values read piece by piece, t first ---------------
+# findings (a second probe): the MATLAB, HDF5 and Parquet readers loaded every variable whole
+# before checking t: 4.8 kB of HDF5 declaring 45e6 never-written samples cost 1.8 GB and 8 s,
+# 784 kB of Parquet zeros 2.3 GB, 1.4 MB of compressed MATLAB zeros 3.2 GB and 27 s, all to
+# say "t is not strictly increasing at index 1"
+
+
+CONTAINER_SET = """format = "phoid/1"
+method = "tracking"
+[loop]
+delay = 0.0
+sample_time = 0.001
+[[run]]
+file = "{file}"
+P = 4000.0
+D = 60.0
+[run.columns]
+t = "tt"
+x = "qm"
+r = "qg"
+u = "vir"
+"""
+SIGNALS = ("tt", "qm", "qg", "vir")
+
+
+def _read_measured(folder: Path) -> dict:
+    """read_experiment(folder) in a fresh interpreter: its error (or "ok"), its seconds, and
+    the process's peak resident memory (MB) before and after the read (ru_maxrss)."""
+    code = (
+        "import json, resource, sys, time\n"
+        "import h5py, pyarrow.parquet, scipy.io\n"  # the readers' imports, before the baseline
+        "import phoid.io as pio\n"
+        "from phoid.errors import ExperimentError\n"
+        "peak = lambda: resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024\n"
+        "base, t0 = peak(), time.perf_counter()\n"
+        "try:\n"
+        "    pio.read_experiment(sys.argv[1]); error = 'ok'\n"
+        "except ExperimentError as e:\n"
+        "    error = str(e)\n"
+        "print(json.dumps({'error': error, 'seconds': time.perf_counter() - t0,\n"
+        "                  'base': base, 'peak': peak()}))\n"
+    )
+    done = subprocess.run([sys.executable, "-c", code, str(folder)], capture_output=True,
+                          text=True, timeout=120)
+    assert done.returncode == 0, done.stderr[-2000:]
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
+def _bomb_refused(folder: Path, file: str, *, declared_mb: float) -> None:
+    got = _read_measured(folder)
+    assert f"run 1 ({file})" in got["error"], got
+    assert "'tt' for t is not strictly increasing at index 1: 0.0 s follows 0.0 s" \
+        in got["error"], got
+    # the old reader held every declared value (declared_mb, 300 MB or more here) before it
+    # checked t; the new one holds one piece (1 MiB of values) beside the pages it touched of
+    # the preallocated columns: 100 MB is room for the libraries' buffers
+    assert got["peak"] - got["base"] < 100 < declared_mb, got
+    # seconds: the old reader took 8-27 s on these; 10 s is room for a loaded machine
+    assert got["seconds"] < 10, got
+
+
+def test_an_hdf5_file_declaring_huge_never_written_datasets_is_refused_at_its_first_piece(
+        tmp_path: Path) -> None:
+    import h5py
+
+    n = 45_000_000  # under MAX_LINES: only the values can refuse it
+    with h5py.File(tmp_path / "d.h5", "w") as f:
+        for name in SIGNALS:  # never written: every value is the fill value, 0
+            f.create_dataset(name, shape=(1, n), dtype="f8", chunks=(1, 1 << 20))
+    assert (tmp_path / "d.h5").stat().st_size < 10_000
+    (tmp_path / "experiment.toml").write_text(CONTAINER_SET.format(file="d.h5"))
+    _bomb_refused(tmp_path, "d.h5", declared_mb=4 * 8 * n / 2**20)
+
+
+def test_a_parquet_file_of_constant_columns_is_refused_at_its_first_batch(
+        tmp_path: Path) -> None:
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    zeros = pa.array(np.zeros(1 << 20))
+    table = pa.concat_tables([pa.table({k: zeros for k in SIGNALS})] * 10)  # 10 Mi rows
+    pq.write_table(table, tmp_path / "d.parquet", row_group_size=table.num_rows,
+                   compression="zstd")  # one row group: dictionary pages, 2 kB per column
+    (tmp_path / "experiment.toml").write_text(CONTAINER_SET.format(file="d.parquet"))
+    _bomb_refused(tmp_path, "d.parquet", declared_mb=4 * 8 * table.num_rows / 2**20)
+
+
+def _mat_zeros(path: Path, n: int, names: Sequence[str]) -> None:
+    """A MATLAB v5 file (header, then per name a compressed n×1 double of zeros), written by
+    hand as the MAT-file format lays it out (a 128-byte header; elements tag, flags, dims,
+    name, values): zlib of zeros is a thousand times smaller than the zeros."""
+    import zlib
+
+    def tag(kind: int, nbytes: int) -> bytes:
+        return struct.pack("<II", kind, nbytes)
+
+    header = b"MATLAB 5.0 MAT-file, hand-written by phoid's tests".ljust(116) + bytes(8) \
+        + b"\x00\x01IM"
+    with open(path, "wb") as f:
+        f.write(header)
+        for name in names:
+            raw = name.encode()
+            body = (tag(6, 8) + struct.pack("<II", 6, 0) + tag(5, 8) + struct.pack("<ii", n, 1)
+                    + tag(1, len(raw)) + raw + bytes(-len(raw) % 8) + tag(9, 8 * n))
+            z = zlib.compressobj(1)
+            parts = [z.compress(tag(14, len(body) + 8 * n) + body)]
+            block, left = bytes(1 << 24), 8 * n
+            while left:
+                parts.append(z.compress(block[:min(left, len(block))]))
+                left -= min(left, len(block))
+            parts.append(z.flush())
+            stream = b"".join(parts)
+            f.write(tag(15, len(stream)) + stream)
+
+
+def test_a_compressed_mat_file_of_zeros_is_refused_at_its_first_block(tmp_path: Path) -> None:
+    n = 10_000_000
+    _mat_zeros(tmp_path / "d.mat", n, SIGNALS)
+    assert (tmp_path / "d.mat").stat().st_size < 2_000_000
+    (tmp_path / "experiment.toml").write_text(CONTAINER_SET.format(file="d.mat"))
+    _bomb_refused(tmp_path, "d.mat", declared_mb=4 * 8 * n / 2**20)
+
+
+def test_mat_variables_not_asked_for_are_listed_without_being_decompressed(
+        tmp_path: Path) -> None:
+    # scipy's whosmat (the old listing) decompressed each compressed element in unbounded
+    # steps: 20 variables of 128 MB of zeros (2.4 MB of file) cost it ~10 s and 300 MB
+    import scipy.io
+
+    t = np.arange(1000) * 1e-3
+    buf = io.BytesIO()
+    scipy.io.savemat(buf, {"tt": t, "qm": np.sin(t), "qg": np.sin(t), "vir": np.cos(t)})
+    junk = tmp_path / "junk.mat"
+    _mat_zeros(junk, 16_000_000, ["junk"])
+    element = junk.read_bytes()[128:]
+    (tmp_path / "d.mat").write_bytes(buf.getvalue() + element * 20)
+    (tmp_path / "experiment.toml").write_text(CONTAINER_SET.format(file="d.mat"))
+    got = _read_measured(tmp_path)
+    assert got["error"] == "ok", got
+    assert got["peak"] - got["base"] < 100 and got["seconds"] < 10, got
+
+
+def test_a_valid_record_is_read_into_its_columns_with_little_more_memory(
+        tmp_path: Path) -> None:
+    # finding: 542 kB of HDF5 (a real t, signals declared and never written) took 4.6 GB
+    # to identify; the reader's part is now the columns kept (8 bytes a value) and a piece
+    import h5py
+
+    n = 4_000_000
+    with h5py.File(tmp_path / "d.h5", "w") as f:
+        f.create_dataset("tt", data=(np.arange(n) * 1e-3).reshape(1, -1), chunks=(1, 1 << 20),
+                         compression="gzip", shuffle=True)
+        for name in SIGNALS[1:]:
+            f.create_dataset(name, shape=(1, n), dtype="f8", chunks=(1, 1 << 20))
+    (tmp_path / "experiment.toml").write_text(CONTAINER_SET.format(file="d.h5"))
+    got = _read_measured(tmp_path)
+    assert got["error"] == "ok", got
+    kept = 4 * 8 * n / 2**20  # 122 MB: the four float64 columns returned
+    # 40 MB: a piece of each read (8 MiB), a decompressed chunk, the library's chunk cache
+    assert got["peak"] - got["base"] < kept + 40, (got, kept)
+
+
+def test_a_force_of_zeros_is_refused_naming_the_run_and_its_file(tmp_path: Path) -> None:
+    # finding: "force: the force to fit is zero at every sample (…)", naming no run or file
+    t = np.arange(3000) * 1e-3
+    table = "tt,qm,qg,vir\n" + "".join(f"{v!r},0,0,0\n" for v in t.tolist())
+    (tmp_path / "rec.csv").write_text(table)
+    (tmp_path / "experiment.toml").write_text(
+        CONTAINER_SET.replace("{file}", "rec.csv").replace('method = "tracking"',
+                                                           'method = "tracking"\n'
+                                                           'estimator = "idim"'))
+    result = runner.invoke(app, ["identify", str(tmp_path)])
+    one_line_error(result, "run 1 (rec.csv)", "zero at every sample")
+
+
+# --- CSV: a cell numpy cannot read is named by line and column; a blank bomb ---------------
+
+
+def test_a_full_width_digit_is_named_by_its_line_and_column(tmp_path: Path) -> None:
+    # finding: '０.５' (full-width digits, which Python's \d matches and numpy refuses) said
+    # "could not convert … at row 500, column 1": line 502 and column t
+    rows = [f"{i * 1e-3!r},{float(np.sin(i * 1e-3))!r}" for i in range(1000)]
+    rows[500] = "０.５," + rows[500].split(",")[1]
+    folder = _two_run_set(tmp_path / "set", ("t,x\n" + "\n".join(rows) + "\n").encode())
+    with pytest.raises(ExperimentError) as info:
+        pio.read_experiment(folder)
+    msg = str(info.value)
+    # line 502: the header is line 1, row i is line i + 2
+    assert "run 2 (run02.csv): column 't' has a non-numeric cell at line 502: '０.５'" in msg, msg
+
+
+def test_a_gzip_of_gigabytes_of_blank_lines_is_refused_within_seconds(tmp_path: Path) -> None:
+    # finding: 4.9 MB of gzip, 4 GiB of lines of 1 MiB of spaces, was refused only at
+    # MAX_DATA_BYTES, after 21.6 s of decompression (4096 lines: far under MAX_LINES)
+    import time
+
+    line = b" " * (2**20 - 2) + b"\n"
+    member = gzip.compress(line * 16, compresslevel=9, mtime=0)  # 16 MiB each
+    bomb = gzip.compress(b"t,x\n0,0\n", mtime=0) + member * 300  # 4.7 GiB
+    assert len(bomb) < 6_000_000
+    folder = _two_run_set(tmp_path / "set", bomb, "run02.csv.gz")
+    start = time.perf_counter()
+    with pytest.raises(ExperimentError) as info:
+        pio.read_experiment(folder)
+    seconds = time.perf_counter() - start
+    msg = str(info.value)
+    assert "run 2 (run02.csv.gz): the data file is mostly blank" in msg
+    assert "MAX_BLANK_SHARE" in msg and "MAX_DATA_BYTES" not in msg, msg
+    # refused after BLANK_CHECKED_AFTER (64 MiB, well under a second), not after 4 GiB (20 s);
+    # 8 s is room for a loaded machine
+    assert seconds < 8, seconds

@@ -59,6 +59,7 @@ from phoid.io._files import not_regular, open_regular
 from phoid.io._format import FORMAT, MANIFEST, METHODS
 from phoid.io.containers import CONTAINER_SUFFIXES
 from phoid.io.limits import (
+    MAX_BLANK_SHARE,
     MAX_DATA_BYTES,
     MAX_LINE_BYTES,
     MAX_LINES,
@@ -86,6 +87,7 @@ __all__ = [
     "FIXED_KEYS",
     "FORMAT",
     "MANIFEST",
+    "MAX_BLANK_SHARE",
     "MAX_DATA_BYTES",
     "MAX_LINES",
     "MAX_LINE_BYTES",

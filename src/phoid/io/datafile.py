@@ -31,20 +31,26 @@ _GZIP_MAGIC = b"\x1f\x8b"
 _NUMBER_RE = re.compile(
     # one way to match each number (\d+(?:\.\d*)?, not \d+\.?\d*): a long run of digits that
     # fails to match costs linear, not quadratic, time (docs/design-notes/io.md)
-    r"[+-]?(?:(?:\d+(?:\.\d*)?|\.\d+)(?:[eE][+-]?\d+)?|inf(?:inity)?|nan)", re.IGNORECASE
+    # ASCII digits only (re.ASCII): numpy refuses the full-width '０.５' that \d would match
+    r"[+-]?(?:(?:\d+(?:\.\d*)?|\.\d+)(?:[eE][+-]?\d+)?|inf(?:inity)?|nan)",
+    re.IGNORECASE | re.ASCII,
 )
+_NUMPY_CELL = re.compile(r"could not convert string (.*) to float64 at row (\d+), column (\d+)")
+_BLANK_BYTES = tuple(bytes([c]) for c in b" \t\r\v\f")
 
 
 def _blocks(where: str, real: Path, file: str) -> Iterator[bytes]:
     """The data file's bytes, decompressed, in blocks of at most BLOCK bytes.
 
     Stops with an error at MAX_DATA_BYTES (decompressed, or stored): never reads or
-    decompresses more than one block past the limit.
+    decompresses more than one block past the limit. Blank bytes are counted as they come: a
+    file more than MAX_BLANK_SHARE blank past its first BLANK_CHECKED_AFTER bytes is refused
+    there (gigabytes of blank lines cost no more than that).
     """
     f, st = open_regular(where, real, "data file")
     too_big = (f"the data file is larger than {limits.MAX_DATA_BYTES // 2**30} GiB (after "
                "decompression), phoid's limit for one run (MAX_DATA_BYTES)")
-    total = 0
+    total = blank = 0
     with f:
         if st.st_size > limits.MAX_DATA_BYTES:
             fail(where, too_big)
@@ -65,6 +71,12 @@ def _blocks(where: str, real: Path, file: str) -> Iterator[bytes]:
             total += len(block)
             if total > limits.MAX_DATA_BYTES:
                 fail(where, too_big)
+            blank += sum(map(block.count, _BLANK_BYTES))
+            if total > limits.BLANK_CHECKED_AFTER and blank > limits.MAX_BLANK_SHARE * total:
+                fail(where, f"the data file is mostly blank: {blank:,} of its first {total:,} "
+                             "bytes (after decompression) are spaces, tabs or other blank "
+                             f"characters, more than phoid's limit of "
+                             f"{limits.MAX_BLANK_SHARE:.0%} (MAX_BLANK_SHARE)")
             yield block
 
 
@@ -355,7 +367,9 @@ def _parse_chunk(where: str, body: bytes, line0: int, ncols: int, position: dict
                                comments=None, ndmin=2, dtype=np.float64, usecols=usecols)
         except ValueError as exc:
             _diagnose_cells(where, body, lines, wanted, usecols)
-            fail(where, f"cannot parse the data: {exc}")
+            _numpy_cell(where, str(exc), lines, wanted, usecols)
+            fail(where, f"cannot parse the data of lines {int(lines[0])}–{int(lines[-1])}: "
+                         f"{show(str(exc), 120)}")
     finite = np.isfinite(table)
     if not finite.all():
         bad = ~finite.all(axis=0)
@@ -425,6 +439,19 @@ def _diagnose_cells(where: str, body: bytes, rows: np.ndarray, wanted: list[str]
             if not _NUMBER_RE.fullmatch(cell):
                 fail(where, f"column {key} has a non-numeric cell at line {int(rows[r])}: "
                              f"{show(cell)}")
+
+
+def _numpy_cell(where: str, message: str, rows: np.ndarray, wanted: list[str],
+                usecols: list[int]) -> None:
+    """Name the line and column of a cell numpy could not convert (its message counts rows
+    of the chunk from 0 and the file's columns from 1) where _diagnose_cells found none."""
+    found = _NUMPY_CELL.search(message)
+    if found is None:
+        return
+    cell, row, column = found[1].strip("'"), int(found[2]), int(found[3]) - 1
+    if row < rows.size and column in usecols:
+        fail(where, f"column {wanted[usecols.index(column)]} has a non-numeric cell at line "
+                     f"{int(rows[row])}: {show(cell, 60)}")
 
 
 def _cell_text(body: bytes, row: int, col: int) -> str:

@@ -8,7 +8,9 @@ recordings: a 10 kHz, 1-hour run is 3.6e7 rows.
 from __future__ import annotations
 
 __all__ = [
+    "BLANK_CHECKED_AFTER",
     "BLOCK",
+    "MAX_BLANK_SHARE",
     "MAX_DATA_BYTES",
     "MAX_LINES",
     "MAX_LINE_BYTES",
@@ -33,5 +35,13 @@ MAX_DATA_BYTES = 4 * 2**30
 """Largest data file, bytes after decompression (4 GiB)."""
 MAX_SET_ROWS = 200_000_000
 """Most data rows in all the runs of one set together (2e8: 4.8 GB as t, x, u doubles)."""
+MAX_BLANK_SHARE = 0.9
+"""Largest share of a data file's bytes (after decompression) that may be blank space —
+spaces, tabs, carriage returns, vertical tabs and form feeds — checked once
+:data:`BLANK_CHECKED_AFTER` bytes are read: a file that is nearly all blank (a gzip of
+gigabytes of blank lines) is refused within a fraction of a second, not after
+:data:`MAX_DATA_BYTES`. A CSV padded to fixed-width columns is at most about 75 % blank."""
+BLANK_CHECKED_AFTER = 64 * 2**20
+"""Bytes of a data file (after decompression) read before :data:`MAX_BLANK_SHARE` applies."""
 BLOCK = 2**20
 """Bytes read (or decompressed) at a time: memory while reading is this plus the data."""
