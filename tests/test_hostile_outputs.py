@@ -253,3 +253,19 @@ def test_design_check_delay_longer_than_the_records_names_delay(recorded, delay)
                             "--k", "64", "--delay", delay])
     line = _refused(r, "--delay", "experiment.toml")
     assert "units" not in line  # not the plant's units blamed
+
+
+def test_simulate_over_its_own_schedule_is_refused_even_with_overwrite(tmp_path):
+    # `simulate OUT --schedule PLAN` with OUT the plan's folder would replace the plan's
+    # manifest with the simulated set's (docs/format.md: outputs never replace inputs)
+    plan = tmp_path / "plan"
+    r = runner.invoke(app, ["design", "--m", "2", "--c", "1", "--k", "64", "--delay", "0.01",
+                            "--noise", "1e-5", "--out", str(plan)])
+    assert r.exit_code == 0, r.output
+    before = sorted(p.name for p in plan.iterdir()), (plan / "experiment.toml").read_bytes()
+    for schedule in (plan, plan / "experiment.toml"):
+        r = runner.invoke(app, ["simulate", str(plan), "--schedule", str(schedule),
+                                "--overwrite"])
+        _refused(r, "experiment.toml", "input", "--overwrite")
+        after = sorted(p.name for p in plan.iterdir()), (plan / "experiment.toml").read_bytes()
+        assert after == before  # not a run file written beside it either

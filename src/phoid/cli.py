@@ -470,6 +470,7 @@ def simulate(
     """
     import numpy as np
 
+    from phoid._output import protect_inputs
     from phoid.dynamics.plant import Plant
     from phoid.io import run_from_arrays, write_experiment
     from phoid.simulation import simulate as _simulate
@@ -569,12 +570,16 @@ def simulate(
                  **({"u_noise": u_noise} if u_noise else {}), **(loop_table or {})}
         if seed is not None:
             truth["seed"] = seed
-        path = write_experiment(
-            out, runs, method="pho", delay=None if omit_delay or digital else delay,
-            loop=loop_table,
-            title=f"phoid simulate: m={m:g} kg, c={c:g} N s/m, k={k:g} N/m",
-            extra={"simulated": truth}, gzip=gzip, overwrite=overwrite, names=names,
-        )
+        # the schedule read is an input: not even --overwrite writes the set over it
+        inputs = [] if schedule is None else [
+            schedule / "experiment.toml" if schedule.is_dir() else schedule]
+        with protect_inputs(inputs):
+            path = write_experiment(
+                out, runs, method="pho", delay=None if omit_delay or digital else delay,
+                loop=loop_table,
+                title=f"phoid simulate: m={m:g} kg, c={c:g} N s/m, k={k:g} N/m",
+                extra={"simulated": truth}, gzip=gzip, overwrite=overwrite, names=names,
+            )
     except (ValueError, OSError) as exc:
         _fail(_in_option_words(str(exc)))
     typer.echo(f"wrote {len(Ps)} runs to {path}")
