@@ -47,7 +47,12 @@ from phoid.methods.tracking import (
     fit_tracking_runs,
     replay,
 )
-from phoid.methods.tracking import check_delay as check_stated_delay
+from phoid.methods.tracking_delay import (
+    delay_warnings,
+    estimator_disagreement,
+    misfit_warning,
+    validation_misfit,
+)
 from phoid.methods.tracking_validation import validate_tracking
 from phoid.reports.display import NotebookDisplay
 from phoid.reports.statistics import ratio_text
@@ -91,7 +96,7 @@ class TrackingIdentification(PlantExports, NotebookDisplay):
     warnings : tuple of str
     delay_check : DelayCheck or None
         The stated (or assumed) command delay checked against the record
-        (:func:`~phoid.methods.tracking.check_delay`); None where the delay was estimated or
+        (:func:`~phoid.methods.tracking_delay.check_delay`); None where the delay was estimated or
         the check was not made.
     """
 
@@ -328,7 +333,7 @@ def identify_tracking(experiment: Any, *, delay: float | None = None,
         Overrides the set's ``estimator``.
     check_delay : bool, default True
         Check the delay given (or IDIM's assumed 0) against the record
-        (:func:`~phoid.methods.tracking.check_delay`: an output-error fit with the delay free,
+        (:func:`~phoid.methods.tracking_delay.check_delay`: an output-error fit with the delay free,
         one more fit of the loop) and warn, naming ``[loop] delay`` or ``--delay`` and the
         delay the record implies, when it contradicts the given one.
 
@@ -367,7 +372,8 @@ def identify_tracking(experiment: Any, *, delay: float | None = None,
         check_stable(records, {k: e.value for k, e in estimates.items()}, "the estimates")
         validations = [v for _, v in _replay_all(records, values)]
     except ValueError as exc:
-        raise IdentificationError(f"{where}: {exc}") from None
+        raise IdentificationError(f"{where}: {exc}{_delay_hint(str(exc), delay, given, ctrls)}"
+                                  ) from None
     warnings = [*fit.warnings, *warnings]  # the estimator's first, then the simulation's
     if source == "assumed-zero":
         warnings.append("no command delay given ([loop] delay): the validation simulates the "
@@ -375,6 +381,12 @@ def identify_tracking(experiment: Any, *, delay: float | None = None,
     for name, v in zip((rec.name for rec in records), validations, strict=True):
         warnings += [f"{name}: {w}" for w in v.warnings]
     warnings += [w for w in map(_scale_mismatch, records) if w]
+    gross = False
+    for rec, v in zip(records, validations, strict=True):
+        text = misfit_warning(rec.name, *validation_misfit([rec], [v]))
+        if text:
+            gross = True
+            warnings.append(text)
     checked = None
     if check_delay and source in ("given", "assumed-zero"):
         if delay is not None:
@@ -384,30 +396,16 @@ def identify_tracking(experiment: Any, *, delay: float | None = None,
             fix = "give the delay as [loop] delay (s) or --delay"
         else:
             label, fix = f"[loop] delay = {float(given) * 1e3:g} ms", "check [loop] delay (s)"
-        try:
-            if any(v.departs for v in validations):
-                # the loop as modelled does not follow the record (r and x in different units,
-                # a wrong gain, or a delay so wrong that the loop oscillates): the warnings
-                # above say so, and a fit with the delay free would wander, for seconds
-                raise ValueError("the simulated loop departs from the record at the stated "
-                                 "delay, so no delay can be read from the fit")
-            checked = check_stated_delay(records, stated=0.0 if given is None else float(given),
-                                         fixed=fixed)
-        except ValueError as exc:
-            warnings.append(f"{label} could not be checked against the record: {exc}")
-        else:
-            if checked.contradicts:
-                # the position misfit over the validations' windows (the loop simulated with
-                # the estimates at the stated delay), and the records' noise from third
-                # differences (independent of any model)
-                sq = sum(float(np.sum((v.x - v.x_sim)[v.window[0]:v.window[1]] ** 2))
-                         for v in validations)
-                n = sum(v.window[1] - v.window[0] for v in validations)
-                noise = float(np.sqrt(np.mean([difference_noise(rec.x) ** 2
-                                               for rec in records])))
-                warnings.insert(0, checked.message(label, fix, estimates,
-                                                   stated_misfit=math.sqrt(sq / max(n, 1)),
-                                                   noise=noise))
+        checked, text = delay_warnings(records, validations, estimates,
+                                       stated=0.0 if given is None else float(given),
+                                       label=label, fix=fix, fixed=fixed)
+        if text is not None:
+            warnings.insert(0, text)
+        if checked is not None and choice == "idim" and (gross or not checked.contradicts):
+            # where the delay is blamed, its warning gives the estimates with the delay free
+            text = estimator_disagreement(estimates, checked.fit, gross=gross)
+            if text is not None:
+                warnings.insert(1 if checked.contradicts else 0, text)
     return TrackingIdentification(
         estimator=choice, estimates=estimates, delay_source=source, fit=fit,
         validations=tuple(validations), run_names=tuple(rec.name for rec in records),
@@ -570,6 +568,20 @@ def replay_set(experiment: Any, parameters: Mapping[str, float]) -> TrackingRepl
         path=getattr(experiment, "path", None), warnings=tuple(warnings),
         _inputs=tuple(None if rec.w is None else rec.w[rec.start:] for rec in records),
     )
+
+
+def _delay_hint(message: str, option: float | None, given: Any, ctrls) -> str:
+    """The stated delay named among the causes of a loop that is unstable or a mass that is
+    not determined, when it is a sample period or more: the tracking loop's phase lag grows
+    with it, and a delay the record does not have misleads both estimators (``""`` else)."""
+    T = min(c.sample_time for c in ctrls)
+    if given is None or not float(given) >= T or not any(
+            key in message for key in ("unstable", "does not determine", "diverge")):
+        return ""
+    name = "--delay" if option is not None else "[loop] delay ="
+    return (f"; or the command delay is wrong: {name} {float(given) * 1e3:g} ms is "
+            f"{float(given) / T:.4g} controller periods (a delay the record does not have "
+            "destabilises the simulated loop and biases the estimates)")
 
 
 def _records(experiment, runs, ctrls) -> tuple[TrackingRecord, ...]:
