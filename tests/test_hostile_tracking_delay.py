@@ -9,6 +9,9 @@ position noise of 1 µm (an encoder's resolution on a 20 mm stroke) unless said 
    ``[loop] delay`` (or ``--delay``) and the delay the record implies
    (docs/design-notes/tracking-validation.md, "the stated delay, checked").
 2. Every value the loop divides by, or squares, is checked by name: one line, exit 2.
+3. A delay beyond the first 5 samples searched, a loop that misfits whatever the delay, a
+   delay far too long, and IDIM biased by the position's noise: each warned, or named in the
+   error (a second hostile probe).
 """
 
 from __future__ import annotations
@@ -26,6 +29,8 @@ from phoid.cli import app
 from phoid.dynamics.controller import SampledController, closed_loop_poles
 from phoid.dynamics.plant import Plant
 from phoid.methods.idim import idim_ls
+from phoid.methods.tracking import TrackingRecord
+from phoid.methods.tracking_delay import DELAY_RANGE, check_delay
 from phoid.simulation.tracking import simulate_tracking
 
 runner = CliRunner()
@@ -125,6 +130,9 @@ def test_a_right_delay_with_ordinary_noise_raises_no_alarm(tmp_path, seed, true_
                   noise=noise, seed=seed)
     out = _identify(folder)
     assert not _delay_warnings(out), out["warnings"]
+    # nor the other checks: a gross misfit, IDIM against output error, a delay not confirmed
+    assert not [w for w in out["warnings"] if "does not follow the record" in w
+                or "disagree" in w or "could not be confirmed" in w], out["warnings"]
 
 
 @pytest.mark.parametrize("true_ms", [0.0, 0.4])
@@ -225,3 +233,89 @@ def test_idim_ls_on_a_tiny_force_keeps_its_digits():
         assert b.value == pytest.approx(1e-250 * a.value, rel=1e-6)
         assert b.stderr == pytest.approx(1e-250 * a.stderr, rel=1e-6)
     assert tiny.relative_error == pytest.approx(ref.relative_error, rel=1e-6)
+
+
+# ---------------------------------------------------------------------------------------------
+# 3. the second probe: delays beyond 5 samples, a wrong gain, a huge delay, IDIM's noise bias
+
+
+@pytest.mark.parametrize(("true_ms", "stated_ms", "estimator"), [
+    (8.0, 0.0, "idim"), (10.0, 2.0, "idim"), (0.0, 8.0, "idim"), (6.5, 0.0, "output-error")])
+def test_a_delay_off_by_more_than_five_samples_warns(tmp_path, true_ms, stated_ms, estimator):
+    # before: the check searched [0, stated + 5 ms] only, so 6.5–10 ms stated as 0 passed
+    # silently with c pulled from 15 to 8.5–2.8 N s/m; the search now widens (×2) while the
+    # fit ends on its upper end
+    folder = _set(tmp_path / "set", true_delay=true_ms * 1e-3, stated=stated_ms * 1e-3)
+    out = _identify(folder, "--estimator", estimator)
+    (w,) = _delay_warnings(out)
+    assert w.startswith(f"[loop] delay = {stated_ms:g} ms"), w
+    implied = float(re.search(r"implies a delay of ([-\d.e+]+) ±", w).group(1))
+    # the record's delay to a tenth of a sample (1 µm of noise resolves it to ≈ 2 µs)
+    assert implied == pytest.approx(true_ms, abs=0.1), w
+
+
+def test_the_delay_search_stops_at_half_the_record(tmp_path):
+    # the widest range is DELAY_RANGE (1/2) of the record: 1000 samples of 1 ms → 0.4995 s;
+    # a 12 ms delay (near where this loop turns unstable) is found inside it
+    folder = _set(tmp_path / "set", true_delay=0.012, stated=0.0)
+    exp = phoid.io.read_experiment(folder)
+    run = exp.runs[0]
+    ctrl = SampledController(sample_time=T, P=4000.0, D=60.0, velocity="central-difference",
+                             saturation=200.0)
+    rec = TrackingRecord(x=run.x, r=run.r, controller=ctrl, u=run.u)
+    check = check_delay([rec], stated=0.0, fixed={"k": 0.0})
+    assert check.limit == pytest.approx(DELAY_RANGE * (N - 1) * T)
+    assert check.contradicts and not check.at_upper_end
+    assert check.implied == pytest.approx(0.012, abs=1e-4)  # a tenth of a sample
+    assert check.searched[1] > 0.012  # found after widening, not on the range's end
+
+
+def test_a_wrong_gain_is_not_blamed_on_a_right_delay(tmp_path):
+    # the probe's A2: the record made with D = 60, the set stating D = 0, the delay right (0).
+    # Before: "[loop] delay = 0 ms is contradicted … 0.04151 ms, 19.2 stderrs" and nothing
+    # else, with a position misfit 2060 times the noise
+    folder = _set(tmp_path / "set", true_delay=0.0, stated=0.0)
+    manifest = folder / "experiment.toml"
+    manifest.write_text(manifest.read_text(encoding="utf-8").replace("D = 60.0", "D = 0"),
+                        encoding="utf-8")
+    out = _identify(folder)
+    assert not _delay_warnings(out), out["warnings"]
+    first = out["warnings"][0]
+    assert first.startswith("[loop] delay = 0 ms: "), first
+    assert "does not explain the validation's misfit" in first and "(P, D, gain" in first
+    # the gross misfit of the validation is warned on its own, naming the run
+    (gross,) = [w for w in out["warnings"] if w.startswith("run 1 (run01.csv.gz): the loop "
+                                                           "simulated with the estimates")]
+    assert "does not follow the record" in gross and "sign convention" in gross
+    # and IDIM (force from u) against output error (the stated loop) says which to check
+    (both,) = [w for w in out["warnings"] if "disagree" in w]
+    assert "the stated controller does not produce the recorded command" in both
+
+
+@pytest.mark.parametrize(("stated", "option", "named"), [
+    (0.9, None, "[loop] delay = 900 ms is 900 controller periods"),
+    (0.0, "0.5", "--delay 500 ms is 500 controller periods")])
+def test_a_delay_far_too_long_is_named_among_the_causes(tmp_path, stated, option, named):
+    # the probe's A3: before, the error blamed the gains ("check P, D, gain…") or said "the
+    # record does not determine the mass", naming no delay
+    folder = _set(tmp_path / "set", true_delay=0.0, stated=stated)
+    r = cli("identify", folder, *(() if option is None else ("--delay", option)), code=2)
+    assert "or the command delay is wrong: " + named in r.output, r.output
+
+
+@pytest.mark.parametrize("seed", [21, 22])
+def test_idim_biased_by_position_noise_is_warned(tmp_path, seed):
+    # the probe's B: 0.1 mm of position noise; IDIM gave m = 1.22 ± 0.12 and 0.73 ± 0.13 kg
+    # (truth 2) silently, output error 1.989 ± 0.009
+    folder = _set(tmp_path / "set", true_delay=0.0, stated=0.0, noise=1e-4, seed=seed)
+    out = _identify(folder)
+    assert out["estimator"] == "idim"
+    (w,) = [w for w in out["warnings"] if "disagree" in w]
+    assert w.startswith("the estimator 'idim' and output error"), w
+    assert "--estimator output-error" in w and "trust output error's" in w
+    oe = float(re.search(r"m = [-\d.e+]+ ± [\d.e+-]+ kg by IDIM against ([\d.e+-]+)", w)[1])
+    # output error's mass is the truth within its stderr ≈ 0.009 kg: 3 % is > 5 stderrs
+    assert oe == pytest.approx(2.0, rel=0.03), w
+    # and what the warning recommends does give it
+    m = _identify(folder, "--estimator", "output-error")["parameters"]["m"]
+    assert abs(m["value"] - 2.0) < 5 * m["stderr"], m
