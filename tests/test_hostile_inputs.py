@@ -176,6 +176,18 @@ def test_identify_misplaced_or_mistyped_top_level_tables(small: Path, tmp_path: 
     _one_line_error(runner.invoke(app, ["identify", str(folder)]), "experiment.toml", words)
 
 
+@pytest.mark.parametrize("delay_samples", ["700", "1000"])
+def test_identify_a_digital_delay_the_modes_cannot_fit_names_the_loop(
+        small: Path, tmp_path: Path, delay_samples: str) -> None:
+    # the runs (made with a 0.1 s continuous delay) read as a loop of 0.7 or 1 s: before, the
+    # fit's start (m < 0) or a trial step whose delay powers overflow raised the library's
+    # "`m` must be > 0 kg; got -1.93" or "Array must not contain infs or NaNs", naming nothing
+    folder = _edited(small, tmp_path, _LOOP,
+                     f"[loop]\nsample_time = 0.001\ndelay_samples = {delay_samples}\n")
+    _one_line_error(runner.invoke(app, ["identify", str(folder)]), "experiment.toml",
+                    "[loop] sample_time, delay_samples")
+
+
 def test_identify_metadata_keys_are_the_users_whatever_their_names(small: Path,
                                                                    tmp_path: Path) -> None:
     # docs/format.md: [metadata]'s keys are the user's own (phoid batch copies them as

@@ -437,6 +437,8 @@ def _identify_core(data, P, D, delay, *, files, names, estimator="gls", compensa
             text = str(exc)
             if source and not text.startswith(source):
                 text = f"{where}{text}{extreme_gain(P, D, names)}"
+                if digital is not None:  # the sampled loop's delay is these two keys
+                    text += " ([loop] sample_time, delay_samples)"
             raise IdentificationError(text) from None
         raise IdentificationError(f"{where}{cause} ({exc})") from None
     # The second pass took the loop's fast modes from a rough plant (first pass). Where that

@@ -363,8 +363,12 @@ def damped_gauss_newton(fun, theta, s, scale, feasible, max_iter: int):
         while lam > 1e-6:
             trial = theta + lam * step
             if feasible(trial):
-                r_t, J_t, s_t = fun(trial, s)
-                chi2_t = float(r_t @ r_t)
+                try:  # a trial whose model overflows (a long delay's powers) is rejected
+                    with np.errstate(all="ignore"):
+                        r_t, J_t, s_t = fun(trial, s)
+                        chi2_t = float(r_t @ r_t)
+                except (np.linalg.LinAlgError, ArithmeticError):
+                    chi2_t = math.inf
                 if np.isfinite(chi2_t) and chi2_t <= chi2 * (1 + 1e-12):
                     break
             lam *= 0.5
@@ -517,6 +521,10 @@ def fit_modes(
             float(np.max(m_scale * (sigma**2 + omega_d**2)))),
     ][:3] + ([max(abs(theta[3]), 1e-3 / float(np.max(np.hypot(sigma, omega_d))))]
              if estimate_delay else []))
+    if not theta[0] > 0:  # the lines' start is no plant: the modes fit none at this loop
+        raise IdentificationError(
+            f"the runs' modes give no plant at the stated loop (the start of the weighted fit "
+            f"has m = {theta[0]:.3g} kg ≤ 0)")
     theta, _r, J, s, chi2, converged = damped_gauss_newton(
         residual_and_jacobian, theta, s, scale,
         lambda th: th[0] > 0 and (not estimate_delay or th[3] >= 0), max_iter)
