@@ -584,3 +584,23 @@ def test_a_gzip_of_gigabytes_of_blank_lines_is_refused_within_seconds(tmp_path: 
     # refused after BLANK_CHECKED_AFTER (64 MiB, well under a second), not after 4 GiB (20 s);
     # 8 s is room for a loaded machine
     assert seconds < 8, seconds
+
+
+def test_a_small_mat_element_claiming_more_than_four_bytes_is_damaged() -> None:
+    # the MAT-file format's small data element keeps ≤ 4 bytes in its tag; a tag claiming 160
+    # was read from the bytes after it (scipy refuses it: "Error in SDE format data")
+    import io
+
+    import scipy.io
+
+    from phoid.io._mat5 import check_mat5
+
+    buf = io.BytesIO()
+    scipy.io.savemat(buf, {"t": np.array([[7]], dtype=np.uint8)}, do_compression=False)
+    raw = buf.getvalue()
+    tag = b"\x02\x00\x01\x00"  # miUINT8 (2), 1 byte, little-endian small element: the value
+    assert raw.count(tag) == 1
+    bad = raw.replace(tag, b"\x02\x00\xa0\x00")
+    check_mat5("ok.mat", io.BytesIO(raw), len(raw))  # the valid file lists
+    with pytest.raises(ExperimentError, match="damaged"):
+        check_mat5("bad.mat", io.BytesIO(bad), len(bad))

@@ -259,11 +259,14 @@ def _inflate(where: str, f: BinaryIO, nbytes: int, pos: int) -> bytes:
 
 def _element(body: bytes, at: int, endian: str) -> tuple[int, int, int, int] | None:
     """(type, byte count, data offset, next offset) of the element at ``at``; None past the
-    decoded bytes. A small element (byte count in the tag's upper half) holds ≤ 4 bytes."""
+    decoded bytes, or for a small element (byte count in the tag's upper half) that claims
+    more than the 4 bytes it can hold (the format allows no more: a damaged tag)."""
     if at + 8 > len(body):
         return None
     first, second = struct.unpack(endian + "II", body[at:at + 8])
     if first >> 16:
+        if first >> 16 > 4:
+            return None
         return first & 0xFFFF, first >> 16, at + 4, at + 8
     return first, second, at + 8, at + 8 + second + (-second) % 8
 
@@ -310,8 +313,8 @@ def _check_matrix(where: str, body: bytes, endian: str, pos: int
         count *= max(d, 0)
     values = _element(body, name_el[3], endian)
     if values is None:
-        fail(where, f"variable {shown}: the tag of its real values is missing: the file is "
-                     "damaged")
+        fail(where, f"variable {shown}: the tag of its real values is missing or invalid: the "
+                     "file is damaged")
     mdtype, nbytes = values[0], values[1]
     if mdtype not in _ITEMSIZE:
         fail(where, f"variable {shown}: its real values have the invalid MATLAB data type "
