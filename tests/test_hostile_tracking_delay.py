@@ -324,3 +324,81 @@ def test_idim_biased_by_position_noise_is_warned(tmp_path, seed):
     # and what the warning recommends does give it
     m = _identify(folder, "--estimator", "output-error")["parameters"]["m"]
     assert abs(m["value"] - 2.0) < 5 * m["stderr"], m
+
+
+def test_idim_biased_at_a_right_ten_ms_delay_is_warned(tmp_path):
+    # the probe's K: a right stated delay of 10 ms, 0.1 mm of noise, seed 1: IDIM gave m =
+    # 1.568 ± 0.093 kg (truth 2, 4.6 combined stderrs from output error's 1.99 ± 0.005) and no
+    # warning: the per-parameter 5-stderr trigger sat just above it
+    folder = _set(tmp_path / "set", true_delay=0.01, stated=0.01, noise=1e-4, seed=1)
+    out = _identify(folder)
+    m = out["parameters"]["m"]
+    # the record's IDIM mass is indeed biased: > 4 of its stderrs below the truth (the case)
+    assert (2.0 - m["value"]) > 4 * m["stderr"], m
+    (w,) = [w for w in out["warnings"] if "disagree" in w]
+    assert "jointly over m, c, fc, offset" in w and "--estimator output-error" in w, w
+    assert "m = " in w.split("per parameter")[1], w  # the per-parameter detail is kept
+
+
+def _fit_like(values, cov):
+    """What :func:`estimator_disagreement` reads of a delay check's fit (free, estimates,
+    covariance), with the delay fitted too."""
+    from types import SimpleNamespace
+
+    from phoid.methods.pho import Estimate
+    names = ("m", "c", "fc", "offset", "delay")
+    est = {k: Estimate(v, float(np.sqrt(cov[i, i])), "") for i, (k, v) in
+           enumerate(zip(names, values, strict=True))}
+    est["k"] = Estimate(0.0, 0.0, "")
+    return SimpleNamespace(free=names, estimates=est, covariance=cov)
+
+
+@pytest.mark.parametrize(("sds", "warned"), [
+    # each parameter 3.5 combined sds off: below the per-parameter limit (the normal's two-sided
+    # 1.25e-5 quantile, 4.37) but jointly 4·3.5² = 49 > χ²₄'s upper 5e-5 quantile (25.0)
+    ((3.5, 3.5, 3.5, 3.5), True),
+    # one parameter 4.6 off, the others 0: jointly 21 < 25, but 4.6 > 4.37 (the probe's K)
+    ((4.6, 0.0, 0.0, 0.0), True),
+    # each 2 off: 16 < 25 and 2 < 4.37
+    ((2.0, 2.0, 2.0, 2.0), False),
+])
+def test_estimator_disagreement_tests_jointly_and_per_parameter(sds, warned):
+    from phoid.methods.pho import Estimate
+    from phoid.methods.tracking_delay import estimator_disagreement
+    # IDIM's covariance and output error's each the identity/2 (uncorrelated), so that the
+    # combined covariance is the identity and the statistic is the sum of the squared sds
+    half = np.eye(5) * 0.5
+    fit = _fit_like([2.0, 15.0, 1.5, -0.3, 0.0], half)
+    idim = {k: Estimate(fit.estimates[k].value + d, float(np.sqrt(0.5)), "")
+            for k, d in zip(("m", "c", "fc", "offset"), sds, strict=True)}
+    idim["k"] = Estimate(0.0, 0.0, "")
+    idim["delay"] = Estimate(0.0, 0.0, "")
+    text = estimator_disagreement(idim, fit, gross=False,
+                                  covariance=(["m", "c", "fc", "offset"], half[:4, :4]))
+    assert (text is not None) == warned, text
+    # a correlation in the sum changes the joint statistic: with all four correlated 0.9 in
+    # both, equal shifts are expected together and a joint 49 drops to 4·3.5²/(1 + 3·0.9) =
+    # 13.2 < 25
+    if sds == (3.5, 3.5, 3.5, 3.5):
+        corr = np.eye(5) * 0.5
+        corr[:4, :4] += 0.45 * (1.0 - np.eye(4))
+        fit = _fit_like([2.0, 15.0, 1.5, -0.3, 0.0], corr)
+        assert estimator_disagreement(idim, fit, gross=False,
+                                      covariance=(["m", "c", "fc", "offset"], corr[:4, :4])
+                                      ) is None
+
+
+def test_idim_made_unstable_by_noise_names_the_noise_and_output_error(tmp_path):
+    # the probe's L: a right delay of 10 ms, 0.3 mm of noise: IDIM's m ≈ 0.5 kg makes the loop
+    # unstable and the error named only the gains and the delay; output error gives m = 1.983
+    # ± 0.011 kg on it
+    folder = _set(tmp_path / "set", true_delay=0.01, stated=0.01, noise=3e-4, seed=1)
+    r = cli("identify", folder, code=2)
+    assert "the loop is unstable" in r.output, r.output
+    assert "biased by the position noise" in r.output and "--estimator output-error" in r.output
+    # the noise stated: 0.3 mm (third differences estimate it within a few % on 1000 samples)
+    noise = float(re.search(r"noise ≈ ([\d.e+-]+) m rms", r.output)[1])
+    assert noise == pytest.approx(3e-4, rel=0.1), r.output
+    # and the advice is right: output error identifies the mass within 5 of its stderrs
+    m = _identify(folder, "--estimator", "output-error")["parameters"]["m"]
+    assert abs(m["value"] - 2.0) < 5 * m["stderr"], m

@@ -14,7 +14,8 @@ it contradicts the stated delay as well.
 :func:`delay_warnings` turns the check into warnings (naming ``[loop] delay`` or ``--delay``,
 telling a delay that the record contradicts from a loop model that does not follow the record
 at all), :func:`gross_misfit` says when a position misfit is gross, and
-:func:`estimator_disagreement` compares IDIM's estimates with the check's output-error fit.
+:func:`estimator_disagreement` compares IDIM's estimates with the check's output-error fit, and
+:func:`idim_noise_hint` names the position noise where IDIM's estimates cannot be simulated.
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ from typing import Any
 
 import numpy as np
 
+from phoid.methods.chi2 import chi2_isf
 from phoid.methods.fit_statistics import difference_noise
 from phoid.methods.pho import Estimate
 from phoid.methods.tracking import UNITS, TrackingFit, TrackingRecord, fit_tracking_runs
@@ -34,7 +36,7 @@ __all__ = [
     "DELAY_RANGE",
     "DELAY_SEARCH",
     "DELAY_Z",
-    "ESTIMATOR_Z",
+    "ESTIMATOR_ALPHA",
     "GROSS_RATIO",
     "GROSS_TRACKING",
     "MISFIT_GAIN",
@@ -43,6 +45,7 @@ __all__ = [
     "delay_warnings",
     "estimator_disagreement",
     "gross_misfit",
+    "idim_noise_hint",
     "misfit_warning",
     "validation_misfit",
 ]
@@ -77,12 +80,23 @@ MISFIT_GAIN = 2.0
 # the test records), a wrong gain or unit 50–100 %
 GROSS_RATIO = 10.0
 GROSS_TRACKING = 10.0
-# combined stderrs √(se_IDIM² + se_OE²) by which IDIM's estimate and output error's may differ:
-# both are fits of the same record, so the sd of their difference is √(se_IDIM² − se_OE²)
-# when output error is the efficient one (Hausman), never more than the combined stderr: 5 of
-# them is ≥ 5 true sds (IDIM's OLS stderrs may be short on an autocorrelated residual, which
-# the margin covers), a normal deviate beyond it has probability 6e-7
-ESTIMATOR_Z = 5.0
+# the false-alarm probability of the test of IDIM's estimates against output error's
+# (:func:`estimator_disagreement`): over the p parameters both fitted, d = θ_IDIM − θ_OE is
+# tested jointly, d'(C_IDIM + C_OE)⁻¹d against χ²_p's upper ESTIMATOR_ALPHA/2 quantile (25.0 for
+# p = 4), and per parameter, |d_i| in combined stderrs √(se_IDIM² + se_OE²) against the normal's
+# two-sided ESTIMATOR_ALPHA/(2p) quantile (4.37 for p = 4): the union's false-alarm rate is at
+# most ESTIMATOR_ALPHA (Bonferroni). The joint test adds up evidence spread over the parameters;
+# the per-parameter one keeps its power where noise biases one parameter (the mass, errors in
+# variables), which the joint one dilutes over p degrees of freedom (probe K: m 4.6 combined
+# stderrs off, the others < 1, joint 21 < χ²₄'s 23.5 at 10⁻⁴). Both use C_IDIM + C_OE: the two
+# are fits of the same record, so their estimates are positively correlated; where output error
+# is the efficient one, Cov(θ_IDIM, θ_OE) = C_OE (Hausman) and Var(d) = C_IDIM − C_OE ≤ C_IDIM +
+# C_OE, so each statistic is at most the one with the true Var(d) and each false-alarm rate at
+# most its share. 10⁻⁴ is small because IDIM's OLS stderrs may be short on an autocorrelated
+# residual (right records: 1.2–1.4 combined stderrs; EMPS: no warning).
+ESTIMATOR_ALPHA = 1e-4
+# phoid's names of the parameters in phoid.methods.idim's spelling
+_IDIM_SPELLING = {"M": "m", "Fv": "c", "Fc": "fc", "OF": "offset"}
 
 
 @dataclass(frozen=True, eq=False)
@@ -360,27 +374,61 @@ def delay_warnings(records: Sequence[TrackingRecord], validations: Sequence[Any]
 
 
 def estimator_disagreement(estimates: Mapping[str, Estimate], fit: TrackingFit, *,
-                           gross: bool) -> str | None:
+                           gross: bool,
+                           covariance: tuple[Sequence[str], np.ndarray] | None = None
+                           ) -> str | None:
     """A warning when IDIM's ``estimates`` and the output-error ``fit`` (the delay check's)
-    differ by more than :data:`ESTIMATOR_Z` combined stderrs in any parameter both fitted, else
-    None. ``gross``: whether IDIM's validation misfits grossly (:func:`gross_misfit`), which
-    says which of the two to trust."""
-    rows = []
-    for key in ("m", "c", "k", "fc", "offset"):
-        a, b = estimates[key], fit.estimates[key]
-        if key not in fit.free or not a.stderr or b.stderr is None:
-            continue
-        se = math.hypot(a.stderr, b.stderr)
-        if math.isfinite(se) and se > 0 and abs(a.value - b.value) > ESTIMATOR_Z * se:
-            rows.append((abs(a.value - b.value) / se, key, a, b))
-    if not rows:
+    disagree jointly, else None.
+
+    Over the p parameters both fitted (with a finite, positive stderr in each), d = θ_IDIM −
+    θ_OE is tested by d'(C_IDIM + C_OE)⁻¹d against χ²_p's upper :data:`ESTIMATOR_ALPHA`/2
+    quantile and per parameter in combined stderrs against the normal's ESTIMATOR_ALPHA/(2p)
+    one (the constant's comment: why the sum of the covariances and that probability).
+    ``covariance``: IDIM's (names in phoid's or IDIM's spelling, matrix in their order);
+    without it (or for a parameter it lacks) IDIM's stderrs alone, uncorrelated. The warning
+    lists each parameter's difference in combined stderrs √(se_IDIM² + se_OE²). ``gross``: whether
+    IDIM's validation misfits grossly (:func:`gross_misfit`), which says which of the two to
+    trust."""
+    keys = [key for key in ("m", "c", "k", "fc", "offset")
+            if key in fit.free and estimates[key].stderr and fit.estimates[key].stderr is not None
+            and math.isfinite(estimates[key].stderr) and math.isfinite(fit.estimates[key].stderr)]
+    if not keys:
         return None
+    a_cov = np.diag([float(estimates[k].stderr) ** 2 for k in keys])
+    if covariance is not None:
+        # IDIM's spelling (M, Fv, Fc, OF) or phoid's
+        names = [_IDIM_SPELLING.get(n, n) for n in covariance[0]]
+        matrix = np.asarray(covariance[1], dtype=float)
+        for i, ki in enumerate(keys):
+            for j, kj in enumerate(keys):
+                if ki in names and kj in names:
+                    a_cov[i, j] = matrix[names.index(ki), names.index(kj)]
+    at = [fit.free.index(k) for k in keys]
+    b_cov = np.asarray(fit.covariance, dtype=float)[np.ix_(at, at)]
+    d = np.array([estimates[k].value - fit.estimates[k].value for k in keys], dtype=float)
+    combined = a_cov + b_cov
+    scale = np.sqrt(np.clip(np.diag(combined), 0.0, None))
+    if not (np.all(np.isfinite(combined)) and np.all(np.isfinite(d)) and np.all(scale > 0)):
+        return None
+    # in units of the combined stderrs (a correlation-like matrix: lstsq is well scaled), and
+    # by least squares, so that a singular sum (a parameter the record does not excite) is safe
+    ds, cs = d / scale, combined / np.outer(scale, scale)
+    statistic = float(ds @ np.linalg.lstsq(cs, ds, rcond=None)[0])
+    threshold = chi2_isf(0.5 * ESTIMATOR_ALPHA, len(keys))
+    z_limit = math.sqrt(chi2_isf(0.5 * ESTIMATOR_ALPHA / len(keys), 1))
+    if not (statistic > threshold or float(np.max(np.abs(ds))) > z_limit):
+        return None
+    rows = [(abs(float(z)), k, estimates[k], fit.estimates[k]) for z, k in zip(ds, keys,
+                                                                                 strict=True)]
     rows.sort(reverse=True, key=lambda row: row[0])
     listed = "; ".join(f"{k} = {a.value:.5g} ± {a.stderr:.2g} {UNITS[k]} by IDIM against "
                        f"{b.value:.5g} ± {b.stderr:.2g} by output error, {z:.3g} combined "
                        "stderrs" for z, k, a, b in rows)
     head = (f"the estimator 'idim' and output error (the delay check's fit of the loop, delay "
-            f"{fit.estimates['delay'].value * 1e3:.3g} ms) disagree: {listed}")
+            f"{fit.estimates['delay'].value * 1e3:.3g} ms) disagree: jointly over "
+            f"{', '.join(keys)}, d'(C_IDIM + C_OE)⁻¹d = {statistic:.3g} (χ²_{len(keys)}'s limit "
+            f"{threshold:.3g}), and per parameter (limit {z_limit:.3g} combined stderrs): "
+            f"{listed}")
     if gross:
         return (f"{head}. IDIM reads the force from the recorded command u, output error from "
                 "the controller the set states, and the loop simulated with IDIM's estimates "
@@ -392,3 +440,30 @@ def estimator_disagreement(estimates: Mapping[str, Estimate], fit: TrackingFit, 
             "does not (it takes the noise as measurement noise): trust output error's — "
             "identify with --estimator output-error (or estimator = \"output-error\" in the "
             "manifest)")
+
+
+def idim_noise_hint(records: Sequence[TrackingRecord]) -> str:
+    """The position noise named among the causes where IDIM's estimates cannot be simulated
+    (an unstable loop, a mass not > 0, …): IDIM differentiates x twice, so noise on it biases
+    the estimates (the mass toward 0: errors in variables) and can make the loop as estimated
+    unstable with the gains and delay right; output error takes the noise as measurement
+    noise. The record's noise (third differences) is stated against its motion (the rms of
+    x − mean), the largest of the runs'. ``""`` for no records (IDIM did not run)."""
+    if not records:
+        return ""
+    ratios = []
+    for rec in records:
+        noise = difference_noise(rec.x)
+        motion = float(np.std(rec.x))
+        if math.isfinite(noise) and motion > 0:
+            ratios.append((noise / motion, noise, rec.name))
+    level = ""
+    if ratios:
+        ratio, noise, name = max(ratios)
+        level = (f" ({name}: noise ≈ {noise:.3g} m rms from third differences, "
+                 f"{100 * ratio:.3g} % of its motion's rms)")
+    return ("; or IDIM's estimates are biased by the position noise" + level + ": IDIM "
+            "differentiates x twice, so noise biases the mass toward 0 and can make the loop "
+            "as estimated unstable with the gains and delay right — identify with --estimator "
+            "output-error (or estimator = \"output-error\" in the manifest), which takes the "
+            "noise as measurement noise")

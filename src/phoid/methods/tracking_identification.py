@@ -50,6 +50,7 @@ from phoid.methods.tracking import (
 from phoid.methods.tracking_delay import (
     delay_warnings,
     estimator_disagreement,
+    idim_noise_hint,
     misfit_warning,
     validation_misfit,
 )
@@ -361,19 +362,21 @@ def identify_tracking(experiment: Any, *, delay: float | None = None,
         raise IdentificationError(f"{where}: --delay must be a finite number ≥ 0 s; got {delay}")
     ctrls = [run_controller(experiment, r, delay=given) for r in runs]
     warnings: list[str] = []
+    idim_records: tuple[TrackingRecord, ...] = ()  # the records, once IDIM has run on them
     try:
         records = _records(experiment, runs, ctrls)
         if choice == "idim":
             estimates, fit, source = _idim(where, records, fixed, given)
         else:
             estimates, fit, source = _output_error(where, records, fixed, given)
+        idim_records = records if choice == "idim" else ()
         values = _simulable(estimates, warnings)
         # the loop as estimated (a negative c or k as it is: the message shows the estimates)
         check_stable(records, {k: e.value for k, e in estimates.items()}, "the estimates")
         validations = [v for _, v in _replay_all(records, values)]
     except ValueError as exc:
-        raise IdentificationError(f"{where}: {exc}{_delay_hint(str(exc), delay, given, ctrls)}"
-                                  ) from None
+        hint = _delay_hint(str(exc), delay, given, ctrls) + idim_noise_hint(idim_records)
+        raise IdentificationError(f"{where}: {exc}{hint}") from None
     warnings = [*fit.warnings, *warnings]  # the estimator's first, then the simulation's
     if source == "assumed-zero":
         warnings.append("no command delay given ([loop] delay): the validation simulates the "
@@ -403,7 +406,8 @@ def identify_tracking(experiment: Any, *, delay: float | None = None,
             warnings.insert(0, text)
         if checked is not None and choice == "idim" and (gross or not checked.contradicts):
             # where the delay is blamed, its warning gives the estimates with the delay free
-            text = estimator_disagreement(estimates, checked.fit, gross=gross)
+            text = estimator_disagreement(estimates, checked.fit, gross=gross,
+                                          covariance=(fit.free, fit.covariance))
             if text is not None:
                 warnings.insert(1 if checked.contradicts else 0, text)
     return TrackingIdentification(
