@@ -875,3 +875,145 @@ def test_a_plan_whose_path_is_not_utf8_is_one_line(tmp_path, listener):
     line = _fail_line(_cli("run", plan, "--port", port, "--out", tmp_path / "set"))
     assert "not UTF-8" in line and "\\udcff" in line, line
     assert not connected()
+
+
+# ---------------------------------------------------------------------------------------------
+# 9. Samples beyond the configured run, interruptions before the first sample, one session a
+# folder
+
+
+def _far_run(key, value):
+    """Run samples whose ``key`` (x or u) is ``value``: valid lines the controller configured
+    with x within [x_min, x_max] (±3 A = ±0.03 m for the plan's 0.01 m) never streams without
+    a fault. Each run's x is 1 nm off the last (k, the START's count), so that no two runs'
+    samples are the same bytes (a repeated recording is incomplete)."""
+    def script(conn, cfg, k, stop):
+        T = cfg["sample_time"]
+        lines = []
+        for n in range(TOTAL):
+            x, u = 0.001, 0.0
+            if _state(n, cfg) == "run":
+                x, u = (value + 1e-9 * k, u) if key == "x" else (x, value)
+            lines.append(encode("SAMPLE", n, n * T, x, u, _state(n, cfg)))
+        conn.sendall(b"".join(lines) + encode("END", "done"))
+    return script
+
+
+@pytest.mark.parametrize("key,value", [
+    ("x", 1e308), ("x", -1e308),
+    # 0.1 m: beyond the ±0.03 m limits and their span (0.06 m) again, yet no fault
+    ("x", 0.1),
+    ("u", 1.7976931348623157e308),  # beyond the 1e100 phoid identify squares without overflow
+])
+def test_a_run_sample_beyond_the_configured_limits_is_incomplete(tmp_path, fake, key, value):
+    plan = _plan(tmp_path)
+    out = tmp_path / "set"
+    r, _ = _timed_run(plan, fake(_far_run(key, value)).port, out)
+    assert r.exit_code == 1, r.output  # not "every run complete": identify could not read it
+    attempts = _manifest(out)["rig"]["attempt"]
+    assert [a["status"] for a in attempts] == ["incomplete", "incomplete"]
+    assert all(f"sample {HOLD}: {key} = " in a["reason"] for a in attempts), attempts
+    assert "run" not in _manifest(out)
+
+
+def test_x_within_the_limits_and_their_margin_still_completes(tmp_path, fake):
+    # 0.05 m: beyond x_max = 0.03 m but within its span again (0.09 m), the margin the host
+    # allows the sample that trips a fault and sensor noise
+    plan = _plan(tmp_path)
+    out = tmp_path / "set"
+    r, _ = _timed_run(plan, fake(_far_run("x", 0.05)).port, out)
+    # x constant over the run (these runs are not identified): the host judges the stream only
+    assert [a["status"] for a in _manifest(out)["rig"]["attempt"]] == ["complete"] * 2, r.output
+
+
+@pytest.mark.parametrize("sig,rc,name", [(signal.SIGINT, 130, "SIGINT"),
+                                         (signal.SIGTERM, 143, "SIGTERM")])
+@pytest.mark.parametrize("phase", ["config", "start"])
+def test_an_interruption_before_the_first_sample_is_recorded(tmp_path, fake, sig, rc, name,
+                                                            phase):
+    """The rig stalls after CONFIG (no OK) or after START (no sample): the host waits on it
+    with the run's hidden file open; the signal (sent twice, as a shell's process-group kill
+    and ``timeout`` together do) must leave the attempt recorded and no hidden file."""
+    waiting = threading.Event()
+
+    def stall(conn, *args):
+        waiting.set()
+        args[-1].wait(30)
+
+    plan = _plan(tmp_path)
+    out = tmp_path / "set"
+    rig = fake(stall) if phase == "start" else fake(config=stall)
+    proc = subprocess.Popen([*PHOID, "run", str(plan), "--port", rig.port, "--out", str(out),
+                             "--hold", "0.1", "--timeout", "20"], stderr=subprocess.PIPE,
+                            text=True)
+    assert waiting.wait(30)
+    time.sleep(0.2)  # the host is in its read now
+    proc.send_signal(sig)
+    proc.send_signal(sig)
+    _, stderr = proc.communicate(timeout=30)
+    assert proc.returncode == rc, stderr
+    lines = stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"phoid: stopped by {name}"), stderr
+    assert "the runs recorded are in" in lines[0]
+    assert sorted(p.name for p in out.iterdir()) == ["experiment.toml", "run01.incomplete.csv"]
+    attempt = _manifest(out)["rig"]["attempt"][0]
+    assert attempt["status"] == "incomplete" and attempt["samples"] == 0
+    assert "interrupted on the host" in attempt["reason"]
+
+
+def test_a_second_session_into_the_same_out_is_refused_before_connecting(tmp_path, fake,
+                                                                          listener):
+    waiting = threading.Event()
+
+    def stall(conn, cfg, k, stop):
+        waiting.set()
+        stop.wait(30)
+
+    plan = _plan(tmp_path)
+    out = tmp_path / "set"
+    first = subprocess.Popen([*PHOID, "run", str(plan), "--port", fake(stall).port, "--out",
+                              str(out), "--hold", "0.1", "--timeout", "20"],
+                             stderr=subprocess.PIPE, text=True)
+    try:
+        assert waiting.wait(30)
+        port, connected = listener
+        for extra in ((), ("--resume",)):
+            line = _fail_line(_cli("run", plan, "--port", port, "--out", out, *extra))
+            assert "another `phoid run` is writing a set there" in line, line
+            assert not connected()
+    finally:
+        first.send_signal(signal.SIGINT)
+        _, stderr = first.communicate(timeout=30)
+    assert first.returncode == 130, stderr
+    # the first session's record is whole; its lock went with it: a --resume now runs
+    assert sorted(p.name for p in out.iterdir()) == ["experiment.toml", "run01.incomplete.csv"]
+    r = _cli("run", plan, "--port", fake(_far_run("x", 0.001)).port, "--out", out, "--resume",
+             "--hold", 0.1, "--timeout", TIMEOUT)
+    assert r.exit_code == 0, r.output
+
+
+def _edit_record(change):
+    def edit(out):
+        doc = _manifest(out)
+        change(doc["rig"])
+        (out / "experiment.toml").write_text(tomli_w.dumps(doc))
+    return edit
+
+
+@pytest.mark.parametrize("change, words", [
+    # a key the plan never sends would be dropped silently by a resumed session
+    (lambda rig: rig["config"].update(stall_samples=5), "'stall_samples', which phoid run "
+                                                        "never sends"),
+    (lambda rig: rig["config"].update(hold_samples=str(rig["config"]["hold_samples"])),
+     "hold_samples = '20' is not a number"),  # 20: --hold 0.1 s at 200 Hz
+    (lambda rig: rig["attempt"][0].update(digest="md5:" + "0" * 32), "malformed digest"),
+    (lambda rig: rig["attempt"][0].update(digest=12), "malformed digest 12"),
+], ids=["unknown-key", "string", "md5", "number"])
+def test_resume_refuses_a_malformed_record(tmp_path, fake, listener, change, words):
+    plan, out = _partial_set(tmp_path, fake)
+    _edit_record(change)(out)
+    port, connected = listener
+    line = _fail_line(_cli("run", plan, "--port", port, "--out", out, "--hold", 0.1,
+                           "--resume"))
+    assert words in line and "its bytes changed" not in line, line
+    assert not connected()

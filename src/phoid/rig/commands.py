@@ -216,10 +216,14 @@ def run(
                               hold_d=hold_d, hold=hold, x_limit=x_limit, u_max=u_max)
     except (RigError, ValueError, OSError) as exc:
         _fail(str(exc))
-    except _Terminated:
-        typer.echo(f"phoid: stopped by SIGTERM; the runs recorded are in {out_path} (pass "
-                   "--resume to run the rest)", err=True)
-        raise typer.Exit(143) from None
+    except KeyboardInterrupt as exc:  # Ctrl-C (130) or SIGTERM (143): one line, both
+        term = isinstance(exc, _Terminated)
+        manifest = out_path / "experiment.toml"
+        kept = (f"the runs recorded are in {manifest} (pass --resume to run the rest)"
+                if manifest.is_file() else f"nothing was recorded in {out_path}")
+        typer.echo(f"phoid: stopped by {'SIGTERM' if term else 'SIGINT (Ctrl-C)'}; {kept}",
+                   err=True)
+        raise typer.Exit(143 if term else 130) from None
     finally:
         if main:
             signal.signal(signal.SIGTERM, signal.SIG_DFL if previous is None else previous)

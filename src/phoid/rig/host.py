@@ -28,11 +28,17 @@ import ipaddress
 import os
 import re
 import signal
+import threading
 import time
 from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
+
+try:
+    import fcntl
+except ImportError:  # not POSIX: no lock
+    fcntl = None  # type: ignore[assignment]
 
 from phoid._output import OutputFolder
 from phoid.rig.checks import MANIFEST, MAX_TIMEOUT, RigError, clip, option, plan_configs, variant
@@ -163,27 +169,30 @@ def run_plan(plan: str | Path, port: str, out: str | Path, *, resume: bool = Fal
                      f"a finite number of seconds > 0 and at most {MAX_TIMEOUT:g}")
     sched, configs = plan_configs(plan, **limits)
     folder = OutputFolder(out, overwrite=True, error=RigError)
-    mpath = folder.path(MANIFEST)
-    if (mpath.exists() or mpath.is_symlink()) and not resume:
-        raise RigError(f"{mpath} exists already (pass --resume to continue it, or choose "
-                       "another --out)")
-    state = read_state(folder, sched)
-    attempts, recorded = state or ([], {})
-    files = sched["files"]
-    status = ["pending"] * len(files)
-    for a in attempts:
-        if a["status"] in ("complete", "aborted"):
-            status[a["run"] - 1] = a["status"]
-    check_targets(folder, files, status, {a["file"] for a in attempts})
-    check_size(folder, sched, configs, attempts, status)
-    digests = check_resumed(folder, sched, configs, attempts, recorded) if state else {}
-    created = check_writable(folder, [f for f, s in zip(files, status, strict=True)
-                                      if s == "pending"])
+    lock, created = _lock(folder)  # one session a folder: before anything in it is read
     try:
+        mpath = folder.path(MANIFEST)
+        if (mpath.exists() or mpath.is_symlink()) and not resume:
+            raise RigError(f"{mpath} exists already (pass --resume to continue it, or choose "
+                           "another --out)")
+        state = read_state(folder, sched)
+        attempts, recorded = state or ([], {})
+        files = sched["files"]
+        status = ["pending"] * len(files)
+        for a in attempts:
+            if a["status"] in ("complete", "aborted"):
+                status[a["run"] - 1] = a["status"]
+        created = check_writable(folder, [f for f, s in zip(files, status, strict=True)
+                                          if s == "pending"]) or created  # names first
+        check_targets(folder, files, status, {a["file"] for a in attempts})
+        check_size(folder, sched, configs, attempts, status)
+        digests = check_resumed(folder, sched, configs, attempts, recorded) if state else {}
         link = open_port(port, timeout)
         try:
-            messages = _session(link, port, timeout, folder, sched, configs, attempts, status,
-                                digests, progress)
+            signals = _Interrupts()
+            with signals.installed():
+                messages = _session(link, port, timeout, folder, sched, configs, attempts,
+                                    status, digests, progress, signals)
         except LinkClosed as exc:
             raise RigError(clip(exc, REASON_CHARS)) from None
         finally:
@@ -194,13 +203,44 @@ def run_plan(plan: str | Path, port: str, out: str | Path, *, resume: bool = Fal
         if created:  # a folder made for a set that wrote nothing: removed (only when empty)
             with contextlib.suppress(OSError):
                 os.rmdir(folder.folder)
+        if lock >= 0:
+            os.close(lock)  # the lock goes with it
     return RunPlanResult(folder.path(MANIFEST), tuple(status), tuple(messages))
+
+
+def _lock(folder: OutputFolder) -> tuple[int, bool]:
+    """Create ``folder`` if need be and lock it for this session (``flock`` on the folder
+    itself, POSIX; released when the session ends or its process dies, nothing left behind):
+    the folder's descriptor (-1 without ``flock``) and whether the folder was created. A
+    folder another session holds is one RigError."""
+    root = Path(os.path.abspath(folder.folder))
+    created = not root.exists()
+    try:
+        os.makedirs(root, exist_ok=True)
+        fd = os.open(root, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0))
+    except OSError as exc:
+        raise RigError(f"{folder.folder}: phoid run cannot write its files there "
+                       f"({exc.strerror or exc}); choose another --out; nothing was sent") \
+            from None
+    if fcntl is None:
+        os.close(fd)
+        return -1, created
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError as exc:
+        os.close(fd)
+        busy = isinstance(exc, BlockingIOError)
+        raise RigError(f"{folder.folder}: " + (
+            "another `phoid run` is writing a set there (it holds the folder's lock); wait "
+            "for it to end or choose another --out" if busy else
+            f"cannot lock the folder ({exc.strerror or exc})") + "; nothing was sent") from None
+    return fd, created
 
 
 def _session(link: Link, port: str, timeout: float, folder: OutputFolder,
              sched: Mapping[str, Any], configs: list[dict[str, Any]],
              attempts: list[dict[str, Any]], status: list[str], digests: dict[bytes, str],
-             progress: Callable | None) -> list[str]:
+             progress: Callable | None, signals: _Interrupts) -> list[str]:
     """The session on the rig: hello, then each pending run; the messages of runs that did
     not complete."""
     files = sched["files"]
@@ -214,11 +254,17 @@ def _session(link: Link, port: str, timeout: float, folder: OutputFolder,
         if status[i] != "pending":
             continue
         where = f"run {i + 1} ({clip(files[i], 80)})"
+        # from the file's creation to its record, Ctrl-C and SIGTERM are held back but where
+        # the host waits on the rig; one arriving there becomes the run's interruption
+        signals.hold()
         try:  # the file first: nothing is configured for a run that cannot be written
             run = RunFile(folder, files[i], cfg)
         except RigError as exc:
+            signals.release()
             raise RigError(f"{where}: {exc}; nothing was started") from None
+        reason, end, stop = "", "", None
         try:
+            signals.release()  # one held back raises here
             link.send(encode_config(cfg))
             reply = _reply(link, timeout, "the reply to CONFIG", f"run {i + 1}: ")
             if reply.kind == "ERROR":
@@ -228,10 +274,20 @@ def _session(link: Link, port: str, timeout: float, folder: OutputFolder,
                 raise RigError(f"the rig answered CONFIG of run {i + 1} with {reply.kind}, "
                                "not OK")
             reason, end, stop = _stream(link, run, i, timeout, progress)
+            signals.hold()
+        except KeyboardInterrupt as exc:  # before START, or just after the stream: recorded
+            if not signals.held:
+                signals.hold()
+            stop = stop or exc
+            reason = reason or _interrupted(exc)
         except BaseException:
-            run.discard()
+            try:
+                signals.hold()
+            finally:
+                run.discard()
+            signals.release()
             raise
-        with _signals_deferred():  # Ctrl-C or SIGTERM now: after the record is on disk
+        try:
             attempt, msg = _record(run, i, cfg, reason, end, stop, progress, digests)
             attempts.append(attempt)
             status[i] = attempt["status"]
@@ -241,6 +297,8 @@ def _session(link: Link, port: str, timeout: float, folder: OutputFolder,
                 told = "the rig was sent ABORT; " if reason and run.error else ""
                 raise RigError(f"{where}: {run.error + '; ' if run.error else ''}{told}its "
                                f"samples are in {attempt['file']}, but {exc}") from None
+        finally:
+            signals.release()  # one held back raises here, after the record
         if run.error:  # the disk: the rig was told to stop, the plan stops here
             told = "the rig was sent ABORT; " if reason else ""
             raise RigError(f"{where}: {run.error}; {told}the run is recorded incomplete, its "
@@ -262,18 +320,59 @@ def _session(link: Link, port: str, timeout: float, folder: OutputFolder,
     return messages
 
 
-@contextlib.contextmanager
-def _signals_deferred() -> Iterator[None]:
-    """Hold SIGINT and SIGTERM back (POSIX) while a run's file is moved and recorded: they
-    arrive when the block ends, so that no file is left that the manifest does not name."""
-    if not hasattr(signal, "pthread_sigmask"):
-        yield
-        return
-    old = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})
-    try:
-        yield
-    finally:
-        signal.pthread_sigmask(signal.SIG_SETMASK, old)
+class _Interrupts:
+    """SIGINT and SIGTERM in a session (main thread, POSIX or not): only the first raises (a
+    second, as ``timeout`` or a shell sends to the whole process group, is ignored), and one
+    arriving while held (:meth:`hold`) raises at :meth:`release`, so that no file is left that
+    the manifest does not name."""
+
+    def __init__(self) -> None:
+        self.fired = False
+        self.held = 0
+        self.pending: tuple[Callable[[int, Any], Any], int, Any] | None = None
+
+    @contextlib.contextmanager
+    def installed(self) -> Iterator[None]:
+        """Wrap the handlers in place (Python's own for Ctrl-C, the CLI's for SIGTERM)."""
+        if threading.current_thread() is not threading.main_thread():
+            yield
+            return
+        before = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
+        for sig, handler in before.items():
+            if callable(handler):
+                signal.signal(sig, self._wrap(handler))
+        try:
+            yield
+        finally:
+            for sig, handler in before.items():
+                if callable(handler):
+                    signal.signal(sig, handler)
+
+    def _wrap(self, handler: Callable[[int, Any], Any]) -> Callable[[int, Any], Any]:
+        def handle(signum: int, frame: Any) -> Any:
+            if self.fired:
+                return None
+            self.fired = True
+            if self.held:
+                self.pending = (handler, signum, frame)
+                return None
+            return handler(signum, frame)
+        return handle
+
+    def hold(self) -> None:
+        self.held += 1
+
+    def release(self) -> None:
+        self.held -= 1
+        if not self.held and self.pending is not None:
+            handler, signum, frame = self.pending
+            self.pending = None
+            handler(signum, frame)
+
+
+def _interrupted(exc: BaseException) -> str:
+    why = exc.args[0] if exc.args and isinstance(exc.args[0], str) else type(exc).__name__
+    return f"interrupted on the host ({why})"
 
 
 def _reply(link: Link, timeout: float, what: str, where: str = "") -> Any:
@@ -298,11 +397,11 @@ def _stream(link: Link, run: RunFile, i: int, timeout: float, progress: Callable
     wait = max(timeout, 2.0 * T)  # a rig streaming in real time sends a sample every T
     budget = (timeout + total * (2.0 * T + LINE_TIME)
               + (2 * total + EXTRA_EVENTS + 1) * LINE_BYTES * link.byte_time)
-    link.send(encode("START"))
     deadline = time.monotonic() + budget
     reason, end = "", ""
     stop: BaseException | None = None
     try:
+        link.send(encode("START"))
         while True:
             left = deadline - time.monotonic()
             if left <= 0:
@@ -353,9 +452,7 @@ def _stream(link: Link, run: RunFile, i: int, timeout: float, progress: Callable
     except LinkClosed as exc:
         reason = str(exc)
     except BaseException as exc:  # Ctrl-C, SIGTERM: keep what arrived, then re-raise
-        why = exc.args[0] if exc.args and isinstance(exc.args[0], str) else type(exc).__name__
-        reason = f"interrupted on the host ({why})"
-        stop = exc
+        reason, stop = _interrupted(exc), exc
     if reason:  # ask the rig to stop, keep what arrived
         with contextlib.suppress(LinkClosed):
             link.send(encode("ABORT", 1.0))

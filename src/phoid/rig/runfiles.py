@@ -50,6 +50,7 @@ CLOCK_TOLERANCE = 0.1  # a run whose mean or median interval is further from T i
 FLUSH_ROWS = 256  # rows written to the file at a time
 STEPS_KEPT = 64  # the file's first intervals kept for their median (as identify reads them)
 DIGEST = "blake2b-256"  # the content digest a complete attempt records (its file's bytes)
+MAX_VALUE = 1e100  # the largest |u| recorded (what phoid identify squares without overflow)
 _RANK = {"idle": 0, "hold": 0, "run": 1, "done": 2, "fault": 2}  # the order of the states
 
 
@@ -60,6 +61,9 @@ class RunFile:
         self.out, self.name = out, name
         self.hold, self.run = int(cfg["hold_samples"]), int(cfg["run_samples"])
         self.T = float(cfg["sample_time"])
+        lo, hi = float(cfg["x_min"]), float(cfg["x_max"])  # the controller's limits
+        self.x_limits = (lo, hi)
+        self.x_range = (lo - (hi - lo), hi + (hi - lo))  # with their span again as a margin
         self.total = self.hold + self.run + 1
         flags = os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0)
         for _ in range(100):  # a fresh name: never an existing file
@@ -116,6 +120,8 @@ class RunFile:
                         f"{'done or fault' if self.rank == 2 else 'run'}")
         self.last_index, self.last_t, self.rank = idx, t, max(self.rank, _RANK[state])
         self.states["hold" if state == "idle" else state] += 1
+        if state in ("hold", "idle", "run"):
+            self.check_values(idx, f)
         if state != "run":
             return
         source = "measured" if "force" in f else "command"
@@ -139,6 +145,21 @@ class RunFile:
         if self.last_row_t is not None and len(self.steps) < STEPS_KEPT:
             self.steps.append(t - self.last_row_t)
         self.last_row_t = t
+
+    def check_values(self, idx: int, f: Mapping[str, Any]) -> None:
+        """A sample the controller streams without a fault has a finite force and its x
+        within the configured limits (the span of [x_min, x_max] again as a margin for the
+        sample that trips the fault and for sensor noise): anything else is not the run
+        configured."""
+        x, lo, hi = float(f["x"]), *self.x_range
+        if not lo <= x <= hi:
+            self.damage(f"sample {idx}: x = {x!r} m, beyond the configured limits "
+                        f"[{self.x_limits[0]:g}, {self.x_limits[1]:g}] m (and their span again) "
+                        "without a fault")
+        for key in ("u", "force"):
+            if key in f and not abs(float(f[key])) <= MAX_VALUE:
+                self.damage(f"sample {idx}: {key} = {float(f[key])!r} N, not a finite force "
+                            f"of at most {MAX_VALUE:g} N")
 
     def event(self, f: Mapping[str, Any]) -> None:
         self.event_lines += 1
@@ -330,8 +351,15 @@ def check_resumed(folder: OutputFolder, sched: Mapping[str, Any], configs: list[
     path = folder.path(MANIFEST)
     cfg0 = configs[0]
     keys = [k for k in _SOURCE if k not in ("P", "D")]
+    if "run_samples" in recorded and (extra := [k for k in recorded if k not in keys]):
+        raise RigError(f"--resume: {path}: [rig.config] has {clip(extra[0], 40)!r}, which "
+                       "phoid run never sends (the table is the CONFIG every run was sent: "
+                       f"{', '.join(keys)}); nothing was sent")
     for key in keys if "run_samples" in recorded else list(recorded):
         was, now = recorded.get(key), cfg0.get(key)
+        if was is not None and (isinstance(was, bool) or not isinstance(was, (int, float))):
+            raise RigError(f"--resume: {path}: [rig.config] {key} = {clip(repr(was), 40)} is "
+                           "not a number; nothing was sent")
         if not _same(was, now):
             raise RigError(f"--resume: {path} was recorded with {key} = {clip(was, 40)}, but "
                            f"the plan and options now give {key} = "
@@ -362,7 +390,12 @@ def check_resumed(folder: OutputFolder, sched: Mapping[str, Any], configs: list[
         else:
             what, digest = _file_digest(folder.path(name))
             recorded_digest = a.get("digest")
-            if not what and recorded_digest is not None \
+            if recorded_digest is not None and not (
+                    isinstance(recorded_digest, str)
+                    and re.fullmatch(DIGEST + r":[0-9a-f]{64}", recorded_digest)):
+                what = (f"records a malformed digest {clip(repr(recorded_digest), 80)} (phoid "
+                        f"run writes \"{DIGEST}:\" and 64 lower-case hexadecimal digits)")
+            elif not what and recorded_digest is not None \
                     and recorded_digest != f"{DIGEST}:{digest.hex()}":
                 what = "is not the file recorded (its bytes changed since the run)"
         if what:
