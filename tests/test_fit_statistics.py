@@ -18,13 +18,13 @@ import pytest
 from typer.testing import CliRunner
 
 from phoid.cli import app
+from phoid.methods.estimate import Estimate
 from phoid.methods.fit_statistics import (
     difference_noise,
     fit_blocks,
     residual_noise_ratio,
     window_noise,
 )
-from phoid.methods.pho import Estimate
 from phoid.reports.statistics import correlation, correlation_lines, statistics_lines
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -345,7 +345,7 @@ def _fit_like(values, cov):
     covariance), with the delay fitted too."""
     from types import SimpleNamespace
 
-    from phoid.methods.pho import Estimate
+    from phoid.methods.estimate import Estimate
     names = ("m", "c", "fc", "offset", "delay")
     est = {k: Estimate(v, float(np.sqrt(cov[i, i])), "") for i, (k, v) in
            enumerate(zip(names, values, strict=True))}
@@ -363,7 +363,7 @@ def _fit_like(values, cov):
     ((2.0, 2.0, 2.0, 2.0), False),
 ])
 def test_estimator_disagreement_tests_jointly_and_per_parameter(sds, warned):
-    from phoid.methods.pho import Estimate
+    from phoid.methods.estimate import Estimate
     from phoid.methods.tracking_delay import estimator_disagreement
     # IDIM's covariance and output error's each the identity/2 (uncorrelated), so that the
     # combined covariance is the identity and the statistic is the sum of the squared sds

@@ -19,6 +19,7 @@ if TYPE_CHECKING:  # the real imports, for type checkers and IDEs
         SIGN_CONVENTION,
         probable_cause,
     )
+    from phoid.methods.estimate import Estimate
     from phoid.methods.forced import (
         ForcedIdentification,
         ForcedRun,
@@ -46,7 +47,6 @@ if TYPE_CHECKING:  # the real imports, for type checkers and IDEs
     from phoid.methods.identification import identify_pho, identify_pho_data
     from phoid.methods.idim import IDIMFit, idim_ls, idim_ls_runs
     from phoid.methods.pho import (
-        Estimate,
         LineFit,
         MCKFit,
         delay_profile,
@@ -123,7 +123,7 @@ _EXPORTS = {
     "identify_tracking": "phoid.methods.tracking_identification",
     "replay_set": "phoid.methods.tracking_identification",
     "run_controller": "phoid.methods.tracking_identification",
-    "Estimate": "phoid.methods.pho",
+    "Estimate": "phoid.methods.estimate",
     "LineFit": "phoid.methods.pho",
     "MCKFit": "phoid.methods.pho",
     "delay_profile": "phoid.methods.pho",

@@ -57,8 +57,8 @@ from phoid.methods._modal import (
     pick_start,
     release_basis,
 )
+from phoid.methods.estimate import Estimate
 from phoid.methods.fit_statistics import fit_blocks, residual_noise_ratio, window_noise
-from phoid.methods.pho import Estimate
 from phoid.reports.display import NotebookDisplay
 
 __all__ = ["FreeIdentification", "FreeRun", "identify_free", "identify_free_data"]

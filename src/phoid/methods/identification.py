@@ -22,7 +22,8 @@ from phoid._threads import single_blas_thread
 from phoid.errors import IdentificationError
 from phoid.fits import start_decays
 from phoid.methods.chi2 import chi2_isf
-from phoid.methods.pho import Estimate, MCKFit, delay_profile, fit_lines, fit_modes
+from phoid.methods.estimate import Estimate
+from phoid.methods.pho import MCKFit, delay_profile, fit_lines, fit_modes
 from phoid.methods.pho_checks import (
     check_added_mass,
     check_delay,

@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from phoid.methods.pho import Estimate
+from phoid.methods.estimate import Estimate
 from phoid.reports.display import NotebookDisplay
 
 __all__ = ["IDIMFit", "idim_ls", "idim_ls_runs"]

@@ -21,7 +21,6 @@ The Jacobian comes from implicit differentiation of the characteristic equation:
 from __future__ import annotations
 
 import math
-import re
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -39,62 +38,9 @@ from phoid.dynamics import (
 from phoid.dynamics.digital import digital_is_dominant, digital_modes
 from phoid.errors import IdentificationError
 from phoid.methods.chi2 import chi2_isf
-from phoid.reports.text import format_estimate
+from phoid.methods.estimate import Estimate
 
 __all__ = ["Estimate", "LineFit", "MCKFit", "delay_profile", "fit_lines", "fit_modes"]
-
-
-# a format spec that pads the whole "value ± stderr unit" text: [[fill]align][width][s]
-_TEXT_SPEC = re.compile(r"(.?[<>^])?([1-9]\d*)?s?")
-
-
-@dataclass(frozen=True)
-class Estimate:
-    """A physical estimate with its one-standard-deviation uncertainty.
-
-    Attributes
-    ----------
-    value : float
-        The estimate, in ``unit``.
-    stderr : float or None
-        One standard error, same unit (None when unknown).
-    unit : str
-        SI unit, as printed in the JSON output (e.g. ``"N s/m"``).
-    """
-
-    value: float
-    stderr: float | None
-    unit: str
-
-    def to_dict(self) -> dict:
-        """Plain JSON-ready dict ``{"value", "stderr", "unit"}``; a value or stderr that is not
-        finite (a stderr the data cannot give) is null, never NaN (not JSON)."""
-
-        def num(x):
-            return None if x is None or not math.isfinite(float(x)) else float(x)
-
-        return {"value": num(self.value), "stderr": num(self.stderr), "unit": self.unit}
-
-    def __float__(self) -> float:
-        """The value: ``float(est)`` is ``est.value``."""
-        return float(self.value)
-
-    def __format__(self, spec: str) -> str:
-        """``format(est, spec)`` / f-strings: an empty ``spec`` gives ``"value ± stderr unit"``,
-        rounded to the stderr's first two significant digits
-        (:func:`phoid.reports.text.format_estimate`; the value alone when there is no
-        stderr); a spec of fill, alignment and width only (``">30"``), or ending in ``s``,
-        pads that text; any other spec formats the value (``f"{est:.4f}"`` is
-        ``format(est.value, ".4f")``).
-        """
-        se = None if self.stderr is None else float(self.stderr)
-        text = format_estimate(float(self.value), se)
-        text = f"{text} {self.unit}" if self.unit else text
-        if not spec:
-            return text
-        if _TEXT_SPEC.fullmatch(spec):
-            return format(text, spec)
-        return format(float(self.value), spec)
 
 
 @dataclass(frozen=True)

@@ -15,8 +15,9 @@ import numpy as np
 
 from phoid.fits import DecayFit
 from phoid.interop.exports import LoopExports
+from phoid.methods.estimate import Estimate
 from phoid.methods.fit_statistics import fit_blocks, residual_noise_ratio, window_noise
-from phoid.methods.pho import Estimate, MCKFit, open_loop_omega0, open_loop_zeta
+from phoid.methods.pho import MCKFit, open_loop_omega0, open_loop_zeta
 from phoid.reports.display import NotebookDisplay
 
 __all__ = ["Identification", "RunMode"]

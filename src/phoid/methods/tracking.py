@@ -37,7 +37,7 @@ import numpy as np
 from phoid.dynamics.controller import SampledController, closed_loop_poles
 from phoid.dynamics.plant import Plant
 from phoid.fits.hac import hac_covariance
-from phoid.methods.pho import Estimate
+from phoid.methods.estimate import Estimate
 from phoid.reports.display import NotebookDisplay
 from phoid.reports.text import format_number
 from phoid.simulation.tracking import TrackingSimulation, simulate_tracking

@@ -28,8 +28,8 @@ from typing import Any
 import numpy as np
 
 from phoid.methods.chi2 import chi2_isf
+from phoid.methods.estimate import Estimate
 from phoid.methods.fit_statistics import difference_noise
-from phoid.methods.pho import Estimate
 from phoid.methods.tracking import UNITS, TrackingFit, TrackingRecord, fit_tracking_runs
 
 __all__ = [

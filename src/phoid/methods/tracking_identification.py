@@ -36,8 +36,8 @@ from phoid.dynamics.plant import Plant
 from phoid.errors import IdentificationError
 from phoid.interop.exports import PlantExports
 from phoid.io.units import unit_hint
+from phoid.methods.estimate import Estimate
 from phoid.methods.fit_statistics import difference_noise, fit_blocks, residual_noise_ratio
-from phoid.methods.pho import Estimate
 from phoid.methods.tracking import (
     PARAMETERS,
     UNITS,

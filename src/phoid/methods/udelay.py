@@ -706,7 +706,7 @@ def with_u(ident, u, P, D, *, names, rerun, added_mass=None, n_fast=2):
     from dataclasses import replace
 
     from phoid.dynamics import inverse_map
-    from phoid.methods.pho import Estimate
+    from phoid.methods.estimate import Estimate
 
     P = np.asarray(P, dtype=float)
     D = np.asarray(D, dtype=float)

@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from phoid.dynamics import rightmost_roots
-from phoid.methods.pho import Estimate
+from phoid.methods.estimate import Estimate
 from phoid.planning.evaluation import evaluate, run_information
 from phoid.planning.fisher import mode_information, safe_inverse
 from phoid.planning.render import design_report, plot_design

@@ -45,10 +45,10 @@ from phoid.methods._modal import (
     pick_start,
     release_basis,
 )
+from phoid.methods.estimate import Estimate
 from phoid.methods.forced.force import MIN_SAMPLES, Force, fit_force
 from phoid.methods.forced.results import ForcedIdentification, ForcedRun
 from phoid.methods.forced.stiffness import ResponseFit, distinct_count, fit_response
-from phoid.methods.pho import Estimate
 
 __all__ = ["identify_forced", "identify_forced_data"]
 

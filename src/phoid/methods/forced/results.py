@@ -11,9 +11,10 @@ import numpy as np
 
 from phoid.interop.exports import PlantExports
 from phoid.methods._modal import release_basis
+from phoid.methods.estimate import Estimate
 from phoid.methods.fit_statistics import fit_blocks, residual_noise_ratio, window_noise
 from phoid.methods.forced.stiffness import ResponseFit
-from phoid.methods.pho import Estimate, open_loop_omega0, open_loop_zeta
+from phoid.methods.pho import open_loop_omega0, open_loop_zeta
 from phoid.reports.display import NotebookDisplay
 
 __all__ = ["ForcedIdentification", "ForcedRun"]

@@ -17,11 +17,11 @@ import numpy as np
 
 from phoid._threads import single_blas_thread
 from phoid.errors import IdentificationError
+from phoid.methods.estimate import Estimate
 from phoid.methods.friction.fit import fit_runs
 from phoid.methods.friction.model import hermite
 from phoid.methods.friction.results import FrictionEvidence
 from phoid.methods.friction.setup import prepare
-from phoid.methods.pho import Estimate
 
 __all__ = ["friction_evidence"]
 

@@ -44,11 +44,11 @@ import numpy as np
 from phoid._progress import task
 from phoid._threads import single_blas_thread
 from phoid.errors import ExperimentError, IdentificationError
+from phoid.methods.estimate import Estimate
 from phoid.methods.friction.model import Problem
 from phoid.methods.friction.results import FrictionFit, FrictionRun
 from phoid.methods.friction.setup import Setup, StartError, dominant, prepare
 from phoid.methods.friction.solver import LMResult, levenberg_marquardt
-from phoid.methods.pho import Estimate
 
 __all__ = ["fit_runs", "identify_friction", "identify_friction_set"]
 

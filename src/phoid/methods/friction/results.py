@@ -11,8 +11,8 @@ import numpy as np
 
 from phoid.dynamics import inverse_map
 from phoid.interop.exports import LoopExports
+from phoid.methods.estimate import Estimate
 from phoid.methods.fit_statistics import fit_blocks, residual_noise_ratio
-from phoid.methods.pho import Estimate
 from phoid.reports.display import NotebookDisplay
 
 __all__ = ["FrictionEvidence", "FrictionFit", "FrictionRun"]
