@@ -35,10 +35,12 @@ from phoid.methods.pho_checks import (
     refuse_bias,
     u_contradicts_gains,
 )
+from phoid.methods.pho_lines_check import check_lines
 from phoid.methods.pho_measure import N_FAST, measure_runs, start_run
 from phoid.methods.pho_result import Identification, RunMode
 from phoid.methods.udelay import check_u, with_u
 from phoid.reports.statistics import correlation
+from phoid.reports.text import format_estimate, format_ratio
 
 __all__ = ["check_estimator", "identify_pho", "identify_pho_data"]
 
@@ -62,6 +64,39 @@ def check_estimator(estimator: str, compensate: bool) -> None:
         raise ValueError(f"`estimator` must be 'gls' or 'ols'; got {estimator!r}")
     if estimator == "gls" and not compensate:
         raise ValueError("`compensate=False` is only available with estimator='ols'")
+
+
+def _lines_note(fits, used, P, D, delay, compensate, dm, mck) -> str | None:
+    """The warning when the eq. (35) lines misfit their points
+    (:func:`phoid.methods.pho_lines_check.check_lines`), naming the delay left out when it
+    is (``--no-compensation``) with what the compensated lines give; None when they fit."""
+    sig = np.array([fits[i].sigma for i in used])
+    wd = np.array([fits[i].omega_d for i in used])
+    cov = np.array([fits[i].cov for i in used])
+    Pu, Du, dmu = P[used], D[used], dm[used]
+    kw = {"added_mass": dmu}
+    chk = check_lines(sig, wd, cov, Pu, Du, delay, compensate=compensate, m_c=mck.c_line.slope,
+                      m=mck.m, c=mck.c, k=mck.k, **kw)
+    if chk is None or not chk.misfit:
+        return None
+    text = (f"the eq. (35) points lie off the straight lines by far more than the runs "
+            f"measured them (χ²/dof {format_ratio(chk.chi2_c, chk.dof)} for the damping line, "
+            f"{format_ratio(chk.chi2_k, chk.dof)} for the stiffness line): the lines' m, c, k "
+            "are biased and their stderr (from the points' scatter) does not show it")
+    if not compensate and delay > 0:
+        alt = fit_lines(sig, wd, Pu, Du, delay, compensate=True, **kw)
+        se = np.sqrt(np.clip(np.diag(alt.cov), 0.0, None))
+        again = check_lines(sig, wd, cov, Pu, Du, delay, compensate=True, m_c=alt.c_line.slope,
+                            m=alt.m, c=alt.c, k=alt.k, **kw)
+        fits_now = ("" if again is None or again.misfit else
+                    f"; the compensated lines fit (χ²/dof {format_ratio(again.chi2_c, again.dof)}"
+                    f", {format_ratio(again.chi2_k, again.dof)})")
+        return (f"{text}; the cause: the loop delay ({delay:.4g} s) is left out "
+                f"(--no-compensation) — with it compensated m = {format_estimate(alt.m, se[0])} "
+                f"kg, c = {format_estimate(alt.c, se[1])} N s/m, k = "
+                f"{format_estimate(alt.k, se[2])} N/m{fits_now}")
+    return (f"{text}; likely causes: a loop delay that is not the rig's, gains given in other "
+            "units or sign, or decays that are not linear (Coulomb friction: --friction)")
 
 
 def _misfit(mck: MCKFit) -> bool:
@@ -472,6 +507,10 @@ def _identify_core(data, P, D, delay, *, files, names, estimator="gls", compensa
         elif f is not None:
             warnings.extend(f"{names[i]}: {_cli_words(w)}" for w in f.warnings)
     warnings.extend(mck.warnings)
+    if estimator == "ols" and digital is None and delay is not None:
+        note = _lines_note(fits, used, P, D, float(delay), compensate, dm, mck)
+        if note is not None:
+            warnings.append(note)
     if _misfit(mck):
         cause = _probable_cause(first, data, P, D, None if digital is not None else delay,
                                 names, dm, estimate_delay)
