@@ -49,20 +49,22 @@ MANIFEST = "experiment.toml"
 METHODS = ("pho", "forced", "free", "tracking")
 """The values of the manifest's ``method`` key."""
 
-TOP_KEYS = ("title", "format", "method", "loop", "run", "mass", "estimator", "fixed", "units")
+TOP_KEYS = ("title", "format", "method", "loop", "run", "mass", "estimator", "fixed", "units",
+            "sample_rate")
 """The manifest's top-level keys (``estimator`` and ``fixed``: tracking sets only; ``units``:
-the data columns' units, converted to SI on reading, so never kept)."""
+the data columns' units, converted to SI on reading, so never kept; ``sample_rate``: t rebuilt
+from it on reading, so never kept)."""
 RUN_KEYS = ("file", "P", "D", "B", "omega", "added_mass", "bias", "gain", "command_gain",
-            "columns")
+            "columns", "sample_rate")
 """The keys of a ``[[run]]`` table (``gain``, ``command_gain``, ``columns``: tracking sets
-only)."""
+only; ``sample_rate``: not in tracking sets)."""
 LOOP_KEYS = ("delay",)
 """The ``[loop]`` keys this package checks (the identification checks the others)."""
 COLUMNS = ("t", "x", "u", "F")
 """The data files' known columns, in the order they are kept."""
 UNITS = {"P": "N/m", "D": "N·s/m", "B": "N", "omega": "rad/s", "added_mass": "kg",
          "bias": "N", "delay": "s", "mass": "kg", "sample_time": "s", "cutoff": "rad/s",
-         "m": "kg", "fc": "N"}
+         "m": "kg", "fc": "N", "sample_rate": "Hz"}
 """The unit of each numeric key, for messages."""
 MAX_MESSAGE = 2000
 """Longest error message, characters."""

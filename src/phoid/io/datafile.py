@@ -208,11 +208,14 @@ def _clean_name(name: str) -> str:
 
 def read_csv(where: str, real: Path, file: str, *, need_F: bool = False,
               max_rows: int = limits.MAX_SET_ROWS, columns: Mapping[str, str] | None = None,
-              required: Sequence[str] = ()) -> tuple[dict[str, np.ndarray], bytes]:
+              required: Sequence[str] = (), clock: bool = True
+              ) -> tuple[dict[str, np.ndarray], bytes]:
     """Read, decompress and parse one phoid/1 CSV data file, streaming.
 
     Returns the known columns it has (read-only float64 arrays) and a BLAKE2b digest of its
-    decompressed content. At most ``max_rows`` data rows are accepted.
+    decompressed content. At most ``max_rows`` data rows are accepted. ``clock=False`` (the
+    manifest gives ``sample_rate``, from which the reader rebuilds t): the ``t`` column is
+    optional and, when there, read as numbers but not required to increase.
 
     ``columns`` (a tracking set's ``[run.columns]``) maps each phoid name to the header name
     that holds it, in the order the columns are kept; the columns in ``required`` and ``t``,
@@ -228,7 +231,7 @@ def read_csv(where: str, real: Path, file: str, *, need_F: bool = False,
 
     try:
         cols = _parse_csv(where, _line_chunks(where, hashed()), need_F=need_F,
-                          max_rows=max_rows, columns=columns, required=required)
+                          max_rows=max_rows, columns=columns, required=required, clock=clock)
     except MemoryError:
         fail(where, "not enough memory to hold the data file's columns")
     return cols, digest.digest()
@@ -236,9 +239,9 @@ def read_csv(where: str, real: Path, file: str, *, need_F: bool = False,
 
 def _parse_csv(where: str, chunks: Iterator[tuple[int, bytes]], *, need_F: bool = False,
                max_rows: int = limits.MAX_SET_ROWS, columns: Mapping[str, str] | None = None,
-               required: Sequence[str] = ()) -> dict[str, np.ndarray]:
+               required: Sequence[str] = (), clock: bool = True) -> dict[str, np.ndarray]:
     """Parse a phoid/1 CSV, given as chunks of whole LF-terminated lines, into the known
-    columns it has."""
+    columns it has (``clock=False``: ``t`` optional, not checked to increase)."""
     first = next(chunks, None)
     if first is None:
         fail(where, "the data file is empty")
@@ -268,7 +271,7 @@ def _parse_csv(where: str, chunks: Iterator[tuple[int, bytes]], *, need_F: bool 
                          f"(columns {position[n] + 1} and {j + 1})")
         position[n] = j
     mapping = dict(columns) if columns is not None else {k: k for k in COLUMNS}
-    needed = ("t", "x") + (("F",) if need_F else ()) + tuple(required)
+    needed = (("t", "x") if clock else ("x",)) + (("F",) if need_F else ()) + tuple(required)
     for key in dict.fromkeys(needed):
         if mapping[key] not in position:
             fail(where, _missing_column(key, names, header, need_F, mapping[key]))
@@ -281,7 +284,7 @@ def _parse_csv(where: str, chunks: Iterator[tuple[int, bytes]], *, need_F: bool 
     parts: list[np.ndarray] = []   # per chunk: rows × wanted columns
     where_rows: list[tuple[int, int, np.ndarray | None]] = []  # (first row, first line, lines)
     n = 0
-    it = keys.index("t")
+    it = keys.index("t") if clock else -1  # no clock to check: t rebuilt from sample_rate
     last_t: tuple[float, int] | None = None  # the previous chunk's last t and its line
 
     def line_of(row: int) -> int:
@@ -305,6 +308,8 @@ def _parse_csv(where: str, chunks: Iterator[tuple[int, bytes]], *, need_F: bool 
         # t is checked chunk by chunk, so that a file that repeats one row (a gzip bomb of
         # 60 million '0,0' lines is 233 kB) is refused at its first block, not after
         # MAX_LINES rows have been parsed and held
+        if it < 0:
+            continue
         t = table[:, it]
         if last_t is not None and not t[0] > last_t[0]:
             _not_increasing(where, wanted[it], float(t[0]), line_of(n - t.size), *last_t)
@@ -332,7 +337,9 @@ def _parse_csv(where: str, chunks: Iterator[tuple[int, bytes]], *, need_F: bool 
 def _not_increasing(where: str, name: str, value: float, line: int, before: float,
                     line_before: int) -> None:
     fail(where, f"column {name} is not strictly increasing at line {line}: {value!r} s "
-                 f"follows {before!r} s (line {line_before})")
+                 f"follows {before!r} s (line {line_before}) (if the logger's clock is "
+                 "unusable, give `sample_rate` = <Hz> in the manifest to rebuild t = t₀ + n/fs "
+                 "from the sample count, docs/format.md)")
 
 
 def _parse_chunk(where: str, body: bytes, line0: int, ncols: int, position: dict[str, int],

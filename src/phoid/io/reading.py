@@ -14,6 +14,8 @@ import os
 from pathlib import Path, PurePosixPath, PureWindowsPath
 from typing import Any
 
+import numpy as np
+
 import phoid.io.limits as limits
 from phoid.errors import ExperimentError
 from phoid.io._files import not_regular
@@ -44,7 +46,7 @@ from phoid.io.tracking import (
     check_tracking_loop,
     tracking_run_spec,
 )
-from phoid.io.units import check_units, to_si
+from phoid.io.units import read_units, to_si
 
 _TRACKING_ONLY_TOP = ("estimator", "fixed")
 _TRACKING_ONLY_RUN = ("gain", "command_gain", "columns")
@@ -115,10 +117,18 @@ def read_experiment(path: str | os.PathLike[str]) -> ExperimentSet:
     if tracking and "mass" in doc:
         fail(where, "key 'mass' is not read in a tracking set: give the known mass as "
                      "[fixed] m")
-    units = check_units(where, doc.get("units"), method)
+    units, x_unit = read_units(where, doc.get("units"), method)
+    if tracking and "sample_rate" in doc:
+        fail(where, _NO_RATE_IN_TRACKING)
+    rate = _sample_rate(where, doc.get("sample_rate"))
     estimator = check_estimator(where, doc.get("estimator")) if tracking else None
     fixed = check_fixed(where, doc.get("fixed")) if tracking else {}
     mass = optional_number(where, "mass", doc.get("mass"), minimum=0.0, strict=True)
+    if mass is not None and x_unit not in ("m", "rad"):
+        fail(where, f"key 'mass' cannot be used with [units] x = {show(x_unit)} (a sensor "
+                     "unit): c and k need x in a length or an angle unit; a free decay in "
+                     "sensor units gives only σ, ω₀, ζ, c/m and k/m (remove 'mass', or give "
+                     "x calibrated)")
     loop = doc.get("loop", {})
     if not isinstance(loop, dict):
         fail(where, f"'loop' must be a table ([loop]); got {kind_of(loop)}")
@@ -161,11 +171,16 @@ def read_experiment(path: str | os.PathLike[str]) -> ExperimentSet:
         spec["where"], spec["real"] = rwhere, real
 
     runs = []
+    notes: list[str] = []
     digests: dict[bytes, dict[str, Any]] = {}
     budget = limits.MAX_SET_ROWS
     for spec in specs:
-        cols, digest = _read_data(spec, method, budget)
+        fs = spec["sample_rate"] if spec["sample_rate"] is not None else rate
+        cols, digest = _read_data(spec, method, budget, clock=fs is None)
         cols = to_si(cols, units, spec["where"])  # [units]: the columns in s, m, N from here on
+        if fs is not None:
+            cols, note = _rebuild_time(spec["where"], spec["name"], cols, fs)
+            notes.extend(note)
         budget -= cols["t"].size
         other = digests.get(digest)
         if other is not None:
@@ -186,9 +201,59 @@ def read_experiment(path: str | os.PathLike[str]) -> ExperimentSet:
         return ExperimentSet(path=manifest, runs=tuple(runs), method=method, delay=delay,
                              title=title, mass=mass, loop=loop,
                              extra={k: v for k, v in doc.items() if k not in TOP_KEYS},
-                             estimator=estimator, fixed=fixed)
+                             estimator=estimator, fixed=fixed, x_unit=x_unit,
+                             notes=tuple(notes))
     except ExperimentError as exc:
         raise ExperimentError(str(exc)) from None
+
+
+_NO_RATE_IN_TRACKING = (
+    "key 'sample_rate' is not read in a tracking set: its t is the controller's clock, "
+    "checked against [loop] sample_time")
+#: the sample rates phoid accepts, Hz (as every other number of the format: 1e-30 … 1e30)
+_RATE_RANGE = (1e-30, 1e30)
+
+
+def _sample_rate(where: str, value: Any) -> float | None:
+    """``sample_rate`` (Hz): None, or a finite number within :data:`_RATE_RANGE`."""
+    rate = optional_number(where, "sample_rate", value, minimum=0.0, strict=True)
+    lo, hi = _RATE_RANGE
+    if rate is not None and not lo <= rate <= hi:
+        fail(where, f"key 'sample_rate' must be between {lo:g} and {hi:g} Hz; got {rate!r}")
+    return rate
+
+
+def _rebuild_time(where: str, name: str, cols: dict[str, Any], fs: float
+                  ) -> tuple[dict[str, Any], list[str]]:
+    """t = t₀ + n/fs for a run read with ``sample_rate``: t₀ the t column's first value (0
+    without one); a note when a t column was there (it is replaced), saying how it compares."""
+    n = cols["x"].size
+    given = cols.get("t")
+    t0 = float(given[0]) if given is not None else 0.0
+    t = t0 + np.arange(n) / fs
+    step = np.diff(t)
+    if not (np.isfinite(t).all() and (step > 0).all()):
+        fail(where, f"sample_rate = {fs!r} Hz does not make usable times from t₀ = {t0!r} s "
+                     f"over {n} samples: t₀ + n/fs is not finite and strictly increasing in "
+                     "double precision")
+    t.flags.writeable = False
+    notes: list[str] = []
+    if given is not None:
+        span = float(t[-1] - t[0])
+        d = np.diff(given)
+        bad = int(np.count_nonzero(~(d > 0)))
+        if bad:
+            how = (f"it is not strictly increasing: {bad} of its {d.size} steps are zero or "
+                   "backward")
+        else:
+            gspan = float(given[-1] - given[0])
+            off = abs(gspan - span) / span
+            how = (f"it spans {gspan:.6g} s, {off:.2%} off the rebuilt {span:.6g} s"
+                   if off > 1e-3 else "it agrees with the rebuilt t to 0.1 %")
+        notes.append(f"{name}: t rebuilt from sample_rate = {fs:g} Hz as t₀ + n/fs (t₀ = "
+                     f"{t0:g} s, the file's first t); the file's t column was not used "
+                     f"beyond its first value ({how})")
+    return {**cols, "t": t}, notes
 
 
 def _tracking_only(key: str, method: str) -> str:
@@ -196,12 +261,12 @@ def _tracking_only(key: str, method: str) -> str:
             f"method is {method!r}")
 
 
-def _read_data(spec: dict[str, Any], method: str, budget: int
+def _read_data(spec: dict[str, Any], method: str, budget: int, clock: bool = True
                ) -> tuple[dict[str, Any], bytes]:
     """Read one run's data file; for a tracking run, resolve its gains (into ``spec``)."""
     if method != "tracking":
         return read_csv(spec["where"], spec["real"], spec["file"], need_F=(method == "forced"),
-                        max_rows=budget)
+                        max_rows=budget, clock=clock)
     required = ("t", "x", "r", *spec["explicit"])
     gains = spec["gains"]
     if spec["container"]:
@@ -233,10 +298,12 @@ def _run_spec(where: str, index: int, table: dict[str, Any], method: str,
     if not file.strip():
         fail(rwhere, "key 'file' is empty")
     if method == "tracking":
+        if "sample_rate" in table:
+            fail(rwhere, _NO_RATE_IN_TRACKING)
         container = container_suffix(file) is not None
         spec = tracking_run_spec(rwhere, table, loop_gains, container)
         spec.update(file=file, index=index, name=name, container=container, B=None,
-                    omega=None, added_mass=0.0, bias=0.0)
+                    omega=None, added_mass=0.0, bias=0.0, sample_rate=None)
         return spec
     for key in _TRACKING_ONLY_RUN:
         if key in table:
@@ -255,6 +322,7 @@ def _run_spec(where: str, index: int, table: dict[str, Any], method: str,
     spec["added_mass"] = checked_number(rwhere, "added_mass", table.get("added_mass", 0.0),
                                  minimum=0.0)
     spec["bias"] = checked_number(rwhere, "bias", table.get("bias", 0.0), minimum=0.0)
+    spec["sample_rate"] = _sample_rate(rwhere, table.get("sample_rate"))
     spec["extra"] = {k: v for k, v in table.items() if k not in RUN_KEYS}
     return spec
 

@@ -33,6 +33,7 @@ from phoid.io._format import (
 )
 from phoid.io.frames import is_table, table_columns
 from phoid.io.tracking import check_estimator, check_fixed, check_tracking_loop, min_samples
+from phoid.io.units import check_x_unit
 
 __all__ = ["ExperimentSet", "Run", "run_from_arrays"]
 
@@ -202,6 +203,15 @@ class ExperimentSet:
         Tracking sets: the ``[fixed]`` table, parameters known rather than estimated (any of
         ``m`` (kg, > 0), ``c`` (N·s/m), ``k`` (N/m), ``fc`` (N, ≥ 0), ``offset`` (N)); empty
         otherwise.
+    x_unit : str
+        What x (and a tracking set's r) is in: ``"m"`` (default), ``"rad"`` (an angle, from
+        ``[units] x = "deg"``, …: the set is rotational, its mass a moment of inertia J in
+        kg m², its gains N m/rad and N m s/rad, its forces torques in N m) or a sensor unit's
+        name (``"V"``, ``"counts"``, …: x not calibrated, only a ``free`` set without a
+        ``mass``; :func:`phoid.io.units.check_x_unit`).
+    notes : tuple of str
+        What the reader did that a result should say (``run 1 (…): t rebuilt from
+        sample_rate = … Hz …``, where a data file's t column was replaced).
     """
 
     path: Path
@@ -214,6 +224,8 @@ class ExperimentSet:
     extra: Mapping[str, Any] = field(default_factory=FrozenMap)
     estimator: str | None = None
     fixed: Mapping[str, float] = field(default_factory=FrozenMap)
+    x_unit: str = "m"
+    notes: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__
@@ -240,6 +252,11 @@ class ExperimentSet:
         set_(self, "mass", optional_number(where, "mass", self.mass, minimum=0.0,
                                             strict=True))
         set_(self, "loop", freeze(loop))
+        check_x_unit(where, self.x_unit, self.method, self.mass)
+        notes = self.notes
+        if not isinstance(notes, tuple | list) or not all(isinstance(n, str) for n in notes):
+            fail(where, f"`notes` must be a tuple of strings; got {kind_of(notes)}")
+        set_(self, "notes", tuple(notes))
         set_(self, "extra", checked_extra(where, self.extra, TOP_KEYS, "the manifest"))
         runs = tuple(self.runs) if isinstance(self.runs, Iterable) else self.runs
         if not isinstance(runs, tuple) or not runs:
@@ -296,6 +313,7 @@ class ExperimentSet:
     def __repr__(self) -> str:
         return (f"ExperimentSet({str(self.path)!r}, method={self.method!r}, "
                 f"delay={self.delay!r}, {len(self.runs)} runs"
+                f"{'' if self.x_unit == 'm' else ', x_unit=' + repr(self.x_unit)}"
                 f"{', title=' + repr(self.title) if self.title else ''})")
 
 

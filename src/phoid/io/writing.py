@@ -21,6 +21,7 @@ from phoid._output import OutputFolder
 from phoid.errors import ExperimentError
 from phoid.io._format import FORMAT, MANIFEST, fail, kind_of, show, thaw
 from phoid.io.records import ExperimentSet, Run
+from phoid.io.units import SIGNAL_UNITS
 
 __all__ = ["write_experiment"]
 
@@ -40,6 +41,7 @@ def write_experiment(
     overwrite: bool = False,
     estimator: str | None = None,
     fixed: Mapping[str, float] | None = None,
+    x_unit: str | None = None,
 ) -> Path:
     """Write an experiment set in the ``phoid/1`` format.
 
@@ -84,6 +86,11 @@ def write_experiment(
         Tracking sets: the top-level ``estimator``.
     fixed : Mapping, optional
         Tracking sets: the ``[fixed]`` table (known ``m``, ``c``, ``k``, ``fc``, ``offset``).
+    x_unit : str, optional
+        What x is in (:attr:`ExperimentSet.x_unit`; default ``"m"``): ``"rad"`` writes
+        ``[units] x = "rad"`` (a rotational set), a sensor unit ``[units] x = "V"`` (or
+        ``x = {signal = "NAME"}`` for a name not in
+        :data:`~phoid.io.units.SIGNAL_UNITS`), so that the set reads back as it was.
 
     Returns
     -------
@@ -111,6 +118,7 @@ def write_experiment(
         extra = src.extra if extra is None else extra
         estimator = src.estimator if estimator is None else estimator
         fixed = src.fixed if fixed is None else fixed
+        x_unit = src.x_unit if x_unit is None else x_unit
         runs = src.runs
     run_list = list(runs)
     for r in run_list:
@@ -158,7 +166,8 @@ def write_experiment(
                    for i, (r, f) in enumerate(zip(run_list, files, strict=True), start=1))
     exp = ExperimentSet(path=manifest, runs=placed, method=method, delay=None,
                         title=title, mass=mass, loop=loop_table, extra=extra or {},
-                        estimator=estimator, fixed=fixed or {})
+                        estimator=estimator, fixed=fixed or {},
+                        x_unit="m" if x_unit is None else x_unit)
     # every target checked before the first is written: no links followed, nothing replaced
     # without `overwrite` (phoid._output)
     out = OutputFolder(folder, overwrite=overwrite, error=ExperimentError)
@@ -175,6 +184,9 @@ def write_experiment(
         doc["estimator"] = exp.estimator
     if exp.fixed:
         doc["fixed"] = thaw(exp.fixed)
+    if exp.x_unit != "m":  # the columns are SI (rad) or the sensor's own: say which
+        doc["units"] = {"x": exp.x_unit if exp.x_unit in ("rad", *SIGNAL_UNITS)
+                        else {"signal": exp.x_unit}}
     doc.update(thaw(exp.extra))
     if exp.loop:
         doc["loop"] = thaw(exp.loop)

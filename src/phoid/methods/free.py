@@ -49,6 +49,7 @@ from phoid._threads import single_blas_thread
 from phoid.dynamics.plant import free_response
 from phoid.errors import IdentificationError
 from phoid.fits import diff_noise, locate_release
+from phoid.io.units import check_x_unit, quantity_unit, x_quantity
 from phoid.methods._modal import (
     ModalFit,
     Segment,
@@ -180,6 +181,10 @@ class FreeIdentification(NotebookDisplay):
     runs : tuple of FreeRun
     warnings : tuple of str
     source : str
+    x_unit : str
+        What x is in (``"m"``; ``"rad"`` for a rotational set, whose m, c, k are J in kg m^2,
+        N m s/rad and N m/rad; a sensor unit such as ``"V"``, without c and k): the unit of
+        the runs' ``x0``, ``offset``, ``noise_sd``, ``residual_rms`` (and per s, ``v0``).
     """
 
     sigma: Estimate
@@ -199,6 +204,7 @@ class FreeIdentification(NotebookDisplay):
     warnings: tuple[str, ...] = ()
     source: str = ""
     data: tuple[tuple[np.ndarray, np.ndarray], ...] = field(default=(), repr=False)
+    x_unit: str = "m"
 
     def model(self, i: int, t: np.ndarray | float) -> np.ndarray:
         """Fitted position of run ``i`` (0-based) at times ``t`` (s), m."""
@@ -217,10 +223,12 @@ class FreeIdentification(NotebookDisplay):
         ``runs``; ``warnings``. With a known mass also ``m`` (the given mass, stderr 0,
         ``"source": "given"``), ``c`` and ``k``. Each run has ``residual_noise_ratio``
         (:meth:`residual_noise_ratios`); ``covariance``, ``correlation`` and ``statistics`` are
-        :meth:`fit_statistics`.
+        :meth:`fit_statistics`. ``x_unit``: the unit of x and of the runs' ``x0``,
+        ``offset``, ``noise_sd``, ``residual_rms`` (``v0``: ``x_unit``/s).
         """
         out: dict[str, Any] = {
             "method": "free",
+            "x_unit": self.x_unit,
             "sigma": self.sigma.to_dict(),
             "omega0": self.omega0.to_dict(),
             "zeta": self.zeta.to_dict(),
@@ -435,17 +443,24 @@ def identify_free(experiment: Any, *, mass: float | None = None) -> FreeIdentifi
             raise IdentificationError(
                 f"{where}: {r.name}: added_mass is not supported for free-decay sets (every "
                 "release must be of the same plant)")
+    x_unit = getattr(experiment, "x_unit", "m")
+    if mass is not None and x_quantity(x_unit) == "signal":
+        raise IdentificationError(
+            f"{where}: --mass cannot be used with x in {x_unit} (a sensor unit, [units] x): "
+            "c and k need x in a length or an angle unit; a free decay in sensor units gives "
+            "only σ, ω₀, ζ, c/m and k/m")
     if mass is None:
         mass = getattr(experiment, "mass", None)
     result = identify_free_data(
         [(r.t, r.x) for r in runs], mass=mass, files=[r.file for r in runs],
-        names=[r.name for r in runs], source=where,
+        names=[r.name for r in runs], source=where, x_unit=x_unit,
     )
+    # what the reader did (a t column rebuilt from sample_rate), then a [loop] ignored
+    extra = tuple(getattr(experiment, "notes", ()))
     loop = getattr(experiment, "loop", None) or {}
     if loop:
-        extra = ("[loop] is ignored for a free-decay set (no feedback)",)
-        result = _with_warnings(result, extra)
-    return result
+        extra += ("[loop] is ignored for a free-decay set (no feedback)",)
+    return _with_warnings(result, extra) if extra else result
 
 
 def _with_warnings(result: FreeIdentification, extra: tuple[str, ...]) -> FreeIdentification:
@@ -462,6 +477,7 @@ def identify_free_data(
     files: Sequence[str] | None = None,
     names: Sequence[str] | None = None,
     source: str = "",
+    x_unit: str = "m",
 ) -> FreeIdentification:
     """:func:`identify_free` on plain arrays: ``data`` is a sequence of (t, x) per release.
 
@@ -475,6 +491,9 @@ def identify_free_data(
         Labels of the runs (file names for the results, names for messages).
     source : str
         Where the data came from, for the report.
+    x_unit : str, default "m"
+        What x is in: ``"m"``, ``"rad"`` (m, c, k then labelled J kg m^2, N m s/rad,
+        N m/rad) or a sensor unit (``"V"``, …; no ``mass`` then).
 
     Returns
     -------
@@ -510,8 +529,12 @@ def identify_free_data(
     n = len(data)
     if n == 0:
         raise IdentificationError("no runs")
+    check_x_unit("identify_free_data", x_unit, "free")
     if mass is not None:
         mass = v.positive("mass", mass, "kg")
+        if x_quantity(x_unit) == "signal":
+            raise ValueError(f"`mass` cannot be used with x in {x_unit!r} (a sensor unit): "
+                             "c and k need x in a length or an angle unit")
     files = list(files) if files is not None else [f"run{i + 1}" for i in range(n)]
     names = list(names) if names is not None else files
     arrays: list[tuple[np.ndarray, np.ndarray]] = []
@@ -539,8 +562,8 @@ def identify_free_data(
         nsd = diff_noise(x)
         ptp = float(np.ptp(x))
         if not ptp > _STILL_NSD * nsd or ptp == 0.0:
-            reasons.append(f"x never moves: its peak-to-peak {ptp:.3g} m is within the noise "
-                           f"(sd {nsd:.3g} m)")
+            reasons.append(f"x never moves: its peak-to-peak {ptp:.3g} {x_unit} is within "
+                           f"the noise (sd {nsd:.3g} {x_unit})")
             continue
         j, hold_sd = locate_release(t, x)
         held = hold_sd is not None and j >= 10
@@ -635,16 +658,16 @@ def identify_free_data(
             f"1/s of −σ = {-sigma:.5g} 1/s), so their stderr are not given")
     m_est = c_est = k_est = None
     if mass is not None:
-        m_est = Estimate(mass, 0.0, "kg")
-        c_est = Estimate(2 * sigma * mass, 2 * se_s * mass, "N s/m")
-        k_est = Estimate(w0sq * mass, se_w * mass, "N/m")
+        m_est = Estimate(mass, 0.0, quantity_unit("kg", x_unit))  # J in kg m^2 for x in rad
+        c_est = Estimate(2 * sigma * mass, 2 * se_s * mass, quantity_unit("N s/m", x_unit))
+        k_est = Estimate(w0sq * mass, se_w * mass, quantity_unit("N/m", x_unit))
     return FreeIdentification(
         sigma=Estimate(sigma, se_s, "1/s"), omega0=omega0, zeta=zeta,
         c_over_m=Estimate(2 * sigma, 2 * se_s, "1/s"),
         k_over_m=Estimate(w0sq, se_w, "1/s^2"),
         roots=roots, roots_stderr=ses, regime=regime, cov=cov.copy(), mass=mass,
         m=m_est, c=c_est, k=k_est, runs=tuple(runs), warnings=tuple(warnings),
-        source=source, data=tuple(arrays),
+        source=source, data=tuple(arrays), x_unit=x_unit,
     )
 
 

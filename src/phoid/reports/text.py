@@ -271,12 +271,15 @@ def free_text(result: Any) -> str:
         imaginary parts, or None), ``m``, ``c``, ``k`` (each an estimate as above, or None
         without a known mass), ``runs`` (each with ``file``, ``release`` (s), ``held``,
         ``x0`` (m), ``v0`` (m/s), ``n_samples``, ``residual_rms`` (m), ``used``), ``warnings``,
-        ``residual_noise_ratios()`` and ``fit_statistics()``.
+        ``residual_noise_ratios()`` and ``fit_statistics()``; ``x_unit`` (optional, default
+        ``"m"``: ``"rad"`` or a sensor unit labels the run columns, x0, v0, resid, with it).
 
     Returns
     -------
     str
     """
+    # x in m, or in rad (a rotational set) or a sensor's unit (V, …): the run columns' unit
+    xu = safe_text(str(getattr(result, "x_unit", "m")))
     lines = [f"phoid identify (free decay): {safe_text(result.source)}" if result.source
              else "phoid identify (free decay)", ""]
     for name, est in (("σ", result.sigma), ("ω₀", result.omega0), ("ζ", result.zeta),
@@ -291,20 +294,26 @@ def free_text(result: Any) -> str:
         sign = "+" if s.imag >= 0 else "−"
         lines.append(f"  root {j}: {re} {sign} {im}i 1/s")
     if result.m is not None and result.c is not None and result.k is not None:
-        lines.append(f"  with the known mass m = {result.m.value:g} kg:")
+        what = "moment of inertia J" if result.m.unit == "kg m^2" else "mass m"
+        lines.append(f"  with the known {what} = {result.m.value:g} {result.m.unit}:")
         lines.append(f"  c = {format_estimate(result.c.value, result.c.stderr)} {result.c.unit}")
         lines.append(f"  k = {format_estimate(result.k.value, result.k.stderr)} {result.k.unit}")
+    elif getattr(result, "x_unit", "m") not in ("m", "rad"):
+        lines.append(f"  (x is in sensor units, {xu}: only σ, ω₀, ζ, c/m and k/m are "
+                     "identifiable; c and k need x in a length or an angle unit)")
     else:
         lines.append("  (m, c, k are not separately identifiable from a free decay: "
                      "give the mass with --mass to get c and k)")
     lines.append("")
-    lines.append(f"  {'run':<18}{'release s':>11}{'held':>6}{'x0 m':>12}{'v0 m/s':>12}"
-                 f"{'samples':>9}{'resid m':>10}{'resid/noise':>12}")
+    wx, wv, wr = max(12, len(xu) + 5), max(12, len(xu) + 7), max(10, len(xu) + 8)
+    lines.append(f"  {'run':<18}{'release s':>11}{'held':>6}{'x0 ' + xu:>{wx}}"
+                 f"{'v0 ' + xu + '/s':>{wv}}{'samples':>9}{'resid ' + xu:>{wr}}"
+                 f"{'resid/noise':>12}")
     for r, q in zip(result.runs, result.residual_noise_ratios(), strict=True):
         mark = "" if r.used else "  (set aside)"
         lines.append(f"  {safe_text(r.file):<18}{r.release:>11.5g}{'yes' if r.held else 'no':>6}"
-                     f"{r.x0:>12.4g}{r.v0:>12.4g}{r.n_samples:>9d}"
-                     f"{r.residual_rms:>10.2g}{ratio_text(q):>12}{mark}")
+                     f"{r.x0:>{wx}.4g}{r.v0:>{wv}.4g}{r.n_samples:>9d}"
+                     f"{r.residual_rms:>{wr}.2g}{ratio_text(q):>12}{mark}")
     lines.extend(fit_statistics_lines(result))
     if result.warnings:
         lines += ["", "warnings:"] + [f"  - {safe_text(w)}" for w in result.warnings]
