@@ -36,6 +36,7 @@ __all__ = [
     "fit_modal",
     "pick_start",
     "release_basis",
+    "window_rates",
 ]
 
 
@@ -72,7 +73,11 @@ class ModalFit:
     The rates (σ, ω₀²) and their covariance ``cov`` (zero when they were held fixed); per run:
     the linear coefficients (``fixed`` columns, then x₀, v₀), their covariance including the
     rates' uncertainty, their sensitivity ``K`` (n_coef × 2) to the rates (so that
-    cov(cᵢ, cⱼ) = Kᵢ cov Kⱼᵀ for i ≠ j), residual and residual noise sd.
+    cov(cᵢ, cⱼ) = Kᵢ cov Kⱼᵀ for i ≠ j), residual and residual noise sd; and what a sandwich
+    covariance needs (:func:`phoid.methods.adequacy.sandwich`): ``jac``, the model's
+    derivative in (σ, ω₀²) at the solution (n × 2), and ``design``, the linear columns
+    (``fixed``, B₁, B₂; n × p) — together the Jacobian of the residual in every parameter,
+    up to its sign.
     """
 
     sigma: float
@@ -86,6 +91,8 @@ class ModalFit:
     fit_rates: bool
     converged: bool
     iterations: int
+    jac: tuple[np.ndarray, ...] = ()
+    design: tuple[np.ndarray, ...] = ()
 
 
 def release_basis(tau: np.ndarray, sigma: float, w0sq: float) -> tuple[np.ndarray, np.ndarray]:
@@ -360,10 +367,11 @@ def fit_modal(
             cov = np.linalg.inv(M)
         except np.linalg.LinAlgError:
             cov = np.linalg.pinv(M)
-    coefs, ccovs, Ks, resids = [], [], [], []
+    coefs, ccovs, Ks, resids, designs = [], [], [], [], []
     for i, p in enumerate(preps):
         # the full design at the solution, once: coefficients, (GᵀG)⁻¹ and G⁺J (SVD)
         G = np.column_stack([p.seg.fixed, *release_basis(p.tau, st.sigma, st.w0sq)])
+        designs.append(G)
         U, sv, Vt = np.linalg.svd(G, full_matrices=False)
         keep = sv > sv[0] * 1e-12
         U, sv, Vt = U[:, keep], sv[keep], Vt[keep]
@@ -377,6 +385,7 @@ def fit_modal(
         sigma=st.sigma, w0sq=st.w0sq, cov=cov, coef=tuple(coefs), coef_cov=tuple(ccovs),
         K=tuple(Ks), noise=tuple(float(1 / math.sqrt(w)) for w in weights),
         resid=tuple(resids), fit_rates=fit_rates, converged=converged, iterations=iterations,
+        jac=tuple(raws), design=tuple(designs),
     )
 
 
@@ -447,3 +456,78 @@ def esprit_rates(t: np.ndarray, y: np.ndarray, noise: float, *,
                 for f in np.r_[slow, slow * np.geomspace(1.5, fastest / -slow, 12)]:
                     out.append((-(slow + f) / 2, slow * f))
     return out
+
+
+def window_rates(
+    seg: Segment,
+    motion: np.ndarray,
+    sigma: float,
+    w0sq: float,
+    noise: float,
+    *,
+    cycles: float = 4.0,
+    max_windows: int = 40,
+    min_nsd: float = 10.0,
+) -> tuple[np.ndarray, ...]:
+    """Local decay rate and damped frequency over consecutive windows of a few cycles.
+
+    Each window is fitted alone with the same model (its own offset and state, and its own
+    rates, by :func:`fit_modal` started at the whole fit's rates): a decay whose rate or
+    frequency depends on the amplitude shows as a trend of the windows' rates against their
+    amplitude (:func:`phoid.methods.adequacy.structure_check`).
+
+    Parameters
+    ----------
+    seg : Segment
+        The run's window of the whole fit (its fixed columns are replaced by an offset).
+    motion : ndarray
+        The whole fit's motion about its offset on ``seg.t``: a window is used while its
+        amplitude √2·RMS(motion) is above ``min_nsd`` noise sd.
+    sigma, w0sq : float
+        The whole fit's rates (underdamped: w0sq > σ²; else nothing is returned).
+    noise : float
+        The run's noise sd.
+    cycles : float
+        Window length in damped periods (widened so that there are at most ``max_windows``;
+        windows shorter than 24 samples are not fitted).
+    max_windows, min_nsd : int, float
+
+    Returns
+    -------
+    (amplitude, sigma, sigma_se, omega_d, omega_d_se) : ndarrays
+        One entry per fitted window (white-noise stderr of the window's fit; ω_d = √(ω₀² − σ²)
+        and its stderr by the delta method).
+    """
+    empty = tuple(np.empty(0) for _ in range(5))
+    q = w0sq - sigma * sigma
+    n = seg.t.size
+    if not (q > 0 and math.isfinite(q) and noise > 0) or n < 48:
+        return empty
+    wd = math.sqrt(q)
+    span = float(seg.t[-1] - seg.t[0])
+    length = max(cycles * 2 * math.pi / wd, span / max(int(max_windows), 1))
+    edges = np.searchsorted(seg.t, seg.t[0] + length * np.arange(int(span // length) + 1))
+    out: list[list[float]] = [[], [], [], [], []]
+    for k in range(edges.size - 1):
+        a, b = int(edges[k]), int(edges[k + 1])
+        if b - a < 24:
+            continue
+        amp = math.sqrt(2.0 * float(np.mean(motion[a:b] ** 2)))
+        if not amp > min_nsd * noise:
+            continue
+        w = Segment(t=seg.t[a:b], x=seg.x[a:b], fixed=np.ones((b - a, 1)), t0=float(seg.t[a]))
+        try:
+            f = fit_modal([w], sigma, w0sq, noise=[noise], maxit=20)
+        except (IdentificationError, np.linalg.LinAlgError):
+            continue
+        qq = f.w0sq - f.sigma**2
+        if not (f.converged and qq > 0 and np.all(np.isfinite(f.cov))):
+            continue
+        wdl = math.sqrt(qq)
+        g = np.array([-f.sigma / wdl, 0.5 / wdl])
+        out[0].append(math.sqrt(2.0 * float(np.mean((w.x - f.coef[0][0] - f.resid[0]) ** 2))))
+        out[1].append(f.sigma)
+        out[2].append(math.sqrt(max(float(f.cov[0, 0]), 0.0)))
+        out[3].append(wdl)
+        out[4].append(math.sqrt(max(float(g @ f.cov @ g), 0.0)))
+    return tuple(np.array(v) for v in out)

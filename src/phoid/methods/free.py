@@ -29,7 +29,14 @@ mass taken as exact.
 Uncertainties are the Gauss–Newton covariance of all parameters (rates, offsets, x₀, v₀) with
 each run weighted by its own residual noise variance — the Cramér–Rao bound of this model at the
 estimate — propagated to ω₀ = √(ω₀²), ζ = σ/ω₀ (eq. 10) and the roots
-s = −σ ± √(σ² − ω₀²) (eq. 4) by the delta method.
+s = −σ ± √(σ² − ω₀²) (eq. 4) by the delta method. The fit's adequacy is then tested
+(:mod:`phoid.methods.adequacy`, docs/adequacy.md): the residual against the record's noise, its
+whiteness, the rates of windows of 4 cycles against their amplitude, the two halves of the
+fitted windows (every run's first halves fitted jointly, and the second halves) and each run
+alone. Where a test fails, the reported covariance of (σ, ω₀²) — and every stderr derived from
+it — is the robust one (Newey–West sandwich, widened by the spread between the halves or the
+runs where they disagree or the windows show a trend), the white-noise stderr kept beside it
+(``white_stderr``), and the warnings say what was seen and its likely cause.
 
 The fitting engine (:mod:`phoid.methods._modal`) is shared with :mod:`phoid.methods.forced`,
 whose start-up transient is the same free response added to the steady state.
@@ -38,7 +45,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -58,8 +65,10 @@ from phoid.methods._modal import (
     pick_start,
     release_basis,
 )
+from phoid.methods.adequacy import Adequacy
 from phoid.methods.estimate import Estimate
 from phoid.methods.fit_statistics import fit_blocks, residual_noise_ratio, window_noise
+from phoid.methods.free_adequacy import assess_free
 from phoid.reports.display import NotebookDisplay
 
 __all__ = ["FreeIdentification", "FreeRun", "identify_free", "identify_free_data"]
@@ -185,6 +194,10 @@ class FreeIdentification(NotebookDisplay):
         What x is in (``"m"``; ``"rad"`` for a rotational set, whose m, c, k are J in kg m^2,
         N m s/rad and N m/rad; a sensor unit such as ``"V"``, without c and k): the unit of
         the runs' ``x0``, ``offset``, ``noise_sd``, ``residual_rms`` (and per s, ``v0``).
+    adequacy : phoid.methods.adequacy.Adequacy or None
+        The adequacy checks (phoid.methods.free_adequacy), both covariances of (σ, ω₀²) and
+        the stderr's inflation; where it says ``stderr == "robust"`` every estimate's
+        ``stderr`` is the robust one and ``white_stderr`` the white-noise one.
     """
 
     sigma: Estimate
@@ -205,6 +218,7 @@ class FreeIdentification(NotebookDisplay):
     source: str = ""
     data: tuple[tuple[np.ndarray, np.ndarray], ...] = field(default=(), repr=False)
     x_unit: str = "m"
+    adequacy: Adequacy | None = field(default=None, repr=False)
 
     def model(self, i: int, t: np.ndarray | float) -> np.ndarray:
         """Fitted position of run ``i`` (0-based) at times ``t`` (s), m."""
@@ -251,6 +265,8 @@ class FreeIdentification(NotebookDisplay):
         out["runs"] = [r.to_dict() | {"residual_noise_ratio": q}
                        for r, q in zip(self.runs, self.residual_noise_ratios(), strict=True)]
         out["warnings"] = list(self.warnings)
+        if self.adequacy is not None:
+            out["adequacy"] = self.adequacy.to_dict()
         return out | self.fit_statistics()
 
     def _noise_levels(self) -> list[float | None]:
@@ -464,8 +480,6 @@ def identify_free(experiment: Any, *, mass: float | None = None) -> FreeIdentifi
 
 
 def _with_warnings(result: FreeIdentification, extra: tuple[str, ...]) -> FreeIdentification:
-    from dataclasses import replace
-
     return replace(result, warnings=tuple(result.warnings) + extra)
 
 
@@ -596,11 +610,24 @@ def identify_free_data(
             + "; ".join(f"{names[i]}: {reasons[i]}" for i in range(n)))
     fit = _best_fit(segs, noise0)
 
-    cov = fit.cov
     sigma, w0sq = fit.sigma, fit.w0sq
+    used = [i for i in range(n) if seg_of[i] is not None]
+    adequacy = assess_free(segs, fit, [names[i] for i in used], x_unit=x_unit)
+    cov = adequacy.robust_cov
+    robust = adequacy.stderr == "robust"
     se_s = math.sqrt(max(cov[0, 0], 0.0))
     se_w = math.sqrt(max(cov[1, 1], 0.0))
     omega0, zeta, roots, ses, regime, q, se_q = _derived(sigma, w0sq, cov)
+    ws = ww = None
+    if robust:
+        w_omega0, w_zeta, *_rest = _derived(sigma, w0sq, fit.cov)
+        ws = math.sqrt(max(fit.cov[0, 0], 0.0))
+        ww = math.sqrt(max(fit.cov[1, 1], 0.0))
+        omega0 = replace(omega0, white_stderr=w_omega0.stderr)
+        zeta = replace(zeta, white_stderr=w_zeta.stderr)
+
+    def robust_est(value: float, se: float, wse: float | None, unit: str) -> Estimate:
+        return Estimate(value, se, unit, white_stderr=wse)
     warnings: list[str] = []
     runs: list[FreeRun] = []
     for i in range(n):
@@ -636,6 +663,7 @@ def identify_free_data(
             residual_rms=float(math.sqrt(float(r @ r) / r.size)), snr=snr, used=True,
             warnings=tuple(rw),
         ))
+    warnings.extend(adequacy.warnings)
     if not fit.converged:
         warnings.append("the free-response fit did not converge; the estimates may be poor")
     if not sigma > 0:
@@ -659,15 +687,17 @@ def identify_free_data(
     m_est = c_est = k_est = None
     if mass is not None:
         m_est = Estimate(mass, 0.0, quantity_unit("kg", x_unit))  # J in kg m^2 for x in rad
-        c_est = Estimate(2 * sigma * mass, 2 * se_s * mass, quantity_unit("N s/m", x_unit))
-        k_est = Estimate(w0sq * mass, se_w * mass, quantity_unit("N/m", x_unit))
+        c_est = robust_est(2 * sigma * mass, 2 * se_s * mass, ws and 2 * ws * mass,
+                           quantity_unit("N s/m", x_unit))
+        k_est = robust_est(w0sq * mass, se_w * mass, ww and ww * mass,
+                           quantity_unit("N/m", x_unit))
     return FreeIdentification(
-        sigma=Estimate(sigma, se_s, "1/s"), omega0=omega0, zeta=zeta,
-        c_over_m=Estimate(2 * sigma, 2 * se_s, "1/s"),
-        k_over_m=Estimate(w0sq, se_w, "1/s^2"),
+        sigma=robust_est(sigma, se_s, ws, "1/s"), omega0=omega0, zeta=zeta,
+        c_over_m=robust_est(2 * sigma, 2 * se_s, ws and 2 * ws, "1/s"),
+        k_over_m=robust_est(w0sq, se_w, ww, "1/s^2"),
         roots=roots, roots_stderr=ses, regime=regime, cov=cov.copy(), mass=mass,
         m=m_est, c=c_est, k=k_est, runs=tuple(runs), warnings=tuple(warnings),
-        source=source, data=tuple(arrays), x_unit=x_unit,
+        source=source, data=tuple(arrays), x_unit=x_unit, adequacy=adequacy,
     )
 
 

@@ -1,0 +1,193 @@
+"""The adequacy of a free-decay fit (:mod:`phoid.methods.free`): the checks of
+:mod:`phoid.methods.adequacy` applied to the joint free-response fit of
+:func:`phoid.methods._modal.fit_modal`, and the covariance of (σ, ω₀²) that survives a misfit.
+
+- ``noise`` and ``whiteness`` on each run's residual, the noise level from the run's own third
+  differences (:func:`phoid.methods.fit_statistics.difference_noise` over the fitted window);
+- ``structure``: windows of 4 damped cycles, each fitted alone
+  (:func:`phoid.methods._modal.window_rates`), their σ and ω_d against their amplitude; a run
+  that ends still while the model still swings, or away from the fitted rest, is "stuck";
+- ``halves``: every run's window cut at its middle sample, the first halves fitted jointly and
+  the second halves jointly (started at the whole fit's rates), compared on (ω₀, ζ) with their
+  robust covariances — only where the second half still holds motion (its norm at least 50
+  noise sd) and both halves determine ω₀ to better than 5 % (an overdamped decay is gone into
+  the noise by its second half: a fit there finds a mode in the noise, outside the linear
+  regime in which a covariance means anything);
+- ``runs``: each run fitted alone, compared the same way (sets of two runs or more).
+
+The robust covariance is the Newey–West sandwich of the rates (the Jacobian in (σ, ω₀²) with
+each run's offset and state projected off, each run weighted as in the fit), raised to at least
+the white one, plus the halves' batch-means covariance where the halves disagree or the windows
+show a trend, plus the runs' where the runs disagree (mapped from (ω₀, ζ) to (σ, ω₀²) at the
+whole fit). docs/adequacy.md gives the reasons and the measurements.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+
+from phoid.errors import IdentificationError
+from phoid.methods import adequacy as aq
+from phoid.methods._modal import ModalFit, Segment, fit_modal, window_rates
+from phoid.methods.fit_statistics import difference_noise
+
+__all__ = ["assess_free"]
+
+#: fewest samples of a half
+_MIN_HALF = 16
+#: least motion (its norm, in noise sd) in the second half for the halves to be compared
+_MIN_SNR = 50.0
+#: largest relative stderr of ω₀ (white) of a part compared (halves, runs)
+_MAX_REL = 0.05
+
+
+def _rates_cov(fit: ModalFit) -> np.ndarray:
+    """The Newey–West covariance of (σ, ω₀²) of a modal fit (each run weighted as fitted, its
+    offset and state projected off)."""
+    return aq.sandwich(fit.jac, fit.resid, weights=[1.0 / s**2 for s in fit.noise],
+                       nuisance=fit.design)
+
+
+def _w_zeta(sigma: float, w0sq: float, cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(ω₀, ζ) and their covariance from (σ, ω₀²) (delta method; ω₀² > 0)."""
+    w0 = math.sqrt(w0sq)
+    J = np.array([[0.0, 0.5 / w0], [1.0 / w0, -sigma / (2 * w0**3)]])
+    return np.array([w0, sigma / w0]), J @ cov @ J.T
+
+
+def _part(segs: list[Segment], fit: ModalFit,
+          noise: Sequence[float]) -> tuple[np.ndarray, np.ndarray] | None:
+    """Refit the rates on other windows (started at ``fit``'s, each run's starting noise
+    ``noise``): ((ω₀, ζ), their robust covariance)."""
+    try:
+        f = fit_modal(segs, fit.sigma, fit.w0sq, noise=list(noise))
+    except (IdentificationError, np.linalg.LinAlgError):
+        return None
+    if not (f.w0sq > 0 and np.all(np.isfinite(f.cov))):
+        return None
+    # a part that pins ω₀ down to worse than 5 % (a decay gone into the noise by then) is
+    # outside the linear regime in which its covariance, and the χ² of agreement, hold
+    if not math.sqrt(max(float(f.cov[1, 1]), 0.0)) / f.w0sq < 2 * _MAX_REL:
+        return None
+    cov = aq.not_below_white(_rates_cov(f), f.cov)
+    if not np.all(np.isfinite(cov)):
+        return None
+    return _w_zeta(f.sigma, f.w0sq, cov)
+
+
+def _stuck(seg: Segment, motion: np.ndarray, offset: float, noise: float, x_unit: str) -> str:
+    """Where a run ends at rest while the fitted motion still swings, in words ("" if not):
+    its last tenth (≥ 16 samples) within 8 noise sd while the model's amplitude there is above
+    10 noise sd, or its level more than 5 noise sd off the fitted rest."""
+    k = max(16, seg.t.size // 10)
+    tail = seg.x[-k:]
+    if seg.t.size < 4 * k or not np.ptp(tail) <= 8 * noise:
+        return ""
+    amp = math.sqrt(2.0 * float(np.mean(motion[-k:] ** 2)))
+    off = float(np.mean(tail)) - offset
+    if amp > 10 * noise or abs(off) > 5 * noise:
+        return (f"still over its last {seg.t[-1] - seg.t[-k]:.3g} s, {off:.3g} {x_unit} off "
+                f"the fitted rest, where the model still swings {amp:.3g} {x_unit}")
+    return ""
+
+
+def assess_free(segs: Sequence[Segment], fit: ModalFit, labels: Sequence[str], *,
+                x_unit: str = "m") -> aq.Adequacy:
+    """The adequacy of a joint free-response fit (module docstring).
+
+    Parameters
+    ----------
+    segs : sequence of Segment
+        The runs' windows as fitted (fixed columns: the offset).
+    fit : ModalFit
+        :func:`phoid.methods._modal.fit_modal` on ``segs``.
+    labels : sequence of str
+        The runs' names, for the words.
+    x_unit : str
+        x's unit, for the words.
+
+    Returns
+    -------
+    phoid.methods.adequacy.Adequacy
+        Its covariances are of (σ, ω₀²), 1/s and 1/s².
+    """
+    segs = list(segs)
+    resid = list(fit.resid)
+    motions = [s.x - c[0] - r for s, c, r in zip(segs, fit.coef, resid, strict=True)]
+    rms = [float(np.sqrt(np.mean(m * m))) for m in motions]
+    noise = [difference_noise(s.x) for s in segs]
+    noise_c = aq.noise_check(resid, noise, labels, x_unit=x_unit)
+    white = aq.whiteness_check(resid, motion_rms=rms)
+    names, units = ("sigma", "k_over_m"), ("1/s", "1/s^2")
+    exact = white.passed is None
+    checks = [noise_c, white]
+    sw = _rates_cov(fit) if not exact else np.full((2, 2), math.nan)
+    q = fit.w0sq - fit.sigma**2
+    if exact or not fit.w0sq > 0:
+        return aq.assess(checks, names=names, units=units, white_cov=fit.cov, sandwich_cov=sw)
+    # structure: windows of 4 cycles, all runs together
+    cols: list[list[np.ndarray]] = [[], [], [], [], []]
+    stuck = ""
+    for s, m, c, nz in zip(segs, motions, fit.coef, noise, strict=True):
+        nz = nz if nz > 0 else float(np.std(s.x - m - c[0]))
+        for j, col in enumerate(window_rates(s, m, fit.sigma, fit.w0sq, nz)):
+            cols[j].append(col)
+        stuck = stuck or _stuck(s, m, float(c[0]), nz, x_unit)
+    win = aq.Windows(*(np.concatenate(c) for c in cols), stuck=bool(stuck),
+                     stuck_detail=stuck)
+    struct, s_causes, s_warns = aq.structure_check(win, x_unit=x_unit)
+    peak = None
+    if noise_c.passed is False or white.passed is False:
+        f_main = math.sqrt(q) / (2 * math.pi) if q > 0 else None
+        for s, r in zip(segs, resid, strict=True):
+            peak = aq.spectral_peak(r, float(np.median(np.diff(s.t))), f_main)
+            if peak is not None:
+                break
+    r_causes, r_warns = aq.residual_warnings(noise_c, white, s_causes, peak)
+    checks.append(struct)
+    # halves: every run's first half of its window fitted jointly, then the second halves
+    between: list[np.ndarray] = []
+    Jb = np.array([[fit.sigma / math.sqrt(fit.w0sq), math.sqrt(fit.w0sq)],
+                   [2 * math.sqrt(fit.w0sq), 0.0]])  # ∂(σ, ω₀²)/∂(ω₀, ζ)
+    agreements = []
+    firsts = [Segment(t=s.t[: s.t.size // 2], x=s.x[: s.t.size // 2],
+                      fixed=s.fixed[: s.t.size // 2], t0=s.t0) for s in segs]
+    seconds = [Segment(t=s.t[s.t.size // 2:], x=s.x[s.t.size // 2:],
+                       fixed=s.fixed[s.t.size // 2:], t0=float(s.t[s.t.size // 2]))
+               for s in segs]
+    # the second half's motion (of the whole fit) in noise sd, all runs together
+    snr2 = math.sqrt(sum(float(m[m.size // 2:] @ m[m.size // 2:]) / nz**2
+                         for m, nz in zip(motions, fit.noise, strict=True)))
+    halves = [_part(h, fit, fit.noise) for h in (firsts, seconds)] \
+        if min(s.t.size for s in segs) >= 2 * _MIN_HALF and snr2 >= _MIN_SNR else [None]
+    if all(h is not None for h in halves) and len(halves) == 2:
+        ag = aq.agreement("halves", [h[0] for h in halves], [h[1] for h in halves],
+                          params=("ω₀", "ζ"), units=("rad/s", ""),
+                          labels=("first half", "second half"))
+        checks.append(ag.check)
+        agreements.append(ag)
+        if ag.check.passed is False or struct.passed is False:
+            between.append(Jb @ ag.between @ Jb.T)
+    if len(segs) >= 2:
+        parts = [_part([s], fit, [nz]) for s, nz in zip(segs, fit.noise, strict=True)]
+        ok = [i for i, p in enumerate(parts) if p is not None]
+        if len(ok) >= 2:
+            ag = aq.agreement("runs", [parts[i][0] for i in ok], [parts[i][1] for i in ok],
+                              params=("ω₀", "ζ"), units=("rad/s", ""),
+                              labels=[labels[i] for i in ok])
+            checks.append(ag.check)
+            agreements.append(ag)
+            if ag.check.passed is False:
+                between.append(Jb @ ag.between @ Jb.T)
+    causes = list(r_causes) + list(s_causes)
+    warns = list(r_warns) + list(s_warns)
+    for ag in agreements:
+        w = ag.warning()
+        if w is not None:
+            causes.append("drift" if ag.check.name == "halves" else "runs_differ")
+            warns.append(w)
+    return aq.assess(checks, names=names, units=units, white_cov=fit.cov, sandwich_cov=sw,
+                     between=between, causes=causes, warnings=warns)
