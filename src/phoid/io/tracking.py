@@ -45,11 +45,17 @@ ESTIMATORS = ("auto", "idim", "output-error")
 FIXED_KEYS = ("m", "c", "k", "fc", "offset")
 """The keys of a tracking set's ``[fixed]`` table: parameters known, not estimated."""
 TRACKING_LOOP_KEYS = ("sample_time", "velocity", "cutoff", "delay", "saturation", "P", "D",
-                      "gain", "command_gain", "w_unit")
+                      "gain", "command_gain", "w_unit", "u_contains_w", "w_in_u_gain")
 """The ``[loop]`` keys of a tracking set."""
 W_UNITS = ("command", "N")
 """``[loop] w_unit``: the additive input w in command units (F = G·(sat(u) + w), the default) or
-in newtons, added to the force (F = G·sat(u) + w)."""
+in newtons, added to the force (F = G·sat(u) + w).
+
+``[loop] u_contains_w`` (boolean) states whether each run's recorded u already holds w (u =
+sat(u_c) + g·w, u_c the controller's output; the force is then G·u, w not added again) and
+``[loop] w_in_u_gain`` (a finite non-zero number, command units per unit of w) the gain g; the
+gain alone implies ``u_contains_w = true``. Neither given: measured from each run that records
+u and w (:mod:`phoid.methods.tracking_semantics`)."""
 RUN_GAINS = ("P", "D", "gain", "command_gain")
 """The gains: a number, or the name of a scalar variable of the run's file."""
 TRACKING_RUN_KEYS = ("file", *RUN_GAINS, "columns")
@@ -167,6 +173,18 @@ def check_tracking_loop(where: str, loop: Mapping[str, Any]) -> tuple[int, dict[
     if "w_unit" in loop and loop["w_unit"] not in W_UNITS:
         fail(lwhere, f"key 'w_unit' must be one of {', '.join(map(repr, W_UNITS))}; got "
                       f"{show(loop['w_unit'])}")
+    if "u_contains_w" in loop and not isinstance(loop["u_contains_w"], bool):
+        fail(lwhere, f"key 'u_contains_w' must be true or false (whether the recorded command u "
+                      f"already holds the additive input w); got {show(loop['u_contains_w'])} "
+                      f"({kind_of(loop['u_contains_w'])})")
+    if "w_in_u_gain" in loop:
+        g = checked_number(lwhere, "w_in_u_gain", loop["w_in_u_gain"])
+        if g == 0.0:
+            fail(lwhere, "key 'w_in_u_gain' (command units per unit of w) is 0: u would not "
+                          "contain w; say so with u_contains_w = false instead")
+        if loop.get("u_contains_w") is False:
+            fail(lwhere, "key 'w_in_u_gain' is the gain with which u contains w, but "
+                          "u_contains_w = false; remove one of them")
     taps = velocity_taps(where, loop.get("velocity"), loop.get("cutoff"))
     gains = {k: _gain(lwhere, k, loop[k]) for k in RUN_GAINS if k in loop}
     return taps, gains

@@ -74,9 +74,14 @@ class TrackingRecord:
     controller : SampledController
         The loop (its ``delay`` is used unless the fit estimates τ).
     u : numpy.ndarray or None
-        Recorded controller output, command units (used for the start and the validation).
+        Recorded command, command units (used for the start and the validation).
     w : numpy.ndarray or None
-        Additive command input, command units.
+        Additive command input as the plant receives it, command units.
+    u_contains_w : bool
+        Whether the recorded u already holds w: u = u_c + w, the controller's output u_c with
+        the input added, clipped with it, F = G·sat(u) (as the EMPS benchmark's validation
+        record is made; :mod:`phoid.methods.tracking_semantics` measures it); or (the default)
+        u is u_c alone and w is added after the saturation, F = G·(sat(u) + w).
     t0 : float
         Time of the first sample, s.
     name : str
@@ -90,6 +95,7 @@ class TrackingRecord:
     w: np.ndarray | None = None
     t0: float = 0.0
     name: str = "run 1"
+    u_contains_w: bool = False
 
     def __post_init__(self) -> None:
         x = _vector(self.name, "x", self.x)
@@ -100,6 +106,9 @@ class TrackingRecord:
                 object.__setattr__(self, key, _vector(self.name, key, getattr(self, key), x.size))
         if not isinstance(self.controller, SampledController):
             raise ValueError(f"{self.name}: `controller` must be a SampledController")
+        if self.u_contains_w and (self.u is None or self.w is None):
+            raise ValueError(f"{self.name}: u_contains_w needs both the recorded command u and "
+                             "the additive input w")
         for key in ("x", "r"):
             top = float(np.max(np.abs(getattr(self, key))))
             if top > MAX_POSITION:
@@ -113,6 +122,14 @@ class TrackingRecord:
                 f"{self.name}: x: the record has {x.size} samples; the velocity estimator reads "
                 f"{self.controller.taps + 1} and a fit needs at least {need}"
             )
+
+    @property
+    def controller_u(self) -> np.ndarray | None:
+        """The controller's own output u_c as recorded: u, less w where u contains it (None
+        without u), command units."""
+        if self.u is None or not self.u_contains_w:
+            return self.u
+        return self.u - self.w
 
     @property
     def start(self) -> int:
@@ -237,7 +254,8 @@ def replay(record: TrackingRecord, plant: Plant, *, offset: float = 0.0,
     """Simulate a record's loop with given parameters, driven by its reference, from its state.
 
     The simulation starts at :attr:`TrackingRecord.start` s with the recorded positions before
-    it as the estimator's history and, for the delay, the recorded commands before it (or those
+    it as the estimator's history and, for the delay, the recorded commands before it (the
+    controller's own part, :attr:`TrackingRecord.controller_u`, with the recorded w; or those
     the controller computes from the record). The plant's state at the start is (x0, v0),
     by default the recorded x_s and (x_{s+1} − x_{s−1})/(2T).
 
@@ -251,19 +269,21 @@ def replay(record: TrackingRecord, plant: Plant, *, offset: float = 0.0,
     s = record.start
     x_init = record.x[: s + 1].copy()
     x_init[-1] = x0_rec if x0 is None else x0
-    u_hist = (record.u if record.u is not None
-              else controller_commands(record.x, record.r, ctrl))
+    u_hist = record.controller_u
+    if u_hist is None:
+        u_hist = controller_commands(record.x, record.r, ctrl)
     return simulate_tracking(
         plant, ctrl, record.r[s:], offset=offset,
         w=None if record.w is None else record.w[s:],
         x_init=x_init, v0=v0_rec if v0 is None else v0, u_init=u_hist[:s],
+        w_init=None if record.w is None else record.w[:s], w_in_command=record.u_contains_w,
         t0=record.t0 + s * ctrl.sample_time,
     )
 
 
 def fit_tracking(x, r, controller: SampledController, *, u=None, w=None, t0: float = 0.0,
                  fixed: Mapping[str, float] | None = None,
-                 estimate_delay: bool = False) -> TrackingFit:
+                 estimate_delay: bool = False, u_contains_w: bool = False) -> TrackingFit:
     """Identify m, c, k, f_c, f₀ (and τ) of a PD-controlled axis from one tracking record.
 
     Parameters
@@ -284,6 +304,9 @@ def fit_tracking(x, r, controller: SampledController, *, u=None, w=None, t0: flo
         Parameters known and not fitted, e.g. ``{"k": 0.0}`` (keys among m, c, k, fc, offset).
     estimate_delay : bool, default False
         Fit the command delay τ too (bounded to [0, 5T]).
+    u_contains_w : bool, default False
+        Whether the recorded ``u`` already holds ``w`` (u = sat(u_c) + w;
+        :func:`~phoid.methods.tracking_semantics.measure_w_in_u` tells from the record).
 
     Returns
     -------
@@ -295,7 +318,8 @@ def fit_tracking(x, r, controller: SampledController, *, u=None, w=None, t0: flo
         One line naming the argument: mis-shaped or non-finite inputs, a record too short, a
         fixed key that is not a parameter, a loop unstable for the start values.
     """
-    record = TrackingRecord(x=x, r=r, controller=controller, u=u, w=w, t0=t0)
+    record = TrackingRecord(x=x, r=r, controller=controller, u=u, w=w, t0=t0,
+                            u_contains_w=u_contains_w)
     return fit_tracking_runs([record], fixed=fixed, estimate_delay=estimate_delay)
 
 
@@ -512,7 +536,7 @@ def _start_values(records: Sequence[TrackingRecord], fixed: Mapping[str, float])
         u = rec.u if rec.u is not None else controller_commands(rec.x, rec.r, ctrl)
         if ctrl.saturation is not None:
             u = np.clip(u, -ctrl.saturation, ctrl.saturation)
-        if rec.w is not None:
+        if rec.w is not None and not rec.u_contains_w:  # else u holds w already
             u = u + rec.w
         d = round(ctrl.delay / ctrl.sample_time)
         force = ctrl.command_gain * u

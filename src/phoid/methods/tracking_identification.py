@@ -26,26 +26,22 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
 
 from phoid.dynamics.controller import SampledController
-from phoid.dynamics.plant import Plant
 from phoid.errors import IdentificationError
 from phoid.interop.exports import PlantExports
 from phoid.io.units import unit_hint
 from phoid.methods.estimate import Estimate
-from phoid.methods.fit_statistics import difference_noise, fit_blocks, residual_noise_ratio
+from phoid.methods.fit_statistics import difference_noise, fit_blocks
 from phoid.methods.tracking import (
     PARAMETERS,
     UNITS,
     TrackingRecord,
-    check_parameters,
     check_stable,
     fit_tracking_runs,
-    replay,
 )
 from phoid.methods.tracking_delay import (
     delay_warnings,
@@ -54,9 +50,19 @@ from phoid.methods.tracking_delay import (
     misfit_warning,
     validation_misfit,
 )
-from phoid.methods.tracking_validation import validate_tracking
+from phoid.methods.tracking_replay import TrackingReplay, replay_set
+from phoid.methods.tracking_runs import (
+    command_input,
+    input_entries,
+    input_warnings,
+    json_safe,
+    replay_records,
+    run_controller,
+    run_records,
+    validation_entries,
+    validation_noise_ratio,
+)
 from phoid.reports.display import NotebookDisplay
-from phoid.reports.statistics import ratio_text
 
 __all__ = [
     "TrackingIdentification",
@@ -71,6 +77,9 @@ __all__ = [
 
 ESTIMATORS = ("auto", "idim", "output-error")
 _IDIM_NAMES = {"m": "M", "c": "Fv", "fc": "Fc", "offset": "OF", "k": "k"}
+# TrackingReplay, replay_set, run_controller, command_input, validation_entries and
+# validation_noise_ratio live in phoid.methods.tracking_replay and tracking_runs; they are
+# re-exported here, where they were first defined
 
 
 @dataclass(frozen=True, eq=False, repr=False)
@@ -99,6 +108,10 @@ class TrackingIdentification(PlantExports, NotebookDisplay):
         The stated (or assumed) command delay checked against the record
         (:func:`~phoid.methods.tracking_delay.check_delay`); None where the delay was estimated or
         the check was not made.
+    command_inputs : tuple of CommandInput or None
+        Per run, how its additive input w reached the plant — whether the recorded u already
+        contains it, and with what gain, stated or measured
+        (:mod:`phoid.methods.tracking_semantics`); None for a run without w.
     """
 
     estimator: str
@@ -110,6 +123,7 @@ class TrackingIdentification(PlantExports, NotebookDisplay):
     path: Path | None
     warnings: tuple[str, ...]
     delay_check: Any = None
+    command_inputs: tuple[Any, ...] = ()
 
     @property
     def validation(self) -> Any:
@@ -118,21 +132,24 @@ class TrackingIdentification(PlantExports, NotebookDisplay):
 
     def summary(self) -> dict[str, Any]:
         """JSON-ready dict (docs/format.md, "tracking sets"): with each validation's
-        ``residual_noise_ratio`` and the ``covariance``, ``correlation`` and ``statistics``
-        blocks of :meth:`fit_statistics`."""
+        ``residual_noise_ratio``, ``w_in_u`` where a run records an additive input w, and the
+        ``covariance``, ``correlation`` and ``statistics`` blocks of :meth:`fit_statistics`."""
         fit = self.fit.summary()
         fit.pop("warnings", None)
         fit.pop("parameters", None)
-        return _json_safe({
+        out: dict[str, Any] = {
             "method": "tracking",
             "estimator": self.estimator,
             "parameters": {k: e.to_dict() for k, e in self.estimates.items()},
             "delay_source": self.delay_source,
             "fit": fit,
             "validation": validation_entries(self.run_names, self.validations),
-            "warnings": list(self.warnings),
-            **self.fit_statistics(),
-        })
+        }
+        inputs = (input_entries(self.run_names, self.command_inputs)
+                  if self.command_inputs else None)
+        if inputs is not None:
+            out["w_in_u"] = inputs
+        return json_safe({**out, "warnings": list(self.warnings), **self.fit_statistics()})
 
     def residual_noise_ratios(self) -> list[float | None]:
         """Per run: the RMS of the validation's position residual x − x_sim over the record's
@@ -203,121 +220,6 @@ class TrackingIdentification(PlantExports, NotebookDisplay):
         return written
 
 
-def validation_noise_ratio(validation: Any) -> float | None:
-    """RMS of a validation's position residual x − x_sim over the noise level of the recorded
-    x, both in the compared window (:func:`~phoid.methods.fit_statistics.difference_noise`,
-    independent of the model): ≈ 1 when the simulated loop reproduces the record to its
-    noise, ≫ 1 otherwise. None when the noise level is 0 (an exactly quantised still record)."""
-    start, stop = validation.window
-    x = np.asarray(validation.x[start:stop], dtype=float)
-    r = x - np.asarray(validation.x_sim[start:stop], dtype=float)
-    if r.size == 0:
-        return None
-    return residual_noise_ratio(float(np.sqrt(np.mean(r * r))), difference_noise(x))
-
-
-def validation_entries(run_names: Any, validations: Any) -> list[dict[str, Any]]:
-    """The ``validation`` list of a summary: per run ``run``, the validation's own summary and
-    ``residual_noise_ratio`` (:func:`validation_noise_ratio`)."""
-    return [{"run": name, **v.summary(), "residual_noise_ratio": validation_noise_ratio(v)}
-            for name, v in zip(run_names, validations, strict=True)]
-
-
-def _json_safe(value: Any) -> Any:
-    """``value`` with every float that is not finite (an overflowed statistic) as None: the
-    output is strict JSON (docs/format.md, "phoid identify --json")."""
-    if isinstance(value, dict):
-        return {k: _json_safe(q) for k, q in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_json_safe(q) for q in value]
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    return value
-
-
-def run_controller(experiment: Any, run: Any, *, delay: float | None = None) -> SampledController:
-    """The :class:`SampledController` of one run of a tracking set (loop keys, run's gains).
-
-    Parameters
-    ----------
-    experiment : phoid.io.ExperimentSet
-        A tracking set (``[loop]``: sample_time, velocity, cutoff, delay, saturation).
-    run : phoid.io.Run
-        Its run (P, D, gain, command_gain resolved to numbers by the reader).
-    delay : float, optional
-        Command delay τ (s) overriding the set's (None: the set's, or 0 when it has none).
-    """
-    loop = experiment.loop
-    where = f"{experiment.path}: run {run.index} ({run.file})"
-    T = loop.get("sample_time")
-    mean_step = float((run.t[-1] - run.t[0]) / (run.t.size - 1))
-    if T is None:
-        steps = np.diff(run.t)
-        T = mean_step
-        if np.max(np.abs(steps - T)) > 1e-3 * T:
-            raise IdentificationError(
-                f"{where}: t is not uniformly sampled and [loop] sample_time is not given"
-            )
-    elif isinstance(T, (int, float)) and T > 0:
-        # the record holds one sample per controller instant: a period that does not match
-        # t's spacing would scale every time derivative, silently
-        steps = np.diff(run.t)
-        typical = float(np.median(steps))
-        gaps = np.abs(steps - T) > 0.5 * T
-        if abs(typical - T) > 1e-3 * T or (abs(mean_step - T) > 1e-3 * T and not gaps.any()):
-            hint = unit_hint("t", typical / T)
-            raise IdentificationError(
-                f"{where}: t: the samples are {typical:.6g} s apart (median; {mean_step:.6g} s "
-                f"on average) but [loop] sample_time is {T:g} s; the record must hold one "
-                f"sample per controller period{'; ' + hint if hint else ''}"
-            )
-        # every step, not only the typical one: a dropped sample shifts the rest of the
-        # record by a period, which the loop model would take for dynamics
-        bad = np.flatnonzero(gaps)
-        if bad.size:
-            i = int(bad[0]) + 1
-            gap = float(run.t[i] - run.t[i - 1])
-            raise IdentificationError(
-                f"{where}: t: samples {i} and {i + 1} (1-based) are {gap:.6g} s apart, not one "
-                f"controller period {T:g} s ({bad.size} such gap(s)): a dropped or repeated "
-                "sample; the record must hold one sample per controller period"
-            )
-    velocity = loop.get("velocity", "backward-difference")
-    if isinstance(velocity, list):
-        velocity = tuple(velocity)
-    tau = loop.get("delay") if delay is None else delay
-    span = float(run.t[-1] - run.t[0])
-    if isinstance(tau, (int, float)) and math.isfinite(tau) and tau > span:
-        # a command that reaches the plant only after the record ends: nothing to fit, and
-        # the simulator would hold a history of τ/T commands
-        raise IdentificationError(
-            f"{where}: the command delay {tau:g} s exceeds the record's length {span:g} s: "
-            "the plant would not see the controller's command within the record (the delay is "
-            "in s, and so is t unless the manifest's [units] t says otherwise)"
-        )
-    try:
-        return SampledController(
-            sample_time=T, P=run.P, D=run.D,
-            gain=1.0 if run.gain is None else run.gain,
-            command_gain=1.0 if run.command_gain is None else run.command_gain,
-            velocity=velocity, cutoff=loop.get("cutoff"),
-            delay=0.0 if tau is None else tau, saturation=loop.get("saturation"),
-        )
-    except ValueError as exc:
-        raise IdentificationError(f"{where}: {exc}") from None
-
-
-def command_input(experiment: Any, run: Any, ctrl: SampledController) -> np.ndarray | None:
-    """A run's additive input w in command units: as recorded, or, with ``[loop] w_unit =
-    "N"`` (a force added to the plant's input, like the EMPS benchmark's ``pulses_N``), divided
-    by the command gain G (F = G·(sat(u) + w/G))."""
-    if run.w is None:
-        return None
-    if experiment.loop.get("w_unit", "command") == "N":
-        return run.w / ctrl.command_gain
-    return run.w
-
-
 def identify_tracking(experiment: Any, *, delay: float | None = None,
                       estimator: str | None = None,
                       check_delay: bool = True) -> TrackingIdentification:
@@ -364,7 +266,7 @@ def identify_tracking(experiment: Any, *, delay: float | None = None,
     warnings: list[str] = []
     idim_records: tuple[TrackingRecord, ...] = ()  # the records, once IDIM has run on them
     try:
-        records = _records(experiment, runs, ctrls)
+        records, inputs = run_records(experiment, runs, ctrls)
         if choice == "idim":
             estimates, fit, source = _idim(where, records, fixed, given)
         else:
@@ -373,11 +275,12 @@ def identify_tracking(experiment: Any, *, delay: float | None = None,
         values = _simulable(estimates, warnings)
         # the loop as estimated (a negative c or k as it is: the message shows the estimates)
         check_stable(records, {k: e.value for k, e in estimates.items()}, "the estimates")
-        validations = [v for _, v in _replay_all(records, values)]
+        validations = [v for _, v in replay_records(records, values)]
     except ValueError as exc:
         hint = _delay_hint(str(exc), delay, given, ctrls) + idim_noise_hint(idim_records)
         raise IdentificationError(f"{where}: {exc}{hint}") from None
-    warnings = [*fit.warnings, *warnings]  # the estimator's first, then the simulation's
+    # the estimator's first, then how w reaches the plant, then the simulation's
+    warnings = [*fit.warnings, *input_warnings(records, inputs), *warnings]
     if source == "assumed-zero":
         warnings.append("no command delay given ([loop] delay): the validation simulates the "
                         "loop with delay 0")
@@ -414,163 +317,7 @@ def identify_tracking(experiment: Any, *, delay: float | None = None,
         estimator=choice, estimates=estimates, delay_source=source, fit=fit,
         validations=tuple(validations), run_names=tuple(rec.name for rec in records),
         path=getattr(experiment, "path", None), warnings=tuple(warnings),
-        delay_check=checked,
-    )
-
-
-@dataclass(frozen=True, eq=False, repr=False)
-class TrackingReplay(NotebookDisplay):
-    """The result of :func:`replay_set`: each run simulated with given parameters and compared.
-
-    Attributes
-    ----------
-    parameters : Mapping[str, float]
-        m (kg), c (N s/m), k (N/m), fc (N), offset (N), delay (s) simulated.
-    simulations : tuple of TrackingSimulation
-    validations : tuple of TrackingValidation
-    run_names : tuple of str
-    path : Path or None
-    warnings : tuple of str
-    """
-
-    parameters: Mapping[str, float]
-    simulations: tuple[Any, ...]
-    validations: tuple[Any, ...]
-    run_names: tuple[str, ...]
-    path: Path | None
-    warnings: tuple[str, ...]
-    _inputs: tuple[Any, ...] = ()
-
-    @property
-    def validation(self) -> Any:
-        """The first run's validation."""
-        return self.validations[0]
-
-    def summary(self) -> dict[str, Any]:
-        """JSON-ready dict: the parameters and each run's validation."""
-        return _json_safe({
-            "parameters": {k: float(v) for k, v in self.parameters.items()},
-            "validation": validation_entries(self.run_names, self.validations),
-            "warnings": list(self.warnings),
-        })
-
-    def report(self) -> str:
-        """Plain text: the parameters and each run's relative errors."""
-        from phoid.reports.tracking import validation_lines
-
-        p = self.parameters
-        lines = [f"phoid replay of {self.path}: the loop simulated with m = {p['m']:.6g} kg, "
-                 f"c = {p['c']:.6g} N s/m, k = {p['k']:.6g} N/m, fc = {p['fc']:.6g} N, offset = "
-                 f"{p['offset']:.6g} N, delay = {p['delay'] * 1e3:.6g} ms, driven by the "
-                 "recorded reference from the recorded state"]
-        for name, v in zip(self.run_names, self.validations, strict=True):
-            q = validation_noise_ratio(v)
-            lines += ["", f"{name}:", *validation_lines(v),
-                      "  position residual / noise (noise from the record's third "
-                      f"differences): {ratio_text(q)}"]
-        if self.warnings:
-            lines += ["", "warnings:"] + [f"  - {w}" for w in self.warnings]
-        return "\n".join(lines)
-
-    def plot(self, folder: str | Path, *, overwrite: bool = False) -> list[Path]:
-        """One PNG per run (measured vs simulated, residual, force) into ``folder``."""
-        from phoid.reports.tracking import plot_tracking
-
-        folder = Path(folder)
-        return [plot_tracking(v, folder / f"tracking_run{i:02d}.png", overwrite=overwrite)
-                for i, v in enumerate(self.validations, start=1)]
-
-    def write(self, folder: str | Path, *, gzip: bool = True, overwrite: bool = False) -> Path:
-        """Write the simulated runs as a tracking set (``phoid/1``) into ``folder``.
-
-        Columns t, x (simulated), r, u (the simulated command, before saturation) and w; each
-        run's gains and the loop as simulated; the parameters as the table ``[simulated]``
-        (with ``replay_of``, the recorded set's manifest). Returns the manifest's path.
-        """
-        from phoid.io import run_from_arrays, write_experiment
-
-        runs = []
-        for i, (sim, w) in enumerate(zip(self.simulations, self._inputs, strict=True), start=1):
-            ctrl = sim.controller
-            runs.append(run_from_arrays(sim.t, sim.x, r=sim.r, u=sim.command, w=w, P=ctrl.P,
-                                        D=ctrl.D, gain=ctrl.gain, command_gain=ctrl.command_gain,
-                                        index=i))
-        ctrl = self.simulations[0].controller
-        loop = {"sample_time": ctrl.sample_time, "delay": ctrl.delay,
-                "velocity": (ctrl.velocity if isinstance(ctrl.velocity, str)
-                             else list(ctrl.velocity))}
-        if ctrl.cutoff is not None:
-            loop["cutoff"] = ctrl.cutoff
-        if ctrl.saturation is not None:
-            loop["saturation"] = ctrl.saturation
-        simulated = {k: float(v) for k, v in self.parameters.items()}
-        if self.path is not None:
-            simulated["replay_of"] = str(self.path)
-        return write_experiment(folder, runs, method="tracking", loop=loop,
-                                extra={"simulated": simulated}, gzip=gzip,
-                                overwrite=overwrite,
-                                title="phoid simulate --replay: the loop simulated with given "
-                                      "parameters, driven by a recorded reference")
-
-
-def replay_set(experiment: Any, parameters: Mapping[str, float]) -> TrackingReplay:
-    """Simulate every run of a tracking set with given parameters and compare with the record.
-
-    Each run's loop (its gains, the set's ``[loop]``) is driven by the recorded reference from
-    the recorded state (:func:`~phoid.methods.tracking.replay`) and validated
-    (:func:`~phoid.methods.tracking_validation.validate_tracking`: the benchmark's relative
-    errors). Use it to validate a model identified on another record of the same axis.
-
-    Parameters
-    ----------
-    experiment : phoid.io.ExperimentSet
-        A ``method = "tracking"`` set.
-    parameters : mapping
-        ``m`` (kg, required), ``c`` (N s/m), ``k`` (N/m), ``fc`` (N), ``offset`` (N), each 0 when
-        absent, and ``delay`` (s; absent: the set's ``[loop] delay``, else 0).
-
-    Returns
-    -------
-    TrackingReplay
-
-    Raises
-    ------
-    IdentificationError
-        One line naming the set: an unknown parameter, a loop that diverges, …
-    """
-    where = str(experiment.path)
-    unknown = sorted(set(parameters) - set(PARAMETERS))
-    if unknown:
-        raise IdentificationError(f"{where}: unknown parameter(s) {', '.join(unknown)}; the "
-                                  f"parameters are {', '.join(PARAMETERS)}")
-    if "m" not in parameters:
-        raise IdentificationError(f"{where}: the mass m is needed to simulate the loop")
-    delay = parameters.get("delay", experiment.loop.get("delay")) or 0.0
-    values = {"c": 0.0, "k": 0.0, "fc": 0.0, "offset": 0.0, **parameters}
-    try:
-        # each value checked by name before any arithmetic (m = 0 divided in the loop's poles)
-        values = check_parameters({**values, "delay": delay})
-    except ValueError as exc:
-        raise IdentificationError(f"{where}: {exc}") from None
-    runs = experiment.runs
-    ctrls = [run_controller(experiment, r, delay=delay) for r in runs]  # errors name the run
-    unstable: list[str] = []
-    try:
-        records = _records(experiment, runs, ctrls)
-        try:
-            check_stable(records, values, "these parameters")
-        except ValueError as exc:  # simulated all the same: the user asked for this loop
-            unstable.append(f"{exc}; the replay shows it")
-        pairs = _replay_all(records, values)
-    except ValueError as exc:
-        raise IdentificationError(f"{where}: {exc}") from None
-    warnings = unstable + [f"{rec.name}: {w}" for rec, (_, v) in zip(records, pairs, strict=True)
-                           for w in v.warnings]
-    return TrackingReplay(
-        parameters=values, simulations=tuple(s for s, _ in pairs),
-        validations=tuple(v for _, v in pairs), run_names=tuple(r.name for r in records),
-        path=getattr(experiment, "path", None), warnings=tuple(warnings),
-        _inputs=tuple(None if rec.w is None else rec.w[rec.start:] for rec in records),
+        delay_check=checked, command_inputs=inputs,
     )
 
 
@@ -586,15 +333,6 @@ def _delay_hint(message: str, option: float | None, given: Any, ctrls) -> str:
     return (f"; or the command delay is wrong: {name} {float(given) * 1e3:g} ms is "
             f"{float(given) / T:.4g} controller periods (a delay the record does not have "
             "destabilises the simulated loop and biases the estimates)")
-
-
-def _records(experiment, runs, ctrls) -> tuple[TrackingRecord, ...]:
-    """The runs as :class:`TrackingRecord` (a ValueError names the run)."""
-    return tuple(
-        TrackingRecord(x=r.x, r=r.r, controller=c, u=r.u, w=command_input(experiment, r, c),
-                       t0=float(r.t[0]), name=f"run {r.index} ({r.file})")
-        for r, c in zip(runs, ctrls, strict=True)
-    )
 
 
 def _scale_mismatch(rec: TrackingRecord) -> str:
@@ -648,50 +386,6 @@ def _simulable(estimates: Mapping[str, Estimate], warnings: list[str]) -> dict[s
     return values
 
 
-# the most sub-steps per controller period that a replay accepts (below)
-_MAX_STEPS_PER_PERIOD = 1000
-
-
-def _replay_all(records, values):
-    """(simulation, validation) of each record with the parameter values given."""
-    plant = Plant(m=values["m"], c=values["c"], k=values["k"], fc=values["fc"])
-    out = []
-    for rec in records:
-        _check_resolvable(rec, values)
-        ctrl = rec.controller.with_delay(values["delay"])
-        try:
-            sim = replay(rec, plant, offset=values["offset"], controller=ctrl)
-        except (OverflowError, FloatingPointError) as exc:
-            raise ValueError(
-                f"{rec.name}: the loop cannot be simulated with m = {values['m']:.4g} kg, c = "
-                f"{values['c']:.4g} N s/m, k = {values['k']:.4g} N/m, fc = {values['fc']:.4g} N "
-                f"(the arithmetic overflows: {exc}); the parameters are out of any physical "
-                "range for this loop"
-            ) from None
-        out.append((sim, _validate(rec, sim)))
-    return out
-
-
-def _check_resolvable(rec: TrackingRecord, values: Mapping[str, float]) -> None:
-    """A ValueError when the plant oscillates so much faster than the loop samples that the
-    exact simulator, which steps each period in quarter damped periods π/(2ω_d), ω_d² = k/m −
-    (c/2m)², would need more than ``_MAX_STEPS_PER_PERIOD`` steps per period (a stiffness of
-    1e18 N/m on 2 kg at 1 kHz: 5·10⁵ per period, minutes per record; 1e300: never ending)."""
-    T = rec.controller.sample_time
-    with np.errstate(over="ignore", invalid="ignore"):
-        m, c, k = np.float64(values["m"]), np.float64(values["c"]), np.float64(values["k"])
-        wd2 = k / m - (c / (2.0 * m)) ** 2
-        steps = 2.0 * np.sqrt(wd2) * T / math.pi if wd2 > 0 else 0.0
-    if not steps <= _MAX_STEPS_PER_PERIOD:
-        raise ValueError(
-            f"{rec.name}: the plant with m = {values['m']:.4g} kg, c = {values['c']:.4g} N s/m, "
-            f"k = {values['k']:.4g} N/m oscillates at ω_d = {math.sqrt(wd2):.4g} rad/s, "
-            f"{steps:.3g} quarter periods per controller period T = {T:g} s (at most "
-            f"{_MAX_STEPS_PER_PERIOD} are simulated): the parameters are out of any range this "
-            "loop can show"
-        )
-
-
 def _clipped(rec: TrackingRecord) -> int:
     """Samples of a recorded command u that sit on its extreme value in runs of ≥ 3 (a clipped
     command: the amplifier's limit, undeclared), or 0."""
@@ -717,8 +411,8 @@ def _idim(where, records, fixed, given):
         if flat:
             raise ValueError(
                 f"{rec.name}: u: the recorded command sits on its extreme value "
-                f"±{np.max(np.abs(rec.u)):.6g} for {flat} samples, as a saturated command "
-                "does; declare the saturation ([loop] saturation) and use estimator = "
+                f"±{np.max(np.abs(rec.u)):.6g} for {flat} samples, as a saturated "
+                "command does; declare the saturation ([loop] saturation) and use estimator = "
                 "'output-error', which models it"
             )
         if ctrl.saturation is not None:
@@ -730,7 +424,9 @@ def _idim(where, records, fixed, given):
                     "G·u; IDIM cannot use such a record (use estimator = 'output-error', "
                     "which models the saturation)"
                 )
-        force = ctrl.command_gain * (rec.u + (0.0 if rec.w is None else rec.w))
+        # G·(u + w): the recorded u, and w unless u already contains it (counted once)
+        force = ctrl.command_gain * (rec.u + (0.0 if rec.w is None or rec.u_contains_w
+                                              else rec.w))
         force = _delayed(force, ctrl)
         t = rec.t0 + ctrl.sample_time * np.arange(rec.x.size)
         rows.append((t, rec.x, force))
@@ -773,28 +469,3 @@ def _output_error(where, records, fixed, given):
         )
     source = "given" if given is not None else fit.delay_status
     return dict(fit.estimates), fit, source
-
-
-def _validate(rec: TrackingRecord, sim: Any) -> Any:
-    """The benchmark's validation (its samples 50:end; a record shorter than 200 samples from
-    its first quarter on) in the record's own sample numbering.
-
-    The simulation starts at the record's sample s (the estimator's taps); the s samples before
-    it are outside the compared window anyway (s ≤ 49 for every preset; a longer filter moves
-    the window's start to s).
-    """
-    s = rec.start
-    ctrl = rec.controller
-    n = rec.x.size
-    t = rec.t0 + ctrl.sample_time * np.arange(n)
-    pad = np.zeros(s)
-    full = SimpleNamespace(
-        t=np.concatenate((t[:s], sim.t)), x=np.concatenate((rec.x[:s], sim.x)),
-        v=np.concatenate((pad, sim.v)), force=np.concatenate((pad, sim.force)),
-        saturated=np.concatenate((np.zeros(s, dtype=bool), sim.saturated)),
-    )
-    return validate_tracking(
-        t, rec.x, rec.r, full, u=rec.u, w=None if rec.u is None else rec.w,
-        command_gain=ctrl.command_gain, saturation=ctrl.saturation,
-        cutoff=min(100.0, 0.1 / ctrl.sample_time), trim=(max(min(49, n // 4), s), 0),
-    )

@@ -88,7 +88,8 @@ class TrackingValidation(NotebookDisplay):
         Measured velocity (``velocity_estimator`` applied to x) and the simulated plant's
         velocity, m/s.
     force : numpy.ndarray or None, shape (n,)
-        Measured force G·(u + w) (u clipped to ±saturation when given), N; None without u.
+        Measured force G·(sat(u) + w) (sat: the clip to ±saturation when given; G·sat(u) where
+        u already contains w), N; None without u.
     force_sim : numpy.ndarray, shape (n,)
         Simulated force, N.
     window : (int, int)
@@ -270,8 +271,8 @@ def _check_scalars(command_gain: Any, saturation: Any, velocity: Any, cutoff: An
 def validate_tracking(t: Any, x: Any, r: Any, sim: Any, *, u: Any = None, w: Any = None,
                       command_gain: float = 1.0, saturation: float | None = None,
                       velocity: str = "butterworth-central", cutoff: float = 100.0,
-                      order: int = 4, trim: int | tuple[int, int] = (49, 0)
-                      ) -> TrackingValidation:
+                      order: int = 4, trim: int | tuple[int, int] = (49, 0),
+                      u_contains_w: bool = False) -> TrackingValidation:
     """Compare a simulated tracking record with the measured one, as the EMPS benchmark does.
 
     For each signal y (measured) and ŷ (simulated), over the samples ``start:stop`` that
@@ -287,7 +288,9 @@ def validate_tracking(t: Any, x: Any, r: Any, sim: Any, *, u: Any = None, w: Any
     * the velocity: y = the velocity estimated from x (below), ŷ = sim.v, the simulated plant's
       velocity (m/s);
     * the force, when ``u`` is given: y = G·(sat(u) + w), ŷ = sim.force (N), G the command gain
-      and sat the clip to ±``saturation`` (none when None), the loop's force law.
+      and sat the clip to ±``saturation`` (none when None), the loop's force law; with
+      ``u_contains_w`` (the recorded u already holds w) y = G·(sat(u − w) + w), which is G·u
+      while the controller's part does not saturate.
 
     The velocity is estimated as the benchmark's simulation script does: x filtered forward and
     backward by a Butterworth low-pass of ``order`` at ``cutoff`` Hz (MATLAB ``filtfilt``'s
@@ -312,7 +315,7 @@ def validate_tracking(t: Any, x: Any, r: Any, sim: Any, *, u: Any = None, w: Any
     u : array_like or None, shape (n,)
         Recorded command, command units (e.g. V); None: no force comparison.
     w : array_like or None, shape (n,)
-        Recorded additive command input, command units (needs ``u``).
+        Recorded additive command input as the plant receives it, command units (needs ``u``).
     command_gain : float
         G, N per command unit (e.g. the EMPS ``gtau``, N/V).
     saturation : float or None
@@ -326,6 +329,9 @@ def validate_tracking(t: Any, x: Any, r: Any, sim: Any, *, u: Any = None, w: Any
     trim : int or (int, int)
         Samples left out of the errors at the start and at the end (an int: at both ends). The
         default (49, 0) is the benchmark's: it compares the samples 50:end (MATLAB, 1-based).
+    u_contains_w : bool, default False
+        Whether the recorded ``u`` already holds ``w`` (then ``w`` is not added again;
+        :func:`~phoid.methods.tracking_semantics.measure_w_in_u` tells from the record).
 
     Returns
     -------
@@ -339,7 +345,8 @@ def validate_tracking(t: Any, x: Any, r: Any, sim: Any, *, u: Any = None, w: Any
     ValueError
         One line naming the argument: lengths differ, a record not one-dimensional or not
         finite, t not uniform or sim.t not on t's instants (more than half a sample apart), w
-        without u, a cut-off at or above Nyquist, a record too short for the filter or the trim.
+        without u, a cut-off at or above Nyquist, a record too short for the filter or the
+        trim.
 
     Examples
     --------
@@ -390,7 +397,9 @@ def validate_tracking(t: Any, x: Any, r: Any, sim: Any, *, u: Any = None, w: Any
         if saturation is not None:
             command = np.clip(command, -saturation, saturation)
         if w is not None:
-            command = command + _vector("w", w, n)
+            wv = _vector("w", w, n)
+            if not u_contains_w:
+                command = command + wv
         force = command_gain * command
 
     v, estimator = _measured_velocity(x, dt, velocity, float(cutoff), int(order))

@@ -2,7 +2,8 @@ r"""The sampled PD loop tracking a reference, simulated exactly (stick–slip in
 
 The loop is :class:`~phoid.dynamics.controller.SampledController`'s: at each controller instant
 t_n = t₀ + nT the controller reads x_n, estimates the velocity, issues
-F_n = G·(sat(K·(P·(r_n − x_n) − D·v̂_n)) + w_n), and the plant
+F_n = G·(sat(K·(P·(r_n − x_n) − D·v̂_n)) + w_n) (or, with the additive input w in the command,
+F_n = G·sat(K·(P·(r_n − x_n) − D·v̂_n) + w_n)), and the plant
 
     m ẍ + c ẋ + k x + f_c sign(ẋ) + f₀ = F(t)            (seed eq. 1, Coulomb friction, offset)
 
@@ -56,9 +57,10 @@ class TrackingSimulation:
     v : numpy.ndarray, shape (N,)
         Plant velocity at the instants, m/s.
     command : numpy.ndarray, shape (N,)
-        Controller output u_n before saturation, command units.
+        Controller output u_n before saturation, command units (w_n included when
+        ``w_in_command``).
     force : numpy.ndarray, shape (N,)
-        F_n = G·(sat(u_n) + w_n), N (applied τ later).
+        F_n = G·(sat(u_n) + w_n), or G·sat(u_n) when ``w_in_command``, N (applied τ later).
     saturated : numpy.ndarray of bool, shape (N,)
         Where |u_n| exceeded the saturation.
     r : numpy.ndarray, shape (N,)
@@ -70,6 +72,8 @@ class TrackingSimulation:
     controller : SampledController
     plant : tuple of float
         (m, c, k, f_c, f₀) simulated: kg, N·s/m, N/m, N, N.
+    w_in_command : bool
+        Whether w was added into the command, before the saturation.
     """
 
     t: np.ndarray
@@ -83,6 +87,7 @@ class TrackingSimulation:
     reversals: int
     controller: SampledController
     plant: tuple[float, float, float, float, float]
+    w_in_command: bool = False
 
 
 def simulate_tracking(
@@ -95,6 +100,8 @@ def simulate_tracking(
     x_init=None,
     v0: float = 0.0,
     u_init=None,
+    w_init=None,
+    w_in_command: bool = False,
     t0: float = 0.0,
 ) -> TrackingSimulation:
     """Simulate the sampled PD loop driven by a reference (module docstring: model, exactness).
@@ -122,6 +129,14 @@ def simulate_tracking(
         Commands u_{−J}, …, u_{−1} (before saturation) issued before t₀, oldest first, which the
         delay still applies after t₀; earlier ones repeat the oldest. Default: u₀ repeated (the
         controller had been issuing its first command).
+    w_init : array_like, optional
+        The additive inputs issued with ``u_init`` (command units, oldest first, aligned with
+        its last values; earlier ones repeat the oldest). Default 0: the commands before t₀
+        carried no additive input.
+    w_in_command : bool, default False
+        Where w enters: after the saturation (False: F_n = G·(sat(u_n) + w_n)), or into the
+        command itself, clipped with it (True: u_n = K·(…) + w_n, F_n = G·sat(u_n); a
+        controller that adds the input to its output, whose recorded u then holds w).
     t0 : float, default 0
         Time of the first instant, s.
 
@@ -174,7 +189,22 @@ def simulate_tracking(
         uh = _vector("u_init", u_init)
         if uh.size < d + 1:
             uh = np.concatenate((np.full(d + 1 - uh.size, uh[0]), uh))
-    Fpast = [G * min(max(float(q), -umax), umax) for q in uh[-(d + 1):]]
+    wh = np.zeros(uh.size)
+    if w_init is not None:
+        wi = _vector("w_init", w_init)
+        if wi.size:
+            k = min(wi.size, wh.size)
+            wh[wh.size - k:] = wi[wi.size - k:]
+            wh[: wh.size - k] = wi[0]
+    if w_in_command:
+        Fpast = [G * min(max(float(q) + float(p), -umax), umax)
+                 for q, p in zip(uh[-(d + 1):], wh[-(d + 1):], strict=True)]
+    else:
+        Fpast = [G * (min(max(float(q), -umax), umax) + float(p))
+                 for q, p in zip(uh[-(d + 1):], wh[-(d + 1):], strict=True)]
+    # w after the saturation (added to the clipped command) or in the command (clipped with it)
+    w_after = [0.0] * N if w_in_command else w.tolist()
+    w_before = w.tolist() if w_in_command else [0.0] * N
 
     pieces = [phi, T - phi] if phi > 0 else [T]
     body = ExactPlant(plant, offset=f0, x0=float(xh[-1]), v0=v0)
@@ -189,7 +219,6 @@ def simulate_tracking(
     # applied-force queue: F_{n−d−1}, …, F_{n−1} before F_n is issued
     queue = list(Fpast)
     rl = r.tolist()
-    wl = w.tolist()
     b0 = float(b[0])
     bl = [float(q) for q in b[1:]]
     al = [float(q) / float(a[0]) for q in a[1:]]
@@ -220,7 +249,7 @@ def simulate_tracking(
             if bl:
                 xs.append(x)
                 del xs[0]
-            u = K * (P * (rl[n] - x) - D * acc)
+            u = K * (P * (rl[n] - x) - D * acc) + w_before[n]
             u_out[n] = u
             if u > umax:
                 us = umax
@@ -230,7 +259,7 @@ def simulate_tracking(
                 sat[n] = True
             else:
                 us = u
-            F = G * (us + wl[n])
+            F = G * (us + w_after[n])
             F_out[n] = F
             queue.append(F)
             if n == N - 1:
@@ -250,7 +279,7 @@ def simulate_tracking(
     return TrackingSimulation(
         t=t, x=x_out, v=v_out, command=u_out, force=F_out, saturated=sat, r=r,
         stuck=int(stuck_periods), reversals=int(body.reversals), controller=ctrl,
-        plant=(m, c, k, fc, f0),
+        plant=(m, c, k, fc, f0), w_in_command=bool(w_in_command),
     )
 
 
