@@ -8,17 +8,18 @@ result by duck typing.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
 from phoid.fits import DecayFit
 from phoid.interop.exports import LoopExports
 from phoid.methods.estimate import Estimate
-from phoid.methods.fit_statistics import fit_blocks, residual_noise_ratio, window_noise
-from phoid.methods.pho import MCKFit, open_loop_omega0, open_loop_zeta
-from phoid.reports.display import NotebookDisplay
+from phoid.methods.fit_statistics import residual_noise_ratio, window_noise
+from phoid.methods.pho import MCKFit
+from phoid.methods.result_base import PlantResult
 
 __all__ = ["Identification", "RunMode"]
 
@@ -99,8 +100,12 @@ class RunMode:
 
 
 @dataclass(frozen=True, repr=False)
-class Identification(LoopExports, NotebookDisplay):
+class Identification(PlantResult, LoopExports):
     """Result of :func:`phoid.identify`: m, c, k with uncertainties, per-run modes, warnings.
+
+    The shared fields (``warnings``, ``source``, ``data``, ``adequacy``), ``omega0``, ``zeta``,
+    ``cov``, ``estimates``, ``report()`` and ``plot()`` come from
+    :class:`~phoid.methods.result_base.PlantResult`.
 
     Attributes
     ----------
@@ -137,28 +142,14 @@ class Identification(LoopExports, NotebookDisplay):
     delay_source: str
     runs: tuple[RunMode, ...]
     fit: MCKFit
-    warnings: tuple[str, ...] = ()
-    source: str = ""
     delay_stderr: float | None = None
     digital: Any = None
-    data: tuple[tuple[np.ndarray, np.ndarray], ...] = field(default=(), repr=False)
     delay_from: str | None = None
     u: tuple[np.ndarray | None, ...] = field(default=(), repr=False)
 
-    @property
-    def cov(self) -> np.ndarray:
-        """(3, 3) covariance of (m, c, k)."""
-        return self.fit.cov
-
-    @property
-    def omega0(self) -> Estimate:
-        """Open-loop natural frequency ω₀ = √(k/m), rad/s (eq. 5), delta-method stderr."""
-        return open_loop_omega0(self.m.value, self.k.value, self.cov)
-
-    @property
-    def zeta(self) -> Estimate:
-        """Open-loop damping ratio ζ = c/(2√(mk)) (eq. 10), delta-method stderr."""
-        return open_loop_zeta(self.m.value, self.c.value, self.k.value, self.cov)
+    METHOD: ClassVar[str] = "pho"
+    REPORT: ClassVar[str] = "phoid.reports.text:identification_text"
+    FIGURES: ClassVar[str] = "phoid.reports.figures:plot_identification"
 
     def summary(self) -> dict[str, Any]:
         """The JSON object of ``phoid identify --json`` (docs/format.md).
@@ -170,16 +161,13 @@ class Identification(LoopExports, NotebookDisplay):
         ``correlation`` and ``statistics`` are :meth:`fit_statistics`.
         """
         out: dict[str, Any] = {
-            "method": "pho",
-            "m": self.m.to_dict(),
-            "c": self.c.to_dict(),
-            "k": self.k.to_dict(),
+            "method": self.METHOD,
+            **self.estimate_entries(),
             "delay": {"value": float(self.delay),
                       "stderr": None if self.delay_stderr is None else float(self.delay_stderr),
                       "unit": "s", "source": self.delay_source}
             | ({"from": self.delay_from} if self.delay_from else {}),
-            "runs": [r.to_dict() | {"residual_noise_ratio": q}
-                     for r, q in zip(self.runs, self.residual_noise_ratios(), strict=True)],
+            "runs": self.run_entries(),
             "warnings": list(self.warnings),
         }
         if self.digital is not None:
@@ -188,13 +176,7 @@ class Identification(LoopExports, NotebookDisplay):
             out["loop"] = {"model": "digital", "sample_time": g.sample_time,
                            "delay_samples": g.delay_samples, "velocity": g.velocity,
                            "cutoff": g.cutoff}
-        w0 = self.omega0
-        if math.isfinite(w0.value):
-            out["omega0"] = w0.to_dict()
-        z = self.zeta
-        if math.isfinite(z.value):
-            out["zeta"] = z.to_dict()
-        return out | self.fit_statistics()
+        return out | self.derived_entries() | self.adequacy_entry() | self.fit_statistics()
 
     def residual_noise_ratios(self) -> list[float | None]:
         """Per run: the RMS of its decay fit's residual over the record's noise level estimated
@@ -212,8 +194,10 @@ class Identification(LoopExports, NotebookDisplay):
                                             window_noise(t, x, f.t_start, f.t_end)))
         return out
 
-    def fit_statistics(self) -> dict[str, Any]:
-        """The ``covariance``, ``correlation`` and ``statistics`` blocks of :meth:`summary`.
+    def statistics_of(self) -> tuple[Sequence[str], Sequence[str], np.ndarray,
+                                     float | None, int | None, str]:
+        """The parameters of the ``covariance``, ``correlation`` and ``statistics`` blocks of
+        :meth:`summary` (:meth:`~phoid.methods.result_base.ResultBase.fit_statistics`).
 
         The parameters are m (kg), c (N s/m), k (N/m), and the delay Δt (s) when it was
         estimated with them. χ² is that of the set's fit: for the weighted estimator (``gls``)
@@ -237,22 +221,5 @@ class Identification(LoopExports, NotebookDisplay):
                 of = ("the weighted fit of the runs' modes (sigma_i, omega_d_i) through the "
                       "exact loop roots (eq. 35) and of the delays of the runs' joint x-u fits, "
                       "each weighted by its own fit's variance")
-            return fit_blocks(names, units, cov, fit.chi2, fit.dof, of=of)
-        return fit_blocks(names, units, cov, None, None,
-                          of="not computed: the paper's OLS lines of eq. (35)")
-
-    def report(self) -> str:
-        """A plain-text report: estimates with ± one stderr, per-run table, warnings."""
-        from phoid.reports.text import identification_text
-
-        return identification_text(self)
-
-    def plot(self, out_dir: str | Any, *, overwrite: bool = False) -> list:
-        """Write per-run decay fits with residuals and the two eq. (35) lines as PNG files.
-
-        Existing files are replaced only with ``overwrite``; links in ``out_dir`` are refused
-        (:func:`phoid.reports.figures.plot_identification`). Returns the list of paths written.
-        """
-        from phoid.reports.figures import plot_identification
-
-        return plot_identification(self, out_dir, overwrite=overwrite)
+            return names, units, cov, fit.chi2, fit.dof, of
+        return names, units, cov, None, None, "not computed: the paper's OLS lines of eq. (35)"

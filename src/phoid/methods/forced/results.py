@@ -3,19 +3,17 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
-from phoid.interop.exports import PlantExports
 from phoid.methods._modal import release_basis
 from phoid.methods.estimate import Estimate
-from phoid.methods.fit_statistics import fit_blocks, residual_noise_ratio, window_noise
+from phoid.methods.fit_statistics import residual_noise_ratio, window_noise
 from phoid.methods.forced.stiffness import ResponseFit
-from phoid.methods.pho import open_loop_omega0, open_loop_zeta
-from phoid.reports.display import NotebookDisplay
+from phoid.methods.result_base import PlantResult
 
 __all__ = ["ForcedIdentification", "ForcedRun"]
 
@@ -128,8 +126,12 @@ class ForcedRun:
 
 
 @dataclass(frozen=True, repr=False)
-class ForcedIdentification(PlantExports, NotebookDisplay):
+class ForcedIdentification(PlantResult):
     """Result of :func:`identify_forced`: m, c, k with uncertainties, per-run R and ρ.
+
+    The shared fields (``warnings``, ``source``, ``data``: each run's (t, x, F), ``adequacy``),
+    ``omega0``, ``zeta``, ``cov``, ``estimates``, ``report()`` and ``plot()`` come from
+    :class:`~phoid.methods.result_base.PlantResult`.
 
     Attributes
     ----------
@@ -153,24 +155,10 @@ class ForcedIdentification(PlantExports, NotebookDisplay):
     runs: tuple[ForcedRun, ...]
     transient: tuple[float, float] = (math.nan, math.nan)
     transient_fitted: bool = False
-    warnings: tuple[str, ...] = ()
-    source: str = ""
-    data: tuple[tuple[np.ndarray, np.ndarray, np.ndarray], ...] = field(default=(), repr=False)
 
-    @property
-    def cov(self) -> np.ndarray:
-        """(3, 3) covariance of (m, c, k)."""
-        return self.fit.cov
-
-    @property
-    def omega0(self) -> Estimate:
-        """ω₀ = √(k/m), rad/s (eq. 5), delta-method stderr."""
-        return open_loop_omega0(self.m.value, self.k.value, self.cov)
-
-    @property
-    def zeta(self) -> Estimate:
-        """ζ = c/(2√(mk)) (eq. 10), delta-method stderr."""
-        return open_loop_zeta(self.m.value, self.c.value, self.k.value, self.cov)
+    METHOD: ClassVar[str] = "forced"
+    REPORT: ClassVar[str] = "phoid.reports.text:forced_text"
+    FIGURES: ClassVar[str] = "phoid.reports.figures:plot_forced"
 
     def summary(self) -> dict[str, Any]:
         """The JSON object of ``phoid identify --json`` for a forced set.
@@ -182,20 +170,8 @@ class ForcedIdentification(PlantExports, NotebookDisplay):
         ``warnings``, and ``covariance``, ``correlation``, ``statistics``
         (:meth:`fit_statistics`).
         """
-        out: dict[str, Any] = {
-            "method": "forced",
-            "m": self.m.to_dict(),
-            "c": self.c.to_dict(),
-            "k": self.k.to_dict(),
-        }
-        for key in ("omega0", "zeta"):
-            est = getattr(self, key)
-            if math.isfinite(est.value):
-                out[key] = est.to_dict()
-        out["runs"] = [r.to_dict() | {"residual_noise_ratio": q}
-                       for r, q in zip(self.runs, self.residual_noise_ratios(), strict=True)]
-        out["warnings"] = list(self.warnings)
-        return out | self.fit_statistics()
+        return {"method": self.METHOD, **self.estimate_entries(), **self.derived_entries(),
+                "runs": self.run_entries(), **self.summary_tail()}
 
     def residual_noise_ratios(self) -> list[float | None]:
         """Per run: the RMS of its response fit's residual of x over the record's noise level
@@ -212,33 +188,16 @@ class ForcedIdentification(PlantExports, NotebookDisplay):
                                             window_noise(t, x, r.t_start, r.t_end)))
         return out
 
-    def fit_statistics(self) -> dict[str, Any]:
-        """The ``covariance``, ``correlation`` and ``statistics`` blocks of :meth:`summary`.
+    def statistics_of(self) -> tuple[Sequence[str], Sequence[str], np.ndarray,
+                                     float | None, int | None, str]:
+        """The parameters of the ``covariance``, ``correlation`` and ``statistics`` blocks of
+        :meth:`summary` (:meth:`~phoid.methods.result_base.ResultBase.fit_statistics`).
 
         The parameters are m (kg), c (N s/m), k (N/m). χ² is that of the eq. (20) fit: the
         generalised least squares of Re Zᵢ = k − mωᵢ² and Im Zᵢ = cωᵢ to the runs' dynamic
         stiffnesses Zᵢ = Rᵢe^{iρᵢ}, each weighted by the inverse covariance of its (Re Zᵢ,
         Im Zᵢ) (:class:`~phoid.methods.forced.stiffness.ResponseFit`), dof = 2·runs − 3.
         """
-        return fit_blocks(["m", "c", "k"], ["kg", "N s/m", "N/m"], self.fit.cov,
-                          self.fit.chi2, self.fit.dof,
-                          of="the weighted (GLS) fit of the eq. (20) lines Re Z_i = k - m "
-                             "omega_i^2, Im Z_i = c omega_i to the runs' dynamic stiffnesses")
-
-    def report(self) -> str:
-        """Plain-text report: m, c, k ± stderr, ω₀, ζ, per-run table, warnings."""
-        from phoid.reports.text import forced_text
-
-        return forced_text(self)
-
-    def plot(self, out_dir: str | Path, *, overwrite: bool = False) -> list[Path]:
-        """Write per-run fits (x, model, residual; F) and the eq. (20) lines as PNG files.
-
-        ``out_dir`` is created if needed; existing files are replaced only with ``overwrite``
-        and links in it are refused (:mod:`phoid._output`; all names checked before the first
-        figure is written). Returns the list of paths written
-        (:func:`phoid.reports.figures.plot_forced`).
-        """
-        from phoid.reports.figures import plot_forced
-
-        return plot_forced(self, out_dir, overwrite=overwrite)
+        return (["m", "c", "k"], ["kg", "N s/m", "N/m"], self.fit.cov, self.fit.chi2,
+                self.fit.dof, "the weighted (GLS) fit of the eq. (20) lines Re Z_i = k - m "
+                              "omega_i^2, Im Z_i = c omega_i to the runs' dynamic stiffnesses")
