@@ -33,6 +33,7 @@ HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
 sys.path.insert(0, str(HERE))
 
+import bench_adequacy  # noqa: E402
 import bench_batch  # noqa: E402
 import bench_emps  # noqa: E402
 import bench_identify  # noqa: E402
@@ -584,7 +585,8 @@ def _targets(res: dict) -> tuple[list[str], list[str]]:
                     continue
                 x = bench_scaling.times_record(p)
                 rep.append((name, x <= FEW_TIMES, f"{x:.1f}×"))
-    for t in res.get("emps", {}).get("targets", []):
+    for t in (*res.get("emps", {}).get("targets", []),
+              *res.get("adequacy", {}).get("targets", [])):
         (acc if t["enforced"] else rep).append((t["name"], t["ok"], t["got"]))
     st = res.get("startup")
     if st:
@@ -715,7 +717,7 @@ def main() -> int:
                     help="Monte Carlo replicas for phoid (1000; --quick: 100)")
     ap.add_argument("--repeats", type=int, default=None, help="timing repeats (9)")
     ap.add_argument("--workers", type=int, default=2, help="Monte Carlo worker processes (2)")
-    ap.add_argument("--only", default="sets,mc,speed,sim,scaling,startup,emps,batch",
+    ap.add_argument("--only", default="sets,mc,speed,sim,scaling,startup,emps,batch,adequacy",
                     help="comma-separated sections to run (for development; the default runs "
                          "all and is what BENCHMARKS.md must come from)")
     ap.add_argument("--write", action="store_true",
@@ -755,13 +757,14 @@ def main() -> int:
                     "numpy": np.__version__, "scipy": scipy.__version__,
                     "blas_threads": os.environ.get("OPENBLAS_NUM_THREADS")},
         "sets": {}, "monte_carlo": {}, "identification_speed": {}, "simulation": {},
-        "scaling": {}, "startup": {}, "emps": {}, "batch": {},
+        "scaling": {}, "startup": {}, "emps": {}, "batch": {}, "adequacy": {},
     }
 
     # one step of the progress bar per log line: the sets, then each section (per set)
     steps = 1 + sum(len(SETS) if sec in ("speed", "mc") else 1
                     for sec in ("speed", "sim", "mc", "scaling", "startup", "emps", "batch")
                     if sec in only)
+    steps += len(bench_adequacy.CASES) if "adequacy" in only else 0
     if sys.stdout.isatty() and not args.no_progress:
         phoid_progress(True)
     with progress_task("benchmark", total=steps) as advance:  # erased before the report
@@ -823,6 +826,10 @@ def _run_sections(args, res, only, replicas, phoid_replicas, repeats, t_start, a
     if "batch" in only:
         res["batch"] = bench_batch.run_all(quick=args.quick)
         log("batch")
+    if "adequacy" in only:  # issue 27: stderr coverage on decays the model does not fit
+        res["adequacy"] = bench_adequacy.run(
+            bench_adequacy.QUICK_REPLICAS if args.quick else bench_adequacy.FULL_REPLICAS,
+            workers=args.workers, log=log)
     res["wall_s"] = time.perf_counter() - t_start
 
 
@@ -847,7 +854,8 @@ def _report(args, res, opts, command) -> int:
     ]
     lines += [*target_lines, ""]
     for sec in (_sets_section, _mc_section, _speed_section, _sim_section, _scaling_section,
-                _startup_section, _emps_section, lambda r: bench_batch.section(r.get("batch"))):
+                _startup_section, _emps_section, lambda r: bench_batch.section(r.get("batch")),
+                lambda r: bench_adequacy.section(r.get("adequacy"))):
         part = sec(res)
         if part:
             lines += [*part, ""]
