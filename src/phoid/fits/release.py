@@ -19,10 +19,15 @@ from phoid import _validate as v
 from phoid.fits.result import MIN_SAMPLES
 
 __all__ = [
+    "Clipping",
+    "RecordStart",
     "check_record",
+    "classify_start",
     "detect_release",
     "diff_noise",
+    "find_clipping",
     "hold_sd",
+    "impulse_peak_time",
     "locate_release",
     "med",
     "releases",
@@ -344,3 +349,299 @@ def window(t, x, release, skip, t_end, refine_release=True, detected=None):
     return release, held, tw, xw, ptp
 
 
+
+
+# --------------------------------------------------------------------------------------------
+# how a record starts: a release, an impulse (a kick from rest), or already moving
+
+#: a kick's rest level and the level it settles to agree when they differ by at most this
+#: fraction of the first swing (a release from x₀ settles |x₀| away, which is at least half its
+#: first swing (1 + q)|x₀|, q ≤ 1 the half-cycle decay; a kick from rest settles where it began)
+_SAME_LEVEL = 0.25
+#: the tail still rings (its level is not yet known) when its half-spread exceeds this fraction
+#: of the first swing
+_SETTLED = 0.25
+#: a turning point is passed once the signal has come back this many noise sds (or this
+#: fraction of the swing, whichever is more)
+_TURN_NSD = 6.0
+_TURN_REL = 0.1
+#: fewest samples in a flat run at the record's extreme that make it a clip, and how much
+#: steeper than the run's flatness the signal must enter and leave it
+_CLIP_RUN = 3
+_CLIP_STEEP = 10.0
+
+
+@dataclass(frozen=True)
+class Clipping:
+    """Samples of a record flat at its extreme (the sensor or the logger saturated).
+
+    Attributes
+    ----------
+    level : float
+        The value the signal is flat at (m, or the record's unit).
+    runs : tuple of (int, int)
+        First and last sample of each run of samples at ``level``.
+    n_samples : int
+        Clipped samples in all.
+    last : int
+        The last clipped sample: the fit starts after it.
+    """
+
+    level: float
+    runs: tuple[tuple[int, int], ...]
+    n_samples: int
+    last: int
+
+
+def find_clipping(x: np.ndarray) -> Clipping | None:
+    """The runs of a record flat at its largest or smallest value, when the signal runs into
+    them and out of them steeply: a clip.
+
+    A run of at least 3 consecutive samples within ``tol`` of the record's maximum (or
+    minimum), ``tol`` the record's resolution (its smallest nonzero step, at least 1e-9 of its
+    range), makes that extreme a ceiling when the steps into and out of the run exceed 10
+    ``tol`` and 3 noise sds: a smooth turning point, sampled finely, is flat at the top too,
+    but it arrives there in steps of about the resolution, while a saturated signal hits its
+    ceiling at speed; a sampled sine cannot hold 3 samples at one level with steep steps on
+    both sides. Runs touching the record's ends do not qualify a ceiling (no step into or out
+    of them). Every sample at a ceiling is then clipped. Returns None when there is none; else
+    the side with more clipped samples.
+    """
+    n = x.size
+    if n < _CLIP_RUN + 2:
+        return None
+    rng = float(x.max()) - float(x.min())
+    if not rng > 0:
+        return None
+    steps = np.abs(np.diff(x))
+    nz = steps[steps > 0]
+    tol = max(float(nz.min()) if nz.size else 0.0, 1e-9 * rng)
+    steep = max(_CLIP_STEEP * tol, 3.0 * diff_noise(x))
+    best: Clipping | None = None
+    for sgn in (1.0, -1.0):
+        y = sgn * x
+        top = float(y.max())
+        at = y >= top - tol
+        edges = np.diff(np.concatenate(([0], at.astype(np.int8), [0])))
+        starts = np.flatnonzero(edges == 1)
+        ends = np.flatnonzero(edges == -1) - 1
+        pairs = list(zip(starts.tolist(), ends.tolist(), strict=True))
+        if not any(b - a + 1 >= _CLIP_RUN and 0 < a and b < n - 1 and y[a] - y[a - 1] > steep
+                   and y[b] - y[b + 1] > steep for a, b in pairs):
+            continue
+        # the level is a ceiling: every sample at it is clipped (noise splits a clipped
+        # stretch into shorter runs at its edges, and later, smaller swings touch it briefly)
+        runs = [(int(a), int(b)) for a, b in pairs]
+        if runs:
+            count = sum(b - a + 1 for a, b in runs)
+            if best is None or count > best.n_samples:
+                best = Clipping(level=sgn * top, runs=tuple(runs), n_samples=count,
+                                last=max(b for _, b in runs))
+    return best
+
+
+def _turn(y: np.ndarray, i: int, margin: float) -> int | None:
+    """The first maximum of y from sample i on: the running maximum's sample once y has fallen
+    more than ``margin`` below it; None when y never falls back that far."""
+    run = np.maximum.accumulate(y[i:])
+    back = np.flatnonzero(y[i:] < run - margin)
+    if not back.size:
+        return None
+    k = int(back[0])
+    return i + int(np.argmax(y[i : i + k + 1]))
+
+
+@dataclass(frozen=True)
+class RecordStart:
+    """How a record starts, with its evidence (:func:`classify_start`).
+
+    Attributes
+    ----------
+    kind : str
+        ``"release"`` (held displaced, let go from rest: the held level is not the level the
+        motion settles to), ``"impulse"`` (a kick from rest at the equilibrium: the level before
+        the kick is the level the motion settles to) or ``"none"`` (no quiet start: the record
+        starts in motion, or its start is not quiet long enough to tell).
+    index : int
+        The release's or the kick's sample, as :func:`locate_release` puts it (0 for
+        ``"none"``).
+    time : float
+        Its time, s.
+    held_level : float or None
+        Level before the motion starts (median of the quiet start), m; None without a quiet
+        start.
+    rest_level : float or None
+        Level the motion settles to (median of the last quarter of the record after its largest
+        excursion), m.
+    noise_sd : float
+        White-noise sd of the record (second differences), m.
+    amplitude : float
+        The largest excursion from the held level, m (the first swing).
+    peak : int or None
+        Its sample: for a kick, the first turning point, after which the response is free.
+    shift_nsd, shift_rel : float
+        |held − rest| in noise sds and as a fraction of ``amplitude``.
+    tail_rel : float
+        Half the spread (10–90 %) of the tail that gives ``rest_level``, over ``amplitude``: above
+        0.25 the record still rings at its end and the rest level is not known from it.
+    swing_ratio : float
+        The second swing (from the largest excursion to the next turning point) over the
+        first (from the held level to the largest excursion): q < 1 after a release from rest
+        (the start is itself a turning point), 1 + q > 1 after a kick (q the half-cycle decay);
+        nan when there is no second turning point.
+    x0 : float
+        held − rest: the displacement from the rest level at the start, m (≈ 0 for a kick).
+    v0 : float
+        Mean velocity over the first half of the first swing, m/s (the kick's velocity, roughly;
+        a release starts from rest and gathers speed).
+    fit_from : int
+        The first sample a free response can model: the one after the kick's largest
+        excursion for an impulse (and after any clipped sample); else the sample after any
+        clipped sample (0 without one), the release's own start rule applying too.
+    clipping : Clipping or None
+        Samples flat at the record's extreme (:func:`find_clipping`).
+    """
+
+    kind: str
+    index: int
+    time: float
+    held_level: float | None
+    rest_level: float | None
+    noise_sd: float
+    amplitude: float
+    peak: int | None
+    shift_nsd: float
+    shift_rel: float
+    tail_rel: float
+    swing_ratio: float
+    x0: float
+    v0: float
+    fit_from: int
+    clipping: Clipping | None = None
+
+    def evidence(self, unit: str = "m") -> str:
+        """One line of the evidence, in the user's words."""
+        if self.held_level is None or self.rest_level is None:
+            return "the record starts in motion (no quiet start)"
+        sr = ("" if not math.isfinite(self.swing_ratio)
+              else f"; second swing {self.swing_ratio:.2f}× the first")
+        return (f"the level before the motion ({self.held_level:.4g} {unit}) and the level it "
+                f"settles to ({self.rest_level:.4g} {unit}) differ by {self.shift_nsd:.3g} "
+                f"noise sd, {self.shift_rel:.2f} of the first swing ({self.amplitude:.3g} "
+                f"{unit}){sr}")
+
+
+def classify_start(t: np.ndarray, x: np.ndarray,
+                   detected: tuple[int, float | None] | None = None) -> RecordStart:
+    """Whether a record starts with a release, an impulse (a kick from rest) or in motion.
+
+    Parameters
+    ----------
+    t, x : ndarray
+        The record (s, m), checked as :func:`check_record` does.
+    detected : (int, float or None), optional
+        :func:`locate_release`'s answer when it is already known.
+
+    Returns
+    -------
+    RecordStart
+
+    Notes
+    -----
+    Both a release and a kick begin with a quiet segment: at least 10 samples before the
+    signal leaves its level by 8 noise sds (:func:`locate_release`'s departure). A release
+    starts displaced, so the held level is |x₀| from the level the decay settles to; a kick
+    starts at the equilibrium, so the two agree. The rest level is the median of the last
+    quarter of the record after its largest excursion; where that tail still rings (its
+    half-spread above 0.25 of the first swing), the swings decide instead: the start of a
+    release is itself a turning point, so its second swing is q ≤ 1 times its first, while a
+    kick's is 1 + q ≥ 1 times. A record is an impulse when, with a settled tail, the two levels
+    differ by at most 0.25 of its first swing (a release's differ by at least 0.5:
+    |x₀| against (1 + q)|x₀|), or, with a ringing tail, its second swing exceeds its first.
+    Otherwise it is a release (:func:`locate_release` may still find no held segment to model
+    when the quiet start is short or not still); without a quiet start it is ``"none"``.
+
+    After a kick the response is free only once the force has ended. Every one-signed push
+    shorter than the impulse response's time to its peak (a quarter of the period, lightly
+    damped) keeps the velocity one-signed while it acts (the velocity's impulse response is
+    positive until that peak), so the largest excursion — the first turning point — comes
+    after the push: ``fit_from`` is the sample after it (and after any clipped sample, which is
+    never free response; the sample after the peak, as in an accelerometer's record the peak is
+    the blow itself).
+    """
+    n = x.size
+    j, hsd = locate_release(t, x) if detected is None else detected
+    held = hsd is not None and j >= 10
+    clip = find_clipping(x)
+    after_clip = 0 if clip is None else clip.last + 1
+    dep = _departure(x)
+    nsd = diff_noise(x[: dep.i1] if dep.i1 is not None and dep.i1 >= 10 else x)
+    base = RecordStart(kind="release" if held else "none", index=j if held else 0,
+                       time=float(t[j if held else 0]), held_level=None, rest_level=None,
+                       noise_sd=nsd, amplitude=math.nan, peak=None, shift_nsd=math.nan,
+                       shift_rel=math.nan, tail_rel=math.nan, swing_ratio=math.nan,
+                       x0=math.nan, v0=math.nan, fit_from=after_clip, clipping=clip)
+    if dep.i1 is None or dep.i1 < 10:
+        return base
+    i1 = dep.i1
+    level = med(x[: i1 - 1])
+    y = x - level
+    sgn = 1.0 if y[i1] > 0 else -1.0
+    p = i1 + int(np.argmax(np.abs(y[i1:])))
+    amp = abs(float(y[p]))
+    if not amp > 0:
+        return base
+    tail = x[p + 1 :][-max((n - p - 1) // 4, 0):] if n - p - 1 >= 8 else x[:0]
+    if tail.size >= 8:
+        rest = med(tail)
+        lo, hi = np.quantile(tail, [0.1, 0.9])
+        tail_rel = 0.5 * float(hi - lo) / amp
+    else:
+        rest, tail_rel = math.nan, math.inf
+    shift = abs(level - rest) if math.isfinite(rest) else math.nan
+    ps = 1.0 if y[p] > 0 else -1.0
+    margin = max(_TURN_NSD * nsd, _TURN_REL * amp)
+    e2 = _turn(-ps * y, p, margin)
+    swing = abs(float(y[e2] - y[p])) / amp if e2 is not None else math.nan
+    # the mean velocity over the first half of the first swing
+    half = i1 + int(np.argmax(sgn * y[i1 : p + 1] >= 0.5 * amp)) if sgn == ps else i1
+    k0 = max(i1 - 1, 0)
+    v0 = float(y[half] - y[k0]) / float(t[half] - t[k0]) if half > k0 else math.nan
+    if tail_rel <= _SETTLED:
+        impulse = shift <= _SAME_LEVEL * amp
+    else:
+        impulse = math.isfinite(swing) and swing > 1.0
+    kind = "impulse" if impulse else "release"
+    index = j if j < i1 else i1 - 1
+    fit_from = max(p + 1, after_clip) if impulse else after_clip
+    return RecordStart(
+        kind=kind, index=index, time=float(t[index]), held_level=level,
+        rest_level=rest if math.isfinite(rest) else None, noise_sd=nsd, amplitude=amp,
+        peak=p, shift_nsd=shift / nsd if nsd > 0 else math.inf, shift_rel=shift / amp,
+        tail_rel=tail_rel, swing_ratio=swing, x0=level - rest, v0=v0, fit_from=fit_from,
+        clipping=clip,
+    )
+
+
+def impulse_peak_time(sigma: float, w0sq: float) -> float:
+    """Time from an ideal impulse to the free response's largest excursion, s.
+
+    x(τ) ∝ e^{−στ} sin(ω_d τ)/ω_d peaks at τ = atan2(ω_d, σ)/ω_d (ω_d = √(ω₀² − σ²)); at
+    critical damping at 1/σ; overdamped (rates λ₁ < λ₂) at ln(λ₂/λ₁)/(λ₂ − λ₁). Any one-signed
+    push reaches its first turning point no sooner (the velocity's impulse response is positive
+    until then). nan without a restoring spring (ω₀² ≤ 0) or, overdamped, without decay.
+    """
+    if not (w0sq > 0 and math.isfinite(sigma)):
+        return math.nan
+    q = sigma * sigma - w0sq
+    if q < 0:
+        wd = math.sqrt(-q)
+        return math.atan2(wd, sigma) / wd
+    if q == 0:
+        return 1.0 / sigma if sigma > 0 else math.nan
+    w = math.sqrt(q)
+    lam1 = w0sq / (sigma + w) if sigma > 0 else math.nan  # σ − w, without the cancellation
+    lam2 = sigma + w
+    if not lam1 > 0:
+        return math.nan
+    return math.log(lam2 / lam1) / (lam2 - lam1)

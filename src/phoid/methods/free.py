@@ -56,6 +56,7 @@ from phoid._threads import single_blas_thread
 from phoid.dynamics.plant import free_response
 from phoid.errors import IdentificationError
 from phoid.fits import diff_noise, locate_release
+from phoid.fits.release import RecordStart, classify_start, impulse_peak_time
 from phoid.io.units import check_x_unit, quantity_unit, x_quantity
 from phoid.methods._modal import (
     ModalFit,
@@ -104,6 +105,11 @@ class FreeRun:
         first sample analysed.
     held : bool
         Whether a held segment before the release was found and modelled.
+    start : str
+        How the record starts (:func:`phoid.fits.release.classify_start`): ``"release"``
+        (let go from a held displacement), ``"impulse"`` (a kick from rest at the
+        equilibrium: ``release`` is then the kick's time, and the fit starts after the first
+        swing's largest excursion, where the push has ended) or ``"none"`` (already moving).
     x0, v0 : float
         Position (m, from the offset) and velocity (m/s) at ``release``, eq. (8), from the
         fitted response.
@@ -138,6 +144,7 @@ class FreeRun:
     snr: float
     used: bool
     warnings: tuple[str, ...] = ()
+    start: str = "none"
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready dict of the run."""
@@ -145,6 +152,7 @@ class FreeRun:
             "file": self.file,
             "release": _num(self.release),
             "held": self.held,
+            "start": self.start,
             "x0": _num(self.x0),
             "v0": _num(self.v0),
             "offset": _num(self.offset),
@@ -557,6 +565,7 @@ def identify_free_data(
     reasons: list[str | None] = []
     noise0: list[float] = []
     releases: list[tuple[float, bool]] = [(math.nan, False)] * n
+    starts: list[RecordStart | None] = [None] * n
     for i, (t, x) in enumerate(data):
         try:
             t = v.finite_array("t", t, ndim=1)
@@ -580,8 +589,13 @@ def identify_free_data(
                            f"the noise (sd {nsd:.3g} {x_unit})")
             continue
         j, hold_sd = locate_release(t, x)
-        held = hold_sd is not None and j >= 10
-        if held:
+        how = starts[i] = classify_start(t, x, (j, hold_sd))
+        held = hold_sd is not None and j >= 10 and how.kind != "impulse"
+        if how.kind == "impulse":
+            # a kick from rest: the response is free once the push has ended, after the first
+            # swing's largest excursion (classify_start says why)
+            start = how.fit_from
+        elif held:
             # the window starts where the motion has surely begun: the first of 3 samples in
             # a row more than 8 noise sd off the held level (a held sample left in would bias
             # the fit; the few samples lost carry almost no information, the motion there
@@ -593,13 +607,22 @@ def identify_free_data(
             start = int(hits[0]) if hits.size else j + 1
         else:
             start = j if j > 2 else 0
+        if how.clipping is not None:  # clipped samples are no free response: left out
+            start = max(start, how.clipping.last + 1)
         after = t.size - start
+        if after < MIN_SAMPLES and how.kind == "impulse":
+            reasons.append(f"starts with a kick from rest (an impulse at t = {how.time:.6g} s), "
+                           f"not a release, and only {after} samples follow its first swing's "
+                           f"largest excursion, where the push has surely ended (at least "
+                           f"{MIN_SAMPLES} are needed)")
+            continue
         if after < MIN_SAMPLES:
             reasons.append(f"too short: {after} samples after the release (at least "
                            f"{MIN_SAMPLES} are needed)")
             continue
         seg = Segment(t=t[start:], x=x[start:], fixed=np.ones((after, 1)), t0=float(t[start]))
-        releases[i] = (float(t[j]) if held else float(t[start]), held)
+        releases[i] = (how.time if how.kind == "impulse" else float(t[j]) if held
+                       else float(t[start]), held)
         reasons.append(None)
         seg_of[i] = len(segs)
         segs.append(seg)
@@ -641,7 +664,8 @@ def identify_free_data(
                                 t_end=float(t[-1]) if t.size else math.nan,
                                 n_samples=int(t.size), noise_sd=math.nan,
                                 residual_rms=math.nan, snr=0.0, used=False,
-                                warnings=(reasons[i] or "",)))
+                                warnings=(reasons[i] or "",),
+                                start=starts[i].kind if starts[i] is not None else "none"))
             continue
         s = segs[k_seg]
         coef = fit.coef[k_seg]
@@ -652,6 +676,9 @@ def identify_free_data(
         rw: list[str] = []
         if snr < 10:
             rw.append(f"the motion is barely above the noise ({snr:.1f} noise sd in all)")
+        how = starts[i]
+        if how is not None:
+            rw.extend(_start_warnings(how, t, float(s.t[0]), sigma, w0sq, x_unit))
         warnings.extend(f"{names[i]}: {w}" for w in rw)
         # the state at the release, from the fitted state at the window's start (eq. 8)
         t_rel = releases[i][0]
@@ -661,7 +688,7 @@ def identify_free_data(
             v0=float(v_rel), offset=float(coef[0]), t_start=float(s.t[0]),
             t_end=float(s.t[-1]), n_samples=int(s.t.size), noise_sd=nsd,
             residual_rms=float(math.sqrt(float(r @ r) / r.size)), snr=snr, used=True,
-            warnings=tuple(rw),
+            warnings=tuple(rw), start=how.kind if how is not None else "none",
         ))
     warnings.extend(adequacy.warnings)
     if not fit.converged:
@@ -699,6 +726,39 @@ def identify_free_data(
         m=m_est, c=c_est, k=k_est, runs=tuple(runs), warnings=tuple(warnings),
         source=source, data=tuple(arrays), x_unit=x_unit, adequacy=adequacy,
     )
+
+
+def _start_warnings(how: RecordStart, t: np.ndarray, t_fit: float, sigma: float, w0sq: float,
+                    unit: str) -> list[str]:
+    """The warnings on how a fitted run starts: a kick rather than a release (with the push's
+    length judged against the fitted free response), samples clipped."""
+    out: list[str] = []
+    if how.kind == "impulse" and how.peak is not None:
+        out.append(f"starts with a kick from rest (an impulse at t = {how.time:.6g} s), not a "
+                   f"release: {how.evidence(unit)}; the free response is fitted from "
+                   f"t = {t_fit:.6g} s, after the first swing's largest excursion, where the "
+                   "push has ended")
+        # a one-signed push of any length turns no sooner than the free response after an
+        # ideal impulse (impulse_peak_time); much later, the push lasted that long (not
+        # judged on a clipped record: its first peak is hidden)
+        t_pk = impulse_peak_time(sigma, w0sq) if how.clipping is None else math.nan
+        t_turn = float(t[how.peak]) - how.time
+        dt = float(t[min(how.peak + 1, t.size - 1)] - t[how.peak])
+        if math.isfinite(t_pk) and t_turn - 2 * dt > 2 * t_pk:
+            out.append(f"its first swing took {t_turn:.3g} s to its largest excursion, "
+                       f"{t_turn / t_pk:.2g}× a free response's after a kick ({t_pk:.3g} s): "
+                       f"the push lasted about {t_turn - t_pk:.2g} s and may not have ended "
+                       "there; the fit may include forced samples")
+        elif math.isfinite(t_pk) and t_turn + 2 * dt < 0.5 * t_pk:
+            out.append(f"its first swing turned after {t_turn:.3g} s, sooner than a free "
+                       f"response can after a one-signed push ({t_pk:.3g} s): the force "
+                       "reversed (a push and a pull) or the model misfits the start")
+    c = how.clipping
+    if c is not None:
+        out.append(f"clipped at {c.level:.6g} {unit}: {c.n_samples} samples flat at the "
+                   f"record's extreme (t = {float(t[c.runs[0][0]]):.6g} … "
+                   f"{float(t[c.last]):.6g} s), left out: the fit starts after them")
+    return out
 
 
 def _best_fit(segs: list[Segment], noise: list[float]) -> ModalFit:
