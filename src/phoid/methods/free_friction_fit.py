@@ -1,0 +1,265 @@
+r"""The least-squares fit of the Coulomb + viscous free decay to a free set's releases.
+
+Parameters: (σ, ω₀², a) shared by all releases, and per release the offset x_off, the position
+y₀ (from the offset) and the velocity v₀ at the start of its window (the windows and the
+release detection are those of the viscous fit, :func:`phoid.methods.free.identify_free_data`).
+The residual of release i is (xᵢ − x_offᵢ − y(t; σ, ω₀², a, y₀ᵢ, v₀ᵢ))/ŝᵢ, ŝᵢ its noise level
+estimated without a model (:func:`phoid.methods.fit_statistics.difference_noise` over the
+window), y the exact piecewise motion of :func:`phoid.methods.free_friction_model.coulomb_decay`;
+the sum of squares is then the χ² of the fit. It is minimised by
+:func:`scipy.optimize.least_squares` (trust-region reflective) with a Jacobian by central
+differences, each step 10⁻⁶ of its parameter's scale (|σ| or 1 % of ω₀, ω₀², |a| or 1 % of
+ω₀²·amplitude, the amplitude, the amplitude·ω₀), the offset's column exact. The Jacobian is
+dense while it holds under 5·10⁶ numbers and sparse (block-diagonal in the releases, LSMR
+steps) beyond. The motion is continuous in the parameters (the stop moves continuously: a
+stuck position at the band's edge |y| = d starts a half-cycle of zero height), so the
+objective is continuous with kinks, which the trust region handles.
+
+Starts: the viscous fit with a = 0 (so that the friction fit can only improve on it: it nests
+the viscous model at a = 0) and the half-cycle amplitude regression of
+:func:`~phoid.methods.free_friction_model.envelope_start` on the release with the largest
+motion; the lower final χ² wins.
+
+Covariances of (σ, ω₀², a), with the release parameters profiled out (each release's Jacobian
+projected off its own three columns, which is exact for the block structure):
+
+- Gauss–Newton, each release weighted by its residual variance: (Σᵢ J̃ᵢᵀJ̃ᵢ/sᵢ²)⁻¹;
+- Newey–West (:func:`phoid.fits.hac.hac_covariance`, prewhitened, Andrews' lag window) on the
+  same weighted Jacobians and residuals, used when the residual is not white.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from phoid.fits.hac import hac_covariance
+from phoid.methods.free_friction_model import CoulombDecay, coulomb_decay, envelope_start
+
+__all__ = ["FrictionProblem", "FrictionSolution", "ReleaseWindow", "fit_free_friction"]
+
+#: most evaluations of the residual per start
+MAX_NFEV = 200
+#: largest dense Jacobian, numbers
+_DENSE_MAX = 5_000_000
+#: relative finite-difference step
+_STEP = 1e-6
+
+
+@dataclass(frozen=True)
+class ReleaseWindow:
+    """One release's fitted window and its start from the viscous fit.
+
+    Attributes
+    ----------
+    t, x : ndarray
+        Samples in the window, s and m.
+    noise : float
+        Its noise level from the record alone, m.
+    offset, y0, v0 : float
+        The viscous fit's offset (m), position from it (m) and velocity (m/s) at ``t[0]``.
+    """
+
+    t: np.ndarray
+    x: np.ndarray
+    noise: float
+    offset: float
+    y0: float
+    v0: float
+
+
+@dataclass(frozen=True)
+class FrictionProblem:
+    """The releases and the viscous estimates the fit starts from."""
+
+    windows: tuple[ReleaseWindow, ...]
+    sigma: float
+    w0sq: float
+
+
+@dataclass(frozen=True)
+class FrictionSolution:
+    """The fitted parameters, motions, residuals and covariances.
+
+    Attributes
+    ----------
+    theta : ndarray, shape (3,)
+        σ (1/s), ω₀² (1/s²), a (m/s²).
+    own : ndarray, shape (runs, 3)
+        Per release: offset (m), y₀ (m), v₀ (m/s) at the window's start.
+    motions : tuple of CoulombDecay
+    resid : tuple of ndarray
+        Record − model, m.
+    cov_white, cov_robust : ndarray, shape (3, 3)
+        Gauss–Newton and Newey–West covariances of θ.
+    converged : bool
+    nfev : int
+    """
+
+    theta: np.ndarray
+    own: np.ndarray
+    motions: tuple[CoulombDecay, ...]
+    resid: tuple[np.ndarray, ...]
+    cov_white: np.ndarray
+    cov_robust: np.ndarray
+    converged: bool
+    nfev: int
+
+
+def _motion(w: ReleaseWindow, theta: np.ndarray, own: np.ndarray) -> CoulombDecay:
+    return coulomb_decay(w.t - w.t[0], float(theta[0]), float(theta[1]), float(theta[2]),
+                         float(own[1]), float(own[2]))
+
+
+class _Objective:
+    """Residuals and Jacobian of the stacked weighted problem."""
+
+    def __init__(self, prob: FrictionProblem) -> None:
+        self.w = prob.windows
+        self.n = [w.t.size for w in self.w]
+        self.edges = np.concatenate([[0], np.cumsum(self.n)])
+        self.R = len(self.w)
+        self.P = 3 + 3 * self.R
+        w0 = math.sqrt(prob.w0sq)
+        self.amp = [max(float(np.max(np.abs(w.x - w.offset))), 1e-300) for w in self.w]
+        self.w0 = w0
+        self.sparse = self.edges[-1] * self.P > _DENSE_MAX
+
+    def split(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return p[:3], p[3:].reshape(self.R, 3)
+
+    def model(self, i: int, theta: np.ndarray, own: np.ndarray) -> np.ndarray:
+        w = self.w[i]
+        try:
+            y = _motion(w, theta, own[i]).y
+        except ValueError:  # ω₀² ≤ 0 in a trial step: no model
+            return np.full(w.t.size, np.inf)
+        return own[i, 0] + y
+
+    def __call__(self, p: np.ndarray) -> np.ndarray:
+        theta, own = self.split(p)
+        out = np.concatenate([(w.x - self.model(i, theta, own)) / w.noise
+                              for i, w in enumerate(self.w)])
+        bad = ~np.isfinite(out)
+        if bad.any():  # a trial step outside the model's range: a large, finite penalty
+            out[bad] = 1e150
+        return out
+
+    def steps(self, theta: np.ndarray, i: int) -> np.ndarray:
+        amp = self.amp[i]
+        return _STEP * np.array([
+            max(abs(theta[0]), 0.01 * self.w0), abs(theta[1]),
+            max(abs(theta[2]), 0.01 * abs(theta[1]) * amp), amp, amp * self.w0])
+
+    def blocks(self, p: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
+        """Per release: ∂model/∂θ (nᵢ, 3) and ∂model/∂(offset, y₀, v₀) (nᵢ, 3), unweighted."""
+        theta, own = self.split(p)
+        out = []
+        for i, w in enumerate(self.w):
+            h = self.steps(theta, i)
+            Js = np.empty((w.t.size, 3))
+            Jo = np.empty((w.t.size, 3))
+            Jo[:, 0] = 1.0
+            for j in range(3):
+                tp, tm = theta.copy(), theta.copy()
+                tp[j] += h[j]
+                tm[j] -= h[j]
+                Js[:, j] = (_motion(w, tp, own[i]).y - _motion(w, tm, own[i]).y) / (2 * h[j])
+            for j in (1, 2):
+                op, om = own[i].copy(), own[i].copy()
+                op[j] += h[2 + j]
+                om[j] -= h[2 + j]
+                Jo[:, j] = (_motion(w, theta, op).y - _motion(w, theta, om).y) / (2 * h[2 + j])
+            out.append((Js, Jo))
+        return out
+
+    def jac(self, p: np.ndarray):
+        blocks = self.blocks(p)
+        if self.sparse:
+            from scipy.sparse import lil_matrix
+
+            J = lil_matrix((int(self.edges[-1]), self.P))
+        else:
+            J = np.zeros((int(self.edges[-1]), self.P))
+        for i, ((Js, Jo), w) in enumerate(zip(blocks, self.w, strict=True)):
+            a, b = int(self.edges[i]), int(self.edges[i + 1])
+            J[a:b, :3] = -Js / w.noise
+            J[a:b, 3 + 3 * i: 6 + 3 * i] = -Jo / w.noise
+        return J.tocsr() if self.sparse else J
+
+
+def _solve(obj: _Objective, p0: np.ndarray, lb: np.ndarray, ub: np.ndarray):
+    from scipy.optimize import least_squares
+
+    theta, _ = obj.split(p0)
+    scale = np.concatenate([obj.steps(theta, 0)[:3]]
+                           + [obj.steps(theta, i)[[3, 3, 4]] for i in range(obj.R)]) / _STEP
+    p0 = np.clip(p0, lb + 1e-12 * scale, ub - 1e-12 * scale)
+    return least_squares(obj, p0, jac=obj.jac, bounds=(lb, ub), method="trf", x_scale=scale,
+                         max_nfev=MAX_NFEV, tr_solver="lsmr" if obj.sparse else "exact",
+                         xtol=1e-10, ftol=1e-10, gtol=1e-10)
+
+
+def fit_free_friction(prob: FrictionProblem) -> FrictionSolution:
+    """Fit (σ, ω₀², a) and each release's (offset, y₀, v₀) (module docstring).
+
+    Parameters
+    ----------
+    prob : FrictionProblem
+
+    Returns
+    -------
+    FrictionSolution
+
+    Raises
+    ------
+    ValueError
+        When the fitted JᵀJ is singular (the data do not determine a parameter).
+    """
+    obj = _Objective(prob)
+    T = max(float(w.t[-1] - w.t[0]) for w in prob.windows)
+    own0 = np.array([[w.offset, w.y0, w.v0] for w in prob.windows])
+    big = np.inf
+    lb = np.full(obj.P, -big)
+    ub = np.full(obj.P, big)
+    lb[0] = -5.0 / T  # growth beyond e⁵ over the window is no decay
+    lb[1], ub[1] = prob.w0sq / 100.0, prob.w0sq * 100.0
+    starts = [np.concatenate([[prob.sigma, prob.w0sq, 0.0], own0.ravel()])]
+    k = int(np.argmax([a / w.noise for a, w in zip(obj.amp, prob.windows, strict=True)]))
+    wk = prob.windows[k]
+    env = envelope_start(wk.t, wk.x - wk.offset, prob.sigma, prob.w0sq, wk.noise)
+    if env is not None and env[0] > lb[0]:
+        starts.append(np.concatenate([[env[0], prob.w0sq, env[1]], own0.ravel()]))
+    best = None
+    for p0 in starts:
+        sol = _solve(obj, p0, lb, ub)
+        if best is None or sol.cost < best.cost:
+            best = sol
+    assert best is not None
+    p = best.x
+    theta, own = obj.split(p)
+    motions = tuple(_motion(w, theta, own[i]) for i, w in enumerate(prob.windows))
+    resid = tuple(w.x - own[i, 0] - m.y for i, (w, m) in
+                  enumerate(zip(prob.windows, motions, strict=True)))
+    Jt, e = [], []
+    for (Js, Jo), r in zip(obj.blocks(p), resid, strict=True):
+        # profile out the release's own parameters: project Js off the columns of Jo
+        coef, *_ = np.linalg.lstsq(Jo, Js, rcond=None)
+        Jp = Js - Jo @ coef
+        s2 = float(r @ r) / max(r.size - 3, 1)
+        s = math.sqrt(s2) if s2 > 0 else 1.0
+        Jt.append(Jp / s)
+        e.append(r / s)
+    info = sum(J.T @ J for J in Jt)
+    try:
+        cov_white = np.linalg.inv(info)
+    except np.linalg.LinAlgError:
+        raise ValueError("the friction fit's JᵀJ is singular: the records do not determine "
+                         "σ, ω₀² and f_c/m together") from None
+    robust = hac_covariance(Jt, e).robust
+    return FrictionSolution(theta=np.array(theta, dtype=float), own=np.array(own, dtype=float),
+                            motions=motions, resid=resid, cov_white=cov_white,
+                            cov_robust=robust, converged=bool(best.status > 0),
+                            nfev=int(best.nfev))

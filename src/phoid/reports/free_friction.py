@@ -1,0 +1,145 @@
+"""The report of a free decay fitted with Coulomb and viscous friction: its text and figures.
+
+Results are read by duck typing (each function names what it reads); matplotlib is imported
+only where a figure is drawn.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from phoid._output import OutputFolder, safe_text
+from phoid.reports.figures import run_names, save_png
+from phoid.reports.statistics import ratio_text
+from phoid.reports.text import fit_statistics_lines, format_estimate
+
+__all__ = ["free_friction_text", "plot_free_friction"]
+
+
+def _est_line(name: str, est: Any) -> str:
+    val = format_estimate(est.value, est.stderr) if math.isfinite(est.value) else "undefined"
+    white = getattr(est, "white_stderr", None)
+    tail = f"   (white-noise stderr {white:.2g})" if white is not None else ""
+    return f"  {name:<6}= {val} {est.unit}{tail}".rstrip()
+
+
+def _opt(x: float | None, fmt: str) -> str:
+    return "—" if x is None or not math.isfinite(x) else format(x, fmt)
+
+
+def free_friction_text(result: Any) -> str:
+    """Plain-text report of a free decay with Coulomb + viscous friction.
+
+    Parameters
+    ----------
+    result : phoid.methods.free_friction.FreeFrictionIdentification or alike
+        Read: ``source``; ``sigma`` (1/s), ``omega0`` (rad/s), ``zeta``, ``c_over_m`` (1/s),
+        ``k_over_m`` (1/s²), ``fc_over_m`` (m/s²) (each with ``value``, ``stderr``, ``unit``
+        and optionally ``white_stderr``); ``regime``; ``robust``; ``evidence`` (``delta_chi2``,
+        ``p_value``, ``likelihood_ratio``, ``z``, ``significant``); ``m``, ``c``, ``k``,
+        ``fc`` (estimates or None); ``runs`` (each with ``file``, ``n_samples``,
+        ``half_cycles``, ``stop_time`` (s or None), ``stuck_position`` (m or None),
+        ``residual_rms`` (m), ``used``); ``residual_noise_ratios()``,
+        ``viscous_residual_noise_ratios()``, ``fit_statistics()``; ``warnings``.
+
+    Returns
+    -------
+    str
+    """
+    head = "phoid identify --friction (free decay, Coulomb + viscous)"
+    lines = [f"{head}: {safe_text(result.source)}" if result.source else head, ""]
+    for name, est in (("σ", result.sigma), ("ω₀", result.omega0), ("ζ", result.zeta),
+                      ("c/m", result.c_over_m), ("k/m", result.k_over_m),
+                      ("f_c/m", result.fc_over_m)):
+        lines.append(_est_line(name, est))
+    lines.append(f"  regime: {result.regime}; stderr: "
+                 + ("Newey–West (the residual is not white)" if result.robust
+                    else "white-noise least squares"))
+    if result.m is not None and result.c is not None and result.k is not None \
+            and result.fc is not None:
+        lines.append(f"  with the known mass m = {result.m.value:g} kg:")
+        for name, est in (("c", result.c), ("k", result.k), ("f_c", result.fc)):
+            lines.append(_est_line(name, est))
+    else:
+        lines.append("  (m, c, k, f_c are not separately identifiable from a free decay: "
+                     "give the mass with --mass)")
+    ev = result.evidence
+    lines.append(f"  friction against the viscous fit: Δχ² = {ev.delta_chi2:.4g} "
+                 f"(p = {ev.p_value:.2g}), likelihood ratio {ev.likelihood_ratio:.4g}, "
+                 f"f_c/m at {ev.z:.3g} stderr: "
+                 + ("significant" if ev.significant else "not significant"))
+    lines.append("  (static friction taken equal to kinetic: the mass sticks at a velocity "
+                 "zero where |k(x − x_off)| ≤ f_c)")
+    lines.append("")
+    lines.append(f"  {'run':<18}{'samples':>8}{'half-cycles':>12}{'stops at s':>12}"
+                 f"{'stuck at m':>12}{'resid/noise':>12}{'viscous':>9}")
+    for r, q, qv in zip(result.runs, result.residual_noise_ratios(),
+                        result.viscous_residual_noise_ratios(), strict=True):
+        mark = "" if r.used else "  (set aside)"
+        stop = _opt(r.stop_time, ".5g") if r.used else "—"
+        if r.used and r.stop_time is None:
+            stop = "never"
+        lines.append(f"  {safe_text(r.file):<18}{r.n_samples:>8d}{r.half_cycles:>12d}"
+                     f"{stop:>12}{_opt(r.stuck_position, '.4g'):>12}{ratio_text(q):>12}"
+                     f"{ratio_text(qv):>9}{mark}")
+    lines.extend(fit_statistics_lines(result))
+    if result.warnings:
+        lines += ["", "warnings:"] + [f"  - {safe_text(w)}" for w in result.warnings]
+    return "\n".join(lines)
+
+
+def _run_figure(result: Any, i: int):
+    from phoid.reports.runs import run_figure
+
+    r = result.runs[i]
+    t, x = (np.asarray(a, dtype=float) for a in result.data[i][:2])
+    sel = (t >= r.t_start) & (t <= r.t_end)
+    model = result.model(i, t[sel])
+    w0, s = result.omega0.value, result.sigma.value
+    wd2 = w0**2 - s**2
+    markers = [(r.release, "release")]
+    if r.stop_time is not None:
+        markers.append((r.stop_time, f"sticks ({r.stop_time:.4g} s)"))
+    return run_figure(
+        t, x, sel, model, noise_sd=float(r.noise_sd),
+        model_label="fitted Coulomb + viscous decay",
+        title=(f"{r.file}: σ = {s:.5g} 1/s, ω₀ = {w0:.5g} rad/s, f_c/m = "
+               f"{result.fc_over_m.value:.4g} m/s², {r.half_cycles} half-cycles"),
+        markers=markers, period=2 * math.pi / math.sqrt(wd2) if wd2 > 0 else None)
+
+
+def plot_free_friction(result: Any, out_dir: str | Path, *,
+                       overwrite: bool = False) -> list[Path]:
+    """One PNG per run used: record with the fitted decay and its stop, the noise band,
+    residual and its autocorrelation (:func:`phoid.reports.runs.run_figure`).
+
+    Parameters
+    ----------
+    result : phoid.methods.free_friction.FreeFrictionIdentification or alike
+        Read: ``runs`` (``file``, ``used``, ``release``, ``t_start``, ``t_end``,
+        ``stop_time``, ``noise_sd``, ``half_cycles``), ``data``, ``model(i, t)``, ``sigma``,
+        ``omega0``, ``fc_over_m``.
+    out_dir : path
+        Folder (created if needed).
+    overwrite : bool
+        Replace existing files of the same names (else they are an error; links refused).
+
+    Returns
+    -------
+    list of Path
+        ``<stem>.png`` per run used (:func:`phoid.reports.figures.run_names`).
+
+    Raises
+    ------
+    phoid.errors.OutputError
+        A file in the way; checked for every figure before the first is written.
+    """
+    names = run_names([r.file for r in result.runs])
+    plotted = [i for i, r in enumerate(result.runs) if r.used and i < len(result.data)]
+    out = OutputFolder(out_dir, overwrite=overwrite)
+    out.check([names[i] for i in plotted])
+    return [save_png(_run_figure(result, i), out, names[i]) for i in plotted]
