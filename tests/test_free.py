@@ -287,7 +287,7 @@ def test_cli_bad_inputs(tmp_path):
                                "--duration", "3"]).exit_code == 0
     one_line_error(runner.invoke(app, ["identify", str(out), "--mass", "-1"]), "`mass`")
     one_line_error(runner.invoke(app, ["identify", str(out), "--delay", "0.1"]),
-                   "--delay applies to pho sets only")
+                   "--delay does not apply to free sets")
     one_line_error(runner.invoke(app, ["simulate", str(tmp_path / "x"), "--method", "free",
                                        "--P", "1"]), "--P does not apply to --method free")
     one_line_error(runner.invoke(app, ["simulate", str(tmp_path / "y"), "--method", "free",

@@ -140,7 +140,7 @@ def test_tracking_options_that_do_not_apply_are_refused(tmp_path):
     folder = _write_set(tmp_path / "set")
     for extra in (("--friction",), ("--mass", "2"), ("--no-compensation",)):
         r = cli("identify", folder, *extra, code=2)
-        assert "do not apply to tracking sets" in r.output
+        assert "does not apply to tracking sets" in r.output
     r = cli("identify", folder, "--estimator", "gls", code=2)
     assert "estimator must be one of" in r.output
 

@@ -1,9 +1,11 @@
 """The identification's entry points: one call for every method of the format.
 
-:func:`identify` reads a set's ``method`` and hands it to the method's own pipeline: PHO sets
-to :func:`phoid.methods.identification.identify_pho`, forced and free sets to
-:func:`phoid.methods.forced.identify_forced` and :func:`phoid.methods.free.identify_free`,
-tracking sets to :func:`phoid.methods.tracking_identification.identify_tracking`.
+:func:`identify` reads a set's ``method`` and hands it, with its options, to the method's own
+pipeline through the one dispatch of :mod:`phoid.methods.registry` (that of ``phoid identify``
+and ``phoid batch`` too): PHO sets to :func:`phoid.methods.identification.identify_pho`,
+forced and free sets to :func:`phoid.methods.forced.identify_forced` and
+:func:`phoid.methods.free.identify_free`, tracking sets to
+:func:`phoid.methods.tracking_identification.identify_tracking`.
 :func:`identify_data` is the PHO pipeline on records in memory (arrays or pandas objects).
 """
 
@@ -12,15 +14,15 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
-from phoid.errors import IdentificationError
 from phoid.io.frames import is_table, table_columns
-from phoid.methods.identification import check_estimator, identify_pho, identify_pho_data
-from phoid.methods.pho_checks import refuse_bias
+from phoid.methods.identification import identify_pho_data
 from phoid.methods.pho_result import Identification
+from phoid.methods.registry import identify_with
 
 if TYPE_CHECKING:
     from phoid.methods.forced import ForcedIdentification
     from phoid.methods.free import FreeIdentification
+    from phoid.methods.friction import FrictionFit
     from phoid.methods.tracking_identification import TrackingIdentification
 
 __all__ = ["identify", "identify_data"]
@@ -32,16 +34,23 @@ def identify(
     delay: float | None = None,
     estimator: str | None = None,
     compensate: bool = True,
-) -> Identification | ForcedIdentification | FreeIdentification | TrackingIdentification:
-    """Identify m, c, k from a PHO experiment set.
+    mass: float | None = None,
+    friction: bool = False,
+) -> Identification | ForcedIdentification | FreeIdentification | FrictionFit | \
+        TrackingIdentification:
+    """Identify a read experiment set by its ``method``: m, c, k (or what the method gives).
+
+    The one dispatch of :mod:`phoid.methods.registry`, as ``phoid identify`` runs it: the same
+    checks, the same exception and message for the same mistake, the options named by their
+    keywords here (``compensate=False`` where the command line says ``--no-compensation``).
 
     Parameters
     ----------
     experiment : phoid.io.ExperimentSet
-        The runs (t, x, P, D) and the loop delay (``[loop] delay``), as read by
+        The runs and the manifest's settings (``method``, ``[loop] delay``, …), as read by
         :func:`phoid.io.read_experiment`.
     delay : float, optional
-        Loop delay Δt (s), overriding the manifest's (a tracking set: the command delay τ).
+        pho: the loop delay Δt (s), overriding the manifest's; tracking: the command delay τ.
     estimator : str, optional
         PHO sets: ``"gls"``, the efficient weighted fit through the exact loop roots (the
         default), or ``"ols"``, the paper's eq. (35) lines by ordinary least squares. Tracking
@@ -49,46 +58,39 @@ def identify(
     compensate : bool, default True
         Correct for the delay (eqs. 28–32). False reproduces the paper's uncompensated column
         (only with ``estimator="ols"``).
+    mass : float, optional
+        Free-decay sets: the known mass, kg (overrides the manifest's ``mass``): c and k too.
+    friction : bool, default False
+        PHO sets: fit Coulomb friction f_c too, through the stick-slip simulator
+        (:func:`phoid.methods.friction.identify_friction_set`).
 
     Returns
     -------
-    Identification
-        For ``method = "forced"`` or ``"free"`` sets the result of
-        :func:`phoid.methods.forced.identify_forced` or :func:`phoid.methods.free.identify_free`
-        (a known mass for a free set: :func:`phoid.methods.free.identify_free` with ``mass=``).
+    Identification, ForcedIdentification, FreeIdentification, FrictionFit or TrackingIdentification
+        The result of the set's method (:data:`phoid.methods.registry.METHODS`): PHO sets
+        :func:`phoid.methods.identification.identify_pho`, forced sets
+        :func:`phoid.methods.forced.identify_forced`, free sets
+        :func:`phoid.methods.free.identify_free`, tracking sets
+        :func:`phoid.methods.tracking_identification.identify_tracking`.
 
     Raises
     ------
     IdentificationError
-        When the data cannot determine m, c, k (no usable runs, all gains equal, …).
+        An option that does not apply to the set's method, an unknown ``estimator``, or data
+        that cannot determine the parameters (no usable runs, all gains equal, …).
     """
-    method = getattr(experiment, "method", "pho")
-    if method == "tracking":
-        if not compensate:
-            raise IdentificationError(f"{experiment.path}: `compensate` applies to PHO sets only")
-        from phoid.methods.tracking_identification import identify_tracking
+    return identify_with(experiment, {"delay": delay, "estimator": estimator,
+                                      "no_compensation": _no_compensation(compensate),
+                                      "mass": mass, "friction": friction}, style="api")
 
-        return identify_tracking(experiment, delay=delay, estimator=estimator)
-    estimator = "gls" if estimator is None else estimator
-    check_estimator(estimator, compensate)
-    refuse_bias(experiment, method)
-    if method in ("forced", "free"):
-        # the other methods of the format, with their own estimators; PHO-only options refused
-        if delay is not None or estimator != "gls" or not compensate:
-            raise IdentificationError(
-                f"{experiment.path}: method = {method!r}: `delay`, `estimator` and "
-                "`compensate` apply to PHO sets only"
-            )
-        if method == "forced":
-            from phoid.methods.forced import identify_forced
 
-            return identify_forced(experiment)
-        from phoid.methods.free import identify_free
-
-        return identify_free(experiment)
-    if method != "pho":
-        raise IdentificationError(f"{experiment.path}: method = {method!r} is not known")
-    return identify_pho(experiment, delay=delay, estimator=estimator, compensate=compensate)
+def _no_compensation(compensate: Any) -> Any:
+    """``compensate`` as the registry's ``no_compensation`` (a non-bool passed on as it is
+    given, for the registry to refuse it by the keyword's name)."""
+    if isinstance(compensate, bool) or getattr(getattr(compensate, "dtype", None), "kind",
+                                               None) == "b":
+        return not bool(compensate)
+    return compensate
 
 
 def identify_data(

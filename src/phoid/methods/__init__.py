@@ -1,11 +1,13 @@
 """phoid.methods: each method turns an experiment's records into a result.
 
-``pho`` (eq. 35 lines), the PHO pipeline (``identification``, ``pho_measure``, ``pho_release``,
-``pho_checks``, ``pho_result``), the delay from a recorded force (``udelay``), ``friction``,
-``forced``, ``free`` (sharing ``_modal``), ``diagnose`` and the inverse dynamics least squares of
-a tracking record (``idim``), the output-error fit of a tracking record through the simulated
-loop (``tracking``), the identification of a tracking set (``tracking_identification``) and the
-validation of a simulated tracking record against the recorded one (``tracking_validation``).
+The dispatch by a set's ``method`` (``registry``, ``dispatch``), the base of every result
+(``result_base``), ``pho`` (eq. 35 lines), the PHO pipeline (``identification``,
+``pho_measure``, ``pho_release``, ``pho_checks``, ``pho_result``), the delay from a recorded
+force (``udelay``), ``friction``, ``forced``, ``free`` (sharing ``_modal``), ``diagnose`` and
+the inverse dynamics least squares of a tracking record (``idim``), the output-error fit of a
+tracking record through the simulated loop (``tracking``), the identification of a tracking
+set (``tracking_identification``) and the validation of a simulated tracking record against
+the recorded one (``tracking_validation``).
 The names below are imported from their modules on first use (:mod:`phoid._lazy`), so that the
 PHO path does not load the forced and friction methods.
 """
@@ -19,6 +21,7 @@ if TYPE_CHECKING:  # the real imports, for type checkers and IDEs
         SIGN_CONVENTION,
         probable_cause,
     )
+    from phoid.methods.dispatch import identify_set
     from phoid.methods.estimate import Estimate
     from phoid.methods.forced import (
         ForcedIdentification,
@@ -56,6 +59,7 @@ if TYPE_CHECKING:  # the real imports, for type checkers and IDEs
     from phoid.methods.pho_checks import DIGITAL_KEYS, read_digital_loop, refuse_bias
     from phoid.methods.pho_measure import measure_modes
     from phoid.methods.pho_result import Identification, RunMode
+    from phoid.methods.result_base import PlantResult, ResultBase
     from phoid.methods.tracking import (
         TrackingFit,
         TrackingRecord,
@@ -134,6 +138,9 @@ _EXPORTS = {
     "refuse_bias": "phoid.methods.pho_checks",
     "measure_modes": "phoid.methods.pho_measure",
     "Identification": "phoid.methods.pho_result",
+    "PlantResult": "phoid.methods.result_base",
+    "ResultBase": "phoid.methods.result_base",
+    "identify_set": "phoid.methods.dispatch",
     "RunMode": "phoid.methods.pho_result",
     "SignalError": "phoid.methods.tracking_validation",
     "TrackingValidation": "phoid.methods.tracking_validation",
@@ -164,7 +171,9 @@ __all__ = [
     "Identification",
     "LineFit",
     "MCKFit",
+    "PlantResult",
     "ResponseFit",
+    "ResultBase",
     "RunMode",
     "SignalError",
     "TrackingFit",
@@ -193,6 +202,7 @@ __all__ = [
     "identify_friction_set",
     "identify_pho",
     "identify_pho_data",
+    "identify_set",
     "identify_tracking",
     "idim_ls",
     "idim_ls_runs",

@@ -104,7 +104,7 @@ class Identification(PlantResult, LoopExports):
     """Result of :func:`phoid.identify`: m, c, k with uncertainties, per-run modes, warnings.
 
     The shared fields (``warnings``, ``source``, ``data``, ``adequacy``), ``omega0``, ``zeta``,
-    ``cov``, ``estimates``, ``report()`` and ``plot()`` come from
+    ``cov``, ``report()`` and ``plot()`` come from
     :class:`~phoid.methods.result_base.PlantResult`.
 
     Attributes

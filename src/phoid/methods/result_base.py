@@ -22,7 +22,6 @@ field, so that none of them becomes a property here.
 
 from __future__ import annotations
 
-import importlib
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -35,25 +34,10 @@ from phoid.interop.exports import PlantExports
 from phoid.methods.estimate import Estimate
 from phoid.methods.fit_statistics import fit_blocks
 from phoid.methods.pho import open_loop_omega0, open_loop_zeta
+from phoid.methods.registry import load
 from phoid.reports.display import NotebookDisplay
 
-__all__ = ["PlantResult", "ResultBase", "load"]
-
-
-def load(target: str) -> Any:
-    """The object named ``"package.module:name"``, its module imported now.
-
-    Parameters
-    ----------
-    target : str
-        A module's dotted name and a name in it, joined by a colon.
-
-    Returns
-    -------
-    object
-    """
-    module, _, name = target.partition(":")
-    return getattr(importlib.import_module(module), name)
+__all__ = ["PlantResult", "ResultBase"]
 
 
 @dataclass(frozen=True, repr=False, kw_only=True)

@@ -130,7 +130,7 @@ class ForcedIdentification(PlantResult):
     """Result of :func:`identify_forced`: m, c, k with uncertainties, per-run R and ρ.
 
     The shared fields (``warnings``, ``source``, ``data``: each run's (t, x, F), ``adequacy``),
-    ``omega0``, ``zeta``, ``cov``, ``estimates``, ``report()`` and ``plot()`` come from
+    ``omega0``, ``zeta``, ``cov``, ``report()`` and ``plot()`` come from
     :class:`~phoid.methods.result_base.PlantResult`.
 
     Attributes

@@ -1,0 +1,332 @@
+"""The identification methods of the format, one table: what each set's ``method`` runs.
+
+Every way to identify a read experiment set goes through :func:`identify_with`:
+:func:`phoid.identify` (the Python keywords), ``phoid identify`` and ``phoid batch``
+(:func:`phoid.methods.dispatch.identify_set`, the command line's options). The same mistake
+therefore gives the same exception (:class:`~phoid.errors.IdentificationError`, a
+``ValueError``) and the same one-line message on every route, the option named in the
+caller's words (``--no-compensation`` on the command line, ```compensate=False``` in Python).
+
+:data:`METHODS` holds, per ``method``, its :class:`Variant` s: the function that identifies
+the set (a ``"module:function"`` name, imported only when a set of that method is
+identified, so that ``import phoid`` and the PHO path load no other method), the options it
+takes (:data:`OPTIONS`), the values ``estimator`` may take, the checks of the set made
+first, the result class, its text report and the section of docs/format.md its ``--json``
+fills. An option such as ``--friction`` selects a variant of its method (``selected_by``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+from phoid.errors import IdentificationError
+
+__all__ = ["METHODS", "OPTIONS", "Method", "Option", "Variant", "identify_with", "load",
+           "option"]
+
+
+@dataclass(frozen=True)
+class Option:
+    """An identify option, in the command line's and in Python's words.
+
+    Attributes
+    ----------
+    name : str
+        Its keyword of :func:`~phoid.methods.dispatch.identify_set` and of ``phoid batch``.
+    flag : str
+        The command line's option.
+    keyword : str
+        :func:`phoid.identify`'s keyword (and that of the methods' functions).
+    unset : object
+        The value that means "not given" (None, or False for a flag).
+    inverted : bool
+        ``keyword`` is the negation of the option (``compensate = not no_compensation``).
+    kind : str
+        ``"number"`` (a real number, or None), ``"text"`` (a string, or None) or ``"flag"``
+        (True or False).
+    unit : str
+        The unit of a number.
+    """
+
+    name: str
+    flag: str
+    keyword: str
+    unset: Any
+    inverted: bool = False
+    kind: str = "flag"
+    unit: str = ""
+
+    def words(self, style: str, value: Any = None) -> str:
+        """The option as the caller wrote it: ``"cli"`` (``--estimator ols``) or ``"api"``
+        (```estimator='ols'```); ``value`` None names the option alone."""
+        if style == "cli":
+            return self.flag if value is None or self.kind == "flag" else f"{self.flag} {value}"
+        if self.kind == "flag":  # given as True (the API: its keyword's value)
+            return f"`{self.keyword}={not self.inverted}`"
+        return f"`{self.keyword}`" if value is None else f"`{self.keyword}={value!r}`"
+
+
+#: the options of ``phoid identify`` (and ``phoid batch``), in the order they are checked
+OPTIONS: tuple[Option, ...] = (
+    Option("delay", "--delay", "delay", None, kind="number", unit="s"),
+    Option("estimator", "--estimator", "estimator", None, kind="text"),
+    Option("no_compensation", "--no-compensation", "compensate", False, inverted=True),
+    Option("mass", "--mass", "mass", None, kind="number", unit="kg"),
+    Option("friction", "--friction", "friction", False),
+)
+
+
+def option(name: str) -> Option:
+    """The :class:`Option` called ``name`` (KeyError for an unknown one)."""
+    for opt in OPTIONS:
+        if opt.name == name:
+            return opt
+    raise KeyError(name)
+
+
+@dataclass(frozen=True)
+class Variant:
+    """One way a method identifies a set.
+
+    Attributes
+    ----------
+    function : str
+        ``"module:function"``, called as ``function(experiment, **keywords)``.
+    passes : tuple of str
+        The options handed on, as the function's keywords (:attr:`Option.keyword`).
+    selected_by : str or None
+        A flag option that selects this variant (None: the method's default).
+    estimators : tuple of str
+        The values ``estimator`` may take (empty: the option does not apply).
+    default_estimator : str or None
+        ``estimator`` when not given (None: the function's own default).
+    requires : tuple of (str, str, str, str)
+        ``(option, other, value, why)``: ``option`` given needs ``other`` equal to ``value``.
+    checks : tuple of str
+        ``"module:function"`` s called as ``check(experiment, method)`` before the function.
+    result : str
+        ``"module:Class"`` of the result.
+    report : str
+        ``"module:function"`` of its text report (:mod:`phoid.reports`).
+    schema : str
+        The heading of docs/format.md whose ``--json`` keys the result's ``summary()`` fills.
+    """
+
+    function: str
+    passes: tuple[str, ...]
+    result: str
+    report: str
+    schema: str
+    selected_by: str | None = None
+    estimators: tuple[str, ...] = ()
+    default_estimator: str | None = None
+    requires: tuple[tuple[str, str, str, str], ...] = ()
+    checks: tuple[str, ...] = ()
+
+    def accepts(self, name: str) -> bool:
+        """Whether the option ``name`` applies to this variant."""
+        return (name in self.passes or name == self.selected_by
+                or (name == "estimator" and bool(self.estimators)))
+
+
+@dataclass(frozen=True)
+class Method:
+    """A ``method`` of the format and its variants.
+
+    Attributes
+    ----------
+    name : str
+        The manifest's ``method``.
+    variants : tuple of Variant
+        The default (``selected_by`` None) and those an option selects.
+    hints : Mapping[str, str]
+        Per option this method refuses, why (appended to the refusal).
+    """
+
+    name: str
+    variants: tuple[Variant, ...]
+    hints: Mapping[str, str] = field(default_factory=dict)
+
+    def accepts(self, name: str) -> bool:
+        """Whether the option ``name`` applies to some variant of this method."""
+        return any(v.accepts(name) for v in self.variants)
+
+
+_BIAS = "phoid.methods.pho_checks:refuse_bias"
+
+#: a free decay with Coulomb and viscous friction and its stop (``--friction`` on free sets);
+#: enabled by adding it to the "free" method's variants below
+FREE_FRICTION = Variant("phoid.methods.free_friction:identify_free_friction", ("mass",),
+                        result="phoid.methods.free_friction:FreeFrictionIdentification",
+                        report="phoid.reports.free_friction:free_friction_text",
+                        schema="`free` sets with `--friction`", selected_by="friction")
+
+#: the methods of the format (``phoid.io.METHODS``), by name
+METHODS: dict[str, Method] = {m.name: m for m in (
+    Method("pho", (
+        Variant("phoid.methods.identification:identify_pho",
+                ("delay", "estimator", "no_compensation"),
+                result="phoid.methods.pho_result:Identification",
+                report="phoid.reports.text:identification_text", schema="`pho` sets",
+                estimators=("gls", "ols"), default_estimator="gls",
+                requires=(("no_compensation", "estimator", "ols", "the eq. (35) lines"),),
+                checks=(_BIAS,)),
+        Variant("phoid.methods.friction:identify_friction_set", ("delay",),
+                result="phoid.methods.friction:FrictionFit",
+                report="phoid.reports.text:friction_text",
+                schema="`pho` sets with `--friction`", selected_by="friction",
+                estimators=("gls",), default_estimator="gls"),
+    ), hints={"mass": "a PHO set gives m"}),
+    Method("forced", (
+        Variant("phoid.methods.forced:identify_forced", (),
+                result="phoid.methods.forced:ForcedIdentification",
+                report="phoid.reports.text:forced_text", schema="`forced` sets",
+                checks=(_BIAS,)),
+    ), hints={"mass": "a forced set gives m"}),
+    Method("free", (
+        Variant("phoid.methods.free:identify_free", ("mass",),
+                result="phoid.methods.free:FreeIdentification",
+                report="phoid.reports.text:free_text", schema="`free` sets",
+                checks=(_BIAS,)),
+    )),
+    Method("tracking", (
+        Variant("phoid.methods.tracking_identification:identify_tracking",
+                ("delay", "estimator"),
+                result="phoid.methods.tracking_identification:TrackingIdentification",
+                report="phoid.reports.tracking:identification_text", schema="`tracking` sets",
+                estimators=("auto", "idim", "output-error")),
+    ), hints={"mass": "its [fixed] table holds known parameters"}),
+)}
+
+
+def load(target: str) -> Any:
+    """The object named ``"package.module:name"``, its module imported now.
+
+    Parameters
+    ----------
+    target : str
+        A module's dotted name and a name in it, joined by a colon.
+
+    Returns
+    -------
+    object
+    """
+    import importlib
+
+    module, _, name = target.partition(":")
+    return getattr(importlib.import_module(module), name)
+
+
+def _scope(name: str) -> str:
+    """The methods an option applies to, in words: "pho and tracking sets"."""
+    names = [m.name for m in METHODS.values() if m.accepts(name)]
+    return (", ".join(names[:-1]) + " and " + names[-1] if len(names) > 1 else names[0]) + \
+        " sets"
+
+
+def _dtype_kind(value: Any) -> str:
+    """A numpy scalar's dtype kind ("b", "i", "u", "f", …); "" for anything else."""
+    return str(getattr(getattr(value, "dtype", None), "kind", "") or "")
+
+
+def _given(opt: Option, value: Any) -> bool:
+    """Whether the option was given: a flag not False (a non-bool is given, and refused by
+    :func:`_check_kind`), any other option not None."""
+    if opt.kind == "flag":
+        return not (value is None or value is False or (_dtype_kind(value) == "b" and not value))
+    return value is not None
+
+
+def _check_kind(opt: Option, value: Any, where: str, style: str) -> None:
+    """Refuse a value of the wrong type for its option (one line, naming it)."""
+    if opt.kind == "flag":
+        ok, want = isinstance(value, bool) or _dtype_kind(value) == "b", "True or False"
+    elif opt.kind == "number":
+        ok = not isinstance(value, bool) and (isinstance(value, int | float)
+                                              or _dtype_kind(value) in ("i", "u", "f"))
+        want = f"a number, in {opt.unit}"
+    else:
+        ok, want = isinstance(value, str), "a string"
+    if not ok:
+        text = repr(value)
+        name = opt.flag if style == "cli" else f"`{opt.keyword}`"
+        raise IdentificationError(f"{where}: {name} must be {want}; got "
+                                  f"{text if len(text) <= 60 else text[:57] + '...'}")
+
+
+def identify_with(experiment: Any, options: Mapping[str, Any], *, style: str = "cli") -> Any:
+    """Identify a read set by its ``method``, with identify options: the one dispatch.
+
+    Parameters
+    ----------
+    experiment : phoid.io.ExperimentSet
+        The set (its ``method``, default ``"pho"``, and ``path``).
+    options : Mapping[str, Any]
+        Options by :attr:`Option.name` (``delay``, ``estimator``, ``no_compensation``,
+        ``mass``, ``friction``); a missing one is not given.
+    style : {"cli", "api"}
+        The words the messages name the options in.
+
+    Returns
+    -------
+    object
+        The method's result (its ``summary()`` is ``phoid identify --json``).
+
+    Raises
+    ------
+    IdentificationError
+        One line naming the set and the option: an unknown method, an option that does not
+        apply to the set's method (or to the variant another option chose), an ``estimator``
+        the method does not have, an option that needs another (``--no-compensation`` needs
+        ``--estimator ols``), a value of the wrong type; and whatever the method refuses.
+    """
+    where = str(getattr(experiment, "path", None) or "the experiment set")
+    unknown = sorted(set(options) - {o.name for o in OPTIONS})
+    if unknown:
+        raise IdentificationError(f"unknown identify option {unknown[0]!r}; the options are "
+                                  f"{', '.join(o.name for o in OPTIONS)}")
+    given = {o.name: options[o.name] for o in OPTIONS if _given(o, options.get(o.name))}
+    for name, value in given.items():
+        _check_kind(option(name), value, where, style)
+    method_name = getattr(experiment, "method", "pho")
+    method = METHODS.get(method_name)
+    if method is None:
+        raise IdentificationError(f"{where}: method = {method_name!r} is not known; the "
+                                  f"methods are {', '.join(METHODS)}")
+    for name in given:  # an option no variant of the method takes
+        if not method.accepts(name):
+            hint = method.hints.get(name)
+            raise IdentificationError(
+                f"{where}: {option(name).words(style)} does not apply to {method.name} sets"
+                f"{f' ({hint})' if hint else ''}; it applies to {_scope(name)}")
+    chosen = [v for v in method.variants if v.selected_by in given]
+    variant = chosen[0] if chosen else next(v for v in method.variants if v.selected_by is None)
+    scope = f"{method.name} sets" + (
+        f" with {option(variant.selected_by).words(style)}" if variant.selected_by else "")
+    for name in given:  # an option the chosen variant does not take
+        if not variant.accepts(name):
+            raise IdentificationError(f"{where}: {option(name).words(style)} does not apply "
+                                      f"to {scope}")
+    estimator = given.get("estimator", variant.default_estimator)
+    if "estimator" in given and estimator not in variant.estimators:
+        known = ", ".join(map(repr, variant.estimators))
+        raise IdentificationError(
+            f"{where}: {option('estimator').words(style)} must be "
+            f"{'one of ' * (len(variant.estimators) > 1)}{known} for {scope}; got "
+            f"{estimator!r}")
+    values = {**given, "estimator": estimator}
+    for name, other, value, why in variant.requires:
+        if name in given and values.get(other) != value:
+            raise IdentificationError(
+                f"{where}: {option(name).words(style)} needs "
+                f"{option(other).words(style, value)} on {scope} ({why})")
+    for check in variant.checks:
+        load(check)(experiment, method.name)
+    keywords = {}
+    for name in variant.passes:
+        opt = option(name)
+        value = values.get(name, opt.unset)
+        keywords[opt.keyword] = (not value) if opt.inverted else value
+    return load(variant.function)(experiment, **keywords)
