@@ -481,8 +481,9 @@ def window_rates(
     seg : Segment
         The run's window of the whole fit (its fixed columns are replaced by an offset).
     motion : ndarray
-        The whole fit's motion about its offset on ``seg.t``: a window is used while its
-        amplitude √2·RMS(motion) is above ``min_nsd`` noise sd.
+        The whole fit's motion about its offset on ``seg.t``; a window is used where the
+        record's amplitude there, √2·RMS of the record less its mean over the window, or the
+        motion's, is above ``min_nsd`` noise sd.
     sigma, w0sq : float
         The whole fit's rates (underdamped: w0sq > σ²; else nothing is returned).
     noise : float
@@ -512,7 +513,9 @@ def window_rates(
         a, b = int(edges[k]), int(edges[k + 1])
         if b - a < 24:
             continue
-        amp = math.sqrt(2.0 * float(np.mean(motion[a:b] ** 2)))
+        xw = seg.x[a:b]
+        amp = math.sqrt(2.0 * max(float(np.mean(motion[a:b] ** 2)),
+                                  float(np.mean((xw - xw.mean()) ** 2))))
         if not amp > min_nsd * noise:
             continue
         w = Segment(t=seg.t[a:b], x=seg.x[a:b], fixed=np.ones((b - a, 1)), t0=float(seg.t[a]))

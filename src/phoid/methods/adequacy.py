@@ -43,7 +43,8 @@ robust covariance Cᵢ: χ² = Σᵢ (θᵢ − θ̄)ᵀCᵢ⁻¹(θᵢ − θ̄
 mean, dof = p(k − 1), failing at P(χ²_dof ≥ χ²) < α (:func:`agreement`).
 
 The residual's spectrum (:func:`spectral_peak`) tells a second mode from coloured noise when the
-residual is not white and the windows show no trend.
+residual is not white and the windows show no trend (a trend explains the residual: the
+sidebands of a drifting frequency are no second mode).
 
 Uncertainty that survives misfit
 --------------------------------
@@ -53,8 +54,10 @@ misfit is a slow, correlated error, and the sandwich counts its correlation. Whe
 parameters drift along the record (the halves or the runs disagree, or the windows show a
 trend), no single value describes the record and the sandwich alone measures only how well the
 fit pins down a weighted average; the spread between the parts is added as a batch-means
-variance (:func:`agreement`'s ``between``: for k parts the covariance of their mean,
-S/k with S their sample covariance, d dᵀ/4 for two halves differing by d). :func:`assess`
+variance (:func:`agreement`'s ``between``: for the runs the covariance of their mean, S/k with S
+their sample covariance; for the halves of a drifting record S itself, d dᵀ/2 for halves
+differing by d — the parameter is not one number along the record, and the value the whole
+fit reports depends on how it weighs the parts). :func:`assess`
 gives the robust covariance only when a check fails; where every check passes the white-noise
 covariance stands unchanged (no inflation where the model is right: docs/adequacy.md measures
 the sandwich against it).
@@ -381,15 +384,18 @@ def whiteness_check(residuals: Sequence[np.ndarray], *,
     return Check("whiteness", q_all, chi2_isf(alpha, float(h_all)), bool(p >= alpha), detail)
 
 
-def spectral_peak(residual: Any, dt: float, f_main: float | None, *,
+def spectral_peak(residual: Any, dt: float, band: tuple[float, float] | None, *,
                   alpha: float = ALPHA) -> tuple[float, float] | None:
-    """A narrow peak in the residual's spectrum away from the main frequency and its harmonics.
+    """A narrow peak in the residual's spectrum away from the main oscillation and its harmonics.
 
     The Hann-windowed periodogram Iₖ of the residual is compared with the local level
     Ŝₖ = median(I over ±25 bins)/ln 2 (a periodogram ordinate of a smooth spectrum is
     S·χ²₂/2, whose median is S ln 2): a peak counts when Iₖ/Ŝₖ > ln(N/α), N the number of
-    frequencies (false alarm α over the whole spectrum), and it lies beyond ±15 % of every
-    multiple k·f_main, k = 0 … 10 (harmonics of a nonlinear oscillation are not a mode).
+    frequencies (false alarm α over the whole spectrum), and it lies outside the band
+    [lo, hi] of frequencies the motion itself sweeps and its multiples [k·lo, k·hi],
+    k = 1 … 5, each widened by 0.15·lo (harmonics of a nonlinear oscillation, the sidebands of
+    one whose frequency drifts, are not a mode), and above 0.15·lo (a slow drift is not a
+    mode).
 
     Parameters
     ----------
@@ -397,8 +403,9 @@ def spectral_peak(residual: Any, dt: float, f_main: float | None, *,
         Uniformly sampled residual.
     dt : float
         Sample interval, s.
-    f_main : float or None
-        The fitted oscillation's frequency, Hz (None: only DC is excluded).
+    band : (float, float) or None
+        The lowest and highest frequency of the motion, Hz (the fitted one, the record's own
+        spectral peak, the windows' local ones; None: only DC is excluded).
     alpha : float
 
     Returns
@@ -414,10 +421,11 @@ def spectral_peak(residual: Any, dt: float, f_main: float | None, *,
     nb = spec.size
     keep = np.ones(nb, dtype=bool)
     keep[:3] = False
-    base = f_main if f_main and f_main > 0 else None
-    if base is not None:
-        for k in range(11):
-            keep &= np.abs(f - k * base) > 0.15 * base
+    if band is not None and band[0] > 0:
+        lo, hi = band
+        keep &= f > 0.15 * lo
+        for k in range(1, 6):
+            keep &= (f < k * lo - 0.15 * lo) | (f > k * hi + 0.15 * lo)
     if not keep.any():
         return None
     idx = np.flatnonzero(keep)
@@ -562,13 +570,16 @@ def structure_check(win: Windows | None, *, x_unit: str = "m") -> tuple[Check, t
 
 def agreement(name: str, values: Sequence[Any], covs: Sequence[Any], *,
               params: Sequence[str], units: Sequence[str], labels: Sequence[str],
-              alpha: float = ALPHA) -> Agreement:
+              alpha: float = ALPHA, of_mean: bool = True) -> Agreement:
     """χ² of consistency of k independent estimates of the same parameters.
 
     χ² = Σᵢ (θᵢ − θ̄)ᵀCᵢ⁻¹(θᵢ − θ̄), θ̄ = (ΣCᵢ⁻¹)⁻¹ΣCᵢ⁻¹θᵢ, dof = p(k − 1); it fails when
     P(χ²_dof ≥ χ²) < α. The detail names the pair and the parameter that differ most, in
     combined stderr |θᵢ − θⱼ|/√(σᵢ² + σⱼ²). ``between`` = S/k, S the parts' sample covariance:
-    the covariance of their mean (batch means).
+    the covariance of their mean (batch means; runs, random draws of one plant's conditions),
+    or S itself with ``of_mean`` False (the halves of a drifting record: the parameter is not
+    one number along it, and which value the whole record reports depends on how the fit
+    weighs its parts; S = d dᵀ/2 for two halves differing by d).
 
     Parameters
     ----------
@@ -582,6 +593,8 @@ def agreement(name: str, values: Sequence[Any], covs: Sequence[Any], *,
     labels : sequence of str
         The parts' names.
     alpha : float
+    of_mean : bool
+        ``between`` is S/k (True) or S (False).
 
     Returns
     -------
@@ -616,7 +629,7 @@ def agreement(name: str, values: Sequence[Any], covs: Sequence[Any], *,
             f"({labels[b]}), {z:.3g} combined stderr")
     detail = f"χ² = {chi2:.4g} on {dof} dof, p = {pv:.2g}; largest difference: {what}"
     dev = np.array(th) - np.mean(th, axis=0)
-    between = dev.T @ dev / (k - 1) / k
+    between = dev.T @ dev / (k - 1) / (k if of_mean else 1)
     return Agreement(Check(name, chi2, chi2_isf(alpha, float(dof)), bool(pv >= alpha), detail),
                      between, what)
 

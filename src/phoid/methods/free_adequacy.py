@@ -17,8 +17,10 @@
 
 The robust covariance is the Newey–West sandwich of the rates (the Jacobian in (σ, ω₀²) with
 each run's offset and state projected off, each run weighted as in the fit), raised to at least
-the white one, plus the halves' batch-means covariance where the halves disagree or the windows
-show a trend, plus the runs' where the runs disagree (mapped from (ω₀, ζ) to (σ, ω₀²) at the
+the white one, plus the halves' spread (their sample covariance, d dᵀ/2) where the halves
+disagree or the windows show a trend (the windows' own spread of (σ, ω₀²) where there are no
+halves to compare), plus the covariance of the runs' mean where they
+disagree (mapped from (ω₀, ζ) to (σ, ω₀²) at the
 whole fit). docs/adequacy.md gives the reasons and the measurements.
 """
 
@@ -140,10 +142,16 @@ def assess_free(segs: Sequence[Segment], fit: ModalFit, labels: Sequence[str], *
                      stuck_detail=stuck)
     struct, s_causes, s_warns = aq.structure_check(win, x_unit=x_unit)
     peak = None
-    if noise_c.passed is False or white.passed is False:
-        f_main = math.sqrt(q) / (2 * math.pi) if q > 0 else None
+    if (noise_c.passed is False or white.passed is False) and not s_causes:
         for s, r in zip(segs, resid, strict=True):
-            peak = aq.spectral_peak(r, float(np.median(np.diff(s.t))), f_main)
+            dt = float(np.median(np.diff(s.t)))
+            # the band the motion sweeps: the fit's ω_d, the record's own spectral peak and
+            # the windows' local ω_d
+            spec = np.abs(np.fft.rfft(s.x - s.x.mean())) ** 2
+            fs = [math.sqrt(q) / (2 * math.pi)] if q > 0 else []
+            fs.append(float(np.fft.rfftfreq(s.x.size, dt)[1 + int(np.argmax(spec[1:]))]))
+            fs += list(win.omega / (2 * math.pi))
+            peak = aq.spectral_peak(r, dt, (min(fs), max(fs)))
             if peak is not None:
                 break
     r_causes, r_warns = aq.residual_warnings(noise_c, white, s_causes, peak)
@@ -159,18 +167,23 @@ def assess_free(segs: Sequence[Segment], fit: ModalFit, labels: Sequence[str], *
                        fixed=s.fixed[s.t.size // 2:], t0=float(s.t[s.t.size // 2]))
                for s in segs]
     # the second half's motion (of the whole fit) in noise sd, all runs together
-    snr2 = math.sqrt(sum(float(m[m.size // 2:] @ m[m.size // 2:]) / nz**2
-                         for m, nz in zip(motions, fit.noise, strict=True)))
+    # (the noise from the record's third differences: the fit's residual sd holds the misfit)
+    snr2 = math.sqrt(sum(float(m[m.size // 2:] @ m[m.size // 2:]) / max(nz, fn * 1e-6)**2
+                         for m, nz, fn in zip(motions, noise, fit.noise, strict=True)))
     halves = [_part(h, fit, fit.noise) for h in (firsts, seconds)] \
         if min(s.t.size for s in segs) >= 2 * _MIN_HALF and snr2 >= _MIN_SNR else [None]
     if all(h is not None for h in halves) and len(halves) == 2:
         ag = aq.agreement("halves", [h[0] for h in halves], [h[1] for h in halves],
                           params=("ω₀", "ζ"), units=("rad/s", ""),
-                          labels=("first half", "second half"))
+                          labels=("first half", "second half"), of_mean=False)
         checks.append(ag.check)
         agreements.append(ag)
         if ag.check.passed is False or struct.passed is False:
             between.append(Jb @ ag.between @ Jb.T)
+    elif struct.passed is False:
+        # a trend along the record and no halves to measure it: the windows' own spread of
+        # (σ, ω₀² = ω_d² + σ²), the range the parameters sweep
+        between.append(np.cov(np.vstack([win.sigma, win.omega**2 + win.sigma**2])))
     if len(segs) >= 2:
         parts = [_part([s], fit, [nz]) for s, nz in zip(segs, fit.noise, strict=True)]
         ok = [i for i, p in enumerate(parts) if p is not None]

@@ -13,6 +13,7 @@ from phoid._output import safe_text
 from phoid.reports.statistics import correlation_lines, ratio_text, statistics_lines
 
 __all__ = [
+    "adequacy_lines",
     "fit_statistics_lines",
     "forced_text",
     "format_estimate",
@@ -208,6 +209,40 @@ def fit_statistics_lines(result: Any) -> list[str]:
             *correlation_lines(blocks["correlation"])]
 
 
+def adequacy_lines(result: Any) -> list[str]:
+    """The ``[[Adequacy]]`` block of a report: each check passed or failed with its statistic
+    and threshold, and which stderr the estimates carry (preceded by an empty line; nothing
+    when the result has no ``adequacy``).
+
+    Parameters
+    ----------
+    result : any identification result
+        Read: ``adequacy`` (None, or with ``checks`` — each ``name``, ``statistic``,
+        ``threshold``, ``passed`` (None: not applicable) — ``stderr`` ("white" or "robust"),
+        ``names`` and ``inflation``), by duck typing.
+
+    Returns
+    -------
+    list of str
+    """
+    ad = getattr(result, "adequacy", None)
+    if ad is None:
+        return []
+    lines = ["", "[[Adequacy]]"]
+    for c in ad.checks:
+        state = "n/a" if c.passed is None else "pass" if c.passed else "FAIL"
+        nums = (f"{c.statistic:.4g} (limit {c.threshold:.4g})"
+                if math.isfinite(c.statistic) and math.isfinite(c.threshold) else "")
+        lines.append(f"    {c.name:<12}{state:<6}{nums}".rstrip())
+    if ad.stderr == "robust":
+        infl = ", ".join(f"{n} ×{f:.3g}" for n, f in zip(ad.names, ad.inflation, strict=True))
+        lines.append(f"    stderr: robust (Newey–West, widened by the spread between parts where "
+                     f"they disagree); over the white-noise stderr: {infl}")
+    else:
+        lines.append("    stderr: white-noise least squares (every check passed)")
+    return lines
+
+
 def _digital_line(result: Any) -> list[str]:
     """The sampled loop's description, when the result was computed with one."""
     g = getattr(result, "digital", None)
@@ -315,6 +350,7 @@ def free_text(result: Any) -> str:
                      f"{r.x0:>{wx}.4g}{r.v0:>{wv}.4g}{r.n_samples:>9d}"
                      f"{r.residual_rms:>{wr}.2g}{ratio_text(q):>12}{mark}")
     lines.extend(fit_statistics_lines(result))
+    lines.extend(adequacy_lines(result))
     if result.warnings:
         lines += ["", "warnings:"] + [f"  - {safe_text(w)}" for w in result.warnings]
     return "\n".join(lines)

@@ -1,0 +1,181 @@
+"""Adequacy of the free-decay fit (phoid.methods.free_adequacy, docs/adequacy.md): records with
+the defects real decays carry, generated here independently of phoid (an exact piecewise
+formula for Coulomb friction, scipy's solve_ivp for drag and a Duffing spring, the closed-form
+viscous decay for the rest), and the measured records of ../shared/data/real when present."""
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.integrate import solve_ivp
+
+from phoid.io import read_experiment
+from phoid.methods.free import identify_free, identify_free_data
+
+ROOT = Path(__file__).resolve().parents[1]
+REAL = ROOT.parent / "shared" / "data" / "real"
+
+
+def viscous(t, sigma, w0, x0=1.0):
+    """Exact free decay from rest at x0: e^{-σt}(cos ω_d t + σ/ω_d sin ω_d t)."""
+    wd = math.sqrt(w0 * w0 - sigma * sigma)
+    return x0 * np.exp(-sigma * t) * (np.cos(wd * t) + sigma / wd * np.sin(wd * t))
+
+
+def coulomb(t, w0=10.0, zeta=0.002, q=0.02, x0=1.0):
+    """x'' + 2ζω₀x' + ω₀²x = −ω₀² q sign(x'), from rest at x0, exactly: each half-cycle a viscous
+    decay about ∓q starting at a turning point; stuck at the first turning point within ±q."""
+    s = zeta * w0
+    wd = w0 * math.sqrt(1 - zeta**2)
+    half = math.pi / wd
+    starts, xs, tt = [], x0, 0.0
+    while abs(xs) > q and len(starts) < 10_000:
+        xe = q if xs > 0 else -q
+        starts.append((tt, xs, xe))
+        tt += half
+        xs = xe - (xs - xe) * math.exp(-s * half)
+    x = np.full(t.shape, xs)
+    for t0, xa, xe in starts:
+        sel = (t >= t0) & (t < t0 + half)
+        tau = t[sel] - t0
+        x[sel] = xe + (xa - xe) * np.exp(-s * tau) * (np.cos(wd * tau) + s / wd * np.sin(wd * tau))
+    return x
+
+
+def ode(accel, t, x0=1.0):
+    sol = solve_ivp(lambda _t, y: [y[1], accel(y[0], y[1])], (0, t[-1]), [x0, 0.0], t_eval=t,
+                    rtol=1e-10, atol=1e-12, method="DOP853")
+    return sol.y[0]
+
+
+def fit(x, t, noise=1e-3, seed=0):
+    rng = np.random.default_rng(seed)
+    return identify_free_data([(t, x + noise * rng.standard_normal(t.size))])
+
+
+T200 = np.arange(8000) / 200.0  # 40 s at 200 Hz
+
+
+def test_clean_linear_decay_passes_and_keeps_its_stderr():
+    # the model is the record's own: every check passes, the white-noise stderr stands (no
+    # inflation), the result carries no robust/white split; and the Newey-West sandwich agrees
+    # with the white covariance within its own noise (measured 0.9-1.1 on such records; 25 %)
+    res = fit(viscous(T200, 0.1, 10.0), T200, seed=1)
+    ad = res.adequacy
+    assert ad.passed and ad.stderr == "white" and ad.inflation == (1.0, 1.0)
+    assert res.warnings == () and res.zeta.white_stderr is None
+    assert {c.name for c in ad.checks} >= {"noise", "whiteness", "structure", "halves"}
+    ratio = np.sqrt(np.diag(ad.sandwich_cov) / np.diag(ad.white_cov))
+    assert np.all((ratio > 0.75) & (ratio < 1.25)), ratio
+    assert "stderr_white" not in res.summary()["zeta"]
+
+
+def test_coulomb_decay_is_named():
+    res = fit(coulomb(T200), T200, seed=2)
+    assert "coulomb" in res.adequacy.causes and res.adequacy.stderr == "robust"
+    w = next(w for w in res.warnings if "Coulomb friction" in w)
+    assert "--friction" in w and "rises as the amplitude falls" in w
+    # the robust stderr is at least the white one, which stays in the JSON
+    assert res.zeta.stderr >= res.zeta.white_stderr
+    assert res.summary()["zeta"]["stderr_white"] == res.zeta.white_stderr
+
+
+def test_quadratic_drag_is_amplitude_dependent_damping():
+    # x'' = -100x - 0.2x' - 0.5x'|x'|: the drag's share of the damping falls with amplitude
+    x = ode(lambda x, v: -100 * x - 0.2 * v - 0.5 * v * abs(v), T200[:6000])
+    res = fit(x, T200[:6000], noise=1e-4, seed=3)
+    assert "amplitude_damping" in res.adequacy.causes
+    assert any("amplitude-dependent damping" in w for w in res.warnings)
+
+
+def test_duffing_spring_is_amplitude_dependent_stiffness():
+    # x'' = -100(x + 0.3x^3) - 0.4x': ω² ≈ 100(1 + 0.225A²), 10 % higher at A = 1
+    x = ode(lambda x, v: -100 * x - 0.4 * v - 30 * x**3, T200[:4000])
+    res = fit(x, T200[:4000], seed=4)
+    assert "amplitude_stiffness" in res.adequacy.causes
+    assert any("amplitude-dependent stiffness" in w for w in res.warnings)
+    assert "second_mode" not in res.adequacy.causes  # its sidebands are no second mode
+
+
+def test_ar1_noise_is_coloured_and_widens_the_stderr():
+    # AR(1) noise with rho = 0.9: the stderr of a mean-like quantity grows by
+    # sqrt((1+rho)/(1-rho)) = 4.4; Newey-West must widen the white stderr by well over 2
+    rng = np.random.default_rng(5)
+    e = np.empty(T200[:6000].size)
+    e[0] = 0.0
+    w = rng.standard_normal(e.size)
+    for i in range(1, e.size):
+        e[i] = 0.9 * e[i - 1] + w[i]
+    res = identify_free_data([(T200[:6000], viscous(T200[:6000], 0.2, 10.0) + 0.01 * e)])
+    ad = res.adequacy
+    assert "coloured" in ad.causes and any("not white noise" in w for w in res.warnings)
+    assert min(ad.inflation) > 2.0
+    # the truth (zeta = 0.02, omega0 = 10) within 3 robust stderr
+    assert abs(res.zeta.value - 0.02) < 3 * res.zeta.stderr
+    assert abs(res.omega0.value - 10.0) < 3 * res.omega0.stderr
+
+
+def test_runs_of_different_plants_disagree():
+    # omega0 10 and 10.5 rad/s: thousands of stderr apart
+    t = T200[:4000]
+    rng = np.random.default_rng(6)
+    runs = [(t, viscous(t, 0.2, w0) + 1e-3 * rng.standard_normal(t.size)) for w0 in (10, 10.5)]
+    res = identify_free_data(runs, names=["a.csv", "b.csv"])
+    runs_check = next(c for c in res.adequacy.checks if c.name == "runs")
+    assert runs_check.passed is False
+    assert any(w.startswith("the runs disagree") and "a.csv" in w for w in res.warnings)
+    # the spread between the runs is in the stderr: both plants within 3 stderr of the mean
+    for w0 in (10.0, 10.5):
+        assert abs(res.omega0.value - w0) < 3 * res.omega0.stderr
+
+
+def halves_of(t, x, res):
+    """The record cut at the middle sample of the whole fit's window, each half identified."""
+    r = res.runs[0]
+    sel = np.flatnonzero((t >= r.t_start) & (t <= r.t_end))
+    mid = sel[sel.size // 2]
+    return (identify_free_data([(t[sel[0]:mid], x[sel[0]:mid])]),
+            identify_free_data([(t[mid:sel[-1] + 1], x[mid:sel[-1] + 1])]))
+
+
+def check_halves(t, x, res):
+    """The acceptance of issue 27: the halves agree within 3 combined stderr on ω₀ and ζ, and
+    the whole record's stderr covers them (each half within 3 of its stderr). Where the record
+    has decayed into its noise by its second half, the method compares no halves (the check is
+    absent: docs/adequacy.md) and neither does this."""
+    if not any(c.name == "halves" for c in res.adequacy.checks):
+        return
+    a, b = halves_of(t, x, res)
+    for key in ("omega0", "zeta"):
+        ea, eb, ew = getattr(a, key), getattr(b, key), getattr(res, key)
+        assert abs(ea.value - eb.value) < 3 * math.hypot(ea.stderr, eb.stderr), (key, ea, eb)
+        assert max(abs(ea.value - ew.value), abs(eb.value - ew.value)) < 3 * ew.stderr, \
+            (key, ea, eb, ew)
+
+
+def test_halves_acceptance_on_a_drifting_record():
+    # Coulomb friction: the viscous model's zeta in the second half is several times the
+    # first's; the robust stderr (sandwich plus the halves' spread) must cover it
+    rng = np.random.default_rng(7)
+    x = coulomb(T200) + 1e-3 * rng.standard_normal(T200.size)
+    res = identify_free_data([(T200, x)])
+    assert "drift" in res.adequacy.causes or "coulomb" in res.adequacy.causes
+    check_halves(T200, x, res)
+
+
+REAL_SETS = ["pendulum", "pendulum/angle60", "seismometer/Q3_10", "cantilever/w1-20",
+             "springmass-short/exp1"]
+
+
+@pytest.mark.skipif(not REAL.is_dir(), reason=f"the measured records are not here ({REAL}; "
+                    "they may not be committed, see ../shared/data/real/*/README.md)")
+@pytest.mark.parametrize("name", REAL_SETS)
+def test_real_records(name):
+    exp = read_experiment(REAL / name)
+    res = identify_free(exp)
+    # every measured record misfits the linear model, and says so
+    assert not res.adequacy.passed and res.adequacy.stderr == "robust"
+    assert any("misfits" in w or "not white" in w for w in res.warnings)
+    run = exp.runs[0]
+    check_halves(run.t, run.x, res)
