@@ -161,6 +161,25 @@ def test_w_zero_almost_everywhere_is_undetermined():
     assert got.status == "undetermined" and "only 5 usable sample(s)" in got.reason
 
 
+def test_a_w_of_zeros_says_nothing_and_absurd_values_are_undetermined():
+    from phoid.methods.tracking_semantics import command_input_semantics
+
+    rec = _loop(True, 1.0, n=300)
+    zeros = np.zeros_like(rec["w"])
+    got = command_input_semantics({}, rec["u"], zeros, rec["x"], rec["r"], _ctrl())
+    assert got is not None and not got.contains and got.warning is None
+    # values that overflow the arithmetic: no exception, no RuntimeWarning (pytest makes
+    # warnings errors), an undetermined measurement that says why
+    free = SampledController(sample_time=T, P=P, D=D, velocity="central-difference")
+    huge = measure_w_in_u(np.full(300, 1e300), np.full(300, 1e300), rec["x"], rec["r"], free)
+    assert huge.status == "undetermined" and "overflows" in huge.reason
+    # with the saturation, such a u sits beyond it everywhere: said so
+    clipped = measure_w_in_u(np.full(300, 1e300), np.full(300, 1e300), rec["x"], rec["r"],
+                             _ctrl())
+    assert "298 more where u or the controller's command reaches the saturation ±200" \
+        in clipped.reason  # every sample but the estimator's first 2
+
+
 def test_validation_force_counts_w_once():
     # a record whose u holds w: the measured force is G·sat(u), not G·(sat(u) + w)
     n = 100

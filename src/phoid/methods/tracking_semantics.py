@@ -190,17 +190,24 @@ def measure_w_in_u(u: Any, w: Any, x: Any, r: Any, controller: SampledController
         The gain g of u − u_c ≈ g·w, its stderr, the misfits, and the verdict (module
         docstring): ``"contains"``, ``"absent"`` or ``"undetermined"`` with its reason.
     """
-    u = np.asarray(u, dtype=float)
-    w = np.asarray(w, dtype=float)
-    x = np.asarray(x, dtype=float)
-    r = np.asarray(r, dtype=float)
-    with np.errstate(all="ignore"):
-        uc = controller_commands(x, r, controller)
-        d = u - uc
+    with np.errstate(all="ignore"):  # absurd magnitudes overflow: said as undetermined
+        return _measure(np.asarray(u, dtype=float), np.asarray(w, dtype=float),
+                        np.asarray(x, dtype=float), np.asarray(r, dtype=float), controller,
+                        float(unit_gain))
+
+
+def _measure(u: np.ndarray, w: np.ndarray, x: np.ndarray, r: np.ndarray,
+             controller: SampledController, unit_gain: float) -> WInU:
+    """:func:`measure_w_in_u` on float arrays, under ``np.errstate(all="ignore")``."""
+    uc = controller_commands(x, r, controller)
+    d = u - uc
     usable = np.isfinite(d) & np.isfinite(uc)
     usable[: max(controller.taps, 1)] = False
+    clipped = 0
     if controller.saturation is not None:
-        usable &= (np.abs(uc) < controller.saturation) & (np.abs(u) < controller.saturation)
+        inside = (np.abs(uc) < controller.saturation) & (np.abs(u) < controller.saturation)
+        clipped = int(np.count_nonzero(usable & ~inside & (w != 0)))
+        usable &= inside
     on = usable & (w != 0)
     rest = usable & (w == 0)
     n_on, n_rest = int(np.count_nonzero(on)), int(np.count_nonzero(rest))
@@ -213,15 +220,15 @@ def measure_w_in_u(u: Any, w: Any, x: Any, r: Any, controller: SampledController
                     reason)
 
     if n_on < MIN_SAMPLES:
+        left = (f"; {clipped} more where u or the controller's command reaches the "
+                f"saturation ±{controller.saturation:g} are left out" if clipped else "")
         return undetermined(f"w is non-zero at only {n_on} usable sample(s) (at least "
-                            f"{MIN_SAMPLES} are needed; samples where the controller's command "
-                            "saturates do not count)")
+                            f"{MIN_SAMPLES} are needed{left})")
     wo, do = w[on], d[on]
-    with np.errstate(all="ignore"):
-        ww = float(wo @ wo)
-        gain = float(wo @ do) / ww
-        e = d - gain * w
-        rms_fit = _rms(e[on])
+    ww = float(wo @ wo)
+    gain = float(wo @ do) / ww if ww > 0 else math.nan
+    e = d - gain * w
+    rms_fit = _rms(e[on])
     if not (math.isfinite(gain) and math.isfinite(rms_fit) and ww > 0):
         return undetermined("the arithmetic overflows (are the signals' units right?)")
     segs = _segments(on)
@@ -295,7 +302,7 @@ def command_input_semantics(loop: Any, u: Any, w: Any, x: Any, r: Any,
     unit = "N" if newtons else "command units"
     m = None if u is None else measure_w_in_u(u, w, x, r, controller, unit_gain=unit_gain)
     if stated is None:
-        if m is None:
+        if m is None or not np.any(np.asarray(w) != 0):  # no u, or no w to apply: nothing said
             return CommandInput(False, unit_gain, "default", "default")
         if m.status == "contains":
             text = (f"the recorded command u already contains the additive input w: "
