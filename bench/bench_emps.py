@@ -26,6 +26,15 @@ k = 0. Measured, each in the same run:
    estimates). ``identify_tracking`` on a tracking set is timed too when ``phoid.io`` can read
    one (``method = "tracking"``, a .mat data file); otherwise the line says why it is absent.
 
+4. **Cross-test** (issue 27) — as a user runs it: ``identify_tracking`` on the estimation
+   record with the example's manifest (examples/emps), then ``replay_set`` on the validation
+   record ../shared/data/emps/DATA_EMPS_PULSES.mat with the example's manifest
+   (examples/emps-pulses: its ``vir`` already holds the pulses, ``[loop] u_contains_w``) and the
+   identified m, c, fc, offset: the tracking error's and the force's relative errors against
+   issue 27's acceptance (≤ 0.45 %, ≤ 6.5 %), the gain measured for the pulses in ``vir``
+   (issue 27: 1.0139), and, reported, the same replay with the pulses added once more as a
+   force in N (the example's former manifest, ``w_unit = "N"``, ``u_contains_w = false``).
+
 Times: wall (``time.perf_counter``) median (min–max) over ``repeats`` calls after one untimed
 call, and the CPU time's median; never a target (reported only).
 
@@ -58,6 +67,9 @@ from phoid.methods.tracking import TrackingRecord, fit_tracking, replay  # noqa:
 from phoid.methods.tracking_validation import validate_tracking  # noqa: E402
 
 EMPS_FILE = ROOT.parent / "shared" / "data" / "emps" / "DATA_EMPS.mat"
+PULSES_FILE = EMPS_FILE.with_name("DATA_EMPS_PULSES.mat")
+CROSS_ACCEPT = (0.45, 6.5)  # %, issue 27: tracking error and force of the cross-test
+CROSS_GAIN = (1.0139, 5e-5)  # issue 27's median ratio vir − u_c : pulses_N, to its digits
 T = 1e-3  # s, the controller's period (EMPS README)
 SATURATION = 10.0  # V
 # the benchmark's published IDIM-LS (EMPS README / description), as printed
@@ -394,6 +406,53 @@ def _identify_tracking(d: dict, repeats: int) -> dict:
     return out
 
 
+def _cross_test(repeats: int) -> tuple[dict, list[dict]]:
+    """Section 4 (module docstring): the examples' manifests beside copies of the records."""
+    from phoid.io import read_experiment
+    from phoid.methods.tracking_identification import identify_tracking, replay_set
+
+    if not PULSES_FILE.is_file():
+        return {"skipped": f"the validation record is absent ({PULSES_FILE})"}, []
+    with tempfile.TemporaryDirectory() as tmp:
+        sets = {}
+        for name, data in (("emps", EMPS_FILE), ("emps-pulses", PULSES_FILE)):
+            folder = Path(tmp) / name
+            folder.mkdir()
+            shutil.copyfile(ROOT / "examples" / name / "experiment.toml",
+                            folder / "experiment.toml")
+            shutil.copyfile(data, folder / data.name)
+            sets[name] = folder
+        st_id, ident = _timed(lambda: identify_tracking(read_experiment(sets["emps"])), repeats)
+        params = {k: ident.estimates[k].value for k in ("m", "c", "fc", "offset")}
+        pulses = read_experiment(sets["emps-pulses"])
+        st_rep, rep = _timed(lambda: replay_set(pulses, params), repeats)
+        rel = {e.name: e.relative_error for e in rep.validation.errors}
+        sem = rep.command_inputs[0]
+        # the former manifest: the pulses a force in N, added to gtau·vir
+        manifest = sets["emps-pulses"] / "experiment.toml"
+        text = manifest.read_text(encoding="utf-8")
+        manifest.write_text(text.replace("u_contains_w = true", 'u_contains_w = false\n'
+                                         'w_unit = "N"'), encoding="utf-8")
+        twice = replay_set(read_experiment(sets["emps-pulses"]), params)
+        rel_twice = {e.name: e.relative_error for e in twice.validation.errors}
+    res = {"parameters": params, "identify": st_id, "replay": st_rep,
+           "relative_error_percent": rel, "w_in_u": sem.to_dict(),
+           "pulses_as_force_N_relative_error_percent": rel_twice}
+    tr, fo = CROSS_ACCEPT
+    got_t, got_f = rel["tracking error"], rel["force"]
+    g, tol = CROSS_GAIN
+    tgt = [_target(f"EMPS cross-test (identify on DATA_EMPS, replay on DATA_EMPS_PULSES): "
+                   f"tracking error ≤ {tr:g} %, force ≤ {fo:g} %", got_t <= tr and got_f <= fo,
+                   f"{got_t:.4f} %, {got_f:.3f} %"),
+           _target(f"EMPS pulses: vir holds them with gain {g} ± {tol:g}",
+                   sem.contains and abs(sem.gain - g) <= tol,
+                   f"{sem.gain:.6f} ({sem.source}, {sem.measured.status})"),
+           _target("EMPS cross-test with the pulses added again as a force in N (reported)",
+                   True, f"{rel_twice['tracking error']:.3f} %, {rel_twice['force']:.2f} %",
+                   enforced=False)]
+    return res, tgt
+
+
 def run(repeats: int = 5, ivp_samples: int = 5000, naive_budget: float = 10.0) -> dict:
     """Every measurement above; ``{"skipped": reason}`` when the record is absent."""
     reason = missing()
@@ -423,6 +482,8 @@ def run(repeats: int = 5, ivp_samples: int = 5000, naive_budget: float = 10.0) -
                            f"{total:.2f} s; {total_est:.2f} s with the delay estimated",
                            enforced=False))
     res["identify_tracking"] = _identify_tracking(d, repeats)
+    res["cross_test"], tg = _cross_test(max(1, min(repeats, 3)))
+    targets += tg
     res["targets"] = targets
     return res
 
