@@ -18,7 +18,14 @@ objective is continuous with kinks, which the trust region handles.
 Starts: the viscous fit with a = 0 (so that the friction fit can only improve on it: it nests
 the viscous model at a = 0) and the half-cycle amplitude regression of
 :func:`~phoid.methods.free_friction_model.envelope_start` on the release with the largest
-motion; the lower final χ² wins.
+motion (its turning points' spacing and heights); the lower final χ² wins. From each start
+the fit runs over growing windows — the first 4, 16, 64 … half periods of every release, then
+all of it — each warm-started from the last: a start's phase error grows along the record, and
+on the whole record at once it pulls the rates into the basin of a neighbouring stop (the
+mass sticking one half-cycle early or late is a separate local minimum of χ²). The viscous
+start on the whole record at once is tried too, and from the best of all, two restarts
+with f_c/m changed by ±1/K (K the most velocity zeros of a release: the change that moves a
+stop by about one half-cycle).
 
 Covariances of (σ, ω₀², a), with the release parameters profiled out (each release's Jacobian
 projected off its own three columns, which is exact for the block structure):
@@ -190,16 +197,46 @@ class _Objective:
         return J.tocsr() if self.sparse else J
 
 
-def _solve(obj: _Objective, p0: np.ndarray, lb: np.ndarray, ub: np.ndarray):
+def _solve(obj: _Objective, p0: np.ndarray, lb: np.ndarray, ub: np.ndarray,
+           free: np.ndarray | None = None):
+    """least_squares from ``p0`` over the parameters where ``free`` (all by default)."""
     from scipy.optimize import least_squares
 
     theta, _ = obj.split(p0)
     scale = np.concatenate([obj.steps(theta, 0)[:3]]
                            + [obj.steps(theta, i)[[3, 3, 4]] for i in range(obj.R)]) / _STEP
     p0 = np.clip(p0, lb + 1e-12 * scale, ub - 1e-12 * scale)
-    return least_squares(obj, p0, jac=obj.jac, bounds=(lb, ub), method="trf", x_scale=scale,
-                         max_nfev=MAX_NFEV, tr_solver="lsmr" if obj.sparse else "exact",
-                         xtol=1e-10, ftol=1e-10, gtol=1e-10)
+    if free is None:
+        free = np.ones(obj.P, dtype=bool)
+    cols = np.flatnonzero(free)
+
+    def full(q: np.ndarray) -> np.ndarray:
+        p = p0.copy()
+        p[cols] = q
+        return p
+
+    def fun(q: np.ndarray) -> np.ndarray:
+        return obj(full(q))
+
+    def jac(q: np.ndarray):
+        return obj.jac(full(q))[:, cols]
+
+    sol = least_squares(fun, p0[cols], jac=jac, bounds=(lb[cols], ub[cols]), method="trf",
+                        x_scale=scale[cols], max_nfev=MAX_NFEV,
+                        tr_solver="lsmr" if obj.sparse else "exact",
+                        xtol=1e-10, ftol=1e-10, gtol=1e-10)
+    sol.x = full(sol.x)
+    return sol
+
+
+def _truncated(prob: FrictionProblem, span: float) -> FrictionProblem:
+    """The problem on each window's first ``span`` seconds (at least 16 samples)."""
+    out = []
+    for w in prob.windows:
+        n = max(int(np.searchsorted(w.t, w.t[0] + span, side="right")), min(16, w.t.size))
+        out.append(ReleaseWindow(t=w.t[:n], x=w.x[:n], noise=w.noise, offset=w.offset, y0=w.y0,
+                                 v0=w.v0))
+    return FrictionProblem(windows=tuple(out), sigma=prob.sigma, w0sq=prob.w0sq)
 
 
 def fit_free_friction(prob: FrictionProblem) -> FrictionSolution:
@@ -230,14 +267,34 @@ def fit_free_friction(prob: FrictionProblem) -> FrictionSolution:
     k = int(np.argmax([a / w.noise for a, w in zip(obj.amp, prob.windows, strict=True)]))
     wk = prob.windows[k]
     env = envelope_start(wk.t, wk.x - wk.offset, prob.sigma, prob.w0sq, wk.noise)
-    if env is not None and env[0] > lb[0]:
-        starts.append(np.concatenate([[env[0], prob.w0sq, env[1]], own0.ravel()]))
+    if env is not None and env[0] > lb[0] and lb[1] < env[1] < ub[1]:
+        starts.append(np.concatenate([list(env), own0.ravel()]))
     best = None
-    for p0 in starts:
-        sol = _solve(obj, p0, lb, ub)
+    h = math.pi / math.sqrt(max(prob.w0sq - prob.sigma**2, prob.w0sq * 1e-6))
+    spans = [4 * h * 4**j for j in range(8) if 4 * h * 4**j < T] + [math.inf]
+    for j, p0 in enumerate(starts):
+        if j == 0:  # the viscous start on the whole record at once: the nested guarantee
+            best = _solve(obj, p0, lb, ub)
+        # continuation over growing windows (4, 16, 64 … half periods, then all): the phase
+        # error of a start accumulates over the record and would pull the rates into the
+        # basin of a neighbouring stop; a short window locks ω₀ first
+        p = p0
+        for span in spans:
+            sub = _Objective(_truncated(prob, span)) if math.isfinite(span) else obj
+            sol = _solve(sub, p, lb, ub)
+            p = sol.x
         if best is None or sol.cost < best.cost:
             best = sol
     assert best is not None
+    # the neighbouring stops: f_c/m changed by the share that moves a stop by one half-cycle
+    theta, own = obj.split(best.x)
+    turns = max(_motion(w, theta, own[i]).turns.size for i, w in enumerate(prob.windows))
+    for f in (1.0 + 1.0 / max(turns, 2), 1.0 - 1.0 / max(turns, 2)):
+        p0 = best.x.copy()
+        p0[2] *= f
+        sol = _solve(obj, p0, lb, ub)
+        if sol.cost < best.cost:
+            best = sol
     p = best.x
     theta, own = obj.split(p)
     motions = tuple(_motion(w, theta, own[i]) for i, w in enumerate(prob.windows))

@@ -209,41 +209,66 @@ def coulomb_decay(tau: np.ndarray, sigma: float, w0sq: float, a: float, y0: floa
 
 
 def envelope_start(t: np.ndarray, y: np.ndarray, sigma: float, w0sq: float,
-                   noise: float) -> tuple[float, float] | None:
-    """A start (σ, a) from the half-cycle amplitudes of a record (positions from the offset).
+                   noise: float) -> tuple[float, float, float] | None:
+    """A start (σ, ω₀², a) from the turning points of a record (positions from the offset).
 
-    The record is cut into intervals of one half period h = π/ω_d (ω_d from the viscous
-    estimate); each interval's largest |y| is its turning point's half-amplitude u_k. While
-    the motion lasts, u_{k+1} = r·u_k − d(1 + r) (module docstring) is linear in u_k: a line
-    through the pairs (u_k, u_{k+1}) gives r = e^{−σh} and d = a/ω₀². The pairs used stop where
-    the amplitude no longer drops by more than 3 noise sd (the mass has stuck).
+    The half-cycles are found without a model: y crosses from above +3 noise sd to below
+    −3 noise sd or back (a hysteresis that noise cannot trip); each half-cycle's largest |y|
+    and its time are its turning point (u_k, t_k), the swings before the largest set aside (a
+    hand release rises first), and those after a gap of more than 1.5 median gaps (noise
+    about the stuck position). Turning points are h = π/ω_d apart: a line through (k, t_k)
+    gives h. While the motion lasts u_{k+1} = r·u_k − d(1 + r) (module docstring) is linear in
+    u_k: a line through the pairs (u_k, u_{k+1}) gives r = e^{−σh} and d = a/ω₀².
+
+    Parameters
+    ----------
+    t, y : ndarray
+        The window's samples, s and m (from the viscous fit's offset).
+    sigma, w0sq : float
+        The viscous estimates (only to check the decay oscillates).
+    noise : float
+        The record's noise sd, m.
 
     Returns
     -------
-    (sigma, a) or None
-        None when the viscous estimate is not underdamped or fewer than 3 pairs are usable.
+    (sigma, w0sq, a) or None
+        None when the viscous estimate is not underdamped or fewer than 4 turning points are
+        found.
     """
-    q = sigma * sigma - w0sq
-    if not (q < 0 and w0sq > 0) or t.size < 8:
+    if not (sigma * sigma < w0sq) or t.size < 8:
         return None
-    h = math.pi / math.sqrt(-q)
-    k = np.floor((t - t[0]) / h).astype(np.int64)
-    n = int(k[-1]) + 1
-    if n < 5:
+    th = 3.0 * noise
+    state = np.where(y > th, 1, np.where(y < -th, -1, 0))
+    nz = np.flatnonzero(state)
+    if nz.size < 2:
         return None
-    u = np.full(n, -np.inf)
-    np.maximum.at(u, k, np.abs(y))
-    u = u[:-1]  # the last interval may be partial
-    u = u[int(np.argmax(u)):]  # from the largest swing on (a hand release rises first)
-    if u.size < 5:
+    st = state[nz]
+    flips = nz[1:][st[1:] != st[:-1]]          # first sample of each new half-cycle
+    bounds = np.concatenate([[0], flips, [t.size]])
+    if bounds.size < 6:
         return None
-    drop = u[:-1] - u[1:] > 3.0 * noise
-    ok = int(np.argmin(drop)) if not drop.all() else drop.size
-    if ok < 3:
+    seg = np.repeat(np.arange(bounds.size - 1), np.diff(bounds))
+    ay = np.abs(y)
+    order = np.lexsort((ay, seg))               # per half-cycle, the largest |y| last
+    last = np.concatenate([np.flatnonzero(np.diff(seg[order])), [t.size - 1]])
+    peak = order[last]
+    u, tk = ay[peak], t[peak]
+    j0 = int(np.argmax(u))
+    u, tk = u[j0:], tk[j0:]
+    if u.size < 4:
         return None
-    A = np.column_stack([u[:ok], np.ones(ok)])
-    (r, c0), *_ = np.linalg.lstsq(A, u[1: ok + 1], rcond=None)
-    if not 0.0 < r < 1.5:
+    gaps = np.diff(tk)
+    late = np.flatnonzero(gaps > 1.5 * float(np.median(gaps)))
+    if late.size:  # noise about the stuck position read as a swing: the motion ended
+        u, tk = u[: late[0] + 1], tk[: late[0] + 1]
+    if u.size < 4:
         return None
-    d = -c0 / (1.0 + r)
-    return float(-math.log(r) / h), float(d * w0sq)
+    k = np.arange(u.size, dtype=float)
+    h = float(np.polyfit(k, tk, 1)[0])
+    A = np.column_stack([u[:-1], np.ones(u.size - 1)])
+    (r, c0), *_ = np.linalg.lstsq(A, u[1:], rcond=None)
+    if not (0.0 < r < 1.5 and h > 0):
+        return None
+    s_env = float(-math.log(r) / h)
+    w2 = float((math.pi / h) ** 2 + s_env**2)
+    return s_env, w2, float(-c0 / (1.0 + r) * w2)
