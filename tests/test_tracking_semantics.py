@@ -195,6 +195,9 @@ def test_validation_force_counts_w_once():
     other = validate_tracking(t, np.zeros(n), np.zeros(n), sim, u=u, w=w, command_gain=4.0,
                               saturation=2.5, velocity="central-difference", trim=0)
     assert other.error("force").relative_error > 10.0  # w added again
+    with pytest.raises(ValueError, match="u_contains_w: must be True or False"):
+        validate_tracking(t, np.zeros(n), np.zeros(n), sim, u=u, w=w, trim=0,
+                          velocity="central-difference", u_contains_w="no")
 
 
 # --------------------------------------------------------------------------------------------
@@ -282,6 +285,17 @@ def test_bad_statements_are_one_line_errors(tmp_path, keys, expected):
     r = _cli("identify", folder, cwd=tmp_path, code=2)
     assert expected in r.stderr and "[loop]" in r.stderr
     assert r.stderr.count("\n") == 1 and "Traceback" not in r.stderr
+
+
+def test_a_stated_convention_whose_gain_cannot_be_measured_says_so():
+    from phoid.methods.tracking_semantics import command_input_semantics
+
+    rec = _loop(True, 1.0, n=300, amplitude=0.005)  # pulses far below the u noise
+    got = command_input_semantics({"u_contains_w": True}, rec["u"], rec["w"], rec["x"],
+                                  rec["r"], _ctrl())
+    assert got.contains and got.gain == 1.0 and got.gain_source == "default"
+    assert "cannot be measured from the record" in got.warning
+    assert "w_in_u_gain" in got.warning
 
 
 def test_u_contains_w_on_a_run_without_w_names_the_run(tmp_path):

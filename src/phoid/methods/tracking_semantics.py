@@ -330,6 +330,10 @@ def command_input_semantics(loop: Any, u: Any, w: Any, x: Any, r: Any,
     else:
         gain, gain_source = unit_gain, "default"
     text = None
+    if gain_source == "default" and m is not None and m.status == "undetermined":
+        text = (f"[loop] u_contains_w = true, but the gain with which u holds w cannot be "
+                f"measured from the record: {m.reason}; {_g(gain)} is taken (state it: [loop] "
+                "w_in_u_gain)")
     if m is not None and m.status == "absent":
         text = (f"[loop] u_contains_w = true, but the record says u does not contain w: "
                 f"{m.describe()}; the force leaves w out (remove the key or set it to false)")

@@ -388,6 +388,8 @@ def validate_tracking(t: Any, x: Any, r: Any, sim: Any, *, u: Any = None, w: Any
                              f"than {3 * order} (order {order})")
     start, stop = _trim_window(trim, n)
     sel = slice(start, stop)
+    if not isinstance(u_contains_w, (bool, np.bool_)):
+        raise ValueError(f"u_contains_w: must be True or False, got {u_contains_w!r}")
 
     force = None
     if w is not None and u is None:
