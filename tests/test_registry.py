@@ -33,11 +33,16 @@ SAMPLE = ROOT / "examples" / "paper-sample"
 FORMAT_DOC = (ROOT / "docs" / "format.md").read_text(encoding="utf-8")
 
 
+def _command(*args: object) -> list[str]:
+    """The real ``phoid`` command (the entry point's main) in a fresh interpreter."""
+    return [sys.executable, "-c", "from phoid.cli import main; main()", *map(str, args)]
+
+
+_ENV = dict(os.environ, PYTHONPATH=str(ROOT / "src"))
+
+
 def _phoid(*args: object) -> subprocess.CompletedProcess:
-    """The real ``phoid`` command in a fresh interpreter (the installed entry point's main)."""
-    env = dict(os.environ, PYTHONPATH=str(ROOT / "src"))
-    return subprocess.run([sys.executable, "-c", "from phoid.cli import main; main()",
-                           *map(str, args)], capture_output=True, text=True, env=env,
+    return subprocess.run(_command(*args), capture_output=True, text=True, env=_ENV,
                           timeout=120, check=False)
 
 
@@ -140,18 +145,38 @@ if not METHODS["free"].accepts("friction"):  # until the free-decay friction fit
                      {"--friction": "`friction=True`"}))
 
 
-@pytest.mark.parametrize(("method", "args", "api", "kwargs", "words"), MISTAKES,
-                         ids=[f"{m[0]}{''.join(m[1])}" for m in MISTAKES])
-def test_same_mistake_same_error_on_every_route(sets, method, args, api, kwargs, words):
+@pytest.fixture(scope="module")
+def cli_runs(sets) -> dict[str, tuple[int, str, str]]:
+    """``phoid identify SET --json OPTIONS`` of every mistake, as subprocesses started
+    together (each is mostly the interpreter's start-up): (status, stdout, stderr) by id."""
+    procs = {key: subprocess.Popen(_command("identify", sets[m[0]], "--json", *m[1]),
+                                   stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                                   env=_ENV)
+             for key, m in zip(MISTAKE_IDS, MISTAKES, strict=True)}
+    out = {}
+    for key, proc in procs.items():
+        stdout, stderr = proc.communicate(timeout=120)
+        out[key] = (proc.returncode, stdout, stderr)
+    return out
+
+
+MISTAKE_IDS = [f"{m[0]}{''.join(m[1])}" for m in MISTAKES]
+
+
+@pytest.mark.parametrize(("key", "method", "args", "api", "kwargs", "words"),
+                         [(k, *m) for k, m in zip(MISTAKE_IDS, MISTAKES, strict=True)],
+                         ids=MISTAKE_IDS)
+def test_same_mistake_same_error_on_every_route(sets, cli_runs, key, method, args, api,
+                                                kwargs, words):
     exp = read_experiment(sets[method])
     with pytest.raises(IdentificationError) as by_set:
         identify_set(exp, **kwargs)
     with pytest.raises(IdentificationError) as by_api:
         phoid.identify(exp, **api)
-    cli = _phoid("identify", sets[method], "--json", *args)
-    assert cli.returncode == 2 and cli.stdout == "", (cli.returncode, cli.stdout)
-    lines = cli.stderr.strip().splitlines()
-    assert len(lines) == 1 and "Traceback" not in cli.stderr, cli.stderr
+    status, stdout, stderr = cli_runs[key]
+    assert status == 2 and stdout == "", (status, stdout)
+    lines = stderr.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in stderr, stderr
     # the command line prints identify_set's message, word for word
     assert lines[0] == f"phoid: error: {by_set.value}"
     text = str(by_set.value)
@@ -201,6 +226,16 @@ def test_python_and_command_line_options_give_the_same_numbers(sets):
     assert json.dumps(a, sort_keys=True) == json.dumps(b, sort_keys=True)
     free = read_experiment(sets["free"])
     assert phoid.identify(free, mass=3.0).c == identify_set(free, mass=3.0).c
+
+
+def test_friction_selects_the_free_decay_friction_fit(sets):
+    """--friction on a free set: the Coulomb + viscous decay, the same result on both routes
+    (and with the mass, fc in N)."""
+    free = read_experiment(sets["free"])
+    a = phoid.identify(free, friction=True, mass=2.0).summary()
+    b = identify_set(free, friction=True, mass=2.0).summary()
+    assert a["friction"] is True and "fc" in a
+    assert json.dumps(a, sort_keys=True) == json.dumps(b, sort_keys=True)
 
 
 # ---------------------------------------------------------------------------------------------

@@ -22,6 +22,7 @@ from phoid.methods.registry import identify_with
 if TYPE_CHECKING:
     from phoid.methods.forced import ForcedIdentification
     from phoid.methods.free import FreeIdentification
+    from phoid.methods.free_friction import FreeFrictionIdentification
     from phoid.methods.friction import FrictionFit
     from phoid.methods.tracking_identification import TrackingIdentification
 
@@ -37,7 +38,7 @@ def identify(
     mass: float | None = None,
     friction: bool = False,
 ) -> Identification | ForcedIdentification | FreeIdentification | FrictionFit | \
-        TrackingIdentification:
+        FreeFrictionIdentification | TrackingIdentification:
     """Identify a read experiment set by its ``method``: m, c, k (or what the method gives).
 
     The one dispatch of :mod:`phoid.methods.registry`, as ``phoid identify`` runs it: the same
@@ -62,16 +63,23 @@ def identify(
         Free-decay sets: the known mass, kg (overrides the manifest's ``mass``): c and k too.
     friction : bool, default False
         PHO sets: fit Coulomb friction f_c too, through the stick-slip simulator
-        (:func:`phoid.methods.friction.identify_friction_set`).
+        (:func:`phoid.methods.friction.identify_friction_set`); free sets: the decay with
+        Coulomb and viscous friction and its stop
+        (:func:`phoid.methods.free_friction.identify_free_friction`).
 
     Returns
     -------
-    Identification, ForcedIdentification, FreeIdentification, FrictionFit or TrackingIdentification
+    object
         The result of the set's method (:data:`phoid.methods.registry.METHODS`): PHO sets
-        :func:`phoid.methods.identification.identify_pho`, forced sets
-        :func:`phoid.methods.forced.identify_forced`, free sets
-        :func:`phoid.methods.free.identify_free`, tracking sets
-        :func:`phoid.methods.tracking_identification.identify_tracking`.
+        :class:`~phoid.methods.pho_result.Identification`
+        (:func:`phoid.methods.identification.identify_pho`; with ``friction=True``
+        :func:`phoid.methods.friction.identify_friction_set`'s ``FrictionFit``), forced sets
+        :func:`phoid.methods.forced.identify_forced`'s ``ForcedIdentification``, free sets
+        :func:`phoid.methods.free.identify_free`'s ``FreeIdentification`` (with
+        ``friction=True`` :func:`phoid.methods.free_friction.identify_free_friction`'s
+        ``FreeFrictionIdentification``), tracking sets
+        :func:`phoid.methods.tracking_identification.identify_tracking`'s
+        ``TrackingIdentification``.
 
     Raises
     ------

@@ -135,7 +135,8 @@ def identify(
     friction: Annotated[bool, typer.Option(
         "--friction", help="pho: fit Coulomb friction f_c too (JSON key fc), by a full-record "
                            "fit through the stick-slip simulator (seconds, not milliseconds; "
-                           "the loop delay must be known).")] = False,
+                           "the loop delay must be known). free: a decay with Coulomb and "
+                           "viscous friction and its stop (fc_over_m; fc with --mass).")] = False,
     html: Annotated[Path | None, typer.Option(
         "--html", help="Write a single-file HTML report (summary, runs, figures, environment, "
                        "SHA-256 of the input files) to this path.")] = None,

@@ -34,12 +34,14 @@ def identify_set(exp: Any, *, estimator: str | None = None, delay: float | None 
     mass : float, optional
         Known mass, kg, of a free-decay set (then c and k too).
     friction : bool, default False
-        pho: fit Coulomb friction f_c too, through the stick-slip simulator.
+        pho: fit Coulomb friction f_c too, through the stick-slip simulator; free: the decay
+        with Coulomb and viscous friction and its stop
+        (:func:`phoid.methods.free_friction.identify_free_friction`).
 
     Returns
     -------
-    Identification, ForcedIdentification, FreeIdentification, FrictionFit or
-    TrackingIdentification
+    Identification, ForcedIdentification, FreeIdentification, FrictionFit,
+    FreeFrictionIdentification or TrackingIdentification
         The method's result (its ``summary()`` is ``phoid identify --json``).
 
     Raises

@@ -157,11 +157,11 @@ class Method:
 _BIAS = "phoid.methods.pho_checks:refuse_bias"
 
 #: a free decay with Coulomb and viscous friction and its stop (``--friction`` on free sets);
-#: enabled by adding it to the "free" method's variants below
+#: its ``--json`` is documented within the free sets' section (``"friction": true``)
 FREE_FRICTION = Variant("phoid.methods.free_friction:identify_free_friction", ("mass",),
                         result="phoid.methods.free_friction:FreeFrictionIdentification",
                         report="phoid.reports.free_friction:free_friction_text",
-                        schema="`free` sets with `--friction`", selected_by="friction")
+                        schema="`free` sets", selected_by="friction", checks=(_BIAS,))
 
 #: the methods of the format (``phoid.io.METHODS``), by name
 METHODS: dict[str, Method] = {m.name: m for m in (
@@ -190,6 +190,7 @@ METHODS: dict[str, Method] = {m.name: m for m in (
                 result="phoid.methods.free:FreeIdentification",
                 report="phoid.reports.text:free_text", schema="`free` sets",
                 checks=(_BIAS,)),
+        FREE_FRICTION,
     )),
     Method("tracking", (
         Variant("phoid.methods.tracking_identification:identify_tracking",
