@@ -225,8 +225,8 @@ class FreeIdentification(NotebookDisplay):
     warnings: tuple[str, ...] = ()
     source: str = ""
     data: tuple[tuple[np.ndarray, np.ndarray], ...] = field(default=(), repr=False)
-    x_unit: str = "m"
     adequacy: Adequacy | None = field(default=None, repr=False)
+    x_unit: str = "m"
 
     def model(self, i: int, t: np.ndarray | float) -> np.ndarray:
         """Fitted position of run ``i`` (0-based) at times ``t`` (s), m."""
@@ -487,6 +487,20 @@ def identify_free(experiment: Any, *, mass: float | None = None) -> FreeIdentifi
     return _with_warnings(result, extra) if extra else result
 
 
+def _quantum_sd(x: np.ndarray) -> float:
+    """The noise floor of a quantised record: q/√12, q its resolution (the smallest step between
+    its distinct values), when it holds at most n/4 distinct values (a logger's counts); else 0.
+
+    A quantised record that barely moves has second differences that are mostly zero, and their
+    MAD (:func:`phoid.fits.diff_noise`) then says its noise is far below one count: a motion of
+    a count or two would pass for a swing, and the fit latch onto the rounding.
+    """
+    u = np.unique(x)
+    if u.size < 2 or u.size > x.size // 4:
+        return 0.0
+    return float(np.min(np.diff(u))) / math.sqrt(12.0)
+
+
 def _with_warnings(result: FreeIdentification, extra: tuple[str, ...]) -> FreeIdentification:
     return replace(result, warnings=tuple(result.warnings) + extra)
 
@@ -582,7 +596,7 @@ def identify_free_data(
         if t.size < MIN_SAMPLES:
             reasons.append(f"too short: {t.size} samples (at least {MIN_SAMPLES} are needed)")
             continue
-        nsd = diff_noise(x)
+        nsd = max(diff_noise(x), _quantum_sd(x))
         ptp = float(np.ptp(x))
         if not ptp > _STILL_NSD * nsd or ptp == 0.0:
             reasons.append(f"x never moves: its peak-to-peak {ptp:.3g} {x_unit} is within "
@@ -607,6 +621,12 @@ def identify_free_data(
             start = int(hits[0]) if hits.size else j + 1
         else:
             start = j if j > 2 else 0
+            if how.kind == "release" and how.peak is not None:
+                # a release whose hold was not still (a hand that drifts, pulls, lets go at
+                # an unknown sample): the samples before the first swing's largest excursion
+                # mix the hand's motion with the free one; from there on it is free (half a
+                # cycle lost at most)
+                start = max(start, how.peak + 1)
         if how.clipping is not None:  # clipped samples are no free response: left out
             start = max(start, how.clipping.last + 1)
         after = t.size - start

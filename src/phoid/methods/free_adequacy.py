@@ -17,7 +17,8 @@
 
 The robust covariance is the Newey–West sandwich of the rates (the Jacobian in (σ, ω₀²) with
 each run's offset and state projected off, each run weighted as in the fit), raised to at least
-the white one, plus the halves' spread (their sample covariance, d dᵀ/2) where the halves
+the white one, plus the halves' spread (d dᵀ for halves differing by d: twice their sample
+covariance) where the model misfits the record (the residual above its noise), the halves
 disagree or the windows show a trend (the windows' own spread of (σ, ω₀²) where there are no
 halves to compare), plus the covariance of the runs' mean where they
 disagree (mapped from (ω₀, ζ) to (σ, ω₀²) at the
@@ -44,6 +45,11 @@ _MIN_HALF = 16
 _MIN_SNR = 50.0
 #: largest relative stderr of ω₀ (white) of a part compared (halves, runs)
 _MAX_REL = 0.05
+#: the halves' spread added to a misfit's covariance: d dᵀ for halves differing by d, twice
+#: their sample covariance d dᵀ/2 (a one-dof variance estimate: d dᵀ/2 falls below the
+#: variance it estimates more than half the time, by a factor 0.45 at its median; d dᵀ is
+#: about it at its median, docs/adequacy.md)
+_SPREAD = 2.0
 
 
 def _rates_cov(fit: ModalFit) -> np.ndarray:
@@ -178,8 +184,11 @@ def assess_free(segs: Sequence[Segment], fit: ModalFit, labels: Sequence[str], *
                           labels=("first half", "second half"), of_mean=False)
         checks.append(ag.check)
         agreements.append(ag)
-        if ag.check.passed is False or struct.passed is False:
-            between.append(Jb @ ag.between @ Jb.T)
+        if ag.check.passed is False or struct.passed is False or noise_c.passed is False:
+            # the halves' spread d dᵀ (= 2S, S their sample covariance d dᵀ/2): the model
+            # misfits or the parameters drift, so the value depends on which part of the
+            # record the fit weighs (module docstring)
+            between.append(_SPREAD * (Jb @ ag.between @ Jb.T))
     elif struct.passed is False:
         # a trend along the record and no halves to measure it: the windows' own spread of
         # (σ, ω₀² = ω_d² + σ²), the range the parameters sweep
