@@ -20,7 +20,7 @@ bias and the spread in stderr units, and, for the linear cases, the least-square
 exact sd under the noise's own covariance and the Cramér–Rao bound (both computed here from the
 model's Jacobian, independently of phoid).
 
-    python bench/bench_adequacy.py            # 1000 replicas per case (~3 min, 2 workers)
+    python bench/bench_adequacy.py            # 500 replicas per case (~5–8 min, 2 workers)
     python bench/bench_adequacy.py --quick    # 40 replicas per case (a smoke run, ~20 s)
     python bench/bench_adequacy.py --write    # also splice its section into BENCHMARKS.md
                                               # and its results into bench/results.json
@@ -36,9 +36,11 @@ for _v in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_v, "1")
 
 import argparse  # noqa: E402
+import datetime  # noqa: E402
 import functools  # noqa: E402
 import json  # noqa: E402
 import math  # noqa: E402
+import re  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
 from concurrent.futures import ProcessPoolExecutor  # noqa: E402
@@ -58,7 +60,7 @@ N = round(FS * DURATION)
 OMEGA0 = 2.0 * math.pi  # rad/s (1 Hz)
 X0 = 0.01  # m, released from rest
 NOISE = 1e-5  # m, marginal sd of every noise
-FULL_REPLICAS = 1000  # a 99 % coverage read to ±0.3 % (binomial sd)
+FULL_REPLICAS = 500  # a 99 % coverage read to ±0.45 % (binomial sd)
 QUICK_REPLICAS = 40
 COVER = 3.0  # |error| < 3 stderr
 TARGET = 0.99
@@ -87,6 +89,9 @@ CASES: list[dict[str, Any]] = [
      "plant": {"sigma": 0.02, "a": 0.007}, "noise": ("white",), "fit": "friction", "target": True},
     {"name": "coulomb-mild", "label": "Coulomb + viscous, mild (no stop); viscous fit",
      "plant": {"sigma": 0.04, "a": 2e-4}, "noise": ("white",), "fit": "viscous", "target": True},
+    {"name": "coulomb-mild-friction", "label": "the same mild decays; friction fit",
+     "plant": {"sigma": 0.04, "a": 2e-4}, "noise": ("white",), "fit": "friction",
+     "target": True},
     {"name": "quadratic", "label": "viscous + quadratic drag (σ_eq 0.02 + 0.05 at x₀)",
      "plant": {"sigma": 0.02, "q": 1.875}, "noise": ("white",), "fit": "viscous", "target": True},
     {"name": "duffing-tiny", "label": "Duffing, ω shift 3e−6 at x₀ (~2 stderr)",
@@ -153,6 +158,30 @@ def ivp_decay(t: np.ndarray, sigma: float, omega0: float, q: float = 0.0,
     if not sol.success:  # pragma: no cover - a failure of scipy, not of phoid
         raise RuntimeError(sol.message)
     return sol.y[0]
+
+
+def coulomb_events(t: np.ndarray, sigma: float, omega0: float, a: float,
+                   x0: float = X0) -> tuple[np.ndarray, float]:
+    """The same as :func:`coulomb_decay` by solve_ivp, one slip direction at a time with a
+    terminal event where v crosses 0 (the check of the exact formula; the stick rule alike)."""
+    x = np.full_like(t, np.nan)
+    t0, y = 0.0, (x0, 0.0)
+    while t0 < t[-1] and abs(omega0**2 * y[0]) > a:
+        s = -math.copysign(1.0, y[0])
+
+        def turn(_t, yy):
+            return yy[1]
+
+        turn.terminal, turn.direction = True, -s
+        sol = solve_ivp(lambda _t, yy, s=s: (yy[1], -2 * sigma * yy[1] - omega0**2 * yy[0]
+                                             - a * s), (t0, float(t[-1])), y, method="DOP853",
+                        events=turn, rtol=1e-12, atol=1e-12 * x0, dense_output=True)
+        end = float(sol.t_events[0][0]) if sol.t_events[0].size else float(t[-1])
+        sel = (t >= t0) & (t <= end)
+        x[sel] = sol.sol(t[sel])[0]
+        t0, y = end, (float(sol.sol(end)[0]), 0.0)
+    x[t >= t0] = y[0] if t0 < t[-1] else x[t >= t0]
+    return x, (t0 if t0 < t[-1] else math.inf)
 
 
 @functools.cache
@@ -271,11 +300,12 @@ def truths(case: dict[str, Any]) -> dict[str, float | None]:
     average, so its bias there measures the nonlinearity, not the stderr). The viscous model's
     σ and ζ have a truth only where the damping is viscous (linear and Duffing cases); with
     Coulomb friction or quadratic drag the decay rate depends on the amplitude and no single σ
-    is right. The friction fit's truths are σ = c/2m, ω₀ and a = f_c/m."""
+    is right. The friction fit's truths are σ = c/2m, ω₀, ζ = σ/ω₀ and f_c/m = a."""
     p = case["plant"]
     viscous_only = not ("a" in p or "q" in p)
     if case["fit"] == "friction":
-        return {"sigma": p["sigma"], "omega0": OMEGA0, "a": p["a"]}
+        return {"sigma": p["sigma"], "omega0": OMEGA0, "zeta": p["sigma"] / OMEGA0,
+                "fc_over_m": p["a"]}
     s = p["sigma"] if viscous_only else None
     return {"sigma": s, "omega0": OMEGA0, "zeta": None if s is None else s / OMEGA0}
 
@@ -394,14 +424,21 @@ def summarise(case: dict[str, Any], reps: list[dict[str, Any]]) -> dict[str, Any
     return res
 
 
+def warning_kind(text: str) -> str:
+    """A warning's kind: its words before the first number, parenthesis or colon (the numbers
+    differ from replica to replica, the kind does not), without a leading run name."""
+    text = re.sub(r"^run\d+: ", "", text)
+    return re.split(r"[(:]|\s[-+]?\d|\d", text, maxsplit=1)[0].strip(" ,;.") or text[:60]
+
+
 def _common_warnings(ok: list[dict[str, Any]]) -> list[tuple[str, int]]:
-    """The three most frequent warnings (their first 140 characters) with their counts."""
+    """The kinds of warning seen, most frequent first, with the number of replicas that carried
+    each (at most six)."""
     counts: dict[str, int] = {}
     for r in ok:
-        for w in r["warnings"]:
-            k = w[:140]
+        for k in {warning_kind(w) for w in r["warnings"]}:
             counts[k] = counts.get(k, 0) + 1
-    return sorted(counts.items(), key=lambda kv: -kv[1])[:3]
+    return sorted(counts.items(), key=lambda kv: (-kv[1], kv[0]))[:6]
 
 
 def _revision() -> dict[str, Any]:
@@ -416,6 +453,11 @@ def _revision() -> dict[str, Any]:
         except (OSError, subprocess.SubprocessError):
             return ""
 
+    import phoid
+
+    src = Path(phoid.__file__).resolve().parent
+    if not src.is_relative_to(ROOT / "src"):  # another copy (an export, an installed phoid)
+        return {"commit": None, "source": str(src), "modified": []}
     return {"commit": git("rev-parse", "--short", "HEAD"),
             "modified": git("status", "--porcelain", "--", "src/phoid/methods").split("\n")
             if git("status", "--porcelain", "--", "src/phoid/methods") else []}
@@ -431,14 +473,18 @@ def run(replicas_per_case: int = FULL_REPLICAS, workers: int = 2, seed: int = 20
                   "noise_sd_m": NOISE, "replicas": replicas_per_case, "seed": seed,
                   "workers": workers},
         "cases": {}, "checks": {}, "phoid": _revision(),
+        "date": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
     }
     # the simulator's own check: solve_ivp with q = d = 0 against the exact linear decay
     t = time_grid()
     dev = float(np.max(np.abs(ivp_decay(t, 0.05, OMEGA0) - linear_decay(t, 0.05, OMEGA0))))
     res["checks"]["ivp_vs_exact_rel_x0"] = dev / X0
     cp = _case("coulomb")["plant"]
-    _, t_stop = coulomb_decay(t, cp["sigma"], OMEGA0, cp["a"])
+    xc, t_stop = coulomb_decay(t, cp["sigma"], OMEGA0, cp["a"])
+    xe, t_ev = coulomb_events(t, cp["sigma"], OMEGA0, cp["a"])
     res["checks"]["coulomb_stop_s"] = t_stop
+    res["checks"]["coulomb_events_stop_s"] = t_ev
+    res["checks"]["coulomb_vs_events_rel_x0"] = float(np.nanmax(np.abs(xc - xe))) / X0
     friction = _friction_fitter() is not None
     res["setup"]["friction_fit_available"] = friction
     with ProcessPoolExecutor(max_workers=workers) as pool:
@@ -475,7 +521,7 @@ def run(replicas_per_case: int = FULL_REPLICAS, workers: int = 2, seed: int = 20
 
 
 TITLE = "## Model adequacy: stderr coverage on decays phoid's model does not fit (issue 27)"
-SYMBOL = {"sigma": "σ", "omega0": "ω₀", "zeta": "ζ", "a": "a"}
+SYMBOL = {"sigma": "σ", "omega0": "ω₀", "zeta": "ζ", "fc_over_m": "f_c/m"}
 
 
 def _pct(x: float | None) -> str:
@@ -518,7 +564,9 @@ def section(res: dict[str, Any]) -> list[str]:
         f"released from rest at x₀ = {su['x0_m'] * 1e3:g} mm, {su['duration_s']:g} s at "
         f"{su['fs_hz']:g} Hz, noise of marginal sd {su['noise_sd_m'] * 1e6:g} µm, simulated "
         "independently of phoid (exact formulas; Coulomb friction exactly per half cycle with "
-        "the stop; quadratic drag and Duffing by solve_ivp DOP853 at rtol 1e−12, within "
+        f"the stop, within {res['checks'].get('coulomb_vs_events_rel_x0', math.nan):.0e} x₀ of "
+        "solve_ivp with v = 0 events; quadratic drag and Duffing by solve_ivp DOP853 at rtol "
+        "1e−12, within "
         f"{res['checks']['ivp_vs_exact_rel_x0']:.0e} x₀ of the exact linear decay); "
         f"{su['replicas']} replicas per case, the same decay with fresh noise, fitted by "
         "`identify_free_data` (friction: `identify_free_friction_data`). Coverage: share of "
@@ -554,14 +602,15 @@ def section(res: dict[str, Any]) -> list[str]:
                 f"{_f(ls)} | {_f(crb)} | {tail} |")
     lines += ["", "The residual (medians over the replicas): rms over the noise sd, "
               "autocorrelation at lags 1 and 10, first-half rms over second-half rms; the time "
-              "per fit; the most frequent warning.", "",
+              "per fit; the replicas warned, and each kind of warning with the number of "
+              "replicas that carried it.", "",
               "| case | rms / noise | acf(1) | acf(10) | halves | time per fit | warned "
-              "| most frequent warning |", "|---|---|---|---|---|---|---|---|"]
+              "| warnings (replicas) |", "|---|---|---|---|---|---|---|---|"]
     for name, c in res["cases"].items():
         if "skipped" in c:
             continue
         w = c["warnings_seen"]
-        warn = f"{w[0][0]}… ({w[0][1]})" if w else "none"
+        warn = "; ".join(f"{k}… ({n})" for k, n in w) if w else "none"
         lines.append(f"| `{name}` | {_f(c.get('resid_rms_over_noise'))} | "
                      f"{_f(c.get('resid_acf1'))} | {_f(c.get('resid_acf10'))} | "
                      f"{_f(c.get('resid_halves_rms_ratio'))} | "
@@ -574,8 +623,11 @@ def section(res: dict[str, Any]) -> list[str]:
               for t in tg]
     rev = res.get("phoid", {})
     mod = rev.get("modified") or []
-    lines += ["", f"Whole study: {res['wall_s']:.0f} s on {su['workers']} workers; phoid at "
-              f"commit {rev.get('commit') or 'unknown'}"
+    where = (f"commit {rev['commit']}" if rev.get("commit")
+             else f"the copy in {rev['source']}" if rev.get("source") else "unknown")
+    when = f" on {res['date']}" if res.get("date") else ""
+    lines += ["", f"Whole study{when}: {res['wall_s']:.0f} s on {su['workers']} workers; "
+              f"phoid at {where}"
               + (f" with {len(mod)} modified file(s) under src/phoid/methods" if mod else "")
               + "."]
     return lines
@@ -590,7 +642,8 @@ def splice(text: str, part: list[str]) -> str:
         j = next((k for k in range(i + 1, len(lines)) if lines[k].startswith("## ")),
                  len(lines))
         return "\n".join(lines[:i]) + "\n" + block + "\n" + "\n".join(lines[j:])
-    anchor = next((k for k, ln in enumerate(lines) if ln.startswith("## Profiling")), None)
+    anchor = next((k for k, ln in enumerate(lines)
+                   if ln.startswith("## What changed after profiling")), None)
     if anchor is None:
         return text.rstrip("\n") + "\n\n" + block
     return "\n".join(lines[:anchor]) + "\n" + block + "\n" + "\n".join(lines[anchor:])
