@@ -162,7 +162,9 @@ def test_several_runs_share_the_plant_and_keep_their_own_stop():
     _within(res.fc_over_m, a)
     for r, s in zip(res.runs, stops, strict=True):
         assert s is not None and r.stop_time == pytest.approx(s, abs=0.05)
-        assert r.half_cycles >= 4
+        # 3: run b's window starts at its first turning point (the viscous fit's release
+        # detection), which leaves it 3 velocity zeros before the stop
+        assert r.half_cycles >= 3
 
 
 def test_with_mass_c_k_fc_and_the_summary(tmp_path):
@@ -239,7 +241,7 @@ def test_real_pendulum_friction_matches_the_independent_envelope():
     t0 = time.perf_counter()
     res = identify_free_friction(exp)
     elapsed = time.perf_counter() - t0
-    assert elapsed < 8.0  # 2.8 s measured on 2 shared cores; a loose bound against stalls
+    assert elapsed < 8.0  # 0.4 s of CPU measured (2.8 s before); a loose bound against stalls
     # README: an independent envelope fit dA/dt = −σA − q gives σ ≈ 0.130 1/s and
     # q ≈ 0.225 °/s; the loss per time of the exact model is q = 2a/(π ω_d)
     assert res.sigma.value == pytest.approx(0.130, abs=0.01)

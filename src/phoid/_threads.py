@@ -12,20 +12,26 @@ library scikit-learn and joblib use for this), and restore the caller's setting 
 from __future__ import annotations
 
 import functools
+import sys
 from collections.abc import Callable
 from typing import Any, TypeVar
 
 F = TypeVar("F", bound=Callable[..., Any])
 
 _controller: Any = None
+#: len(sys.modules) when the controller was made: a module imported since may have loaded
+#: another BLAS (scipy's own OpenBLAS, loaded with scipy.linalg, is not numpy's), which a
+#: controller made before it would leave at its default threads
+_modules_seen = -1
 
 
 def _limit() -> Any:
-    global _controller
-    if _controller is None:
+    global _controller, _modules_seen
+    if _controller is None or len(sys.modules) != _modules_seen:
         from threadpoolctl import ThreadpoolController
 
         _controller = ThreadpoolController()
+        _modules_seen = len(sys.modules)
     return _controller.limit(limits=1, user_api="blas")
 
 

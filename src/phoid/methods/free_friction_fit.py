@@ -7,9 +7,13 @@ The residual of release i is (xᵢ − x_offᵢ − y(t; σ, ω₀², a, y₀ᵢ
 estimated without a model (:func:`phoid.methods.fit_statistics.difference_noise` over the
 window), y the exact piecewise motion of :func:`phoid.methods.free_friction_model.coulomb_decay`;
 the sum of squares is then the χ² of the fit. It is minimised by
-:func:`scipy.optimize.least_squares` (trust-region reflective) with a Jacobian by central
-differences, each step 10⁻⁶ of its parameter's scale (|σ| or 1 % of ω₀, ω₀², |a| or 1 % of
-ω₀²·amplitude, the amplitude, the amplitude·ω₀), the offset's column exact. The Jacobian is
+:func:`scipy.optimize.least_squares` (trust-region reflective, stopped at a relative change
+of 10⁻⁸ in the cost or the parameters: ~10⁻⁴ √n of a stderr at most, and on a real record's
+kinked valley of stops it saves the long creep along it) with a Jacobian by forward
+differences, each step √ε ≈ 1.5·10⁻⁸ of its parameter's scale (|σ| or 1 % of ω₀, ω₀², |a| or
+1 % of ω₀²·amplitude, the amplitude, the amplitude·ω₀), the offset's column exact; the
+covariances' Jacobian at the solution by central differences (steps 10⁻⁶ of the scale: a
+forward difference across a kink of the stop would distort the Newey–West sandwich). The Jacobian is
 dense while it holds under 5·10⁶ numbers and sparse (block-diagonal in the releases, LSMR
 steps) beyond. The motion is continuous in the parameters (the stop moves continuously: a
 stuck position at the band's edge |y| = d starts a half-cycle of zero height), so the
@@ -51,8 +55,11 @@ __all__ = ["FrictionProblem", "FrictionSolution", "ReleaseWindow", "fit_free_fri
 MAX_NFEV = 200
 #: largest dense Jacobian, numbers
 _DENSE_MAX = 5_000_000
-#: relative finite-difference step
-_STEP = 1e-6
+#: relative forward-difference step: √ε, where truncation (∝ step) and rounding (∝ ε/step)
+#: errors of the derivative balance, each ~1e-8 of it
+_STEP = 1.5e-8
+#: relative central-difference step of the covariances' Jacobian (error ~1e-12 of it)
+_STEP_CENTRAL = 1e-6
 
 
 @dataclass(frozen=True)
@@ -160,25 +167,34 @@ class _Objective:
             max(abs(theta[0]), 0.01 * self.w0), abs(theta[1]),
             max(abs(theta[2]), 0.01 * abs(theta[1]) * amp), amp, amp * self.w0])
 
-    def blocks(self, p: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
-        """Per release: ∂model/∂θ (nᵢ, 3) and ∂model/∂(offset, y₀, v₀) (nᵢ, 3), unweighted."""
+    def blocks(self, p: np.ndarray, *,
+               central: bool = False) -> list[tuple[np.ndarray, np.ndarray]]:
+        """Per release: ∂model/∂θ (nᵢ, 3) and ∂model/∂(offset, y₀, v₀) (nᵢ, 3), unweighted:
+        forward differences from one evaluation at ``p`` (6 motions per release, the steps of
+        the fit), or ``central`` ones (10 motions, steps of :data:`_STEP_CENTRAL`, for the
+        covariances)."""
         theta, own = self.split(p)
         out = []
         for i, w in enumerate(self.w):
-            h = self.steps(theta, i)
+            h = self.steps(theta, i) * (_STEP_CENTRAL / _STEP if central else 1.0)
+            base = None if central else _motion(w, theta, own[i]).y
             Js = np.empty((w.t.size, 3))
             Jo = np.empty((w.t.size, 3))
             Jo[:, 0] = 1.0
-            for j in range(3):
-                tp, tm = theta.copy(), theta.copy()
-                tp[j] += h[j]
-                tm[j] -= h[j]
-                Js[:, j] = (_motion(w, tp, own[i]).y - _motion(w, tm, own[i]).y) / (2 * h[j])
-            for j in (1, 2):
-                op, om = own[i].copy(), own[i].copy()
-                op[j] += h[2 + j]
-                om[j] -= h[2 + j]
-                Jo[:, j] = (_motion(w, theta, op).y - _motion(w, theta, om).y) / (2 * h[2 + j])
+            for j in range(5):
+                vec, k = (theta, j) if j < 3 else (own[i], j - 2)
+                up, down = vec.copy(), vec.copy()
+                up[k] += h[j]
+                down[k] -= h[j] if central else 0.0
+                args = [(up, own[i]) if j < 3 else (theta, up),
+                        (down, own[i]) if j < 3 else (theta, down)]
+                y_up = _motion(w, *args[0]).y
+                y_down = _motion(w, *args[1]).y if central else base
+                col = (y_up - y_down) / (up[k] - down[k])
+                if j < 3:
+                    Js[:, j] = col
+                else:
+                    Jo[:, k] = col
             out.append((Js, Jo))
         return out
 
@@ -224,7 +240,7 @@ def _solve(obj: _Objective, p0: np.ndarray, lb: np.ndarray, ub: np.ndarray,
     sol = least_squares(fun, p0[cols], jac=jac, bounds=(lb[cols], ub[cols]), method="trf",
                         x_scale=scale[cols], max_nfev=MAX_NFEV,
                         tr_solver="lsmr" if obj.sparse else "exact",
-                        xtol=1e-10, ftol=1e-10, gtol=1e-10)
+                        xtol=1e-8, ftol=1e-8, gtol=1e-8)
     sol.x = full(sol.x)
     return sol
 
@@ -301,7 +317,7 @@ def fit_free_friction(prob: FrictionProblem) -> FrictionSolution:
     resid = tuple(w.x - own[i, 0] - m.y for i, (w, m) in
                   enumerate(zip(prob.windows, motions, strict=True)))
     Jt, e = [], []
-    for (Js, Jo), r in zip(obj.blocks(p), resid, strict=True):
+    for (Js, Jo), r in zip(obj.blocks(p, central=True), resid, strict=True):
         # profile out the release's own parameters: project Js off the columns of Jo
         coef, *_ = np.linalg.lstsq(Jo, Js, rcond=None)
         Jp = Js - Jo @ coef
