@@ -7,8 +7,9 @@ benchmark's kind of data). Two estimators, chosen by the set's ``estimator`` (or
   robotics standard, when every run records the controller's output u: the force is
   G·(u + w), or G·u where the recorded u already contains w (stated by ``[loop]
   u_contains_w`` or measured from the record: :mod:`phoid.methods.tracking_semantics`) (the
-  command delayed by the loop's τ, as the plant sees it on average over a period), the parameters M, Fv, Fc, OF (and k unless fixed) by ordinary least squares. As in
-  the published recipe, F_n is paired with q̈ at t_n although the held F_n acts on
+  command delayed by the loop's τ, as the plant sees it on average over a period), the
+  parameters M, Fv, Fc, OF (and k unless fixed) by ordinary least squares. As in the
+  published recipe, F_n is paired with q̈ at t_n although the held F_n acts on
   [t_n, t_n+1): IDIM at τ models τ − T/2 (docs/design-notes/tracking.md);
 * ``"output-error"`` — from x and r alone (:func:`~phoid.methods.tracking.fit_tracking_runs`):
   the loop simulated exactly and fitted to the recorded x, Newey–West stderrs, the delay
