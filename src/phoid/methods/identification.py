@@ -24,6 +24,7 @@ from phoid.fits import start_decays
 from phoid.methods.chi2 import chi2_isf
 from phoid.methods.estimate import Estimate
 from phoid.methods.pho import MCKFit, delay_profile, fit_lines, fit_modes
+from phoid.methods.pho_adequacy import apply_pho
 from phoid.methods.pho_checks import (
     check_added_mass,
     check_delay,
@@ -203,6 +204,53 @@ def _as_record(run) -> tuple[Any, Any]:
 
 @single_blas_thread
 def identify_pho_data(
+    data: Sequence[tuple[np.ndarray, np.ndarray]],
+    P: np.ndarray,
+    D: np.ndarray,
+    delay: float | None,
+    *,
+    files: Sequence[str] | None = None,
+    names: Sequence[str] | None = None,
+    estimator: str = "gls",
+    compensate: bool = True,
+    source: str = "",
+    digital: Any = None,
+    added_mass: np.ndarray | None = None,
+    u: Sequence[np.ndarray | None] | None = None,
+) -> Identification:
+    """The PHO pipeline on plain arrays: ``data`` is a sequence of (t, x) per run.
+
+    The estimates of :func:`_identify_runs`, then their
+    adequacy (:func:`phoid.methods.pho_adequacy.apply_pho`: each run's residual against its
+    noise and for whiteness, the runs' agreement; where a check fails, the robust stderr with
+    the white-noise ones in ``white_stderr`` and a warning).
+
+    Parameters
+    ----------
+    data : sequence of (t, x)
+        Each run's time (s) and position (m) arrays.
+    P, D : array_like
+        Each run's gains, N/m and N·s/m.
+    delay : float or None
+        Loop delay Δt, s; None estimates it with m, c, k.
+    files, names, estimator, compensate, source, digital, added_mass, u
+        As in :func:`_identify_runs`.
+
+    Returns
+    -------
+    Identification
+
+    Raises
+    ------
+    IdentificationError
+        When the data cannot determine m, c, k (no usable runs, all gains equal, …).
+    """
+    return apply_pho(_identify_runs(data, P, D, delay, files=files, names=names,
+                                    estimator=estimator, compensate=compensate, source=source,
+                                    digital=digital, added_mass=added_mass, u=u))
+
+
+def _identify_runs(
     data: Sequence[tuple[np.ndarray, np.ndarray]],
     P: np.ndarray,
     D: np.ndarray,

@@ -183,6 +183,7 @@ def identification_text(ident: Any) -> str:
             f"{r.cycles:>8.1f}{r.residual_rms:>10.2g}{ratio_text(q):>12}{mark}"
         )
     lines.extend(fit_statistics_lines(ident))
+    lines.extend(adequacy_lines(ident))
     if ident.warnings:
         lines.append("")
         lines.append("warnings:")
@@ -287,6 +288,7 @@ def friction_text(fit: Any) -> str:
                      f"{r.omega_d:>11.5g}{r.x0:>11.3g}{stick:>13}{r.residual_rms:>10.2g}"
                      f"{ratio_text(q):>12}{mark}")
     lines.extend(fit_statistics_lines(fit))
+    lines.extend(adequacy_lines(fit))
     if fit.warnings:
         lines.append("")
         lines.append("warnings:")
@@ -391,6 +393,7 @@ def forced_text(result: Any) -> str:
             f"{format_estimate(r.R, r.R_stderr):>22} {format_estimate(r.rho, r.rho_stderr):>22}"
             f"{r.settle_time - r.t_start:>11.3g}{ratio_text(q):>12}{mark}")
     lines.extend(fit_statistics_lines(result))
+    lines.extend(adequacy_lines(result))
     if result.warnings:
         lines += ["", "warnings:"] + [f"  - {safe_text(w)}" for w in result.warnings]
     return "\n".join(lines)

@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -46,6 +47,7 @@ from phoid.methods._modal import (
     release_basis,
 )
 from phoid.methods.estimate import Estimate
+from phoid.methods.forced.adequacy import RUNS_DISAGREE, assess_forced, phasor_sandwich
 from phoid.methods.forced.force import MIN_SAMPLES, Force, fit_force
 from phoid.methods.forced.results import ForcedIdentification, ForcedRun
 from phoid.methods.forced.stiffness import ResponseFit, distinct_count, fit_response
@@ -103,7 +105,6 @@ def identify_forced(experiment: Any) -> ForcedIdentification:
         labels=[r.name for r in runs], source=where,
     )
     if getattr(experiment, "loop", None):
-        from dataclasses import replace
 
         result = replace(result, warnings=(*result.warnings,
                                            "[loop] is ignored for a forced set"))
@@ -280,10 +281,26 @@ def identify_forced_data(
     covZ = Jx @ cov_u @ Jx.T + covF
     omega_var = np.array([forces[i].omega_var for i in used])  # type: ignore[union-attr]
     resp = fit_response(om, Z, covZ, omega_var=omega_var, added_mass=ma[used])
-    warnings.extend(resp.warnings)
+    phasors = []
+    for p, seg in enumerate(segs):
+        basis = release_basis(seg.t - seg.t0, modal.sigma, modal.w0sq)
+        phasors.append(phasor_sandwich(seg.t, seg.fixed, basis, modal.resid[p]))
+    adequacy = assess_forced(
+        x=[s.x for s in segs], resid=list(modal.resid),
+        motion=[s.x - c[0] - r for s, c, r in zip(segs, modal.coef, modal.resid, strict=True)],
+        phasor_robust=phasors, phasor_white=[modal.coef_cov[p][1:3, 1:3] for p in range(nu)],
+        Jx=Jx, cov_u=cov_u, covF=covF, omega=om, Z=Z, omega_var=omega_var,
+        added_mass=ma[used], fit=resp, labels=[labels[i] for i in used])
+    warnings.extend(w for w in resp.warnings if not w.startswith(RUNS_DISAGREE))
     warnings.extend(_side_warnings(om, Z, resp))
+    warnings.extend(adequacy.warnings)
 
     se = resp.stderr
+    wse: np.ndarray | None = None
+    if adequacy.stderr == "robust":
+        se = np.sqrt(np.clip(np.diag(adequacy.robust_cov), 0.0, None))
+        wse = np.sqrt(np.clip(np.diag(adequacy.white_cov), 0.0, None))
+        resp = replace(resp, cov=adequacy.robust_cov)
     out_runs: list[ForcedRun] = []
     p_of = {i: p for p, i in enumerate(used)}
     for i in range(n):
@@ -338,11 +355,17 @@ def identify_forced_data(
             transient_rates=(modal.sigma, modal.w0sq),
         ))
     return ForcedIdentification(
-        m=Estimate(resp.m, float(se[0]), "kg"), c=Estimate(resp.c, float(se[1]), "N s/m"),
-        k=Estimate(resp.k, float(se[2]), "N/m"), fit=resp, runs=tuple(out_runs),
+        m=_est(resp.m, se, wse, 0, "kg"), c=_est(resp.c, se, wse, 1, "N s/m"),
+        k=_est(resp.k, se, wse, 2, "N/m"), fit=resp, runs=tuple(out_runs),
         transient=(modal.sigma, modal.w0sq), transient_fitted=fit_rates,
-        warnings=tuple(warnings), source=source, data=tuple(arrays),
+        warnings=tuple(warnings), source=source, data=tuple(arrays), adequacy=adequacy,
     )
+
+
+def _est(value: float, se: np.ndarray, wse: np.ndarray | None, j: int, unit: str) -> Estimate:
+    """An estimate with its reported stderr and, where that is the robust one, the white."""
+    return Estimate(value, float(se[j]), unit,
+                    white_stderr=None if wse is None else float(wse[j]))
 
 
 def _phasor_jac(w: complex) -> np.ndarray:

@@ -45,6 +45,7 @@ from phoid._progress import task
 from phoid._threads import single_blas_thread
 from phoid.errors import ExperimentError, IdentificationError
 from phoid.methods.estimate import Estimate
+from phoid.methods.friction.adequacy import assess_friction
 from phoid.methods.friction.model import Problem
 from phoid.methods.friction.results import FrictionFit, FrictionRun
 from phoid.methods.friction.setup import Setup, StartError, dominant, prepare
@@ -363,10 +364,24 @@ def _result(setup, idx, reasons, prob, fixed, res, facts, iterations) -> Frictio
                         "gains or unmodelled dynamics")
     if len(idx) < 3:
         warnings.append(f"only {len(idx)} usable runs: m, c, k, fc are barely determined")
+    used_s = [setup.surveys[i] for i in idx]
+    adequacy = assess_friction(
+        resid, [s.sd for s in used_s],
+        [float(np.sqrt(np.mean((vals[j] - local[j, 1]) ** 2))) for j in range(len(idx))],
+        [s.name for s in used_s], J, list(prob.w), cov, chi2, dof)
+    warnings.extend(w for w in adequacy.warnings if w not in warnings)
+    wse: list[float | None] = [None] * 4
+    if adequacy.stderr == "robust":
+        cov = adequacy.robust_cov
+        wse = [float(x) for x in se]
+        se = np.sqrt(np.clip(np.diag(cov), 0.0, None))
     return FrictionFit(
-        m=Estimate(m, float(se[0]), _UNITS[0]), c=Estimate(c, float(se[1]), _UNITS[1]),
-        k=Estimate(k, float(se[2]), _UNITS[2]), fc=Estimate(fc, float(se[3]), _UNITS[3]),
-        cov=cov, delay=setup.delay if setup.digital is None else setup.digital.delay,
+        m=Estimate(m, float(se[0]), _UNITS[0], white_stderr=wse[0]),
+        c=Estimate(c, float(se[1]), _UNITS[1], white_stderr=wse[1]),
+        k=Estimate(k, float(se[2]), _UNITS[2], white_stderr=wse[2]),
+        fc=Estimate(fc, float(se[3]), _UNITS[3], white_stderr=wse[3]),
+        adequacy=adequacy, cov=cov,
+        delay=setup.delay if setup.digital is None else setup.digital.delay,
         runs=tuple(runs), chi2=chi2, dof=dof,
         residual_rms=rms_all, converged=res.converged, iterations=iterations,
         start=tuple(float(a) for a in setup.start), warnings=tuple(warnings),

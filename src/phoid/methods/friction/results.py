@@ -135,6 +135,9 @@ class FrictionFit(LoopExports, NotebookDisplay):
         Each run's record, s and m (for :meth:`model` and the figures).
     sim_rate : float
         Rate of the fit's simulation grid, Hz (:meth:`model` simulates on the same grid).
+    adequacy : phoid.methods.adequacy.Adequacy or None
+        The fit's adequacy checks (:mod:`phoid.methods.friction.adequacy`); where one fails
+        the stderr are the robust ones and ``white_stderr`` the fit's own.
     """
 
     m: Estimate
@@ -154,6 +157,7 @@ class FrictionFit(LoopExports, NotebookDisplay):
     digital: Any = None
     data: tuple[tuple[np.ndarray, np.ndarray], ...] = field(default=(), repr=False)
     sim_rate: float = math.nan
+    adequacy: Any = field(default=None, repr=False)
 
     def model(self, i: int, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Run ``i``'s fitted model at times ``t``: position (m, sensor offset included) and
@@ -253,6 +257,7 @@ class FrictionFit(LoopExports, NotebookDisplay):
                          "delay_samples": self.digital.delay_samples,
                          "velocity": self.digital.velocity, "cutoff": self.digital.cutoff}}
                if self.digital is not None else {}),
+            **({"adequacy": self.adequacy.to_dict()} if self.adequacy is not None else {}),
             **self.fit_statistics(),
         }
 
