@@ -398,7 +398,9 @@ def test_cli_identify_friction(tmp_path):
     # options the friction fit does not take: one line, exit 2
     for extra in (["--estimator", "ols"], ["--estimator", "ols", "--no-compensation"]):
         r = runner.invoke(app, ["identify", str(out), "--friction", *extra])
-        assert r.exit_code == 2 and "--friction applies" in r.stderr
+        # the registry's one line names the option the friction fit refuses and the method
+        assert r.exit_code == 2 and "--friction" in r.stderr and "pho sets" in r.stderr, r.stderr
+        assert len(r.stderr.strip().splitlines()) == 1
     manifest = out / "experiment.toml"
     manifest.write_text(manifest.read_text().replace("[loop]\ndelay = 0.02\n", ""))
     r = runner.invoke(app, ["identify", str(out), "--friction"])
