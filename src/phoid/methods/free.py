@@ -46,8 +46,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
-from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -66,11 +65,10 @@ from phoid.methods._modal import (
     pick_start,
     release_basis,
 )
-from phoid.methods.adequacy import Adequacy
 from phoid.methods.estimate import Estimate
-from phoid.methods.fit_statistics import fit_blocks, residual_noise_ratio, window_noise
+from phoid.methods.fit_statistics import residual_noise_ratio, window_noise
 from phoid.methods.free_adequacy import assess_free
-from phoid.reports.display import NotebookDisplay
+from phoid.methods.result_base import ResultBase
 
 __all__ = ["FreeIdentification", "FreeRun", "identify_free", "identify_free_data"]
 
@@ -168,7 +166,7 @@ class FreeRun:
 
 
 @dataclass(frozen=True, repr=False)
-class FreeIdentification(NotebookDisplay):
+class FreeIdentification(ResultBase):
     """Result of :func:`identify_free`: σ, ω₀, ζ, the roots, c/m and k/m (and c, k for a known
     mass), with uncertainties.
 
@@ -222,11 +220,11 @@ class FreeIdentification(NotebookDisplay):
     c: Estimate | None = None
     k: Estimate | None = None
     runs: tuple[FreeRun, ...] = ()
-    warnings: tuple[str, ...] = ()
-    source: str = ""
-    data: tuple[tuple[np.ndarray, np.ndarray], ...] = field(default=(), repr=False)
-    adequacy: Adequacy | None = field(default=None, repr=False)
     x_unit: str = "m"
+
+    METHOD: ClassVar[str] = "free"
+    REPORT: ClassVar[str] = "phoid.reports.text:free_text"
+    FIGURES: ClassVar[str] = "phoid.reports.figures:plot_free"
 
     def model(self, i: int, t: np.ndarray | float) -> np.ndarray:
         """Fitted position of run ``i`` (0-based) at times ``t`` (s), m."""
@@ -270,12 +268,8 @@ class FreeIdentification(NotebookDisplay):
             out["m"] = {**self.m.to_dict(), "source": "given"}
             out["c"] = self.c.to_dict()
             out["k"] = self.k.to_dict()
-        out["runs"] = [r.to_dict() | {"residual_noise_ratio": q}
-                       for r, q in zip(self.runs, self.residual_noise_ratios(), strict=True)]
-        out["warnings"] = list(self.warnings)
-        if self.adequacy is not None:
-            out["adequacy"] = self.adequacy.to_dict()
-        return out | self.fit_statistics()
+        out["runs"] = self.run_entries()
+        return out | self.summary_tail()
 
     def _noise_levels(self) -> list[float | None]:
         """Each used run's noise level from its record alone (difference_noise in its window)."""
@@ -296,8 +290,10 @@ class FreeIdentification(NotebookDisplay):
         return [residual_noise_ratio(r.residual_rms, q)
                 for r, q in zip(self.runs, self._noise_levels(), strict=True)]
 
-    def fit_statistics(self) -> dict[str, Any]:
-        """The ``covariance``, ``correlation`` and ``statistics`` blocks of :meth:`summary`.
+    def statistics_of(self) -> tuple[list[str], list[str], np.ndarray, float | None,
+                                     int | None, str]:
+        """The ``covariance``, ``correlation`` and ``statistics`` blocks' content
+        (:meth:`phoid.methods.result_base.ResultBase.fit_statistics`).
 
         The parameters are σ (``sigma``, 1/s) and ω₀² (``k_over_m``, 1/s²), what a free decay
         determines (c and k of a known mass are these times the mass). χ² is that of the joint
@@ -315,28 +311,10 @@ class FreeIdentification(NotebookDisplay):
             n += r.n_samples
             used += 1
         dof = n - 2 - 3 * used
-        return fit_blocks(["sigma", "k_over_m"], ["1/s", "1/s^2"], self.cov,
-                          chi2 if used else None, dof if used else None,
-                          of="the joint free-response fit of x in every run, each residual "
-                             "over its run's noise level estimated from third differences")
-
-    def report(self) -> str:
-        """Plain-text report: σ, ω₀, ζ, roots, c/m, k/m (c, k with a known mass), runs."""
-        from phoid.reports.text import free_text
-
-        return free_text(self)
-
-    def plot(self, out_dir: str | Path, *, overwrite: bool = False) -> list[Path]:
-        """Write one PNG per run (record, fitted free response, residual) into ``out_dir``.
-
-        ``out_dir`` is created if needed; existing files are replaced only with ``overwrite``
-        and links in it are refused (:mod:`phoid._output`; all names checked before the first
-        figure is written). Returns the list of paths written
-        (:func:`phoid.reports.figures.plot_free`).
-        """
-        from phoid.reports.figures import plot_free
-
-        return plot_free(self, out_dir, overwrite=overwrite)
+        return (["sigma", "k_over_m"], ["1/s", "1/s^2"], self.cov,
+                chi2 if used else None, dof if used else None,
+                "the joint free-response fit of x in every run, each residual over its run's "
+                "noise level estimated from third differences")
 
     # ---- export: python-control, scipy.signal, pandas (phoid.interop) ----
 
@@ -722,9 +700,11 @@ def identify_free_data(
     for label, est in (("ω₀", omega0), ("ζ", zeta)):
         if est.stderr is not None and math.isfinite(est.value) and est.value != 0 \
                 and est.stderr > _POOR * abs(est.value):
+            why = ("the model does not hold over the record (the warnings above), and the "
+                   "robust stderr counts that" if robust else
+                   "the records are too short or too noisy")
             warnings.append(f"{label} is poorly determined (relative stderr "
-                            f"{est.stderr / abs(est.value):.0%}): the records are too short "
-                            "or too noisy")
+                            f"{est.stderr / abs(est.value):.0%}): {why}")
     if regime == "critical":
         spread = math.sqrt(abs(q) + _CRITICAL_NSE * se_q)
         warnings.append(
