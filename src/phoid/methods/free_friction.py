@@ -24,11 +24,13 @@ freedom. Friction is called significant when that test's p < 10⁻³ and a is mo
 likelihood ratio with each release's noise variance unknown, Σᵢ nᵢ ln(RSS_viscous/RSS_friction),
 is reported beside it.
 
-Uncertainty: the Gauss–Newton covariance (each release weighted by its residual variance). When
-the residual is not white — Ljung–Box over 20 lags at p < 10⁻³, or a residual/noise ratio above
-1 + 10/√n in a release — the reported stderr are the Newey–West ones
-(:func:`phoid.fits.hac.hac_covariance`) and the white-noise ones are kept in each estimate's
-``white_stderr`` (JSON ``stderr_white``).
+Adequacy and uncertainty (:mod:`phoid.methods.free_friction_adequacy`, the checks of
+:mod:`phoid.methods.adequacy`): the residual against each release's noise level and its
+whiteness (Ljung–Box), the halves of the records and the runs refitted with the friction model
+and compared on ω₀ and ζ. Where every check passes the stderr are the Gauss–Newton ones (each
+release weighted by its residual variance); where one fails they are the Newey–West sandwich,
+never below the white ones, widened by the halves' (or the runs') spread where those disagree,
+and each estimate keeps its white-noise stderr in ``white_stderr`` (JSON ``stderr_white``).
 """
 
 from __future__ import annotations
@@ -36,25 +38,26 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
 from phoid._threads import single_blas_thread
 from phoid.dynamics.plant import free_response
 from phoid.errors import IdentificationError
+from phoid.io.units import quantity_unit
 from phoid.methods.chi2 import chi2_sf
 from phoid.methods.estimate import Estimate
-from phoid.methods.fit_statistics import fit_blocks, residual_noise_ratio, window_noise
+from phoid.methods.fit_statistics import residual_noise_ratio, window_noise
 from phoid.methods.free import FreeIdentification, identify_free, identify_free_data
+from phoid.methods.free_friction_adequacy import assess_free_friction
 from phoid.methods.free_friction_fit import (
     FrictionProblem,
     ReleaseWindow,
     fit_free_friction,
 )
 from phoid.methods.free_friction_model import coulomb_decay
-from phoid.reports.display import NotebookDisplay
+from phoid.methods.result_base import ResultBase
 
 __all__ = ["FreeFrictionEvidence", "FreeFrictionIdentification", "FreeFrictionRun",
            "identify_free_friction", "identify_free_friction_data"]
@@ -63,9 +66,6 @@ __all__ = ["FreeFrictionEvidence", "FreeFrictionIdentification", "FreeFrictionRu
 P_FRICTION = 1e-3
 #: |a| / stderr above which friction is significant
 Z_FRICTION = 3.0
-#: Ljung–Box lags and level for "the residual is not white"
-LB_LAGS = 20
-P_WHITE = 1e-3
 #: fewest velocity zeros in a release to tell friction from damping
 MIN_HALF_CYCLES = 4
 
@@ -178,10 +178,12 @@ class FreeFrictionEvidence:
                         "stderr"}
 
 
-@dataclass(frozen=True, repr=False)
-class FreeFrictionIdentification(NotebookDisplay):
+@dataclass(frozen=True, repr=False, kw_only=True)
+class FreeFrictionIdentification(ResultBase):
     """Result of :func:`identify_free_friction`: σ, ω₀, ζ, c/m, k/m and f_c/m (and m, c, k,
-    f_c for a known mass), each release's stop, and the evidence for friction.
+    f_c for a known mass), each release's stop, and the evidence for friction. The fields of
+    :class:`~phoid.methods.result_base.ResultBase` (``warnings``, ``source``, ``data``,
+    ``adequacy``) are its own too.
 
     Attributes
     ----------
@@ -192,27 +194,26 @@ class FreeFrictionIdentification(NotebookDisplay):
     zeta : Estimate
         ζ = σ/ω₀.
     c_over_m, k_over_m, fc_over_m : Estimate
-        2σ (1/s), ω₀² (1/s²) and a = f_c/m (m/s²).
+        2σ (1/s), ω₀² (1/s²) and a = f_c/m (x's unit per s²: m/s², rad/s² …).
     regime : str
         ``"underdamped"``, ``"critical"`` or ``"overdamped"`` (of the viscous part).
     cov : ndarray, shape (3, 3)
-        Reported covariance of (σ, ω₀², a): the robust one when ``robust``.
+        Reported covariance of (σ, ω₀², a): the adequacy's robust one where a check fails.
     cov_white : ndarray, shape (3, 3)
         The Gauss–Newton (white-noise) covariance.
-    robust : bool
-        Whether the stderr are the Newey–West ones (the residual is not white).
-    ljung_box_p : float
-        The residual's Ljung–Box p-value (all releases, 20 lags each).
     evidence : FreeFrictionEvidence
     viscous : FreeIdentification
         The viscous fit the friction fit started from and is tested against.
     mass : float or None
     m, c, k, fc : Estimate or None
-        With a known mass: m (stderr 0), c = 2σm (N s/m), k = ω₀²m (N/m), f_c = a·m (N).
+        With a known mass: m (stderr 0), c = 2σm (N s/m), k = ω₀²m (N/m), f_c = a·m (N)
+        (J, N m s/rad, N m/rad, N m for x in rad).
     runs : tuple of FreeFrictionRun
-    warnings : tuple of str
-    source : str
     converged : bool
+    x_unit : str
+        What x is in (the viscous fit's ``x_unit``: ``"m"``, ``"rad"`` or a sensor unit): the
+        unit of the runs' ``x0``, ``offset``, ``stuck_position``, ``noise_sd``,
+        ``residual_rms`` (per s, ``v0``).
     """
 
     sigma: Estimate
@@ -224,8 +225,6 @@ class FreeFrictionIdentification(NotebookDisplay):
     regime: str
     cov: np.ndarray = field(repr=False)
     cov_white: np.ndarray = field(repr=False)
-    robust: bool
-    ljung_box_p: float
     evidence: FreeFrictionEvidence
     viscous: FreeIdentification = field(repr=False)
     mass: float | None = None
@@ -234,10 +233,17 @@ class FreeFrictionIdentification(NotebookDisplay):
     k: Estimate | None = None
     fc: Estimate | None = None
     runs: tuple[FreeFrictionRun, ...] = ()
-    warnings: tuple[str, ...] = ()
-    source: str = ""
     converged: bool = True
-    data: tuple[tuple[np.ndarray, np.ndarray], ...] = field(default=(), repr=False)
+    x_unit: str = "m"
+
+    METHOD: ClassVar[str] = "free"
+    REPORT: ClassVar[str] = "phoid.reports.free_friction:free_friction_text"
+    FIGURES: ClassVar[str] = "phoid.reports.free_friction:plot_free_friction"
+
+    @property
+    def robust(self) -> bool:
+        """Whether the stderr are the robust ones (an adequacy check failed)."""
+        return self.adequacy is not None and self.adequacy.stderr == "robust"
 
     def motion(self, i: int, t: np.ndarray | float) -> tuple[np.ndarray, np.ndarray]:
         """Fitted position (m, offset included) and velocity (m/s) of run ``i`` at times
@@ -275,36 +281,35 @@ class FreeFrictionIdentification(NotebookDisplay):
         return [residual_noise_ratio(r.viscous_residual_rms, r.noise_sd) if r.used else None
                 for r in self.runs]
 
-    def fit_statistics(self) -> dict[str, Any]:
-        """The ``covariance``, ``correlation`` and ``statistics`` blocks of :meth:`summary`:
-        parameters σ, ω₀² and f_c/m; χ² of the joint friction fit, each residual over its
-        run's model-free noise level; dof = Σ n − 3 − 3·runs."""
+    def statistics_of(self) -> tuple[list[str], list[str], np.ndarray, float, int, str]:
+        """The fit statistics' parameters σ, ω₀² and f_c/m, their reported covariance, χ² of
+        the joint friction fit (each residual over its run's model-free noise level) and
+        dof = Σ n − 3 − 3·runs."""
         used = [r for r in self.runs if r.used]
         n = sum(r.n_samples for r in used)
-        return fit_blocks(["sigma", "k_over_m", "fc_over_m"], ["1/s", "1/s^2", "m/s^2"],
-                          self.cov, self.evidence.chi2_friction, n - 3 - 3 * len(used),
-                          of="the joint Coulomb + viscous free-decay fit of x in every run, "
-                             "each residual over its run's noise level estimated from third "
-                             "differences")
+        return (["sigma", "k_over_m", "fc_over_m"],
+                ["1/s", "1/s^2", quantity_unit("m/s^2", self.x_unit)], self.cov,
+                self.evidence.chi2_friction, n - 3 - 3 * len(used),
+                "the joint Coulomb + viscous free-decay fit of x in every run, each residual "
+                "over its run's noise level estimated from third differences")
 
     def summary(self) -> dict[str, Any]:
         """The JSON object of ``phoid identify --friction --json`` for a free set.
 
-        Keys: ``method`` ("free"), ``friction`` (true), ``sigma`` (1/s), ``omega0`` (rad/s),
-        ``zeta``, ``c_over_m`` (1/s), ``k_over_m`` (1/s^2), ``fc_over_m`` (m/s^2), each
-        ``{"value", "stderr", "unit"}`` (and ``stderr_white`` when the stderr is the robust
-        one); ``regime``; ``stderr`` ("white" or "newey-west"); ``evidence``
+        Keys: ``method`` ("free"), ``friction`` (true), ``x_unit``, ``sigma`` (1/s),
+        ``omega0`` (rad/s), ``zeta``, ``c_over_m`` (1/s), ``k_over_m`` (1/s^2), ``fc_over_m``
+        (x_unit/s^2), each ``{"value", "stderr", "unit"}`` (and ``stderr_white`` when the
+        stderr is the robust one); ``regime``; ``converged``; ``evidence``
         (:class:`FreeFrictionEvidence`); with a known mass ``m`` (given), ``c``, ``k`` and
-        ``fc`` (N); ``runs`` (each with ``stop_time``, ``stuck_position``, ``half_cycles``,
-        ``residual_noise_ratio`` and ``viscous_residual_noise_ratio``); ``warnings``; and
-        :meth:`fit_statistics`.
+        ``fc``; ``runs`` (each with ``stop_time``, ``stuck_position``, ``half_cycles``,
+        ``residual_noise_ratio`` and ``viscous_residual_noise_ratio``); then
+        :meth:`~phoid.methods.result_base.ResultBase.summary_tail` (``warnings``,
+        ``adequacy``, the fit statistics).
         """
-        out: dict[str, Any] = {"method": "free", "friction": True}
+        out: dict[str, Any] = {"method": self.METHOD, "friction": True, "x_unit": self.x_unit}
         for key in ("sigma", "omega0", "zeta", "c_over_m", "k_over_m", "fc_over_m"):
             out[key] = getattr(self, key).to_dict()
         out["regime"] = self.regime
-        out["stderr"] = "newey-west" if self.robust else "white"
-        out["ljung_box_p"] = _num(self.ljung_box_p)
         out["converged"] = self.converged
         out["evidence"] = self.evidence.to_dict()
         if self.m is not None and self.c is not None and self.k is not None \
@@ -313,46 +318,13 @@ class FreeFrictionIdentification(NotebookDisplay):
             out["c"] = self.c.to_dict()
             out["k"] = self.k.to_dict()
             out["fc"] = self.fc.to_dict()
-        out["runs"] = [r.to_dict() | {"residual_noise_ratio": q, "viscous_residual_noise_ratio": qv}
-                       for r, q, qv in zip(self.runs, self.residual_noise_ratios(),
-                                           self.viscous_residual_noise_ratios(), strict=True)]
-        out["warnings"] = list(self.warnings)
-        return out | self.fit_statistics()
-
-    def report(self) -> str:
-        """Plain-text report (:func:`phoid.reports.free_friction.free_friction_text`)."""
-        from phoid.reports.free_friction import free_friction_text
-
-        return free_friction_text(self)
-
-    def plot(self, out_dir: str | Path, *, overwrite: bool = False) -> list[Path]:
-        """One PNG per run used (record, fitted stick–slip decay, residual, fitted velocity)
-        into ``out_dir`` (:func:`phoid.reports.free_friction.plot_free_friction`; files in the
-        way are refused unless ``overwrite``, all names checked before the first is written)."""
-        from phoid.reports.free_friction import plot_free_friction
-
-        return plot_free_friction(self, out_dir, overwrite=overwrite)
+        out["runs"] = [e | {"viscous_residual_noise_ratio": qv} for e, qv in
+                       zip(self.run_entries(), self.viscous_residual_noise_ratios(),
+                           strict=True)]
+        return {**out, **self.summary_tail()}
 
 
 # --------------------------------------------------------------------------------------------
-
-
-def _ljung_box(resid: Sequence[np.ndarray]) -> float:
-    """Ljung–Box p-value of the residuals (LB_LAGS lags each, Q and dof summed over runs)."""
-    Q, dof = 0.0, 0
-    for r in resid:
-        n = r.size
-        m = min(LB_LAGS, n // 5)
-        if m < 1:
-            continue
-        e = r - r.mean()
-        den = float(e @ e)
-        if den <= 0:
-            continue
-        rho = np.array([float(e[j:] @ e[:-j]) / den for j in range(1, m + 1)])
-        Q += n * (n + 2) * float(np.sum(rho**2 / (n - np.arange(1, m + 1))))
-        dof += m
-    return chi2_sf(Q, float(dof)) if dof else 1.0
 
 
 def _derived(sigma: float, w0sq: float, cov: np.ndarray, white: np.ndarray | None):
@@ -475,23 +447,19 @@ def _from_viscous(vis: FreeIdentification, names: list[str]) -> FreeFrictionIden
     except ValueError as exc:
         raise IdentificationError(f"{where}{exc}") from None
     sigma, w0sq, a = (float(v) for v in sol.theta)
-    lb_p = _ljung_box(sol.resid)
-    ratios, vratios = [], []
-    for w, e, i in zip(windows, sol.resid, used, strict=True):
-        rms = math.sqrt(float(e @ e) / e.size)
-        ratios.append((rms / w.noise, e.size))
-        vratios.append(vis.runs[i].residual_rms / w.noise)
-    misfit = [q for q, n in ratios if q > 1.0 + 10.0 / math.sqrt(n)]
-    robust = lb_p < P_WHITE or bool(misfit)
-    cov = sol.cov_robust if robust else sol.cov_white
+    x_unit = vis.x_unit
+    adequacy = assess_free_friction(windows, sol, [names[i] for i in used], x_unit=x_unit)
+    robust = adequacy.stderr == "robust"
+    cov = adequacy.robust_cov
     white = sol.cov_white if robust else None
+    acc = quantity_unit("m/s^2", x_unit)
 
     def wv(j: int) -> float | None:
         return None if white is None else float(white[j, j])
 
     sig_e = _est(sigma, cov[0, 0], wv(0), "1/s")
     k_e = _est(w0sq, cov[1, 1], wv(1), "1/s^2")
-    a_e = _est(a, cov[2, 2], wv(2), "m/s^2")
+    a_e = _est(a, cov[2, 2], wv(2), acc)
     omega0, zeta = _derived(sigma, w0sq, cov, white)
     q = sigma * sigma - w0sq
     gq = np.array([2 * sigma, -1.0, 0.0])
@@ -539,10 +507,6 @@ def _from_viscous(vis: FreeIdentification, names: list[str]) -> FreeFrictionIden
         if significant and mot.stop is None:
             rw.append("the fitted motion never sticks within the record: the friction rests "
                       "on the amplitude loss alone (a longer record would show the stop)")
-        ratio = ratios[j][0]
-        if ratio > 1.5:
-            rw.append(f"the friction model leaves structure in the record: residual/noise = "
-                      f"{ratio:.3g} (viscous fit: {vratios[j]:.3g})")
         warnings.extend(f"{names[i]}: {s}" for s in rw)
         runs.append(FreeFrictionRun(
             file=r.file, release=r.release, held=r.held, t_start=float(w.t[0]),
@@ -556,17 +520,12 @@ def _from_viscous(vis: FreeIdentification, names: list[str]) -> FreeFrictionIden
     if not significant:
         warnings.append(
             f"friction is not significant (f_c/m = {a:.4g} ± {a_e.stderr or math.nan:.2g} "
-            f"m/s², Δχ² = {dchi2:.3g} against the viscous fit, p = {p:.2g}): the viscous "
+            f"{acc}, Δχ² = {dchi2:.3g} against the viscous fit, p = {p:.2g}): the viscous "
             "model suffices (phoid identify without --friction)")
     elif a < 0:
-        warnings.append(f"f_c/m = {a:.4g} m/s² < 0: the decay is slower than viscous, not "
+        warnings.append(f"f_c/m = {a:.4g} {acc} < 0: the decay is slower than viscous, not "
                         "Coulomb friction (not a passive plant)")
-    if robust:
-        warnings.append(
-            "the residual is not white (Ljung–Box p = "
-            f"{lb_p:.2g}; residual/noise up to {max(q for q, _ in ratios):.3g}): the stderr are "
-            "the autocorrelation-robust (Newey–West) ones; the white-noise stderr are kept as "
-            "stderr_white")
+    warnings.extend(adequacy.warnings)
     if not sol.converged:
         warnings.append("the friction fit did not converge (evaluation limit reached); the "
                         "estimates may be poor")
@@ -575,14 +534,14 @@ def _from_viscous(vis: FreeIdentification, names: list[str]) -> FreeFrictionIden
     m_e = c_e = k_e2 = fc_e = None
     mass = vis.mass
     if mass is not None:
-        m_e = Estimate(mass, 0.0, "kg")
-        c_e = _est(sigma, cov[0, 0], wv(0), "N s/m", 2 * mass)
-        k_e2 = _est(w0sq, cov[1, 1], wv(1), "N/m", mass)
-        fc_e = _est(a, cov[2, 2], wv(2), "N", mass)
+        m_e = Estimate(mass, 0.0, quantity_unit("kg", x_unit))
+        c_e = _est(sigma, cov[0, 0], wv(0), quantity_unit("N s/m", x_unit), 2 * mass)
+        k_e2 = _est(w0sq, cov[1, 1], wv(1), quantity_unit("N/m", x_unit), mass)
+        fc_e = _est(a, cov[2, 2], wv(2), quantity_unit("N", x_unit), mass)
     return FreeFrictionIdentification(
         sigma=sig_e, omega0=omega0, zeta=zeta,
         c_over_m=_est(sigma, cov[0, 0], wv(0), "1/s", 2.0), k_over_m=k_e, fc_over_m=a_e,
-        regime=regime, cov=np.array(cov), cov_white=np.array(sol.cov_white), robust=robust,
-        ljung_box_p=lb_p, evidence=evidence, viscous=vis, mass=mass, m=m_e, c=c_e, k=k_e2,
-        fc=fc_e, runs=tuple(runs), warnings=tuple(warnings), source=vis.source,
-        converged=sol.converged, data=vis.data)
+        regime=regime, cov=np.array(cov), cov_white=np.array(sol.cov_white),
+        evidence=evidence, viscous=vis, mass=mass, m=m_e, c=c_e, k=k_e2, fc=fc_e,
+        runs=tuple(runs), warnings=tuple(warnings), source=vis.source,
+        converged=sol.converged, data=vis.data, adequacy=adequacy, x_unit=x_unit)

@@ -31,22 +31,23 @@ start on the whole record at once is tried too, and from the best of all, two re
 with f_c/m changed by ±1/K (K the most velocity zeros of a release: the change that moves a
 stop by about one half-cycle).
 
-Covariances of (σ, ω₀², a), with the release parameters profiled out (each release's Jacobian
-projected off its own three columns, which is exact for the block structure):
-
-- Gauss–Newton, each release weighted by its residual variance: (Σᵢ J̃ᵢᵀJ̃ᵢ/sᵢ²)⁻¹;
-- Newey–West (:func:`phoid.fits.hac.hac_covariance`, prewhitened, Andrews' lag window) on the
-  same weighted Jacobians and residuals, used when the residual is not white.
+The Gauss–Newton covariance of (σ, ω₀², a), with the release parameters profiled out (each
+release's Jacobian projected off its own three columns, which is exact for the block
+structure), each release weighted by its residual variance: (Σᵢ J̃ᵢᵀJ̃ᵢ/sᵢ²)⁻¹. The solution
+keeps each release's Jacobian blocks and residual variance, from which
+:func:`phoid.methods.adequacy.sandwich` gives the Newey–West one
+(:mod:`phoid.methods.free_friction`). ``start`` refits from a given solution alone (the
+halves and the runs of the adequacy checks).
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
-from phoid.fits.hac import hac_covariance
 from phoid.methods.free_friction_model import CoulombDecay, coulomb_decay, envelope_start
 
 __all__ = ["FrictionProblem", "FrictionSolution", "ReleaseWindow", "fit_free_friction"]
@@ -106,8 +107,12 @@ class FrictionSolution:
     motions : tuple of CoulombDecay
     resid : tuple of ndarray
         Record − model, m.
-    cov_white, cov_robust : ndarray, shape (3, 3)
-        Gauss–Newton and Newey–West covariances of θ.
+    cov_white : ndarray, shape (3, 3)
+        Gauss–Newton covariance of θ.
+    jac, jac_own : tuple of ndarray, each (nᵢ, 3)
+        Per release: ∂model/∂θ and ∂model/∂(offset, y₀, v₀) at the solution.
+    resid_var : tuple of float
+        Per release: the residual variance sᵢ² that weighs it (RSS/(nᵢ − 3)).
     converged : bool
     nfev : int
     """
@@ -117,7 +122,9 @@ class FrictionSolution:
     motions: tuple[CoulombDecay, ...]
     resid: tuple[np.ndarray, ...]
     cov_white: np.ndarray
-    cov_robust: np.ndarray
+    jac: tuple[np.ndarray, ...]
+    jac_own: tuple[np.ndarray, ...]
+    resid_var: tuple[float, ...]
     converged: bool
     nfev: int
 
@@ -255,12 +262,17 @@ def _truncated(prob: FrictionProblem, span: float) -> FrictionProblem:
     return FrictionProblem(windows=tuple(out), sigma=prob.sigma, w0sq=prob.w0sq)
 
 
-def fit_free_friction(prob: FrictionProblem) -> FrictionSolution:
+def fit_free_friction(prob: FrictionProblem, *,
+                      start: np.ndarray | None = None) -> FrictionSolution:
     """Fit (σ, ω₀², a) and each release's (offset, y₀, v₀) (module docstring).
 
     Parameters
     ----------
     prob : FrictionProblem
+    start : ndarray, shape (3,), optional
+        (σ, ω₀², a) to refit from, alone (each release from its window's ``offset``, ``y0``
+        and ``v0``); by default the starts, continuation and restarts of the module
+        docstring.
 
     Returns
     -------
@@ -279,6 +291,8 @@ def fit_free_friction(prob: FrictionProblem) -> FrictionSolution:
     ub = np.full(obj.P, big)
     lb[0] = -5.0 / T  # growth beyond e⁵ over the window is no decay
     lb[1], ub[1] = prob.w0sq / 100.0, prob.w0sq * 100.0
+    if start is not None:
+        return _finish(obj, prob, _solve(obj, np.concatenate([start, own0.ravel()]), lb, ub))
     starts = [np.concatenate([[prob.sigma, prob.w0sq, 0.0], own0.ravel()])]
     k = int(np.argmax([a / w.noise for a, w in zip(obj.amp, prob.windows, strict=True)]))
     wk = prob.windows[k]
@@ -311,28 +325,38 @@ def fit_free_friction(prob: FrictionProblem) -> FrictionSolution:
         sol = _solve(obj, p0, lb, ub)
         if sol.cost < best.cost:
             best = sol
+    return _finish(obj, prob, best)
+
+
+def _finish(obj: _Objective, prob: FrictionProblem, best: Any) -> FrictionSolution:
+    """The solution at ``best`` (a least_squares result): motions, residuals, the Jacobian
+    blocks (central differences) and the Gauss–Newton covariance."""
     p = best.x
     theta, own = obj.split(p)
     motions = tuple(_motion(w, theta, own[i]) for i, w in enumerate(prob.windows))
     resid = tuple(w.x - own[i, 0] - m.y for i, (w, m) in
                   enumerate(zip(prob.windows, motions, strict=True)))
-    Jt, e = [], []
-    for (Js, Jo), r in zip(obj.blocks(p, central=True), resid, strict=True):
+    blocks = obj.blocks(p, central=True)
+    info = np.zeros((3, 3))
+    var = []
+    for (Js, Jo), r in zip(blocks, resid, strict=True):
         # profile out the release's own parameters: project Js off the columns of Jo
         coef, *_ = np.linalg.lstsq(Jo, Js, rcond=None)
         Jp = Js - Jo @ coef
         s2 = float(r @ r) / max(r.size - 3, 1)
-        s = math.sqrt(s2) if s2 > 0 else 1.0
-        Jt.append(Jp / s)
-        e.append(r / s)
-    info = sum(J.T @ J for J in Jt)
+        s2 = s2 if s2 > 0 else 1.0
+        var.append(s2)
+        info += Jp.T @ Jp / s2
     try:
         cov_white = np.linalg.inv(info)
     except np.linalg.LinAlgError:
         raise ValueError("the friction fit's JᵀJ is singular: the records do not determine "
                          "σ, ω₀² and f_c/m together") from None
-    robust = hac_covariance(Jt, e).robust
+    if not np.all(np.isfinite(cov_white)) or np.any(np.diag(cov_white) < 0):
+        raise ValueError("the friction fit's JᵀJ is singular: the records do not determine "
+                         "σ, ω₀² and f_c/m together")
     return FrictionSolution(theta=np.array(theta, dtype=float), own=np.array(own, dtype=float),
                             motions=motions, resid=resid, cov_white=cov_white,
-                            cov_robust=robust, converged=bool(best.status > 0),
+                            jac=tuple(b[0] for b in blocks), jac_own=tuple(b[1] for b in blocks),
+                            resid_var=tuple(var), converged=bool(best.status > 0),
                             nfev=int(best.nfev))

@@ -15,7 +15,7 @@ import numpy as np
 from phoid._output import OutputFolder, safe_text
 from phoid.reports.figures import run_names, save_png
 from phoid.reports.statistics import ratio_text
-from phoid.reports.text import fit_statistics_lines, format_estimate
+from phoid.reports.text import adequacy_lines, fit_statistics_lines, format_estimate
 
 __all__ = ["free_friction_text", "plot_free_friction"]
 
@@ -38,12 +38,13 @@ def free_friction_text(result: Any) -> str:
     ----------
     result : phoid.methods.free_friction.FreeFrictionIdentification or alike
         Read: ``source``; ``sigma`` (1/s), ``omega0`` (rad/s), ``zeta``, ``c_over_m`` (1/s),
-        ``k_over_m`` (1/s²), ``fc_over_m`` (m/s²) (each with ``value``, ``stderr``, ``unit``
-        and optionally ``white_stderr``); ``regime``; ``robust``; ``evidence`` (``delta_chi2``,
+        ``k_over_m`` (1/s²), ``fc_over_m`` (x's unit/s²) (each with ``value``, ``stderr``,
+        ``unit`` and optionally ``white_stderr``); ``regime``; ``robust``; ``x_unit``
+        (optional, default "m"); ``adequacy`` (optional); ``evidence`` (``delta_chi2``,
         ``p_value``, ``likelihood_ratio``, ``z``, ``significant``); ``m``, ``c``, ``k``,
         ``fc`` (estimates or None); ``runs`` (each with ``file``, ``n_samples``,
-        ``half_cycles``, ``stop_time`` (s or None), ``stuck_position`` (m or None),
-        ``residual_rms`` (m), ``used``); ``residual_noise_ratios()``,
+        ``half_cycles``, ``stop_time`` (s or None), ``stuck_position`` (x's unit or None),
+        ``residual_rms``, ``used``); ``residual_noise_ratios()``,
         ``viscous_residual_noise_ratios()``, ``fit_statistics()``; ``warnings``.
 
     Returns
@@ -57,11 +58,12 @@ def free_friction_text(result: Any) -> str:
                       ("f_c/m", result.fc_over_m)):
         lines.append(_est_line(name, est))
     lines.append(f"  regime: {result.regime}; stderr: "
-                 + ("Newey–West (the residual is not white)" if result.robust
+                 + ("robust (Newey–West; an adequacy check failed)" if result.robust
                     else "white-noise least squares"))
     if result.m is not None and result.c is not None and result.k is not None \
             and result.fc is not None:
-        lines.append(f"  with the known mass m = {result.m.value:g} kg:")
+        what = "moment of inertia J" if result.m.unit == "kg m^2" else "mass m"
+        lines.append(f"  with the known {what} = {result.m.value:g} {result.m.unit}:")
         for name, est in (("c", result.c), ("k", result.k), ("f_c", result.fc)):
             lines.append(_est_line(name, est))
     else:
@@ -75,8 +77,9 @@ def free_friction_text(result: Any) -> str:
     lines.append("  (static friction taken equal to kinetic: the mass sticks at a velocity "
                  "zero where |k(x − x_off)| ≤ f_c)")
     lines.append("")
+    xu = safe_text(str(getattr(result, "x_unit", "m")))
     lines.append(f"  {'run':<18}{'samples':>8}{'half-cycles':>12}{'stops at s':>12}"
-                 f"{'stuck at m':>12}{'resid/noise':>12}{'viscous':>9}")
+                 f"{'stuck at ' + xu:>12}{'resid/noise':>12}{'viscous':>9}")
     for r, q, qv in zip(result.runs, result.residual_noise_ratios(),
                         result.viscous_residual_noise_ratios(), strict=True):
         mark = "" if r.used else "  (set aside)"
@@ -87,6 +90,7 @@ def free_friction_text(result: Any) -> str:
                      f"{stop:>12}{_opt(r.stuck_position, '.4g'):>12}{ratio_text(q):>12}"
                      f"{ratio_text(qv):>9}{mark}")
     lines.extend(fit_statistics_lines(result))
+    lines.extend(adequacy_lines(result))
     if result.warnings:
         lines += ["", "warnings:"] + [f"  - {safe_text(w)}" for w in result.warnings]
     return "\n".join(lines)
@@ -108,7 +112,8 @@ def _run_figure(result: Any, i: int):
         t, x, sel, model, noise_sd=float(r.noise_sd),
         model_label="fitted Coulomb + viscous decay",
         title=(f"{r.file}: σ = {s:.5g} 1/s, ω₀ = {w0:.5g} rad/s, f_c/m = "
-               f"{result.fc_over_m.value:.4g} m/s², {r.half_cycles} half-cycles"),
+               f"{result.fc_over_m.value:.4g} {result.fc_over_m.unit}, {r.half_cycles} "
+               "half-cycles"),
         markers=markers, period=2 * math.pi / math.sqrt(wd2) if wd2 > 0 else None)
 
 
