@@ -150,6 +150,7 @@ def outputs(tmp_path_factory, varied_sets) -> dict[str, tuple[str, dict]]:
         "friction": ("identify", json_of("identify", s["fr"], "--json", "--friction")),
         "forced": ("identify", json_of("identify", s["forced"], "--json")),
         "free": ("identify", json_of("identify", s["free"], "--json")),
+        "free-friction": ("identify", json_of("identify", s["free"], "--json", "--friction")),
         "tracking-idim": ("identify", json_of("identify", trk, "--json")),
         "tracking-oe": ("identify", json_of("identify", trk, "--json", "--estimator",
                                             "output-error")),
@@ -169,6 +170,7 @@ def outputs(tmp_path_factory, varied_sets) -> dict[str, tuple[str, dict]]:
     assert out["pho-x"][1]["delay"]["from"] == "x"
     assert out["pho-digital"][1]["loop"]["model"] == "digital"
     assert "fc" in out["friction"][1] and "m" in out["free"][1]
+    assert out["free-friction"][1]["friction"] is True and "fc" in out["free-friction"][1]
     assert out["tracking-idim"][1]["estimator"] == "idim"
     assert out["tracking-oe"][1]["estimator"] == "output-error"
     assert {out["design"][1]["kind"], out["check"][1]["kind"]} == {"design", "check"}
@@ -176,7 +178,8 @@ def outputs(tmp_path_factory, varied_sets) -> dict[str, tuple[str, dict]]:
 
 
 OUTPUTS = ("paper-sample", "pho-given", "pho-x+u", "pho-x", "pho-digital", "friction", "forced",
-           "free", "tracking-idim", "tracking-oe", "replay", "design", "check", "paper")
+           "free", "free-friction", "tracking-idim", "tracking-oe", "replay", "design", "check",
+           "paper")
 
 
 @pytest.mark.parametrize("name", OUTPUTS)
@@ -236,11 +239,15 @@ def _broken(outputs, name, change):
     ("paper-sample", lambda d: d["statistics"].update(dof=35.5)),
     ("friction", lambda d: d["runs"][0].update(reversals=None)),
     ("free", lambda d: d.update(regime="wobbly")),
+    ("free-friction", lambda d: d["runs"][0].update(half_cycles=-1)),
+    ("free-friction", lambda d: d["evidence"].pop("significant")),
     ("tracking-idim", lambda d: d.update(estimator="magic")),
     # the method's keys checked against the method: a pho result labelled forced, a friction
     # result without its fc
     ("paper-sample", lambda d: d.update(method="forced")),
     ("friction", lambda d: d.pop("fc")),
+    # a free-friction result without its flag is read as a viscous free one (no roots)
+    ("free-friction", lambda d: d.pop("friction")),
     ("replay", lambda d: d["validation"][0].update(method="other")),
 ])
 def test_a_corrupted_output_fails(outputs, name, change):
