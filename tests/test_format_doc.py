@@ -111,6 +111,7 @@ def outputs(sets) -> dict[str, dict]:
         "forced": json_of("identify", sets["forced"], "--json"),
         "free": json_of("identify", sets["free"], "--json"),
         "friction": json_of("identify", sets["fr"], "--json", "--friction"),
+        "free-friction": json_of("identify", sets["free"], "--json", "--friction"),
         "design": json_of("design", *PLANT, "--delay", "0.02", "--runs", "3", "--json",
                           "--out", sets["sched"]),
         # exit status 1 is the verdict "a run is unsafe on the prior", not an error
@@ -134,6 +135,7 @@ def outputs(sets) -> dict[str, dict]:
     ("given", "### `pho` sets"), ("x+u", "### `pho` sets"), ("x", "### `pho` sets"),
     ("digital", "### `pho` sets"), ("friction", "with `--friction`"),
     ("forced", "### `forced` sets"), ("free", "### `free` sets"),
+    ("free-friction", "#### `free` sets with `--friction`"),
 ])
 def test_identify_json_keys_are_documented(outputs, name, heading):
     out = outputs[name]

@@ -161,7 +161,8 @@ _BIAS = "phoid.methods.pho_checks:refuse_bias"
 FREE_FRICTION = Variant("phoid.methods.free_friction:identify_free_friction", ("mass",),
                         result="phoid.methods.free_friction:FreeFrictionIdentification",
                         report="phoid.reports.free_friction:free_friction_text",
-                        schema="`free` sets", selected_by="friction", checks=(_BIAS,))
+                        schema="`free` sets with `--friction`", selected_by="friction",
+                        checks=(_BIAS,))
 
 #: the methods of the format (``phoid.io.METHODS``), by name
 METHODS: dict[str, Method] = {m.name: m for m in (
