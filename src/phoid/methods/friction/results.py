@@ -3,16 +3,16 @@
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
-from pathlib import Path
-from typing import Any
+from dataclasses import dataclass
+from typing import Any, ClassVar
 
 import numpy as np
 
 from phoid.dynamics import inverse_map
 from phoid.interop.exports import LoopExports
 from phoid.methods.estimate import Estimate
-from phoid.methods.fit_statistics import fit_blocks, residual_noise_ratio
+from phoid.methods.fit_statistics import residual_noise_ratio
+from phoid.methods.result_base import ResultBase
 from phoid.reports.display import NotebookDisplay
 
 __all__ = ["FrictionEvidence", "FrictionFit", "FrictionRun"]
@@ -102,7 +102,7 @@ class FrictionRun:
 
 
 @dataclass(frozen=True, repr=False)
-class FrictionFit(LoopExports, NotebookDisplay):
+class FrictionFit(ResultBase, LoopExports):
     """Result of :func:`identify_friction`.
 
     Attributes
@@ -153,11 +153,12 @@ class FrictionFit(LoopExports, NotebookDisplay):
     converged: bool
     iterations: int
     start: tuple[float, float, float, float]
-    warnings: tuple[str, ...] = ()
     digital: Any = None
-    data: tuple[tuple[np.ndarray, np.ndarray], ...] = field(default=(), repr=False)
     sim_rate: float = math.nan
-    adequacy: Any = field(default=None, repr=False)
+
+    METHOD: ClassVar[str] = "pho"
+    REPORT: ClassVar[str] = "phoid.reports.text:friction_text"
+    FIGURES: ClassVar[str] = "phoid.reports.figures:plot_friction"
 
     def model(self, i: int, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Run ``i``'s fitted model at times ``t``: position (m, sensor offset included) and
@@ -189,19 +190,6 @@ class FrictionFit(LoopExports, NotebookDisplay):
         post = u > 0
         hv, hd = hermite(sim.x_true[0], sim.v[0], h, np.maximum(u, 0.0))
         return r.offset + np.where(post, hv, r.x0), np.where(post, hd, 0.0)
-
-    def plot(self, out_dir: str | Path, *, overwrite: bool = False) -> list[Path]:
-        """Write per-run figures (record, simulated fit, stick intervals, residual, fitted
-        velocity) and the (m, k) confidence region as PNG files.
-
-        ``out_dir`` is created if needed; existing files are replaced only with ``overwrite``
-        and links in it are refused (:mod:`phoid._output`; all names checked before the first
-        figure is written). Returns the list of paths written
-        (:func:`phoid.reports.figures.plot_friction`).
-        """
-        from phoid.reports.figures import plot_friction
-
-        return plot_friction(self, out_dir, overwrite=overwrite)
 
     @property
     def chi2_red(self) -> float:
@@ -252,13 +240,11 @@ class FrictionFit(LoopExports, NotebookDisplay):
             "delay": {"value": float(self.delay), "stderr": None, "unit": "s",
                       "source": "given"},
             "runs": runs,
-            "warnings": list(self.warnings),
             **({"loop": {"model": "digital", "sample_time": self.digital.sample_time,
                          "delay_samples": self.digital.delay_samples,
                          "velocity": self.digital.velocity, "cutoff": self.digital.cutoff}}
                if self.digital is not None else {}),
-            **({"adequacy": self.adequacy.to_dict()} if self.adequacy is not None else {}),
-            **self.fit_statistics(),
+            **self.summary_tail(),
         }
 
     def residual_noise_ratios(self) -> list[float | None]:
@@ -269,8 +255,9 @@ class FrictionFit(LoopExports, NotebookDisplay):
         return [residual_noise_ratio(r.residual_rms, r.noise_sd) if r.used else None
                 for r in self.runs]
 
-    def fit_statistics(self) -> dict[str, Any]:
-        """The ``covariance``, ``correlation`` and ``statistics`` blocks of :meth:`summary`.
+    def statistics_of(self) -> tuple[list[str], list[str], np.ndarray, float, int, str]:
+        """The ``covariance``, ``correlation`` and ``statistics`` blocks' content
+        (:meth:`phoid.methods.result_base.ResultBase.fit_statistics`).
 
         The parameters are m (kg), c (N s/m), k (N/m) and f_c (N), the nuisance parameters
         (each run's release, x₀, offset) profiled out. χ² is that of the full-record fit:
@@ -278,17 +265,9 @@ class FrictionFit(LoopExports, NotebookDisplay):
         (held segment or third differences), dof = samples − parameters (:attr:`chi2`,
         :attr:`dof`).
         """
-        return fit_blocks(["m", "c", "k", "fc"], ["kg", "N s/m", "N/m", "N"], self.cov,
-                          self.chi2, self.dof,
-                          of="the full-record fit of x through the stick-slip simulator, each "
-                             "sample over its run's noise sd (held segment or third "
-                             "differences)")
-
-    def report(self) -> str:
-        """A plain-text report: m, c, k, f_c with ± one stderr, the runs, warnings."""
-        from phoid.reports.text import friction_text
-
-        return friction_text(self)
+        return (["m", "c", "k", "fc"], ["kg", "N s/m", "N/m", "N"], self.cov, self.chi2,
+                self.dof, "the full-record fit of x through the stick-slip simulator, each "
+                "sample over its run's noise sd (held segment or third differences)")
 
 
 @dataclass(frozen=True, repr=False)
