@@ -142,3 +142,83 @@ def test_assess_keeps_white_when_everything_passes():
     d = b.to_dict()
     assert d["stderr"] == "robust" and d["checks"][1]["passed"] is False
     assert d["inflation"] == pytest.approx([math.sqrt(4.1), 1.0])
+
+
+def test_t_quantile_against_scipy():
+    # the Cornish-Fisher t quantile (A&S 26.7.5) against scipy.stats.t, within its stated
+    # 0.5 % for dof >= 6 and p >= 5e-4 (the envelope test uses p = 5e-4, dof >= 9)
+    for dof in (6, 9, 20, 100, 1000):
+        for p in (5e-4, 5e-3, 0.05):
+            assert aq.t_isf(p, dof) == pytest.approx(stats.t.isf(p, dof), rel=5e-3)
+    assert aq.normal_isf(5e-4) == pytest.approx(stats.norm.isf(5e-4), abs=1e-9)
+
+
+def half_cycle_decay(sigma, wd, qc, x0=1.0, fs=200.0):
+    """Exact turning-point-to-turning-point motion of x'' + 2σx' + ω₀²x = −ω₀²qc·sign(x')
+    (viscous about ±qc each half cycle, from rest at x0; qc = 0: the linear decay)."""
+    half = math.pi / wd
+    t_all, x_all, xs, t0 = [], [], x0, 0.0
+    while abs(xs) > max(qc, 1e-3) and t0 < 60.0:
+        xe = math.copysign(qc, xs)
+        tau = np.arange(math.ceil(t0 * fs), math.ceil((t0 + half) * fs)) / fs - t0
+        t_all.append(tau + t0)
+        x_all.append(xe + (xs - xe) * np.exp(-sigma * tau)
+                     * (np.cos(wd * tau) + sigma / wd * np.sin(wd * tau)))
+        t0 += half
+        xs = xe - (xs - xe) * math.exp(-sigma * half)
+    return np.concatenate(t_all), np.concatenate(x_all)
+
+
+@pytest.mark.parametrize(("qc", "sign"), [(0.0, 0), (0.004, 1)])
+def test_envelope_tells_a_constant_loss_from_an_exponential(qc, sign):
+    # the turning points of an exact decay (half_cycle_decay), noise sd 1e-3, about an
+    # offset 0.3: the linear one is not significant, the Coulomb one is, with q = σ qc
+    # (1 + e^{-σh})/(1 - e^{-σh}) (dA/dt = -σA - q over a half cycle h against the exact
+    # A' = e^{-σh}A - qc(1 + e^{-σh})); 10 % (its stderr is ~1 %)
+    sigma, wd = 0.05, 10.0
+    t, x = half_cycle_decay(sigma, wd, qc)
+    rng = np.random.default_rng(3)
+    x = x + 0.3 + 1e-3 * rng.standard_normal(x.size)
+    tk, pk, sk = aq.turning_points(t, x, 0.3, wd, 1e-3)
+    # one per half cycle (the last, at the stop, 3 % long: sticking at v = 0 ends its parabola)
+    assert tk.size >= 40 and np.all(np.diff(tk) == pytest.approx(math.pi / wd, rel=0.03))
+    env = aq.envelope_test(tk, pk, sk)
+    assert env is not None and env.sigma == pytest.approx(sigma, rel=0.1)
+    if sign == 0:
+        assert not env.significant
+    else:
+        h = math.pi / wd
+        want = sigma * qc * (1 + math.exp(-sigma * h)) / (1 - math.exp(-sigma * h))
+        assert env.significant and env.loss == pytest.approx(want, rel=0.1)
+
+
+def test_envelope_false_alarms_on_exponential_decays():
+    # 300 exponential envelopes with independent errors (the turning points of a linear decay,
+    # drawn directly, down to 30 noise sd), each half cycle at its own slightly varying time
+    # (the backbone fit finds no trend: the warp stays ~1): the two-sided test at
+    # alpha = 1e-3 may trip at most 3 times (P(≥ 4 | 300, 1e-3) = 3.6e-4)
+    rng = np.random.default_rng(4)
+    trips = 0
+    for _i in range(300):
+        sigma = float(rng.uniform(0.01, 0.5))
+        se = np.full(1, 10 ** rng.uniform(-4, -2))
+        # as turning_points gives them: down to 30 noise sd
+        m = int(min(math.log(1 / (30 * se[0])) / (sigma * 0.31), 150))
+        tk = np.cumsum(rng.uniform(0.3, 0.32, m))
+        s = np.where(np.arange(m) % 2 == 0, 1.0, -1.0)
+        se = np.full(m, se[0])
+        pk = 0.1 + s * np.exp(-sigma * tk) + se * rng.standard_normal(m)
+        env = aq.envelope_test(tk, pk, se)
+        trips += env is not None and env.significant
+    assert trips <= 3
+
+
+def test_structure_names_coulomb_from_the_envelope_and_drag_by_its_sign():
+    base = dict(n=50, sigma=0.1, loss_se=1.0, threshold=3.5, amp_first=1.0, amp_last=0.01)
+    for q, cause in ((5.0, "coulomb"), (-5.0, "amplitude_damping"), (1.0, None)):
+        env = aq.Envelope(loss=q, t=q, **base)
+        chk, causes, warns = aq.structure_check(None, envelope=env)
+        assert chk.passed is (cause is None)
+        assert causes == ((cause,) if cause else ())
+    _chk, causes, warns = aq.structure_check(None, envelope=aq.Envelope(loss=5.0, t=5.0, **base))
+    assert "--friction" in warns[0]

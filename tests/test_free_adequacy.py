@@ -214,3 +214,47 @@ def test_quantised_record_within_a_count_or_two_is_set_aside():
     x = 2.0 * np.round(0.7 * np.sin(2 * math.pi * 1.5 * t))
     with pytest.raises(IdentificationError, match="never moves"):
         identify_free_data([(t, x)])
+
+
+def coulomb_soft(t, w0=10.0, zeta=0.003, qc=0.01, eps=-0.03, x0=1.0):
+    """x'' = -ω₀²(x + εx³) - 2ζω₀x' - ω₀²qc·sign(x') from rest at x0 by solve_ivp, half cycle by
+    half cycle (terminal events at v = 0), stuck where the spring cannot beat the friction:
+    Coulomb friction with a frequency that rises as the amplitude falls (ε < 0), like the
+    measured torsion pendulum."""
+    x = np.empty(t.size)
+    t0, y0, sgn, i = 0.0, [x0, 0.0], -1.0, 0
+    for _ in range(1000):
+        if abs(y0[0] + eps * y0[0] ** 3) <= qc or t0 >= t[-1]:
+            break
+        ev = lambda _t, y: y[1]  # noqa: E731
+        ev.terminal, ev.direction = True, -sgn
+        rhs = lambda _t, y, s=sgn: [y[1], -w0**2 * (y[0] + eps * y[0] ** 3)  # noqa: E731
+                                    - 2 * zeta * w0 * y[1] - w0**2 * qc * s]
+        sol = solve_ivp(rhs, (t0, t[-1]), y0, events=ev, rtol=1e-10, atol=1e-12,
+                        method="DOP853", dense_output=True, first_step=1e-4)
+        t1 = sol.t_events[0][0] if sol.t_events[0].size else t[-1]
+        sel = (t >= t0) & (t < t1)
+        x[sel] = sol.sol(t[sel])[0]
+        i = int(np.searchsorted(t, t1))
+        t0, y0, sgn = t1, [float(sol.sol(t1)[0]), 0.0], -sgn
+    x[i:] = y0[0]
+    return x
+
+
+def test_coulomb_with_an_amplitude_dependent_frequency_is_named_coulomb_first():
+    # the real pendulum's pattern: linear amplitude loss, a stop off zero, and ω rising ~1 % as
+    # the amplitude falls; the envelope of the turning points names Coulomb friction first
+    x = coulomb_soft(T200)
+    res = fit(x, T200, noise=1e-3, seed=12)
+    ad = res.adequacy
+    assert ad.causes[0] == "coulomb", ad.causes
+    assert "--friction" in ad.warnings[0] and "constant amount" in ad.warnings[0]
+
+
+def test_duffing_is_not_taken_for_coulomb():
+    # the Duffing decay of test_duffing_spring_is_amplitude_dependent_stiffness: its viscous
+    # decay rate changes with the amplitude through the spring (-(5/6) of the frequency's
+    # relative change), which the envelope's warp removes
+    x = ode(lambda x, v: -100 * x - 0.4 * v - 30 * x**3, T200[:4000])
+    res = fit(x, T200[:4000], seed=4)
+    assert "coulomb" not in res.adequacy.causes

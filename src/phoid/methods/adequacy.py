@@ -74,23 +74,29 @@ import numpy as np
 
 from phoid.fits.hac import hac_covariance
 from phoid.methods.chi2 import chi2_isf, chi2_sf
+from phoid.methods.envelope import Envelope, envelope_test, normal_isf, t_isf, turning_points
 
 __all__ = [
     "ALPHA",
     "Adequacy",
     "Agreement",
     "Check",
+    "Envelope",
     "Windows",
     "agreement",
     "assess",
+    "envelope_test",
     "ljung_box",
     "noise_check",
     "noise_threshold",
+    "normal_isf",
     "not_below_white",
     "residual_warnings",
     "sandwich",
     "spectral_peak",
     "structure_check",
+    "t_isf",
+    "turning_points",
     "whiteness_check",
 ]
 
@@ -508,8 +514,9 @@ def _slope(a: np.ndarray, y: np.ndarray, se: np.ndarray) -> tuple[float, float, 
     return float(beta[1]), float(beta[1] / se_b) if se_b > 0 else 0.0, float(np.mean(y))
 
 
-def structure_check(win: Windows | None, *, x_unit: str = "m") -> tuple[Check, tuple[str, ...],
-                                                                        tuple[str, ...]]:
+def structure_check(win: Windows | None, *, x_unit: str = "m",
+                    envelope: Envelope | None = None) -> tuple[Check, tuple[str, ...],
+                                                               tuple[str, ...]]:
     """σ and ω_d against amplitude over the windows (module docstring).
 
     Parameters
@@ -518,44 +525,73 @@ def structure_check(win: Windows | None, *, x_unit: str = "m") -> tuple[Check, t
         The local estimates (None or fewer than 4 usable windows: not applicable).
     x_unit : str
         x's unit, for the words.
+    envelope : Envelope, optional
+        :func:`envelope_test` on the turning points. Where there is one it decides how the
+        decay rate depends on the amplitude (a constant loss, q > 0: Coulomb friction; q < 0:
+        amplitude-dependent damping) in place of the windows' σ slope: it uses every half
+        cycle and the turning points' own times, so a frequency that changes with the
+        amplitude does not hide the rate's trend, as it can in windows fitted with one
+        frequency each.
 
     Returns
     -------
     (Check, causes, warnings)
-        The check (statistic: the larger |slope|/stderr of σ and ω_d), the causes found and
-        their warnings.
+        The check (statistic: the largest of the |slope|/stderr of σ and ω_d and the
+        envelope's |q|/stderr scaled to the same threshold, |t|·3.29/threshold), the causes
+        found and their warnings; "coulomb" first when found.
     """
-    if win is None or win.amplitude.size < 4:
+    has_win = win is not None and win.amplitude.size >= 4
+    if not has_win and envelope is None:
         return (Check("structure", math.nan, T_SLOPE, None,
                       "not tested (fewer than 4 windows of a few cycles above the noise)"),
                 (), ())
-    a = win.amplitude
-    bs, ts, _ = _slope(a, win.sigma, win.sigma_se)
-    _bw, tw, _ = _slope(a, win.omega, win.omega_se)
-    stat = max(abs(ts), abs(tw))
-    order = np.argsort(a)
-    lo, hi = int(order[0]), int(order[-1])
-
-    def at(y: np.ndarray, unit: str, fmt: str = ".4g") -> str:
-        return (f"{y[hi]:{fmt}} {unit} at amplitude {a[hi]:.3g} {x_unit} to {y[lo]:{fmt}} "
-                f"{unit} at {a[lo]:.3g} {x_unit}")
-
     causes: list[str] = []
     warns: list[str] = []
-    parts = [f"σ against amplitude: slope/stderr {ts:.3g}",
-             f"ω_d against amplitude: slope/stderr {tw:.3g} ({a.size} windows)"]
-    if abs(ts) > T_SLOPE and bs < 0:
+    parts: list[str] = []
+    stat = 0.0
+    stuck_w = win is not None and win.stuck
+    stuck = f"; the motion ends stuck ({win.stuck_detail})" if stuck_w and win is not None else ""
+    ts = tw = 0.0
+    bs = 0.0
+    if has_win and win is not None:
+        a = win.amplitude
+        bs, ts, _ = _slope(a, win.sigma, win.sigma_se)
+        _bw, tw, _ = _slope(a, win.omega, win.omega_se)
+        order = np.argsort(a)
+        lo, hi = int(order[0]), int(order[-1])
+        parts += [f"σ against amplitude: slope/stderr {ts:.3g}",
+                  f"ω_d against amplitude: slope/stderr {tw:.3g} ({a.size} windows)"]
+        stat = max(abs(ts), abs(tw))
+
+        def at(y: np.ndarray, unit: str, fmt: str = ".4g") -> str:
+            return (f"{y[hi]:{fmt}} {unit} at amplitude {a[hi]:.3g} {x_unit} to "
+                    f"{y[lo]:{fmt}} {unit} at {a[lo]:.3g} {x_unit}")
+    if envelope is not None:
+        parts.append(envelope.detail(x_unit))
+        stat = max(stat, abs(envelope.t) * T_SLOPE / envelope.threshold)
+        if envelope.significant and envelope.loss > 0:
+            causes.append("coulomb")
+            warns.append(f"the amplitude falls by a constant amount besides its exponential "
+                         f"decay ({envelope.detail(x_unit)}{stuck}): the decay rate rises as the "
+                         "amplitude falls — Coulomb friction (linear amplitude loss, sticking), "
+                         "not viscous damping; try `phoid identify SET --friction`")
+        elif envelope.significant:
+            causes.append("amplitude_damping")
+            warns.append(f"the amplitude decays ever more slowly as it falls, beyond an "
+                         f"exponential ({envelope.detail(x_unit)}): the decay rate falls as the "
+                         "amplitude falls — amplitude-dependent damping (e.g. drag ∝ v|v|), "
+                         "not viscous damping")
+    elif has_win and win is not None and abs(ts) > T_SLOPE and bs < 0:
         causes.append("coulomb")
-        stuck = f"; the motion ends stuck ({win.stuck_detail})" if win.stuck else ""
         warns.append(f"the decay rate rises as the amplitude falls (σ from {at(win.sigma, '1/s')}"
                      f"{stuck}): Coulomb friction (linear amplitude loss, sticking), not viscous "
                      "damping; try `phoid identify SET --friction`")
-    elif abs(ts) > T_SLOPE:
+    elif has_win and win is not None and abs(ts) > T_SLOPE:
         causes.append("amplitude_damping")
         warns.append(f"the decay rate falls as the amplitude falls (σ from "
                      f"{at(win.sigma, '1/s')}): amplitude-dependent damping (e.g. drag ∝ v|v|), "
                      "not viscous damping")
-    if abs(tw) > T_SLOPE:
+    if has_win and win is not None and abs(tw) > T_SLOPE:
         causes.append("amplitude_stiffness")
         warns.append(f"the frequency changes with the amplitude (ω_d from "
                      f"{at(win.omega, 'rad/s', '.5g')}): amplitude-dependent stiffness, not a "

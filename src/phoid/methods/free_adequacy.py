@@ -102,6 +102,24 @@ def _stuck(seg: Segment, motion: np.ndarray, offset: float, noise: float, x_unit
     return ""
 
 
+def _envelope(segs: Sequence[Segment], fit: ModalFit,
+              noise: Sequence[float]) -> aq.Envelope | None:
+    """The envelope test (:func:`phoid.methods.adequacy.envelope_test`) on the run with the
+    most turning points above 10 noise sd, about its fitted offset."""
+    q = fit.w0sq - fit.sigma**2
+    if not q > 0:
+        return None
+    best: aq.Envelope | None = None
+    for s, c, nz in zip(segs, fit.coef, noise, strict=True):
+        if not nz > 0:
+            continue
+        tk, pk, sk = aq.turning_points(s.t, s.x, float(c[0]), math.sqrt(q), nz)
+        env = aq.envelope_test(tk, pk, sk)
+        if env is not None and (best is None or env.n > best.n):
+            best = env
+    return best
+
+
 def assess_free(segs: Sequence[Segment], fit: ModalFit, labels: Sequence[str], *,
                 x_unit: str = "m") -> aq.Adequacy:
     """The adequacy of a joint free-response fit (module docstring).
@@ -146,7 +164,8 @@ def assess_free(segs: Sequence[Segment], fit: ModalFit, labels: Sequence[str], *
         stuck = stuck or _stuck(s, m, float(c[0]), nz, x_unit)
     win = aq.Windows(*(np.concatenate(c) for c in cols), stuck=bool(stuck),
                      stuck_detail=stuck)
-    struct, s_causes, s_warns = aq.structure_check(win, x_unit=x_unit)
+    struct, s_causes, s_warns = aq.structure_check(win, x_unit=x_unit,
+                                                   envelope=_envelope(segs, fit, noise))
     peak = None
     if (noise_c.passed is False or white.passed is False) and not s_causes:
         for s, r in zip(segs, resid, strict=True):
@@ -206,6 +225,11 @@ def assess_free(segs: Sequence[Segment], fit: ModalFit, labels: Sequence[str], *
                 between.append(Jb @ ag.between @ Jb.T)
     causes = list(r_causes) + list(s_causes)
     warns = list(r_warns) + list(s_warns)
+    if "coulomb" in causes:
+        # the cause the user can act on first (`--friction`), its warning with it
+        j = causes.index("coulomb")
+        causes.insert(0, causes.pop(j))
+        warns.insert(0, warns.pop(len(r_warns) + s_causes.index("coulomb")))
     for ag in agreements:
         w = ag.warning()
         if w is not None:
