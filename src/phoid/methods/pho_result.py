@@ -146,6 +146,9 @@ class Identification(PlantResult, LoopExports):
     digital: Any = None
     delay_from: str | None = None
     u: tuple[np.ndarray | None, ...] = field(default=(), repr=False)
+    #: what the set's x is in ("m"; "rad": m, c, k are J, N m s/rad, N m/rad), set by the
+    #: registry (phoid.methods.registry.labelled)
+    x_unit: str = "m"
 
     METHOD: ClassVar[str] = "pho"
     REPORT: ClassVar[str] = "phoid.reports.text:identification_text"
@@ -162,6 +165,7 @@ class Identification(PlantResult, LoopExports):
         """
         out: dict[str, Any] = {
             "method": self.METHOD,
+            "x_unit": self.x_unit,
             **self.estimate_entries(),
             "delay": {"value": float(self.delay),
                       "stderr": None if self.delay_stderr is None else float(self.delay_stderr),

@@ -17,14 +17,14 @@ fills. An option such as ``--friction`` selects a variant of its method (``selec
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
 from phoid.errors import IdentificationError
 
-__all__ = ["METHODS", "OPTIONS", "Method", "Option", "Variant", "identify_with", "load",
-           "option"]
+__all__ = ["METHODS", "OPTIONS", "Method", "Option", "Variant", "identify_with", "labelled",
+           "load", "option"]
 
 
 @dataclass(frozen=True)
@@ -274,7 +274,9 @@ def identify_with(experiment: Any, options: Mapping[str, Any], *, style: str = "
     Returns
     -------
     object
-        The method's result (its ``summary()`` is ``phoid identify --json``).
+        The method's result (its ``summary()`` is ``phoid identify --json``), labelled by the
+        set (:func:`phoid.methods.registry.labelled`: its units as the set's ``x_unit``
+        makes them, the set's ``notes`` among its warnings).
 
     Raises
     ------
@@ -331,4 +333,75 @@ def identify_with(experiment: Any, options: Mapping[str, Any], *, style: str = "
         opt = option(name)
         value = values.get(name, opt.unset)
         keywords[opt.keyword] = (not value) if opt.inverted else value
-    return load(variant.function)(experiment, **keywords)
+    result = load(variant.function)(experiment, **keywords)
+    # every method's result labelled by its set, here once: x's unit (J, N m s/rad … for x
+    # in rad) and the notes of how the set was read (docs/architecture.md)
+    return labelled(result, str(getattr(experiment, "x_unit", "m") or "m"),
+                    tuple(getattr(experiment, "notes", ()) or ()))
+
+
+def _relabelled(value: Any, x_unit: str) -> Any:
+    """An :class:`Estimate` with its unit as :func:`~phoid.io.units.quantity_unit` reads it
+    (a mapping of estimates, each so); anything else as it is."""
+    from dataclasses import replace
+
+    from phoid.io.units import quantity_unit
+    from phoid.methods.estimate import Estimate
+
+    if isinstance(value, Estimate):
+        unit = quantity_unit(value.unit, x_unit)
+        return value if unit == value.unit else replace(value, unit=unit)
+    if isinstance(value, Mapping) and value and all(isinstance(v, Estimate)
+                                                    for v in value.values()):
+        return {k: _relabelled(v, x_unit) for k, v in value.items()}
+    return value
+
+
+def labelled(result: Any, x_unit: str = "m", notes: Sequence[str] = ()) -> Any:
+    """A method's result labelled by its set: the one place every method's units follow x.
+
+    :func:`identify_with` calls it on whatever the method returned, so that every method (pho,
+    ``--friction``, forced, free, free with ``--friction``, tracking) is labelled the same way,
+    whether its result is on :class:`~phoid.methods.result_base.ResultBase` or not. Each
+    ``Estimate`` field (and each estimate of a mapping field, a tracking result's
+    ``estimates``) gets the unit :func:`phoid.io.units.quantity_unit` gives for ``x_unit`` (x
+    in rad: kg → kg m^2, N s/m → N m s/rad, N/m → N m/rad, N → N m; a sensor unit: m → V …);
+    an ``x_unit`` field is set (a ``ResultBase`` relabels its fit statistics and adequacy by
+    it); and the set's ``notes`` (how it was read: "t rebuilt from sample_rate" …) are
+    appended to ``warnings`` where not already there. Units already labelled stay as they are
+    (the labels are idempotent).
+
+    Parameters
+    ----------
+    result : object
+        A frozen dataclass result (anything else is returned as it is).
+    x_unit : str
+        The set's :attr:`phoid.io.ExperimentSet.x_unit`.
+    notes : sequence of str
+        The set's :attr:`phoid.io.ExperimentSet.notes`.
+
+    Returns
+    -------
+    object
+        A copy of ``result`` with those changes (``result`` itself when there are none).
+    """
+    from dataclasses import fields, is_dataclass, replace
+
+    if not is_dataclass(result) or isinstance(result, type):
+        return result
+    names = {f.name for f in fields(result) if f.init}
+    changes: dict[str, Any] = {}
+    if x_unit != "m":
+        for name in names:
+            value = getattr(result, name)
+            new = _relabelled(value, x_unit)
+            if new is not value:
+                changes[name] = new
+    if "x_unit" in names and result.x_unit != x_unit:
+        changes["x_unit"] = x_unit
+    if "warnings" in names:
+        warnings = tuple(result.warnings or ())
+        extra = tuple(str(n) for n in notes if n not in warnings)
+        if extra:
+            changes["warnings"] = warnings + extra
+    return replace(result, **changes) if changes else result

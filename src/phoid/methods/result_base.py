@@ -31,6 +31,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from phoid.interop.exports import PlantExports
+from phoid.io.units import quantity_unit, relabel
 from phoid.methods.estimate import Estimate
 from phoid.methods.fit_statistics import fit_blocks
 from phoid.methods.pho import open_loop_omega0, open_loop_zeta
@@ -79,9 +80,17 @@ class ResultBase(NotebookDisplay):
 
     def fit_statistics(self) -> dict[str, Any]:
         """The ``covariance``, ``correlation`` and ``statistics`` blocks of ``summary()``
-        (docs/format.md, "Fit statistics"), from :meth:`statistics_of`."""
+        (docs/format.md, "Fit statistics"), from :meth:`statistics_of`; the units read as the
+        set's x makes them (:func:`phoid.io.units.quantity_unit` of the result's ``x_unit``,
+        where it has one: J in kg m^2 for x in rad)."""
         names, units, cov, chi2, dof, of = self.statistics_of()
-        return fit_blocks(names, units, cov, chi2, dof, of=of)
+        return fit_blocks(names, [self.unit_of(u) for u in units], cov, chi2, dof, of=of)
+
+    def unit_of(self, unit: str) -> str:
+        """One of phoid's SI unit strings (``"N/m"``, ``"m"`` …) as the result's x makes it
+        (:func:`phoid.io.units.quantity_unit` of its ``x_unit``, where it has one; the reports
+        label their columns by it)."""
+        return quantity_unit(unit, str(getattr(self, "x_unit", "m")))
 
     def residual_noise_ratios(self) -> list[float | None]:
         """Per run: its fit's residual RMS over the record's own noise level (≈ 1 when the
@@ -96,8 +105,12 @@ class ResultBase(NotebookDisplay):
                 for r, q in zip(runs, self.residual_noise_ratios(), strict=True)]
 
     def adequacy_entry(self) -> dict[str, Any]:
-        """``{"adequacy": …}`` when the adequacy checks were made, else nothing."""
-        return {} if self.adequacy is None else {"adequacy": self.adequacy.to_dict()}
+        """``{"adequacy": …}`` when the adequacy checks were made, else nothing (its units
+        read as the result's ``x_unit`` makes them)."""
+        if self.adequacy is None:
+            return {}
+        return {"adequacy": relabel(self.adequacy.to_dict(),
+                                    str(getattr(self, "x_unit", "m")))}
 
     def summary_tail(self) -> dict[str, Any]:
         """The last keys of every ``summary()``: ``warnings``, the ``adequacy`` block (when
@@ -151,3 +164,4 @@ class PlantResult(ResultBase, PlantExports):
             if math.isfinite(est.value):
                 out[key] = est.to_dict()
         return out
+

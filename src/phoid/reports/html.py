@@ -48,7 +48,8 @@ _RUN_UNITS = {
     "k_prime": "N/m", "residual_rms": "m", "added_mass": "kg", "omega": "rad/s", "R": "N/m",
     "rho": "rad", "release": "s", "x0": "m", "v0": "m/s", "offset": "m", "noise": "m",
     "stick_time": "s", "omega0": "rad/s", "amplitude": "m", "margin": "1/s",
-    "delay_margin": "s", "B": "N", "bias": "N",
+    "delay_margin": "s", "B": "N", "bias": "N", "noise_sd": "m", "stuck_position": "m",
+    "viscous_residual_rms": "m", "stop_time": "s", "C": "m",
 }
 _MAIN = ("m", "c", "k", "fc")
 _STYLE = """
@@ -245,7 +246,22 @@ def _matrix(params: Sequence[Any], matrix: Any, caption: str,
     return _table(["", *(_e(n) for n in names)], rows, caption=caption)
 
 
-def _runs_table(runs: list[Any]) -> str:
+def _run_units(result: Any, summary: dict[str, Any]) -> Any:
+    """The labeller of the run columns' SI units: the result's ``unit_of`` where it has one
+    (N/m is N m/rad for x in rad); else from the summary's ``x_unit`` (x's own unit for m,
+    per s for m/s: a rotational or sensor set's positions), the unit itself without one."""
+    unit_of = getattr(result, "unit_of", None)
+    if callable(unit_of):
+        return unit_of
+    x_unit = summary.get("x_unit")
+    if not isinstance(x_unit, str) or x_unit == "m":
+        return lambda unit: unit
+    return lambda unit: {"m": x_unit, "m/s": f"{x_unit}/s",
+                         "m/s^2": f"{x_unit}/s^2"}.get(unit, unit)
+
+
+def _runs_table(runs: list[Any], label: Any = None) -> str:
+    label = label if label is not None else (lambda unit: unit)
     runs = [r for r in runs if isinstance(r, dict)]
     if not runs:
         return ""
@@ -260,7 +276,7 @@ def _runs_table(runs: list[Any]) -> str:
             keys.insert(0, first)
     cols = [k for k in keys if not (k.endswith("_stderr") and k[: -len("_stderr")] in keys)]
     warned = any(r.get("warnings") for r in runs)
-    head = [_e(k + (f" ({_RUN_UNITS[k]})" if k in _RUN_UNITS else "")) for k in cols]
+    head = [_e(k + (f" ({label(_RUN_UNITS[k])})" if k in _RUN_UNITS else "")) for k in cols]
     rows, classes = [], []
     for r in runs:
         row = []
@@ -364,7 +380,7 @@ def result_html(result: Any, *, figure: bool = True) -> str:
     if isinstance(summary.get("fit"), dict):
         parts.append(_fit_block(summary["fit"]))
     if isinstance(summary.get("runs"), list):
-        parts.append(_runs_table(summary["runs"]))
+        parts.append(_runs_table(summary["runs"], _run_units(result, summary)))
     if isinstance(summary.get("validation"), list):
         parts.append(_validation_table(summary["validation"]))
     for key, value in summary.items():  # the other tables (a design's settings, prior, …)

@@ -170,8 +170,10 @@ def identification_text(ident: Any) -> str:
     lines.append(f"  open-loop ω₀ = {format_estimate(w0.value, w0.stderr)} rad/s,  ζ = {zeta}")
     lines.append("")
     # a space before each wide column: a long value (σ ± stderr) never runs into the one before
-    head = (f"  {'run':<16}{'P N/m':>10}{'D N s/m':>10} {'σ 1/s':>19} {'ω_d rad/s':>19}"
-            f"{'c′ N s/m':>11}{'k′ N/m':>11}{'cycles':>8}{'resid m':>10}{'resid/noise':>12}")
+    k_u, c_u, x_u = _unit(ident, "N/m"), _unit(ident, "N s/m"), _unit(ident, "m")
+    head = (f"  {'run':<16}{'P ' + k_u:>10}{'D ' + c_u:>10} {'σ 1/s':>19} {'ω_d rad/s':>19}"
+            f"{'c′ ' + c_u:>11}{'k′ ' + k_u:>11}{'cycles':>8}{'resid ' + x_u:>10}"
+            f"{'resid/noise':>12}")
     lines.append(head)
     for r, q in zip(ident.runs, ident.residual_noise_ratios(), strict=True):
         mark = "" if r.used else "  (set aside)"
@@ -189,6 +191,13 @@ def identification_text(ident: Any) -> str:
         lines.append("warnings:")
         lines.extend(f"  - {safe_text(w)}" for w in ident.warnings)
     return "\n".join(lines)
+
+
+def _unit(result: Any, unit: str) -> str:
+    """One of phoid's SI unit strings as the result's x makes it (its ``unit_of``, where it
+    has one: N/m is N m/rad for x in rad); the string itself otherwise."""
+    unit_of = getattr(result, "unit_of", None)
+    return str(unit_of(unit)) if callable(unit_of) else unit
 
 
 def fit_statistics_lines(result: Any) -> list[str]:
@@ -279,8 +288,10 @@ def friction_text(fit: Any) -> str:
     for name, est in (("m", fit.m), ("c", fit.c), ("k", fit.k), ("fc", fit.fc)):
         lines.append(f"  {name} = {format_estimate(est.value, est.stderr)} {est.unit}")
     lines.append("")
-    lines.append(f"  {'run':<16}{'P N/m':>10}{'D N s/m':>10}{'σ 1/s':>10}{'ω_d rad/s':>11}"
-                 f"{'x0 m':>11}{'sticks at s':>13}{'resid m':>10}{'resid/noise':>12}")
+    k_u, c_u, x_u = _unit(fit, "N/m"), _unit(fit, "N s/m"), _unit(fit, "m")
+    lines.append(f"  {'run':<16}{'P ' + k_u:>10}{'D ' + c_u:>10}{'σ 1/s':>10}"
+                 f"{'ω_d rad/s':>11}{'x0 ' + x_u:>11}{'sticks at s':>13}{'resid ' + x_u:>10}"
+                 f"{'resid/noise':>12}")
     for r, q in zip(fit.runs, fit.residual_noise_ratios(), strict=True):
         stick = f"{r.stick_time:.4g}" if r.stick_time is not None else "-"
         mark = "" if r.used else "  (set aside)"
@@ -384,7 +395,8 @@ def forced_text(result: Any) -> str:
         lines.append(f"  ω₀ = {format_estimate(w0.value, w0.stderr)} rad/s,  "
                      f"ζ = {format_estimate(z.value, z.stderr)}")
     lines.append("")
-    lines.append(f"  {'run':<16}{'ω rad/s':>12}{'B N':>10}{'C m':>11} {'R N/m':>22} "
+    lines.append(f"  {'run':<16}{'ω rad/s':>12}{'B ' + _unit(result, 'N'):>10}"
+                 f"{'C ' + _unit(result, 'm'):>11} {'R ' + _unit(result, 'N/m'):>22} "
                  f"{'ρ rad':>22}{'settled s':>11}{'resid/noise':>12}")
     for r, q in zip(result.runs, result.residual_noise_ratios(), strict=True):
         mark = "" if r.used else "  (set aside)"

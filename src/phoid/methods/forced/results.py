@@ -155,6 +155,9 @@ class ForcedIdentification(PlantResult):
     runs: tuple[ForcedRun, ...]
     transient: tuple[float, float] = (math.nan, math.nan)
     transient_fitted: bool = False
+    #: what the set's x is in ("m"; "rad": m, c, k are J, N m s/rad, N m/rad), set by the
+    #: registry (phoid.methods.registry.labelled)
+    x_unit: str = "m"
 
     METHOD: ClassVar[str] = "forced"
     REPORT: ClassVar[str] = "phoid.reports.text:forced_text"
@@ -170,7 +173,8 @@ class ForcedIdentification(PlantResult):
         ``warnings``, and ``covariance``, ``correlation``, ``statistics``
         (:meth:`fit_statistics`).
         """
-        return {"method": self.METHOD, **self.estimate_entries(), **self.derived_entries(),
+        return {"method": self.METHOD, "x_unit": self.x_unit, **self.estimate_entries(),
+                **self.derived_entries(),
                 "runs": self.run_entries(), **self.summary_tail()}
 
     def residual_noise_ratios(self) -> list[float | None]:
