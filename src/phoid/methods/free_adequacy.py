@@ -17,8 +17,8 @@
 
 The robust covariance is the Newey–West sandwich of the rates (the Jacobian in (σ, ω₀²) with
 each run's offset and state projected off, each run weighted as in the fit), raised to at least
-the white one, plus the halves' spread (d dᵀ for halves differing by d: twice their sample
-covariance) where the model misfits the record (the residual above its noise), the halves
+the white one, plus the halves' spread (the part of d dᵀ, for halves differing by d, that
+their own covariances C₁ + C₂ do not explain) where the model misfits the record (the residual above its noise), the halves
 disagree or the windows show a trend (the windows' own spread of (σ, ω₀²) where there are no
 halves to compare), plus the covariance of the runs' mean where they
 disagree (mapped from (ω₀, ζ) to (σ, ω₀²) at the
@@ -64,6 +64,19 @@ def _w_zeta(sigma: float, w0sq: float, cov: np.ndarray) -> tuple[np.ndarray, np.
     w0 = math.sqrt(w0sq)
     J = np.array([[0.0, 0.5 / w0], [1.0 / w0, -sigma / (2 * w0**3)]])
     return np.array([w0, sigma / w0]), J @ cov @ J.T
+
+
+def _excess(spread: np.ndarray, own: np.ndarray) -> np.ndarray:
+    """The part of the halves' spread d dᵀ their own covariances C₁ + C₂ do not explain: the
+    positive part of d dᵀ − (C₁ + C₂) (negative eigenvalues set to 0).
+
+    Halves that differ only by their noise (white or coloured: E[d dᵀ] = C₁ + C₂ when each
+    half's robust covariance is right) add nothing beyond the sandwich, so coloured noise is
+    not counted twice; halves that drift apart by far more than their noise add about d dᵀ.
+    """
+    e = np.asarray(spread, dtype=float) - np.asarray(own, dtype=float)
+    w, v = np.linalg.eigh(0.5 * (e + e.T))
+    return (v * np.clip(w, 0.0, None)) @ v.T
 
 
 def _part(segs: list[Segment], fit: ModalFit,
@@ -207,7 +220,13 @@ def assess_free(segs: Sequence[Segment], fit: ModalFit, labels: Sequence[str], *
             # the halves' spread d dᵀ (= 2S, S their sample covariance d dᵀ/2): the model
             # misfits or the parameters drift, so the value depends on which part of the
             # record the fit weighs (module docstring)
-            between.append(_SPREAD * (Jb @ ag.between @ Jb.T))
+            # the part of the halves' spread their own covariances do not explain (with the
+            # residual's size alone failing, coloured noise looks the same as a misfit that
+            # drifts below the halves' test: a gate per parameter then misses a real record's
+            # drift, docs/adequacy.md; the excess over C₁ + C₂ keeps coloured noise near its
+            # sandwich for ω₀, conservative for σ)
+            extra = _excess(_SPREAD * ag.between, halves[0][1] + halves[1][1])
+            between.append(Jb @ extra @ Jb.T)
     elif struct.passed is False:
         # a trend along the record and no halves to measure it: the windows' own spread of
         # (σ, ω₀² = ω_d² + σ²), the range the parameters sweep
