@@ -61,7 +61,9 @@ def batch(
     mass: Annotated[float | None, typer.Option(
         "--mass", help="Known mass, kg, for free-decay sets.")] = None,
     friction: Annotated[bool, typer.Option(
-        "--friction", help="pho: fit Coulomb friction f_c too (slow).")] = False,
+        "--friction",
+        help="pho and free sets: fit Coulomb friction f_c too (pho: slow; free: with the "
+             "stop).")] = False,
     retry_errors: Annotated[bool, typer.Option(
         "--retry-errors", help="Identify again the sets --out holds as errors (skipped by "
                                "default: the same bytes give the same error).")] = False,

@@ -15,8 +15,10 @@ from collections.abc import Mapping
 from datetime import UTC, datetime
 from typing import Any
 
-__all__ = ["BASE_COLUMNS", "PARAMETERS", "SCHEMA", "canonical_options", "error_row",
-           "options_key", "result_row"]
+from phoid.methods.registry import METHODS, OPTIONS
+
+__all__ = ["BASE_COLUMNS", "ESTIMATOR_VALUES", "OPTION_DEFAULTS", "PARAMETERS", "SCHEMA",
+           "canonical_options", "error_row", "options_key", "result_row"]
 
 # the schema's name, stored in the Parquet file's key-value metadata under b"phoid"
 SCHEMA = "phoid-batch/1"
@@ -30,9 +32,12 @@ BASE_COLUMNS = ("set", "checksum", "options", "status", "error", "method", "axis
                 "chi2_dof", "n_runs", "n_warnings", "warnings", "seconds", "worker",
                 "finished", "phoid_version")
 
-# the identify options a batch takes, with their defaults (those of `phoid identify`)
-OPTION_DEFAULTS: dict[str, Any] = {"estimator": None, "delay": None, "no_compensation": False,
-                                   "mass": None, "friction": False}
+# the identify options a batch takes, with their defaults (those of `phoid identify`): the
+# registry's table of options, so that a new option reaches `phoid batch` by itself
+OPTION_DEFAULTS: dict[str, Any] = {o.name: o.unset for o in OPTIONS}
+#: every value `estimator` takes for some method (which applies is the set's method's business)
+ESTIMATOR_VALUES: tuple[str, ...] = tuple(dict.fromkeys(
+    e for m in METHODS.values() for v in m.variants for e in v.estimators))
 
 
 def canonical_options(options: Mapping[str, Any]) -> dict[str, Any]:
@@ -59,13 +64,10 @@ def canonical_options(options: Mapping[str, Any]) -> dict[str, Any]:
         else:  # delay (s) and mass (kg): a finite number or None
             ok = value is None or (isinstance(value, int | float) and not isinstance(value, bool)
                                    and math.isfinite(value))
-        if ok and name == "estimator" and value is not None:
-            from phoid.methods.tracking_identification import ESTIMATORS as TRACKING
-
-            known = ("gls", "ols", *TRACKING)
-            if value not in known:  # which applies is the set's method's business
-                raise ValueError(f"identify option 'estimator' must be one of "
-                                 f"{', '.join(known)}; got {value!r}")
+        if ok and name == "estimator" and value is not None \
+                and value not in ESTIMATOR_VALUES:
+            raise ValueError(f"identify option 'estimator' must be one of "
+                             f"{', '.join(ESTIMATOR_VALUES)}; got {value!r}")
         if not ok:
             raise ValueError(f"identify option {name!r} must be "
                              + ("True or False" if isinstance(default, bool) else
