@@ -152,7 +152,7 @@ def test_sticking_is_detected_and_timed(acceptance):
 def test_summary_is_json_with_fc(acceptance):
     out = json.loads(json.dumps(acceptance["fit"].summary(), allow_nan=False))
     assert set(out) == {"method", "m", "c", "k", "fc", "delay", "runs", "warnings",
-                        "covariance", "correlation", "statistics", "adequacy"}
+                        "covariance", "correlation", "statistics", "adequacy", "x_unit"}
     for key, unit in (("m", "kg"), ("c", "N s/m"), ("k", "N/m"), ("fc", "N")):
         assert out[key]["unit"] == unit
         assert out[key]["stderr"] > 0
@@ -385,7 +385,7 @@ def test_cli_identify_friction(tmp_path):
     s = json.loads(r.stdout)
     # the spec's keys, plus fc in the same shape; runs with the spec's run keys
     assert {"method", "m", "c", "k", "fc", "delay", "runs", "warnings", "covariance",
-            "correlation", "statistics", "adequacy"} == set(s)
+            "correlation", "statistics", "adequacy", "x_unit"} == set(s)
     assert {"file", "P", "D", "sigma", "omega_d", "c_prime", "k_prime", "cycles"} <= set(
         s["runs"][0])
     for q, v in (("m", 1.0), ("c", 2.0), ("k", 100.0), ("fc", 0.05)):

@@ -135,6 +135,9 @@ class FrictionFit(ResultBase, LoopExports):
         Each run's record, s and m (for :meth:`model` and the figures).
     sim_rate : float
         Rate of the fit's simulation grid, Hz (:meth:`model` simulates on the same grid).
+    x_unit : str
+        What x is in: ``"m"``, or ``"rad"`` for a rotational set (the registry labels the
+        estimates by it: kg m^2, N m s/rad, N m/rad, N m).
     adequacy : phoid.methods.adequacy.Adequacy or None
         The fit's adequacy checks (:mod:`phoid.methods.friction.adequacy`); where one fails
         the stderr are the robust ones and ``white_stderr`` the fit's own.
@@ -155,6 +158,7 @@ class FrictionFit(ResultBase, LoopExports):
     start: tuple[float, float, float, float]
     digital: Any = None
     sim_rate: float = math.nan
+    x_unit: str = "m"
 
     METHOD: ClassVar[str] = "pho"
     REPORT: ClassVar[str] = "phoid.reports.text:friction_text"
@@ -233,6 +237,7 @@ class FrictionFit(ResultBase, LoopExports):
                          "cycles": r.reversals / 2 if r.reversals >= 0 else None, **d})
         return {
             "method": "pho",
+            "x_unit": self.x_unit,
             "m": self.m.to_dict(),
             "c": self.c.to_dict(),
             "k": self.k.to_dict(),
