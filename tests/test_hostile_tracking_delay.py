@@ -333,8 +333,9 @@ def test_idim_biased_at_a_right_ten_ms_delay_is_warned(tmp_path):
     folder = _set(tmp_path / "set", true_delay=0.01, stated=0.01, noise=1e-4, seed=1)
     out = _identify(folder)
     m = out["parameters"]["m"]
-    # the record's IDIM mass is indeed biased: > 4 of its stderrs below the truth (the case)
-    assert (2.0 - m["value"]) > 4 * m["stderr"], m
+    # the record's IDIM mass is indeed biased: > 4 of its OLS stderrs below the truth (the
+    # case); the misfit's robust stderr (docs/adequacy.md, "Tracking") are wider
+    assert (2.0 - m["value"]) > 4 * m.get("stderr_white", m["stderr"]), m
     (w,) = [w for w in out["warnings"] if "disagree" in w]
     assert "jointly over m, c, fc, offset" in w and "--estimator output-error" in w, w
     assert "m = " in w.split("per parameter")[1], w  # the per-parameter detail is kept

@@ -195,12 +195,15 @@ def emps_set(tmp_path_factory):
 def test_emps_idim_reproduces_the_published_digits(emps_set):
     text = cli("identify", emps_set).stdout
     # the benchmark's published IDIM-LS (EMPS README/description), to every printed digit:
-    # the report's numbers rounded as the publication rounds them
+    # the report's numbers rounded as the publication rounds them (its stderr are the OLS
+    # ones, which the report gives as "white-noise ±" beside the robust ones it reports:
+    # the model misfits this record, docs/adequacy.md)
     published = {"mass m": (95.1089, 4, 0.1085, 4), "viscous c": (203.5034, 4, 1.146, 3),
                  "Coulomb fc": (20.3935, 4, 0.1012, 4), "offset force": (-3.1648, 4, 0.0444, 4)}
     for label, (value, dv, se, ds) in published.items():
         line = next(row for row in text.splitlines() if row.strip().startswith(label))
-        got_v, got_se = (float(q) for q in re.findall(r"-?\d+\.\d+", line)[:2])
+        got_v = float(re.findall(r"-?\d+\.\d+", line)[0])
+        got_se = float(re.search(r"white-noise ± (\d+\.\d+)", line).group(1))
         assert round(got_v, dv) == value and round(got_se, ds) == se, line
     assert "4.0834 %" in text and "25.99" in text  # relative force error, condition number
 

@@ -16,7 +16,7 @@ benchmark are reproducible. ``scipy.signal`` is imported inside :func:`idim_ls` 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -24,7 +24,7 @@ import numpy as np
 from phoid.methods.estimate import Estimate
 from phoid.reports.display import NotebookDisplay
 
-__all__ = ["IDIMFit", "idim_ls", "idim_ls_runs"]
+__all__ = ["IDIMFit", "idim_ls", "idim_ls_runs", "residual_filters"]
 
 _NAMES = ("M", "Fv", "Fc", "OF")
 _UNITS = ("kg", "N s/m", "N", "N")
@@ -67,6 +67,15 @@ class IDIMFit(NotebookDisplay):
         regression.
     free : tuple of str
         The fitted parameters, in the order of ``covariance``.
+    regressor : numpy.ndarray or None
+        The decimated regressor X of the free parameters (rows of every record, stacked).
+    target : numpy.ndarray or None
+        The decimated force y the free parameters fit (the fixed ones' columns taken off).
+    rows : tuple of int
+        Rows of each record in ``regressor`` (in order).
+    recipe : Mapping or None
+        ``dt`` (s), ``cutoff`` (Hz), ``order``, ``decimation`` of each record's filters
+        (the first record's ``dt``), for :func:`residual_filters`.
     """
 
     M: Estimate
@@ -81,6 +90,18 @@ class IDIMFit(NotebookDisplay):
     warnings: tuple[str, ...] = ()
     k: Estimate | None = None
     free: tuple[str, ...] = _NAMES
+    regressor: np.ndarray | None = field(default=None, repr=False)
+    target: np.ndarray | None = field(default=None, repr=False)
+    rows: tuple[int, ...] = ()
+    recipe: Any = None
+
+    @property
+    def residual(self) -> np.ndarray | None:
+        """y − Xθ̂ of the decimated regression (N), or None without the regression."""
+        if self.regressor is None or self.target is None:
+            return None
+        theta = np.array([getattr(self, n).value for n in self.free])
+        return self.target - self.regressor @ theta
 
     def summary(self) -> dict[str, Any]:
         """JSON-ready dict: the four estimates, the fit statistics and the warnings."""
@@ -277,7 +298,9 @@ def idim_ls(t: np.ndarray, q: np.ndarray, u: np.ndarray, *, gain: float, cutoff:
     """
     t, q, u, dt, (start, end) = _check(t, q, u, gain, cutoff, order, decimation, trim, sigma)
     X, y = _regression(t, q, gain * u, dt, cutoff, order, decimation, start, end)
-    return _solve(X[:, :4], y, sigma, _NAMES, _UNITS, fixed={})
+    fit = _solve(X[:, :4], y, sigma, _NAMES, _UNITS, fixed={})
+    return replace(fit, recipe={"dt": dt, "cutoff": float(cutoff), "order": int(order),
+                                "decimation": int(decimation)})
 
 
 def _regression(t, q, force, dt, cutoff, order, decimation, start, end):
@@ -342,7 +365,7 @@ def _solve(x, y, sigma, names, units, fixed) -> IDIMFit:
     return IDIMFit(est["M"], est["Fv"], est["Fc"], est["OF"], covariance=covariance,
                    relative_error=relative_error, condition_number=condition,
                    lag1_autocorrelation=rho1, n_samples=n, warnings=warnings,
-                   k=est.get("k"), free=tuple(names))
+                   k=est.get("k"), free=tuple(names), regressor=x, target=y, rows=(n,))
 
 
 def idim_ls_runs(records, *, fixed=None, cutoff: float = 100.0, order: int = 4,
@@ -376,13 +399,14 @@ def idim_ls_runs(records, *, fixed=None, cutoff: float = 100.0, order: int = 4,
         if key not in _ALL_UNITS:
             raise ValueError(f"fixed: unknown parameter {key!r}")
     fixed_cols = dict(fixed)
-    Xs, ys = [], []
+    Xs, ys, dts = [], [], []
     for t, q, force in records:
         t, q, force, dt, (start, end) = _check(t, q, force, 1.0, cutoff, order, decimation,
                                                trim, sigma)
         X, y = _regression(t, q, force, dt, cutoff, order, decimation, start, end)
         Xs.append(X)
         ys.append(y)
+        dts.append(dt)
     X = np.vstack(Xs)
     y = np.concatenate(ys)
     cols = [*_NAMES, "k"]
@@ -392,4 +416,56 @@ def idim_ls_runs(records, *, fixed=None, cutoff: float = 100.0, order: int = 4,
     if not free:
         raise ValueError("fixed: every parameter is fixed; nothing to fit")
     X = X[:, [cols.index(name) for name in free]]
-    return _solve(X, y, sigma, free, [_ALL_UNITS[name] for name in free], fixed_cols)
+    fit = _solve(X, y, sigma, free, [_ALL_UNITS[name] for name in free], fixed_cols)
+    return replace(fit, rows=tuple(len(q) for q in ys),
+                   recipe={"dt": dts[0], "cutoff": float(cutoff), "order": int(order),
+                           "decimation": int(decimation)})
+
+
+def residual_filters(dt: float, *, cutoff: float, order: int, decimation: int, M: float,
+                     Fv: float, k: float = 0.0, length: int = 8192
+                     ) -> tuple[np.ndarray, np.ndarray]:
+    """How white noise reaches the residual of the decimated regression, before the
+    subsampling.
+
+    IDIM's residual y − Xθ of the right model holds the position's noise n, carried by the
+    columns q̈, q̇ (and q) of the filtered position — −(M q̈ + Fv q̇ + k q) of it, through the
+    Butterworth filter, the central differences and the decimation filter — and any noise of
+    the force itself, through the decimation filter alone. Both are linear and time-invariant
+    away from the record's ends: their impulse responses h give the residual's autocovariance
+    at decimated lag j, σ² Σᵢ h(i) h(i + j·decimation), for white noise of variance σ².
+
+    Parameters
+    ----------
+    dt : float
+        Sample interval, s.
+    cutoff, order, decimation : float, int, int
+        The recipe's filters (:func:`idim_ls`).
+    M, Fv, k : float
+        The estimates the residual is taken at (kg, N s/m, N/m).
+    length : int
+        Samples of the responses (the filters' responses die out well within 8192 samples for
+        a decimation up to 100).
+
+    Returns
+    -------
+    (h_q, h_F) : ndarray, ndarray
+        The residual's response, in N, to a unit position sample (1 m) and to a unit force
+        sample (1 N), at the full rate.
+    """
+    from scipy import signal
+
+    imp = np.zeros(length)
+    imp[length // 2] = 1.0
+    b, a = signal.butter(order, cutoff / (0.5 / dt))
+    qf = _filtfilt(b, a, imp)
+    qd = np.gradient(qf, dt)
+    qdd = np.gradient(qd, dt)
+    h_q = M * qdd + Fv * qd + k * qf
+    if decimation > 1:
+        bd, ad = _decimate_filter(decimation)
+        h_q = _filtfilt(bd, ad, h_q)
+        h_F = _filtfilt(bd, ad, imp)
+    else:
+        h_F = imp
+    return h_q, h_F

@@ -189,6 +189,9 @@ class TrackingFit(NotebookDisplay):
     warnings : tuple of str
     converged : bool
         Whether the optimiser converged (else a warning says why it stopped).
+    white_covariance : numpy.ndarray or None
+        The white-noise covariance σ²(JᵀJ)⁻¹ of the free parameters (the start states
+        profiled), whose diagonal ``white_stderr`` gives.
     """
 
     estimates: Mapping[str, Estimate]
@@ -206,6 +209,7 @@ class TrackingFit(NotebookDisplay):
     delay_status: str = "given"
     warnings: tuple[str, ...] = field(default=())
     converged: bool = True
+    white_covariance: np.ndarray | None = field(default=None, repr=False)
 
     def corr(self, a: str, b: str) -> float | None:
         """corr(a, b) of two free parameters (None when either is fixed)."""
@@ -455,6 +459,7 @@ def fit_tracking_runs(records: Sequence[TrackingRecord], *,
         rms_residual=float(np.sqrt(np.mean(e**2))), relative_error=rel,
         simulations=tuple(sims), records=records, nfev=int(sol.nfev),
         delay_status=delay_status, warnings=tuple(warnings), converged=bool(sol.success),
+        white_covariance=np.asarray(cov.white[:P, :P], dtype=float),
     )
 
 

@@ -25,10 +25,10 @@ benchmark's relative errors of position, tracking error, velocity and force).
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
-from dataclasses import dataclass
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -37,7 +37,8 @@ from phoid.errors import IdentificationError
 from phoid.interop.exports import PlantExports
 from phoid.io.units import unit_hint
 from phoid.methods.estimate import Estimate
-from phoid.methods.fit_statistics import difference_noise, fit_blocks
+from phoid.methods.fit_statistics import difference_noise
+from phoid.methods.result_base import ResultBase
 from phoid.methods.tracking import (
     PARAMETERS,
     UNITS,
@@ -45,6 +46,7 @@ from phoid.methods.tracking import (
     check_stable,
     fit_tracking_runs,
 )
+from phoid.methods.tracking_adequacy import assess_idim, assess_output_error
 from phoid.methods.tracking_delay import (
     delay_warnings,
     estimator_disagreement,
@@ -64,7 +66,6 @@ from phoid.methods.tracking_runs import (
     validation_entries,
     validation_noise_ratio,
 )
-from phoid.reports.display import NotebookDisplay
 
 __all__ = [
     "TrackingIdentification",
@@ -85,7 +86,7 @@ _IDIM_NAMES = {"m": "M", "c": "Fv", "fc": "Fc", "offset": "OF", "k": "k"}
 
 
 @dataclass(frozen=True, eq=False, repr=False)
-class TrackingIdentification(PlantExports, NotebookDisplay):
+class TrackingIdentification(ResultBase, PlantExports):
     """The result of :func:`identify_tracking`.
 
     Attributes
@@ -105,7 +106,6 @@ class TrackingIdentification(PlantExports, NotebookDisplay):
     run_names : tuple of str
     path : Path or None
         The set's manifest.
-    warnings : tuple of str
     delay_check : DelayCheck or None
         The stated (or assumed) command delay checked against the record
         (:func:`~phoid.methods.tracking_delay.check_delay`); None where the delay was estimated or
@@ -114,6 +114,11 @@ class TrackingIdentification(PlantExports, NotebookDisplay):
         Per run, how its additive input w reached the plant — whether the recorded u already
         contains it, and with what gain, stated or measured
         (:mod:`phoid.methods.tracking_semantics`); None for a run without w.
+
+    The base's ``warnings`` and ``adequacy`` (:mod:`phoid.methods.tracking_adequacy`: the
+    estimator's residual against the record's noise and for whiteness, the halves and runs,
+    the validation; where a check fails the free parameters' stderr are the robust ones,
+    the white ones in ``Estimate.white_stderr``).
     """
 
     estimator: str
@@ -123,9 +128,11 @@ class TrackingIdentification(PlantExports, NotebookDisplay):
     validations: tuple[Any, ...]
     run_names: tuple[str, ...]
     path: Path | None
-    warnings: tuple[str, ...]
     delay_check: Any = None
     command_inputs: tuple[Any, ...] = ()
+
+    METHOD: ClassVar[str] = "tracking"
+    REPORT: ClassVar[str] = "phoid.reports.tracking:identification_text"
 
     @property
     def validation(self) -> Any:
@@ -135,7 +142,8 @@ class TrackingIdentification(PlantExports, NotebookDisplay):
     def summary(self) -> dict[str, Any]:
         """JSON-ready dict (docs/format.md, "tracking sets"): with each validation's
         ``residual_noise_ratio``, ``w_in_u`` where a run records an additive input w, and the
-        ``covariance``, ``correlation`` and ``statistics`` blocks of :meth:`fit_statistics`."""
+        ``adequacy`` block, and the ``covariance``, ``correlation`` and ``statistics`` blocks of
+        :meth:`fit_statistics`."""
         fit = self.fit.summary()
         fit.pop("warnings", None)
         fit.pop("parameters", None)
@@ -151,19 +159,22 @@ class TrackingIdentification(PlantExports, NotebookDisplay):
                   if self.command_inputs else None)
         if inputs is not None:
             out["w_in_u"] = inputs
-        return json_safe({**out, "warnings": list(self.warnings), **self.fit_statistics()})
+        return json_safe({**out, **self.summary_tail()})
 
     def residual_noise_ratios(self) -> list[float | None]:
         """Per run: the RMS of the validation's position residual x − x_sim over the record's
         noise level estimated without the model (:func:`validation_noise_ratio`)."""
         return [validation_noise_ratio(v) for v in self.validations]
 
-    def fit_statistics(self) -> dict[str, Any]:
-        """The ``covariance``, ``correlation`` and ``statistics`` blocks of :meth:`summary`.
+    def statistics_of(self) -> tuple[Sequence[str], Sequence[str], np.ndarray,
+                                     float | None, int | None, str]:
+        """The parameters, units, covariance, χ², dof and what the fit was, for the
+        ``covariance``, ``correlation`` and ``statistics`` blocks of :meth:`summary`.
 
         The parameters are the estimator's free ones (phoid's names ``m``, ``c``, ``k``,
         ``fc``, ``offset``, ``delay``; IDIM's ``M``, ``Fv``, ``Fc``, ``OF`` renamed) in its
-        covariance's order: IDIM's OLS covariance, or output error's Newey–West one. χ² is
+        covariance's order: the covariance the estimates carry (IDIM's OLS covariance where
+        every adequacy check passes, else the robust one; output error's Newey–West one). χ² is
         that of the position, Σ (x − x_sim)²/ŝ², ŝ each run's noise level from its record
         alone (:func:`~phoid.methods.fit_statistics.difference_noise`): for output error over
         the fitted samples of its own fit (x_sim: each run's loop simulated from its fitted
@@ -201,14 +212,8 @@ class TrackingIdentification(PlantExports, NotebookDisplay):
             chi2 += float(r @ r) / q**2
             n += r.size
         dof = n - len(names) - starts
-        return fit_blocks(names, units, self.fit.covariance, chi2 if n else None,
-                          dof if n else None, of=of)
-
-    def report(self) -> str:
-        """Plain-text report: estimates ± stderr, the fit's statistics, the validation."""
-        from phoid.reports.tracking import identification_text
-
-        return identification_text(self)
+        cov = self.fit.covariance if self.adequacy is None else self.adequacy.robust_cov
+        return names, units, cov, chi2 if n else None, dof if n else None, of
 
     def plot(self, folder: str | Path, *, overwrite: bool = False) -> list[Path]:
         """One PNG per run (measured vs simulated, residual, force) into ``folder``."""
@@ -281,8 +286,19 @@ def identify_tracking(experiment: Any, *, delay: float | None = None,
     except ValueError as exc:
         hint = _delay_hint(str(exc), delay, given, ctrls) + idim_noise_hint(idim_records)
         raise IdentificationError(f"{where}: {exc}{hint}") from None
+    # the model's adequacy: IDIM's OLS warning gives way to its checks (module
+    # phoid.methods.tracking_adequacy)
+    names = tuple(rec.name for rec in records)
+    ratios = [validation_noise_ratio(v) for v in validations]
+    if choice == "idim":
+        adequacy = assess_idim(fit, records, validations, ratios, values)
+        own = ()
+    else:
+        adequacy = assess_output_error(fit, validations, ratios, values)
+        own = fit.warnings
+    estimates = _with_adequacy(estimates, adequacy)
     # the estimator's first, then how w reaches the plant, then the simulation's
-    warnings = [*fit.warnings, *input_warnings(records, inputs), *warnings]
+    warnings = [*own, *input_warnings(records, inputs), *warnings]
     if source == "assumed-zero":
         warnings.append("no command delay given ([loop] delay): the validation simulates the "
                         "loop with delay 0")
@@ -295,6 +311,7 @@ def identify_tracking(experiment: Any, *, delay: float | None = None,
         if text:
             gross = True
             warnings.append(text)
+    warnings += list(adequacy.warnings)
     checked = None
     if check_delay and source in ("given", "assumed-zero"):
         if delay is not None:
@@ -317,10 +334,28 @@ def identify_tracking(experiment: Any, *, delay: float | None = None,
                 warnings.insert(1 if checked.contradicts else 0, text)
     return TrackingIdentification(
         estimator=choice, estimates=estimates, delay_source=source, fit=fit,
-        validations=tuple(validations), run_names=tuple(rec.name for rec in records),
+        validations=tuple(validations), run_names=names,
         path=getattr(experiment, "path", None), warnings=tuple(warnings),
-        delay_check=checked, command_inputs=inputs,
+        delay_check=checked, command_inputs=inputs, adequacy=adequacy,
+        source=str(getattr(experiment, "path", "") or ""),
     )
+
+
+def _with_adequacy(estimates: Mapping[str, Estimate], adequacy: Any) -> dict[str, Estimate]:
+    """The estimates with the stderr the adequacy chose: where it reports robust ones, each
+    free parameter's stderr is the robust one and its white one goes to ``white_stderr``
+    (a parameter on a bound keeps no ±)."""
+    out = dict(estimates)
+    if adequacy.stderr != "robust":
+        return out
+    robust = np.sqrt(np.clip(np.diag(adequacy.robust_cov), 0.0, None))
+    white = np.sqrt(np.clip(np.diag(adequacy.white_cov), 0.0, None))
+    for i, key in enumerate(adequacy.names):
+        e = out[key]
+        if e.stderr is None or not math.isfinite(float(robust[i])):
+            continue  # no ± (a bound), or an overflowed covariance: the white one stands
+        out[key] = replace(e, stderr=float(robust[i]), white_stderr=float(white[i]))
+    return out
 
 
 def _delay_hint(message: str, option: float | None, given: Any, ctrls) -> str:

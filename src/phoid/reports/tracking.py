@@ -15,7 +15,7 @@ import numpy as np
 
 from phoid._output import safe_text, save_figure
 from phoid.reports.statistics import correlation_lines, ratio_text, statistics_lines
-from phoid.reports.text import format_number
+from phoid.reports.text import adequacy_lines, format_number
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
@@ -173,8 +173,9 @@ def identification_text(result: Any) -> str:
         Read: ``estimator``, ``estimates`` (name → value, stderr, unit), ``delay_source``,
         ``fit.summary()`` (the estimator's statistics), ``run_names``, ``validations`` (each read
         as by :func:`validation_lines`), ``warnings``, ``path``, ``residual_noise_ratios()``
-        (one per run) and ``fit_statistics()`` (``"statistics"`` and ``"correlation"`` as in
-        :mod:`phoid.reports.statistics`).
+        (one per run), ``fit_statistics()`` (``"statistics"`` and ``"correlation"`` as in
+        :mod:`phoid.reports.statistics`) and ``adequacy`` (the ``[[Adequacy]]`` block of
+        :func:`phoid.reports.text.adequacy_lines`).
 
     Returns
     -------
@@ -198,6 +199,11 @@ def identification_text(result: Any) -> str:
                 if key == "delay" else "  (fixed)"
         else:
             spread = f" ± {se:.4g}"
+        white = getattr(est, "white_stderr", None)
+        if white is not None and se:
+            # a robust stderr reported: the white-noise least-squares one beside it
+            white = white * 1e3 if key == "delay" else white
+            unit += f"  (white-noise ± {white:.4g})"
         lines.append(f"  {labels.get(key, key):<20}{value:>12.7g}{spread} {unit}")
     lines.append(f"  delay: {result.delay_source}")
     lines.append("")
@@ -226,6 +232,7 @@ def identification_text(result: Any) -> str:
         lines += ["", f"validation, {safe_text(name)}:", *validation_lines(v),
                   f"  position residual / noise (noise from the record's third differences): "
                   f"{ratio_text(q)}"]
+    lines += adequacy_lines(result)
     if result.warnings:
         lines += ["", "warnings:"] + [f"  - {safe_text(w)}" for w in result.warnings]
     return "\n".join(lines)
