@@ -346,3 +346,22 @@ def test_halves_that_disagree_widen_the_stderr_to_their_spread():
     first = float(halves.detail.split("ω₀ ")[1].split(" rad/s")[0])
     second = float(halves.detail.split("vs ")[1].split(" rad/s")[0])
     assert res.omega0.stderr >= abs(first - second) / 2
+
+
+def test_a_stiffening_spring_stuck_before_the_middle_widens_by_the_windows_drift():
+    # the same stiffening spring with Coulomb friction, recorded long after it sticks (8.4 s of
+    # 24 s): the second half holds no motion, so no halves are compared; the windows' frequency
+    # still falls with the amplitude, and its spread must enter the stderr — the friction
+    # model's constant ω₀ is otherwise stated to 0.04 % while the small-amplitude ω₀ (the
+    # spring's linear part, √w0sq) lies 1 % below the fit
+    sigma, w0sq, beta, a = 0.05, (2 * math.pi * 2.0) ** 2, 10.0, 0.15
+    t = np.arange(4800) / 200.0
+    y = stick_slip_duffing(t, sigma, w0sq, beta, a, 0.08)
+    x = y + 2e-4 * np.random.default_rng(4).standard_normal(t.size)
+    res = identify_free_friction_data([(t, x)])
+    assert not any(c.name == "halves" for c in res.adequacy.checks)
+    assert res.robust
+    # widened well beyond the sandwich alone (≈ 8× white here) to the windows' spread …
+    assert res.omega0.stderr > 50 * res.omega0.white_stderr
+    # … which covers the small-amplitude frequency the stiffening moves the fit away from
+    assert abs(res.omega0.value - math.sqrt(w0sq)) < 3 * res.omega0.stderr

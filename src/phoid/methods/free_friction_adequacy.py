@@ -22,7 +22,10 @@ Jacobian in (σ, ω₀², a) with each release's offset and state projected off,
 weighted by its residual variance as in the fit), raised to at least the white one, plus the
 halves' spread d dᵀ/2 where they disagree and the covariance of the runs' mean where the runs
 disagree, both mapped from (ω₀, ζ) to (σ, ω₀²) at the whole fit (f_c/m is widened by the
-sandwich alone), exactly as the viscous fit's (docs/adequacy.md).
+sandwich alone), exactly as the viscous fit's (docs/adequacy.md). Where no halves are compared
+(the second half's mass already stuck) and the model misfits, the windows' spread of ω₀² is
+added when their frequency trends with the amplitude (:func:`_frequency_drift`): the friction
+model's frequency is constant, a spring's that stiffens or softens is not.
 """
 
 from __future__ import annotations
@@ -33,6 +36,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from phoid.methods import adequacy as aq
+from phoid.methods._modal import Segment, window_rates
 from phoid.methods.free_friction_fit import (
     FrictionProblem,
     FrictionSolution,
@@ -96,6 +100,42 @@ def _window(w: ReleaseWindow, sel: slice, sol: FrictionSolution, j: int) -> Rele
     k = sel.start or 0
     return ReleaseWindow(t=w.t[sel], x=w.x[sel], noise=w.noise, offset=float(sol.own[j, 0]),
                          y0=float(mot.y[k]), v0=float(mot.v[k]))
+
+
+def _frequency_drift(windows: Sequence[ReleaseWindow], sol: FrictionSolution
+                     ) -> np.ndarray | None:
+    """Where no halves are compared (the second half already stuck) but the model misfits: the
+    spread of ω₀² over windows of a few cycles when the windows' frequency trends with their
+    amplitude (an amplitude-dependent stiffness, which the Coulomb + viscous model does not
+    have and no sandwich covers), as a covariance of (σ, ω₀², a) with only its ω₀² entry; None
+    when the windows show no significant trend (|slope|/stderr ≤ T_SLOPE, the structure
+    check's threshold) or are too few."""
+    theta = sol.theta
+    amp: list[np.ndarray] = []
+    om: list[np.ndarray] = []
+    se: list[np.ndarray] = []
+    for w, m in zip(windows, sol.motions, strict=True):
+        seg = Segment(t=w.t, x=w.x, fixed=np.ones((w.t.size, 1)), t0=float(w.t[0]))
+        a, _s, _sse, o, ose = window_rates(seg, m.y, float(theta[0]), float(theta[1]), w.noise)
+        amp.append(a)
+        om.append(o)
+        se.append(ose)
+    a, o, e = (np.concatenate(v) for v in (amp, om, se))
+    ok = np.isfinite(a) & np.isfinite(o) & np.isfinite(e) & (e > 0)
+    a, o, e = a[ok], o[ok], e[ok]
+    if a.size < 3 or np.ptp(a) == 0:
+        return None
+    # weighted least squares o = c₀ + b·a, the slope's stderr scaled by √max(1, χ²/dof)
+    X = np.column_stack([np.ones_like(a), a]) / e[:, None]
+    coef, *_ = np.linalg.lstsq(X, o / e, rcond=None)
+    r = o / e - X @ coef
+    scale = max(1.0, float(r @ r) / (a.size - 2))
+    cov = np.linalg.inv(X.T @ X) * scale
+    if not abs(float(coef[1])) > aq.T_SLOPE * math.sqrt(float(cov[1, 1])):
+        return None
+    out = np.zeros((3, 3))
+    out[1, 1] = float(np.var(o**2, ddof=1))
+    return out
 
 
 def assess_free_friction(windows: Sequence[ReleaseWindow], sol: FrictionSolution,
@@ -174,6 +214,10 @@ def assess_free_friction(windows: Sequence[ReleaseWindow], sol: FrictionSolution
             agreements.append(ag)
             if ag.check.passed is False:
                 between.append(Jb @ ag.between @ Jb.T)
+    if not agreements and noise_c.passed is False:
+        drift = _frequency_drift(windows, sol)
+        if drift is not None:
+            between.append(drift)
     if len(windows) >= 2:
         parts = [_part([_window(w, slice(0, None), sol, j)], theta)
                  for j, w in enumerate(windows)]
