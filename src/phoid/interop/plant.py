@@ -172,7 +172,11 @@ def _tracking(result: Any) -> LinearPlant:
     values = [float(est[q].value) for q in "mck"]
     fit = result.fit
     free = tuple(getattr(fit, "free", ()))
-    full = np.asarray(getattr(fit, "covariance", np.zeros((0, 0))), dtype=float)
+    # the covariance the estimates carry: the adequacy's robust one where a check failed
+    # (its white-noise one where every check passed), in the fit's order of free parameters
+    adequacy = getattr(result, "adequacy", None)
+    full = np.asarray(getattr(fit, "covariance", np.zeros((0, 0))) if adequacy is None
+                      else adequacy.robust_cov, dtype=float)
     cov = np.zeros((3, 3))
     idx = [(i, _ALIASES[name]) for i, name in enumerate(free) if name in _ALIASES]
     for i, a in idx:
