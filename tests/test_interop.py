@@ -452,9 +452,12 @@ def test_tracking_identification_exports_m_c_k(tmp_path):
     lp = linear_plant(res)
     m, c = res.estimates["m"].value, res.estimates["c"].value
     assert lp.values.tolist() == [m, c, 0.0]
-    # (m, c)'s block of the fit's covariance, by the fit's names; k fixed: zero variance
+    # (m, c)'s block of the covariance the estimates carry (the adequacy's: robust where a
+    # check failed, else the fit's own), by the fit's names; k fixed: zero variance
     i, j = res.fit.free.index("M"), res.fit.free.index("Fv")
-    assert lp.cov[0, 1] == res.fit.covariance[i, j] and lp.cov[2, 2] == 0.0
+    carried = res.fit.covariance if res.adequacy is None else res.adequacy.robust_cov
+    assert lp.cov[0, 1] == carried[i, j] and lp.cov[2, 2] == 0.0
+    assert math.sqrt(lp.cov[0, 0]) == res.estimates["m"].stderr
     G = to_lti(res)
     assert np.allclose(_sorted(G.poles), _sorted(np.roots([m, c, 0.0])), rtol=ROOT_RTOL,
                        atol=1e-12)
