@@ -656,7 +656,10 @@ def agreement(name: str, values: Sequence[Any], covs: Sequence[Any], *,
     except np.linalg.LinAlgError:
         return Agreement(Check(name, math.nan, alpha, None, "singular covariance"),
                          np.zeros((p, p)))
-    chi2 = float(sum((t - mean) @ i @ (t - mean) for i, t in zip(inv, th, strict=True)))
+    # a sum of quadratic forms of PSD matrices: ≥ 0 but for rounding (pinv of a covariance
+    # near its precision's end can leave −1e−17)
+    chi2 = max(float(sum((t - mean) @ i @ (t - mean) for i, t in zip(inv, th, strict=True))),
+               0.0)
     dof = p * (k - 1)
     pv = chi2_sf(chi2, float(dof)) if math.isfinite(chi2) else 0.0
     best = (0.0, 0, 0, 1)
