@@ -111,12 +111,16 @@ def hold_sd(x: np.ndarray, j: int) -> float | None:
 class _Departure:
     """The release detection's first stage on one record: the held level (m), the threshold
     (m), the first sample ``i1`` from which the signal stays beyond it for 3 samples (None when
-    there is none, or it is among the first 3), and the prefix length searched."""
+    there is none, or it is among the first 3), the prefix length searched, and the first
+    sample the change point may take (0 but where the held noise is coloured), and whether it
+    is (the threshold and level then come from the held segment's own sd and median)."""
 
     level: float
     thr: float
     i1: int | None
     m_search: int
+    first: int = 0
+    coloured: bool = False
 
 
 def _departure(x: np.ndarray) -> _Departure:
@@ -136,7 +140,111 @@ def _departure(x: np.ndarray) -> _Departure:
         m_search *= 4
     m_search = min(m_search, n)
     i1 = int(hits[0]) if hits.size else None
+    if i1 is not None and i1 > 2:
+        # (a departure among the first 3 samples stays the record starting in motion: a
+        # segment of smooth motion would pass for coloured noise below)
+        moved = _lasting_departure(x, level, thr, i1)
+        if moved != i1:
+            i1, m_search = moved, n
+        held = _coloured_hold(x, level, thr)
+        if held is not None and _RELEASE_NSD * held[1] > thr:
+            # the held segment's noise is coloured: its own sd sets the threshold and its
+            # median the level; the departure is searched again with them
+            level, thr, m_search = held[0], _RELEASE_NSD * held[1], n
+            out = np.abs(x - level) > thr
+            hits = np.flatnonzero(out[:-2] & out[1:-1] & out[2:])
+            i1 = (_lasting_departure(x, level, thr, int(hits[0]))
+                  if hits.size and hits[0] > 2 else None)
+            if i1 is not None:
+                # the change point is sought near the departure only: on a long stretch of
+                # coloured noise the least-squares quadratic follows its slow wander. From rest
+                # the signal takes about as long to the threshold as from there to 4 of them
+                # (sample i2): 4 (i2 − i1) samples back (at least 16) hold the release
+                far = np.flatnonzero(np.abs(x[i1:] - level) > 4.0 * thr)
+                rise = int(far[0]) if far.size else i1
+                first = max(0, i1 - max(4 * rise, 16))
+                return _Departure(level, thr, i1, m_search, first, coloured=True)
     return _Departure(level, thr, i1 if i1 is not None and i1 > 2 else None, m_search)
+
+
+#: a held segment whose sd exceeds its second-difference (white-noise) sd this many times holds
+#: coloured noise (as :func:`hold_sd` calls a segment not held)
+_COLOURED_RATIO = 1.5
+#: … and moves rather than wanders where its sd exceeds its second-difference sd this many
+#: times (AR(1) noise: about 4 at ρ = 0.9, 5.4 at 0.95, 12 at 0.99; smooth motion sampled
+#: finely: hundreds and more)
+_MOTION_RATIO = 20.0
+
+
+def _coloured_hold(x: np.ndarray, level: float, thr: float) -> tuple[float, float] | None:
+    """The held level (median) and sd of the segment before the release when its noise is
+    coloured: its sd above 1.5 times its second-difference sd, which white noise of ≥ 16
+    samples does not reach, yet below 20 times (smooth motion: a record that starts moving),
+    and 8 sds short of the release's swing. None otherwise (white noise, fewer than 16 held
+    samples, a segment that moves, or no excursion far from the level).
+
+    The segment is found from the release's first swing, not from the departure (coloured
+    noise crosses the white-noise threshold in the held segment itself): the first sample
+    ``g`` a quarter of the largest excursion from ``level`` (at least 4 ``thr``), and the last
+    sample ``h`` before it within a sixteenth of the excursion. From rest the signal leaves
+    the level quadratically, so it takes about as long from the release to ``h`` as from ``h``
+    to ``g``; the segment ends 3 (g − h) samples before ``g``.
+    """
+    dev = np.abs(x - level)
+    far = max(4.0 * thr, _GONE * float(dev.max()))
+    gone = np.flatnonzero(dev >= far)
+    if not gone.size:
+        return None
+    g = int(gone[0])
+    near = np.flatnonzero(dev[:g] < 0.25 * far)
+    if not near.size:
+        return None
+    h = int(near[-1]) + 1
+    seg = x[: max(g - 3 * (g - h), 0)]
+    if seg.size < 16:
+        return None
+    sd = float(np.std(seg, ddof=1))
+    white = diff_noise(seg)
+    if not (_COLOURED_RATIO * white < sd < _MOTION_RATIO * white and _RELEASE_NSD * sd < far):
+        return None
+    return med(seg), sd
+
+
+#: a departure is the release only if the signal then goes this fraction of the record's
+#: largest excursion from the held level before it comes back within ``_BACK`` thresholds
+_GONE = 0.25
+_BACK = 0.25
+
+
+def _lasting_departure(x: np.ndarray, level: float, thr: float, i1: int) -> int:
+    """The first departure from sample ``i1`` on that is the release, not the noise wandering.
+
+    A mass released from rest moves away from its held level monotonically until its first
+    turning point, at least |x₀| (half the record's largest excursion) away. Noise does not:
+    where it is coloured (low-frequency, e.g. AR(1) with ρ ≳ 0.8) the second-difference sd
+    understates it several times, and the held segment itself crosses the threshold and then
+    comes back. So a departure after which the signal returns within a quarter threshold of
+    the level before it has gone a quarter of the largest excursion is skipped for the next
+    one (3 samples beyond the threshold in a row, as before). With white noise the threshold
+    is 8 sds and a departure never comes back that close: ``i1`` is kept. The scan moves
+    forward at every step (at most one step per departure in the record).
+    """
+    dev = np.abs(x - level)
+    far = max(4.0 * thr, _GONE * float(dev.max()))
+    gone = np.flatnonzero(dev >= far)
+    back = np.flatnonzero(dev <= _BACK * thr)
+    out = dev > thr
+    hits = np.flatnonzero(out[:-2] & out[1:-1] & out[2:])
+    h = i1
+    while True:
+        g = gone[np.searchsorted(gone, h)] if gone.size and gone[-1] >= h else None
+        b = back[np.searchsorted(back, h)] if back.size and back[-1] >= h else None
+        if g is None or b is None or g < b:
+            return h  # the signal goes far before it comes back
+        later = hits[np.searchsorted(hits, b)] if hits.size and hits[-1] >= b else None
+        if later is None:
+            return i1  # no lasting departure in the record: keep the first one
+        h = int(later)
 
 
 #: samples (records × padded length) per batch of :func:`change_points`
@@ -208,14 +316,19 @@ def releases(ts: Sequence[np.ndarray], xs: Sequence[np.ndarray], refine: bool = 
     """:func:`locate_release` of many records, the change points of all of them in one batch."""
     deps = [_departure(x) for x in xs]
     live = [i for i, d in enumerate(deps) if d.i1 is not None]
-    j0s = dict(zip(live, change_points([ts[i] for i in live], [xs[i] for i in live],
-                                        [deps[i].i1 for i in live]), strict=True))
+    # (each from its departure's first candidate: 0 but where the held noise is coloured)
+    cps = change_points([ts[i][deps[i].first:] for i in live],
+                        [xs[i][deps[i].first:] for i in live],
+                        [deps[i].i1 - deps[i].first for i in live])
+    j0s = {i: j + deps[i].first for i, j in zip(live, cps, strict=True)}
     out: list[tuple[int, float | None]] = []
     for i, (t, x) in enumerate(zip(ts, xs, strict=True)):
         if i not in j0s:
             out.append((0, None))
             continue
-        j = j0s[i] if not refine else _refine_release(t, x, deps[i], j0s[i])
+        # (under coloured noise the even quartic follows the held segment's wander, early by
+        # up to ~10 samples where the change point near the departure is within ~2: kept)
+        j = j0s[i] if not refine or deps[i].coloured else _refine_release(t, x, deps[i], j0s[i])
         out.append((j, hold_sd(x, j)))
     return out
 
@@ -240,8 +353,8 @@ def _refine_release(t: np.ndarray, x: np.ndarray, dep: _Departure, j0: int) -> i
     far = np.flatnonzero(np.abs(x[i1:m_search] - level) > 4 * thr)
     i2 = i1 + int(far[0]) if far.size else min(n - 1, 2 * i1)
     w = 16
-    cand = np.arange(max(j0 - w, 0), min(j0 + w, i1) + 1)
-    lo = max(int(cand[0]) - 4 * w, 0)
+    cand = np.arange(max(j0 - w, dep.first), min(j0 + w, i1) + 1)
+    lo = max(int(cand[0]) - 4 * w, dep.first)
     tt = t[lo : i2 + 1]
     yy = x[lo : i2 + 1]
     U = np.maximum(tt[None, :] - t[cand][:, None], 0.0) / max(t[i2] - t[lo], 1e-300)
@@ -301,6 +414,15 @@ def detect_release(t: ArrayLike, x: ArrayLike) -> float:
     rest, so it leaves the held level quadratically — and then of x = L + a u² + b u⁴,
     u = (t − τ)₊, up to 32 noise sds, over candidates within 16 samples (its accuracy:
     docs/design-notes/fits.md, "detect_release").
+
+    Coloured (low-frequency) noise, whose second differences understate it several times,
+    crosses that threshold in the held segment itself. A departure after which the signal
+    comes back near the level before it has gone a quarter of its largest excursion is
+    therefore not the release; and where the held segment (ended well before the first swing)
+    has an sd above 1.5 times its second-difference sd, its own sd and median set the threshold
+    and the level, the change point is sought only near that departure, and the quartic
+    refinement (which follows the noise's wander) is left out. With white noise neither step
+    changes the result.
     """
     t, x = check_record(t, x)
     j, _ = locate_release(t, x)
