@@ -258,3 +258,20 @@ def test_duffing_is_not_taken_for_coulomb():
     x = ode(lambda x, v: -100 * x - 0.4 * v - 30 * x**3, T200[:4000])
     res = fit(x, T200[:4000], seed=4)
     assert "coulomb" not in res.adequacy.causes
+
+
+def test_a_few_cycles_that_end_stuck_name_coulomb_from_the_stop():
+    # 0.5 Hz, Coulomb band q = 0.1/ω₀² of x₀ = 0.1: stuck after 5 half-cycles (5 s) of a 10 s
+    # record (exact half-cycle formula above) — too few turning points for the envelope test
+    # (13) and too few windows for the trend (4), so only the stop can say Coulomb: the viscous
+    # model still swings where the record lies still, off the fitted rest
+    w0 = 2 * math.pi * 0.5
+    t = np.arange(2000) / 200.0
+    x = 0.1 * coulomb(t, w0=w0, zeta=0.02 / w0, q=0.1 / w0**2 / 0.1)
+    res = fit(x, t, noise=1e-4, seed=2)
+    assert res.adequacy.causes[0] == "coulomb", res.adequacy.causes
+    assert any("ends stuck" in w and "--friction" in w for w in res.warnings)
+    # and a clean viscous decay of the same length says nothing of the kind (it never stops
+    # while its model swings)
+    clean = 0.1 * coulomb(t, w0=w0, zeta=0.05 / w0, q=0.0)
+    assert "coulomb" not in fit(clean, t, noise=1e-4, seed=2).adequacy.causes

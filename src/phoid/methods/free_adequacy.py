@@ -17,12 +17,13 @@
 
 The robust covariance is the Newey–West sandwich of the rates (the Jacobian in (σ, ω₀²) with
 each run's offset and state projected off, each run weighted as in the fit), raised to at least
-the white one, plus the halves' spread (the part of d dᵀ, for halves differing by d, that
-their own covariances C₁ + C₂ do not explain) where the model misfits the record (the residual above its noise), the halves
-disagree or the windows show a trend (the windows' own spread of (σ, ω₀²) where there are no
-halves to compare), plus the covariance of the runs' mean where they
-disagree (mapped from (ω₀, ζ) to (σ, ω₀²) at the
-whole fit). docs/adequacy.md gives the reasons and the measurements.
+the white one, plus the halves' spread (the part of d dᵀ, for halves differing by d, that their
+own covariances C₁ + C₂ do not explain) where the model misfits the record (the residual above
+its noise), the halves disagree or the windows show a trend (the windows' own spread of
+(σ, ω₀²) where there are no halves to compare), plus the covariance of the runs' mean where
+they disagree (mapped from (ω₀, ζ) to (σ, ω₀²) at the whole fit). A run that ends stuck while
+the model still swings names Coulomb friction where the windows and the envelope are too few to
+test it. docs/adequacy.md gives the reasons and the measurements.
 """
 
 from __future__ import annotations
@@ -179,6 +180,16 @@ def assess_free(segs: Sequence[Segment], fit: ModalFit, labels: Sequence[str], *
                      stuck_detail=stuck)
     struct, s_causes, s_warns = aq.structure_check(win, x_unit=x_unit,
                                                    envelope=_envelope(segs, fit, noise))
+    if stuck and "coulomb" not in s_causes:
+        # too few cycles for the windows or the envelope (a spring–mass that sticks after one
+        # or two): the stop itself is the evidence — a viscous decay never stops while its
+        # model still swings, a Coulomb one does (the pho method's rule, pho_adequacy)
+        s_causes = ("coulomb", *s_causes)
+        s_warns = (f"the motion ends stuck ({stuck}): Coulomb friction (linear amplitude "
+                   "loss, sticking), not viscous damping; try `phoid identify SET --friction`",
+                   *s_warns)
+        struct = aq.Check("structure", struct.statistic, struct.threshold, False,
+                          "; ".join(x for x in (struct.detail, f"ends stuck: {stuck}") if x))
     peak = None
     if (noise_c.passed is False or white.passed is False) and not s_causes:
         for s, r in zip(segs, resid, strict=True):
@@ -227,7 +238,7 @@ def assess_free(segs: Sequence[Segment], fit: ModalFit, labels: Sequence[str], *
             # sandwich for ω₀, conservative for σ)
             extra = _excess(_SPREAD * ag.between, halves[0][1] + halves[1][1])
             between.append(Jb @ extra @ Jb.T)
-    elif struct.passed is False:
+    elif struct.passed is False and win.sigma.size >= 2:
         # a trend along the record and no halves to measure it: the windows' own spread of
         # (σ, ω₀² = ω_d² + σ²), the range the parameters sweep
         between.append(np.cov(np.vstack([win.sigma, win.omega**2 + win.sigma**2])))
