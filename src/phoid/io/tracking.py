@@ -53,9 +53,13 @@ in newtons, added to the force (F = G·sat(u) + w).
 
 ``[loop] u_contains_w`` (boolean) states whether each run's recorded u already holds w (u =
 sat(u_c) + g·w, u_c the controller's output; the force is then G·u, w not added again) and
-``[loop] w_in_u_gain`` (a finite non-zero number, command units per unit of w) the gain g; the
-gain alone implies ``u_contains_w = true``. Neither given: measured from each run that records
-u and w (:mod:`phoid.methods.tracking_semantics`)."""
+``[loop] w_in_u_gain`` (a number of magnitude 1e-30 … 1e30, command units per unit of w) the
+gain g; the gain alone implies ``u_contains_w = true``. Neither given: measured from each run
+that records u and w (:mod:`phoid.methods.tracking_semantics`)."""
+W_GAIN_RANGE = (1e-30, 1e30)
+"""The magnitudes ``[loop] w_in_u_gain`` may have (the format's range for physical numbers:
+nothing on a rig scales a command by 1e30, and within it gain·w of a finite record stays
+finite unless w itself is beyond 1e278)."""
 RUN_GAINS = ("P", "D", "gain", "command_gain")
 """The gains: a number, or the name of a scalar variable of the run's file."""
 TRACKING_RUN_KEYS = ("file", *RUN_GAINS, "columns")
@@ -182,6 +186,10 @@ def check_tracking_loop(where: str, loop: Mapping[str, Any]) -> tuple[int, dict[
         if g == 0.0:
             fail(lwhere, "key 'w_in_u_gain' (command units per unit of w) is 0: u would not "
                           "contain w; say so with u_contains_w = false instead")
+        if not W_GAIN_RANGE[0] <= abs(g) <= W_GAIN_RANGE[1]:
+            fail(lwhere, f"key 'w_in_u_gain' (command units per unit of w) must be of "
+                          "magnitude 1e-30 … 1e30 (as every "
+                          f"physical number of the format); got {g!r}")
         if loop.get("u_contains_w") is False:
             fail(lwhere, "key 'w_in_u_gain' is the gain with which u contains w, but "
                           "u_contains_w = false; remove one of them")

@@ -168,13 +168,34 @@ _PHYSICAL_NEED = {"pho": "gains P, D (N/m, N·s/m) and recorded force u",
                   "tracking": "gains, reference r and forces"}
 
 
+#: units of the quantities phoid reads or reports besides :data:`UNITS_TABLE`'s (mass,
+#: frequency, rates, the gains' and results' units): a signal may not be named after one
+_OTHER_UNITS = ("kg", "Hz", "kHz", "1/s", "rad/s", "rad/s^2", "m/s", "m/s^2", "kg/s", "m^2",
+                "N s/m", "N/m", "N/m^2", "N m s/rad", "N m/rad", "kg m^2", "kg m^2/s", "rad^2",
+                "N m/rad^2")
+
+
+def _unit_key(name: str) -> str:
+    """``name`` folded for comparing unit names: case, blanks and the product signs
+    (``·``, ``*``, ``.``) and ``^`` dropped, micro signs read as ``u``."""
+    folded = name.casefold().replace("µ", "u").replace("μ", "u").replace("²", "2")
+    return "".join(c for c in folded if not c.isspace() and c not in "·*.^")
+
+
+_KNOWN_UNIT_KEYS = frozenset(
+    _unit_key(u) for u in (*(u for units in UNITS_TABLE.values() for u in units),
+                           *_OTHER_UNITS, *_ROTATIONAL_LABELS, *_ROTATIONAL_LABELS.values()))
+
+
 def _signal_name_ok(name: str) -> bool:
     """A declared signal unit's name: printable, no surrounding blanks, not a unit of another
-    quantity phoid knows (then x would be converted or mislabelled)."""
+    quantity phoid knows (time, length, angle, force, torque, mass, frequency, rates, the
+    results' units; compared case-insensitively, blanks and product signs ignored): then x
+    would be mistaken for that quantity or mislabelled."""
     if not (0 < len(name) <= _MAX_SIGNAL_NAME) or not name.isprintable() \
-            or name != name.strip() or name.lower() in ("m", "rad"):
+            or name != name.strip():
         return False
-    return not any(name in units for units in UNITS_TABLE.values())
+    return _unit_key(name) not in _KNOWN_UNIT_KEYS
 
 
 def _x_entry(where: str, value: Any, method: str) -> tuple[str, str]:
@@ -192,8 +213,10 @@ def _x_entry(where: str, value: Any, method: str) -> tuple[str, str]:
         if not isinstance(name, str) or not _signal_name_ok(name):
             fail(where, f"x = {{signal = {show(name)}}}: the signal's unit must be a name of "
                          f"1–{_MAX_SIGNAL_NAME} printable characters without surrounding "
-                         "blanks, not a length, angle, time or force unit (those are "
-                         "converted: give them as x = \"…\")")
+                         "blanks, not a length, angle, time or force unit, nor a torque, "
+                         "mass, frequency, rate or result unit phoid knows (kg, Hz, rad/s, "
+                         "N/m, …; compared case-insensitively, blanks ignored): lengths and "
+                         "angles are converted, give them as x = \"…\"")
         return "signal", name
     if not isinstance(value, str):
         fail(where, f"key 'x' must be a unit name (a string); got {show(value)} "
@@ -315,7 +338,7 @@ def to_si(cols: dict[str, np.ndarray], units: Mapping[str, tuple[str, float, flo
     return out
 
 
-def unit_hint(column: str, ratio: float) -> str:
+def unit_hint(column: str, ratio: float, x_unit: str = "m") -> str:
     """A hint naming the ``[units]`` entry a set probably needs, or ``""``.
 
     Parameters
@@ -326,12 +349,18 @@ def unit_hint(column: str, ratio: float) -> str:
         A quantity read from that column as if it were SI (a sample step, an amplitude)
         divided by what the manifest's numbers imply for it: about 1000 when t is in ms but
         read as s (or x in mm read as m), 1/1000 when F is in kN but read as N.
+    x_unit : str, default "m"
+        The set's :attr:`Units.x_unit`: in a rotational set (``"rad"``) x and r are angles
+        and u and F torques, so the units suggested are theirs (``mrad``, ``deg``, …;
+        ``"kN m"``, ``"mN m"``); with x a sensor signal no unit is suggested for x or r
+        (a signal is not converted).
 
     Returns
     -------
     str
         ``'is t in ms? (then give [units] t = "ms")'`` when ``ratio`` is within a factor 2 of a
-        unit's (one of :data:`UNITS_TABLE`'s, other than SI), else ``""``.
+        unit's (one of :data:`UNITS_TABLE`'s for the column's quantity, other than SI), else
+        ``""``.
 
     Examples
     --------
@@ -339,12 +368,20 @@ def unit_hint(column: str, ratio: float) -> str:
     'is t in ms? (then give [units] t = "ms")'
     >>> unit_hint("F", 1e-3)
     'is F in kN? (then give [units] F = "kN")'
+    >>> unit_hint("u", 1e-3, "rad"), unit_hint("x", 57.0, "rad")
+    ('is u in kN m? (then give [units] u = "kN m")', 'is x in deg? (then give [units] x = "deg")')
     >>> unit_hint("t", 3.0)
     ''
     """
     quantity = {**UNIT_QUANTITIES, **_TRACKING_QUANTITIES}.get(column)
     if quantity is None or not (ratio > 0 and np.isfinite(ratio)):
         return ""
+    if column in _ROTATIONAL:
+        kind = x_quantity(x_unit)
+        if kind == "signal" and quantity == "length":
+            return ""
+        if kind == "angle":
+            quantity = _ROTATIONAL[column]
     for unit, (mul, div) in UNITS_TABLE[quantity].items():
         if (mul, div) == (1.0, 1.0) or not unit.isascii():
             continue

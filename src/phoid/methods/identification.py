@@ -189,6 +189,7 @@ def identify_pho(
         compensate=compensate,
         source=str(experiment.path),
         u=[getattr(r, "u", None) for r in runs],
+        x_unit=str(getattr(experiment, "x_unit", "m")),
     )
 
 
@@ -217,6 +218,7 @@ def identify_pho_data(
     digital: Any = None,
     added_mass: np.ndarray | None = None,
     u: Sequence[np.ndarray | None] | None = None,
+    x_unit: str = "m",
 ) -> Identification:
     """The PHO pipeline on plain arrays: ``data`` is a sequence of (t, x) per run.
 
@@ -233,7 +235,7 @@ def identify_pho_data(
         Each run's gains, N/m and N·s/m.
     delay : float or None
         Loop delay Δt, s; None estimates it with m, c, k.
-    files, names, estimator, compensate, source, digital, added_mass, u
+    files, names, estimator, compensate, source, digital, added_mass, u, x_unit
         As in :func:`_identify_runs`.
 
     Returns
@@ -247,7 +249,8 @@ def identify_pho_data(
     """
     return apply_pho(_identify_runs(data, P, D, delay, files=files, names=names,
                                     estimator=estimator, compensate=compensate, source=source,
-                                    digital=digital, added_mass=added_mass, u=u))
+                                    digital=digital, added_mass=added_mass, u=u,
+                                    x_unit=x_unit))
 
 
 def _identify_runs(
@@ -264,6 +267,7 @@ def _identify_runs(
     digital: Any = None,
     added_mass: np.ndarray | None = None,
     u: Sequence[np.ndarray | None] | None = None,
+    x_unit: str = "m",
 ) -> Identification:
     """The PHO pipeline on plain arrays: ``data`` is a sequence of (t, x) per run.
 
@@ -294,6 +298,9 @@ def _identify_runs(
         x): with ``delay=None`` the delay is then estimated from x and u together
         (:func:`phoid.methods.udelay.with_u`); with a given delay, a u that contradicts the
         gains is reported.
+    x_unit : str, default "m"
+        What x is in (:attr:`phoid.io.ExperimentSet.x_unit`): ``"rad"`` words that report's
+        units as a rotational set's (x in rad, u in N m).
 
     Returns
     -------
@@ -352,7 +359,8 @@ def _identify_runs(
                          added_mass=added_mass)
     if u is not None and any(ui is not None for ui in u):
         wd = [r.omega_d for r in res.runs]
-        note = u_contradicts_gains(data, check_u(u, data), P, D, float(delay), names, wd)
+        note = u_contradicts_gains(data, check_u(u, data), P, D, float(delay), names, wd,
+                                   x_unit)
         if note is not None:
             res = replace(res, warnings=(*res.warnings, note))
     return replace(res, u=_recorded_u(u, data))

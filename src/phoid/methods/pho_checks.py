@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from phoid.errors import IdentificationError
-from phoid.io.units import unit_hint
+from phoid.io.units import quantity_unit, unit_hint
 from phoid.methods.pho import fit_lines
 from phoid.methods.savgol import savgol_filter
 from phoid.reports.text import format_ratio
@@ -97,10 +97,13 @@ _U_SCALE_OK = (0.8, 1.25)
 
 def u_contradicts_gains(data: Sequence[tuple[np.ndarray, np.ndarray]],
                         u: Sequence[np.ndarray | None], P: np.ndarray, D: np.ndarray,
-                        delay: float, names: Sequence[str], omega_d: Sequence[float]
-                        ) -> str | None:
+                        delay: float, names: Sequence[str], omega_d: Sequence[float],
+                        x_unit: str = "m") -> str | None:
     """A warning naming the runs whose recorded u contradicts the given gains and delay
-    (u ≠ −[P x(t − Δt) + D ẋ(t − Δt)] by more than a calibration could explain), or None."""
+    (u ≠ −[P x(t − Δt) + D ẋ(t − Δt)] by more than a calibration could explain), or None.
+
+    The warning names x's and u's units by the set's quantities (``x_unit`` ``"rad"``: x in
+    rad, u in N m, and the units it suggests are angles and torques: :func:`unit_hint`)."""
     bad = []
     for i, ((t, x), ui) in enumerate(zip(data, u, strict=True)):
         if ui is None or t.size < 32 or not (P[i] or D[i]) or not math.isfinite(omega_d[i]):
@@ -135,13 +138,14 @@ def u_contradicts_gains(data: Sequence[tuple[np.ndarray, np.ndarray]],
     listed = ", ".join(f"{n} ({g:.2g})" for n, g in bad[:5]) + (" …" if len(bad) > 5 else "")
     # a scale near a unit's factor names it: u in kN (or x in mm) reads as g ≈ 1e-3
     g_med = float(np.median([g for _, g in bad]))
-    hints = [h for h in (unit_hint("u", g_med), unit_hint("x", 1.0 / g_med) if g_med else "")
-             if h]
+    hints = [h for h in (unit_hint("u", g_med, x_unit),
+                         unit_hint("x", 1.0 / g_med, x_unit) if g_med else "") if h]
     hint = (f" ({'; or '.join(hints)}; or a [units] entry given for them is the wrong one)"
             if hints else "")
     return (f"the recorded u contradicts the given gains and delay in {len(bad)} run(s): u is "
             f"not -(P x + D x') at t - delay but that times {listed}: check P, D, the units "
-            f"of x (m) and u (N){hint}, or the delay; m, c, k assume the gains are right")
+            f"of x ({quantity_unit('m', x_unit)}) and u ({quantity_unit('N', x_unit)})"
+            f"{hint}, or the delay; m, c, k assume the gains are right")
 
 
 # a controller sampling more than this many times per recorded sample is no sampled loop phoid

@@ -304,7 +304,8 @@ def identify_tracking(experiment: Any, *, delay: float | None = None,
                         "loop with delay 0")
     for name, v in zip((rec.name for rec in records), validations, strict=True):
         warnings += [f"{name}: {w}" for w in v.warnings]
-    warnings += [w for w in map(_scale_mismatch, records) if w]
+    x_unit = str(getattr(experiment, "x_unit", "m"))
+    warnings += [w for w in (_scale_mismatch(r, x_unit) for r in records) if w]
     gross = False
     for rec, v in zip(records, validations, strict=True):
         text = misfit_warning(rec.name, *validation_misfit([rec], [v]))
@@ -372,17 +373,19 @@ def _delay_hint(message: str, option: float | None, given: Any, ctrls) -> str:
             "destabilises the simulated loop and biases the estimates)")
 
 
-def _scale_mismatch(rec: TrackingRecord) -> str:
+def _scale_mismatch(rec: TrackingRecord, x_unit: str = "m") -> str:
     """A warning when a run's r and x differ in scale by a unit's factor, else ``""``.
 
     The loop makes x follow r, so the ratio ρ = rms(r − r̄)/rms(x − x̄) of the recorded
     columns (read in SI, after ``[units]``) is near 1; within a factor 2 of a unit's factor
     (10³ for mm read as m, 39.4 for in, …: :func:`phoid.io.units.unit_hint`) the two
-    columns are most likely in different units.
+    columns are most likely in different units. The units suggested are ``x_unit``'s
+    quantity's (angles in a rotational set).
     """
     rx = float(np.std(rec.x))
     ratio = float(np.std(rec.r)) / rx if rx > 0 else math.nan
-    hints = [h for h in (unit_hint("r", ratio), unit_hint("x", 1.0 / ratio)) if h]
+    hints = [h for h in (unit_hint("r", ratio, x_unit), unit_hint("x", 1.0 / ratio, x_unit))
+             if h]
     if not hints:
         return ""
     return (f"{rec.name}: the reference r varies {ratio:.3g} times as much as the position x "

@@ -165,7 +165,15 @@ def command_input(experiment: Any, run: Any, ctrl: SampledController) -> np.ndar
     the plant's input like the EMPS description's ``pulses_N``; or the gain with which the
     recorded u already contains w)."""
     sem = run_semantics(experiment, run, ctrl)
-    return None if sem is None else sem.gain * run.w
+    return None if sem is None else _applied(sem, run)
+
+
+def _applied(sem: CommandInput, run: Any) -> np.ndarray:
+    """:meth:`CommandInput.applied` on the run's w (a ValueError names the run)."""
+    try:
+        return sem.applied(run.w)
+    except ValueError as exc:
+        raise ValueError(f"run {run.index} ({run.file}): {exc}") from None
 
 
 def run_records(experiment: Any, runs: Any, ctrls: Any
@@ -177,7 +185,7 @@ def run_records(experiment: Any, runs: Any, ctrls: Any
         sem = run_semantics(experiment, r, c)
         inputs.append(sem)
         records.append(TrackingRecord(
-            x=r.x, r=r.r, controller=c, u=r.u, w=None if sem is None else sem.gain * r.w,
+            x=r.x, r=r.r, controller=c, u=r.u, w=None if sem is None else _applied(sem, r),
             t0=float(r.t[0]), name=f"run {r.index} ({r.file})",
             u_contains_w=sem is not None and sem.contains))
     return tuple(records), tuple(inputs)

@@ -39,6 +39,7 @@ import numpy as np
 
 from phoid.dynamics.controller import SampledController
 from phoid.fits.hac import hac_covariance
+from phoid.io.tracking import W_GAIN_RANGE
 from phoid.methods.tracking import controller_commands
 
 __all__ = ["CommandInput", "WInU", "command_input_semantics", "measure_w_in_u"]
@@ -153,13 +154,77 @@ class CommandInput:
                 "source": self.source, "gain_source": self.gain_source,
                 "measured": None if self.measured is None else self.measured.to_dict()}
 
+    def applied(self, w: Any) -> np.ndarray:
+        """The input the plant receives, ``gain·w`` in command units.
+
+        Raises
+        ------
+        ValueError
+            When ``gain·w`` overflows (beyond the largest double, about 1.8e308) where ``w``
+            is finite: one line naming the gain (``[loop] w_in_u_gain`` when stated, else
+            where it came from), the largest ``|w|`` and their product, not blaming w.
+        """
+        w = np.asarray(w, dtype=float)
+        with np.errstate(over="ignore", invalid="ignore"):
+            out = self.gain * w
+        bad = ~np.isfinite(out) & np.isfinite(w)
+        if np.any(bad):
+            wmax = float(np.max(np.abs(w[bad])))
+            what = {"stated": "[loop] w_in_u_gain",
+                    "measured": "the gain measured from the record (u − u_controller on w)",
+                    "default": "the default gain (1, or 1/command_gain with [loop] w_unit = "
+                               "\"N\")"}[self.gain_source]
+            raise ValueError(
+                f"the applied input gain·w overflows at {int(np.count_nonzero(bad))} "
+                f"sample(s): {what} = {self.gain:.5g} times |w| up to {wmax:.5g} is beyond "
+                "the largest double (about 1.8e308): is the gain, or w's unit, right?")
+        return out
+
 
 def _g(v: float | None) -> str:
     return "nan" if v is None or not math.isfinite(v) else f"{v:.5g}"
 
 
 def _rms(a: np.ndarray) -> float:
-    return float(np.sqrt(np.mean(a * a))) if a.size else math.nan
+    """Root mean square, scaled by a power of two so that neither a tiny (1e-300) nor a huge
+    (1e300) signal under- or overflows its squares; NaN for no samples."""
+    if not a.size:
+        return math.nan
+    s = _power_of_two(float(np.max(np.abs(a))))
+    return s * float(np.sqrt(np.mean((a / s) ** 2)))
+
+
+#: magnitudes whose squares (or products with each other) leave the doubles' range
+_HUGE = 1e150
+
+
+def _power_of_two(v: float) -> float:
+    """The power of two nearest ``v`` (> 0, finite) from above or below: dividing by it is
+    exact; 1 for 0 or a value that is not finite."""
+    if not (v > 0 and math.isfinite(v)):
+        return 1.0
+    return math.ldexp(1.0, math.frexp(v)[1])
+
+
+def _magnitude_reason(w: np.ndarray, d: np.ndarray) -> str:
+    """Why the regression of d = u − u_c on w could not be computed in floating point, in
+    words: a signal too small (its products underflow to 0) or too large (they overflow),
+    named with its largest magnitude."""
+    wmax = float(np.max(np.abs(w))) if w.size else math.nan
+    dmax = float(np.max(np.abs(d))) if d.size else math.nan
+    ask = "are the signals' units right?"
+    if not math.isfinite(dmax) or dmax > _HUGE:
+        return (f"u − u_controller is too large to compute with (up to {dmax:.3g} command "
+                f"units: the arithmetic overflows; {ask})")
+    if wmax > _HUGE:
+        return (f"w is too large to compute with (|w| up to {wmax:.3g}: the arithmetic "
+                f"overflows; {ask})")
+    if wmax < 1.0 / _HUGE:
+        return (f"w is too small to compute with (|w| at most {wmax:.3g} against u − "
+                f"u_controller up to {dmax:.3g} command units: the arithmetic underflows; "
+                f"{ask})")
+    return (f"the gain of u − u_controller on w overflows (|w| at most {wmax:.3g} against "
+            f"u − u_controller up to {dmax:.3g} command units; {ask})")
 
 
 def _segments(mask: np.ndarray) -> list[slice]:
@@ -225,12 +290,24 @@ def _measure(u: np.ndarray, w: np.ndarray, x: np.ndarray, r: np.ndarray,
         return undetermined(f"w is non-zero at only {n_on} usable sample(s) (at least "
                             f"{MIN_SAMPLES} are needed{left})")
     wo, do = w[on], d[on]
-    ww = float(wo @ wo)
-    gain = float(wo @ do) / ww if ww > 0 else math.nan
+    if not (np.max(np.abs(wo)) <= _HUGE and np.max(np.abs(do)) <= _HUGE):
+        return undetermined(_magnitude_reason(wo, do))
+    # w scaled by a power of two (exact) for the sums, so that a w of 1e-300 or 1e300 does
+    # not under- or overflow its square; the gain is then wo·do/(wo·wo) unscaled
+    scale = _power_of_two(float(np.max(np.abs(wo))))
+    ws = wo / scale
+    wsws = float(ws @ ws)  # > 0: w ≠ 0 there, and |ws| ≥ 1/2 at its largest
+    gain = float(ws @ do) / wsws / scale
     e = d - gain * w
     rms_fit = _rms(e[on])
-    if not (math.isfinite(gain) and math.isfinite(rms_fit) and ww > 0):
-        return undetermined("the arithmetic overflows (are the signals' units right?)")
+    if not (math.isfinite(gain) and math.isfinite(rms_fit)):
+        return undetermined(_magnitude_reason(wo, do))
+    if abs(gain) > W_GAIN_RANGE[1]:
+        # w far too small for the u it would be in: no physical gain (the stated one's range)
+        return undetermined(
+            f"w is too small against u − u_controller to be in it with a physical gain (|w| "
+            f"at most {float(np.max(np.abs(wo))):.3g}, a gain of {_g(gain)} beyond "
+            f"{W_GAIN_RANGE[1]:.0e}; are the signals' units right?)", gain, math.nan, rms_fit)
     segs = _segments(on)
     try:
         cov = hac_covariance([w[s, None] for s in segs], [e[s] for s in segs])
@@ -238,7 +315,7 @@ def _measure(u: np.ndarray, w: np.ndarray, x: np.ndarray, r: np.ndarray,
     except (ValueError, np.linalg.LinAlgError):
         stderr = math.nan
     if not math.isfinite(stderr):
-        stderr = rms_fit / math.sqrt(ww)
+        stderr = rms_fit / (math.sqrt(wsws) * scale)
     rms_uc_rest = _rms(uc[rest]) if n_rest else math.nan
     if rms_rest is not None and rms_rest > LAW_MISFIT * max(rms_uc_rest, 1e-300):
         return undetermined(

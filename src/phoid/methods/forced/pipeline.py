@@ -36,7 +36,7 @@ from phoid import _validate as v
 from phoid._threads import single_blas_thread
 from phoid.errors import IdentificationError
 from phoid.fits import diff_noise
-from phoid.io.units import unit_hint
+from phoid.io.units import quantity_unit, unit_hint
 from phoid.methods._modal import (
     Prep,
     Segment,
@@ -103,6 +103,7 @@ def identify_forced(experiment: Any) -> ForcedIdentification:
         added_mass=[getattr(r, "added_mass", 0.0) for r in runs],
         files=[r.file for r in runs], names=[f"{where}: {r.name}" for r in runs],
         labels=[r.name for r in runs], source=where,
+        x_unit=str(getattr(experiment, "x_unit", "m")),
     )
     if getattr(experiment, "loop", None):
 
@@ -122,6 +123,7 @@ def identify_forced_data(
     names: Sequence[str] | None = None,
     labels: Sequence[str] | None = None,
     source: str = "",
+    x_unit: str = "m",
 ) -> ForcedIdentification:
     """:func:`identify_forced` on plain arrays: ``data`` is a sequence of (t, x, F) per run.
 
@@ -141,6 +143,10 @@ def identify_forced_data(
         Short run names for warnings (default: ``files``).
     source : str
         Where the data came from, for the report.
+    x_unit : str, default "m"
+        What x is in (:attr:`phoid.io.ExperimentSet.x_unit`): ``"rad"`` words the warnings
+        as a rotational set's (B and F torques in N m, x in rad; the unit a hint suggests
+        for F a torque unit, :func:`phoid.io.units.unit_hint`).
 
     Returns
     -------
@@ -198,8 +204,9 @@ def identify_forced_data(
                            f"force's onset (at least {MIN_SAMPLES} samples and "
                            f"{MIN_PERIODS:g} period)")
         elif not ptp > _STILL_NSD * nsd or ptp == 0.0:
-            reasons.append(f"x never moves: its peak-to-peak {ptp:.3g} m is within the noise "
-                           f"(sd {nsd:.3g} m)")
+            xu = quantity_unit("m", x_unit)
+            reasons.append(f"x never moves: its peak-to-peak {ptp:.3g} {xu} is within the "
+                           f"noise (sd {nsd:.3g} {xu})")
         else:
             reasons.append(None)
         if f.distortion > F_WARN:
@@ -217,9 +224,10 @@ def identify_forced_data(
         if Bn[i] is not None:
             amp = math.hypot(f.coef[1], f.coef[2])
             if abs(amp - abs(Bn[i])) > 0.02 * abs(Bn[i]):
-                hint = unit_hint("F", amp / abs(Bn[i])) if Bn[i] else ""
-                run_warn[i].append(f"the manifest's B = {Bn[i]:g} N differs from F's "
-                                   f"amplitude {amp:.5g} N; F's is used"
+                hint = unit_hint("F", amp / abs(Bn[i]), x_unit) if Bn[i] else ""
+                fu = quantity_unit("N", x_unit)
+                run_warn[i].append(f"the manifest's B = {Bn[i]:g} {fu} differs from F's "
+                                   f"amplitude {amp:.5g} {fu}; F's is used"
                                    + (f"; {hint}" if hint else ""))
     used = [i for i in range(n) if reasons[i] is None]
     prefix = f"{source}: " if source else ""
