@@ -285,7 +285,7 @@ def test_cli_bad_inputs(tmp_path):
     out = tmp_path / "free"
     assert runner.invoke(app, ["simulate", str(out), "--method", "free",
                                "--duration", "3"]).exit_code == 0
-    one_line_error(runner.invoke(app, ["identify", str(out), "--mass", "-1"]), "`mass`")
+    one_line_error(runner.invoke(app, ["identify", str(out), "--mass", "-1"]), "--mass")
     one_line_error(runner.invoke(app, ["identify", str(out), "--delay", "0.1"]),
                    "--delay does not apply to free sets")
     one_line_error(runner.invoke(app, ["simulate", str(tmp_path / "x"), "--method", "free",

@@ -11,6 +11,7 @@ forced and free sets to :func:`phoid.methods.forced.identify_forced` and
 
 from __future__ import annotations
 
+import os
 from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
@@ -47,9 +48,10 @@ def identify(
 
     Parameters
     ----------
-    experiment : phoid.io.ExperimentSet
+    experiment : phoid.io.ExperimentSet, str or os.PathLike
         The runs and the manifest's settings (``method``, ``[loop] delay``, …), as read by
-        :func:`phoid.io.read_experiment`.
+        :func:`phoid.io.read_experiment`; or the path of a set (its folder or manifest), read
+        here by :func:`phoid.io.read_experiment` (whose errors it raises).
     delay : float, optional
         pho: the loop delay Δt (s), overriding the manifest's; tracking: the command delay τ.
     estimator : str, optional
@@ -83,10 +85,19 @@ def identify(
 
     Raises
     ------
+    TypeError
+        When ``experiment`` is neither an experiment set nor a path.
     IdentificationError
         An option that does not apply to the set's method, an unknown ``estimator``, or data
         that cannot determine the parameters (no usable runs, all gains equal, …).
     """
+    if isinstance(experiment, str | os.PathLike):
+        from phoid.io import read_experiment
+
+        experiment = read_experiment(experiment)
+    elif not hasattr(experiment, "runs"):
+        raise TypeError("phoid.identify needs an ExperimentSet (phoid.io.read_experiment) or "
+                        f"the path of a set's folder or manifest; got {type(experiment).__name__}")
     return identify_with(experiment, {"delay": delay, "estimator": estimator,
                                       "no_compensation": _no_compensation(compensate),
                                       "mass": mass, "friction": friction}, style="api")

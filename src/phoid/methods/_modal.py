@@ -28,10 +28,12 @@ from phoid.errors import IdentificationError
 from phoid.fits import esprit
 
 __all__ = [
+    "SCALE_RANGE",
     "ModalFit",
     "Prep",
     "Segment",
     "State",
+    "check_scales",
     "esprit_rates",
     "fit_modal",
     "pick_start",
@@ -234,6 +236,15 @@ def pick_start(segs: Sequence[Segment], cands: Sequence[tuple[float, float]],
     (float, float)
         The starting (σ, ω₀²).
     """
+    T, X = scales(segs)  # worked in units of T and X (fit_modal): the same in any unit
+    sg, wq = _pick_start_unit(_scaled(segs, T, X), [(a * T, b * T * T) for a, b in cands],
+                              np.asarray(weights, dtype=float) * X * X)
+    return sg / T, wq / (T * T)
+
+
+def _pick_start_unit(segs: Sequence[Segment], cands: Sequence[tuple[float, float]],
+                     weights: np.ndarray) -> tuple[float, float]:
+    """:func:`pick_start` on a record in units where its span and largest |x| are ~1."""
     thin = []
     for s in segs:
         d = max(1, (s.t.size - 2048) // 2048)
@@ -262,7 +273,7 @@ def pick_start(segs: Sequence[Segment], cands: Sequence[tuple[float, float]],
     best, best_sse = top[0], math.inf
     for sg, wq in top:
         try:
-            fit = fit_modal(thin, sg, wq, noise=1.0 / np.sqrt(weights), maxit=15)
+            fit = _fit_modal_unit(thin, sg, wq, noise=1.0 / np.sqrt(weights), maxit=15)
         except (IdentificationError, np.linalg.LinAlgError):
             continue
         sse = score(fit.sigma, fit.w0sq)
@@ -271,7 +282,110 @@ def pick_start(segs: Sequence[Segment], cands: Sequence[tuple[float, float]],
     return best
 
 
+#: the sample step (s) and the largest |x| a free record may have (:func:`check_scales`)
+SCALE_RANGE = (1e-30, 1e30)
+_SCALE_TEXT = "1e-30 … 1e30"  # SCALE_RANGE in words
+
+
+def check_scales(t: np.ndarray, x: np.ndarray, where: str, x_unit: str) -> None:
+    """Refuse a record whose sample step or x lies outside :data:`SCALE_RANGE` (one line
+    naming ``where`` — the manifest and the run —, the field and the cure).
+
+    The fit itself works in units of the record's span and largest |x| (exact: powers of two,
+    :func:`fit_modal`), so any unit within the range gives the same
+    σ, ω₀ — but what it reports is in SI: σ ∝ 1/step, ω₀² and its covariance ∝ 1/step² and
+    1/step⁴, x's squares in the adequacy checks ∝ x², and out of the range these leave the
+    floating-point range (an inf, a 0, a wrong number)."""
+    lo, hi = SCALE_RANGE
+    lo, hi = lo * (1 - 1e-9), hi * (1 + 1e-9)  # the ends included, to a t's rounding
+    if t.size >= 2:
+        step = float(np.median(np.diff(t)))
+        if not lo <= step <= hi:
+            raise IdentificationError(
+                f"{where}: the sample step of t (from sample_rate where the manifest gives one) "
+                f"is {step:.3g} s, outside {_SCALE_TEXT} s, where the free fit's σ, ω₀² and "
+                "their covariances stay within the floating-point range; give t in seconds "
+                "([units] t = \"ms\", \"us\", … for a column in another unit), or check "
+                "sample_rate (Hz)")
+    big = float(np.max(np.abs(x))) if x.size else 0.0
+    if big != 0.0 and not lo <= big <= hi:
+        raise IdentificationError(
+            f"{where}: x reaches {big:.3g} {x_unit} at most, outside {_SCALE_TEXT} (its "
+            f"largest |x|), where the free fit's squares of x stay within the floating-point "
+            f"range; give x in a unit where it is ([units] x = \"mm\", \"um\", …)")
+
+
+def _pow2(v: float) -> float:
+    """The power of two nearest below |v| (1 for 0 or a non-finite v): dividing by it is exact."""
+    if not (math.isfinite(v) and v != 0.0):
+        return 1.0
+    return math.ldexp(1.0, math.frexp(abs(v))[1] - 1)
+
+
+def scales(segs: Sequence[Segment]) -> tuple[float, float]:
+    """The time and x scales (T, X), powers of two, that :func:`fit_modal`,
+    :func:`pick_start` and :func:`esprit_rates` divide by before they work: T of the longest
+    window's span, X of the largest |x|. Dividing by a power of two is exact, so the fit is
+    the same for a record given in any time or x unit (no constant of the engine — a
+    tolerance, a floor, a step — meets a number whose size depends on the unit)."""
+    span = max((float(s.t[-1] - s.t0) for s in segs if s.t.size), default=1.0)
+    big = max((float(np.max(np.abs(s.x))) for s in segs if s.x.size), default=1.0)
+    return _pow2(span), _pow2(big)
+
+
+def _scaled(segs: Sequence[Segment], T: float, X: float) -> list[Segment]:
+    return [Segment(t=s.t / T, x=s.x / X, fixed=s.fixed, t0=s.t0 / T) for s in segs]
+
+
 def fit_modal(
+    segs: Sequence[Segment],
+    sigma: float,
+    w0sq: float,
+    *,
+    noise: Sequence[float],
+    fit_rates: bool = True,
+    maxit: int = 60,
+) -> ModalFit:
+    """Fit the shared rates (σ, ω₀²) and every run's linear coefficients, in any units.
+
+    The work is done by :func:`_fit_modal_unit` on the record with t divided by T and x by X
+    (:func:`scales`, powers of two: exact), and every number is scaled back: the same record in
+    any time or x unit gives the same fit. Parameters, returns and raises as
+    :func:`_fit_modal_unit`.
+    """
+    T, X = scales(segs)
+    nz = [float(n) / X for n in noise]
+    f = _fit_modal_unit(_scaled(segs, T, X), sigma * T, w0sq * T * T, noise=nz,
+                        fit_rates=fit_rates, maxit=maxit)
+    r = np.array([T, T * T])  # d rate'/d rate: the rates in units of 1/T and 1/T²
+
+    def coef_scale(c: np.ndarray) -> np.ndarray:
+        # fixed columns and x₀ scale with X; v₀ (the last coefficient, of B₂ = S, in x per
+        # time) with X/T
+        out = np.full(c.shape[0], X)
+        out[-1] = X / T
+        return out
+
+    coefs, ccovs, Ks, jacs, designs = [], [], [], [], []
+    for c, cc, K, J, G in zip(f.coef, f.coef_cov, f.K, f.jac, f.design, strict=True):
+        d = coef_scale(c)
+        coefs.append(c * d)
+        ccovs.append(cc * np.outer(d, d))
+        Ks.append(K * d[:, None] * r[None, :])
+        jacs.append(J * X * r[None, :])
+        g = G.copy()
+        g[:, -1] *= T
+        designs.append(g)
+    return ModalFit(
+        sigma=f.sigma / T, w0sq=f.w0sq / (T * T), cov=f.cov / np.outer(r, r),
+        coef=tuple(coefs), coef_cov=tuple(ccovs), K=tuple(Ks),
+        noise=tuple(n * X for n in f.noise), resid=tuple(e * X for e in f.resid),
+        fit_rates=f.fit_rates, converged=f.converged, iterations=f.iterations,
+        jac=tuple(jacs), design=tuple(designs),
+    )
+
+
+def _fit_modal_unit(
     segs: Sequence[Segment],
     sigma: float,
     w0sq: float,
@@ -418,6 +532,20 @@ def esprit_rates(t: np.ndarray, y: np.ndarray, noise: float, *,
     list of (float, float)
         Candidate (σ, ω₀²), 1/s and 1/s²; empty when ESPRIT fails or ``y`` is too short.
     """
+    t = np.asarray(t, dtype=float)
+    y = np.asarray(y, dtype=float)
+    if t.size < 2:
+        return []
+    # worked in units of the record's span and largest |y| (fit_modal): the same in any unit
+    T = _pow2(float(t[-1] - t[0]))
+    X = _pow2(float(np.max(np.abs(y))))
+    return [(a / T, b / (T * T))
+            for a, b in _esprit_rates_unit(t / T, y / X, noise / X, grid=grid)]
+
+
+def _esprit_rates_unit(t: np.ndarray, y: np.ndarray, noise: float, *,
+                       grid: bool = False) -> list[tuple[float, float]]:
+    """:func:`esprit_rates` on a record in units where its span and largest |y| are ~1."""
     n = y.size
     if n < 8:
         return []

@@ -60,6 +60,7 @@ from phoid.io.units import check_x_unit, quantity_unit, x_quantity
 from phoid.methods._modal import (
     ModalFit,
     Segment,
+    check_scales,
     esprit_rates,
     fit_modal,
     pick_start,
@@ -451,8 +452,14 @@ def identify_free(experiment: Any, *, mass: float | None = None) -> FreeIdentifi
             f"{where}: --mass cannot be used with x in {x_unit} (a sensor unit, [units] x): "
             "c and k need x in a length or an angle unit; a free decay in sensor units gives "
             "only σ, ω₀, ζ, c/m and k/m")
+    label = "`mass`"
     if mass is None:
-        mass = getattr(experiment, "mass", None)
+        mass, label = getattr(experiment, "mass", None), "mass (the manifest's)"
+    if mass is not None:
+        try:
+            mass = v.physical(label, mass, "kg")
+        except ValueError as exc:
+            raise IdentificationError(f"{where}: {exc}") from None
     result = identify_free_data(
         [(r.t, r.x) for r in runs], mass=mass, files=[r.file for r in runs],
         names=[r.name for r in runs], source=where, x_unit=x_unit,
@@ -516,9 +523,12 @@ def identify_free_data(
     Raises
     ------
     IdentificationError
-        If no run can be fitted.
+        If no run can be fitted, or a run's sample step (s) or largest |x| lies outside
+        :data:`phoid.methods._modal.SCALE_RANGE` (1e-30 … 1e30; within it the fit is the
+        same in any unit).
     ValueError
-        For malformed arrays (NaN/inf, lengths differ, t not increasing) or a bad ``mass``.
+        For malformed arrays (NaN/inf, lengths differ, t not increasing) or a bad ``mass``
+        (> 0, of magnitude 1e-30 … 1e30 kg: :func:`phoid._validate.physical`).
 
     Examples
     --------
@@ -545,7 +555,7 @@ def identify_free_data(
         raise IdentificationError("no runs")
     check_x_unit("identify_free_data", x_unit, "free")
     if mass is not None:
-        mass = v.positive("mass", mass, "kg")
+        mass = v.physical("`mass`", mass, "kg")
         if x_quantity(x_unit) == "signal":
             raise ValueError(f"`mass` cannot be used with x in {x_unit!r} (a sensor unit): "
                              "c and k need x in a length or an angle unit")
@@ -569,6 +579,7 @@ def identify_free_data(
                              f"got {t.size} and {x.size}")
         if t.size >= 2 and not (np.diff(t) > 0).all():
             raise ValueError(f"{names[i]}: `t` must be strictly increasing")
+        check_scales(t, x, (f"{source}: " if source else "") + names[i], x_unit)
         arrays.append((t, x))
         seg_of.append(None)
         if t.size < MIN_SAMPLES:
@@ -718,6 +729,9 @@ def identify_free_data(
                            quantity_unit("N s/m", x_unit))
         k_est = robust_est(w0sq * mass, se_w * mass, ww and ww * mass,
                            quantity_unit("N/m", x_unit))
+        with np.errstate(over="ignore"):
+            warnings.extend(v.overflow_warnings(mass, [("c = 2σm", c_est, 2 * sigma),
+                                                 ("k = ω₀²m", k_est, w0sq)]))
     return FreeIdentification(
         sigma=robust_est(sigma, se_s, ws, "1/s"), omega0=omega0, zeta=zeta,
         c_over_m=robust_est(2 * sigma, 2 * se_s, ws and 2 * ws, "1/s"),

@@ -42,6 +42,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
+from phoid import _validate as valid
 from phoid._threads import single_blas_thread
 from phoid.dynamics.plant import free_response
 from phoid.errors import IdentificationError
@@ -346,8 +347,12 @@ def _derived(sigma: float, w0sq: float, cov: np.ndarray, white: np.ndarray | Non
 
 def _est(value: float, var: float, white_var: float | None, unit: str,
          scale: float = 1.0) -> Estimate:
-    return Estimate(value * scale, math.sqrt(max(var, 0.0)) * abs(scale), unit,
-                    None if white_var is None else math.sqrt(max(white_var, 0.0)) * abs(scale))
+    # scale·value may overflow (a huge mass): inf, reported null with a warning (mass_warnings)
+    with np.errstate(over="ignore"):
+        return Estimate(float(np.float64(value) * scale),
+                        float(np.float64(math.sqrt(max(var, 0.0))) * abs(scale)), unit,
+                        None if white_var is None
+                        else float(np.float64(math.sqrt(max(white_var, 0.0))) * abs(scale)))
 
 
 def _carried(warnings: Sequence[str]) -> tuple[str, ...]:
@@ -545,6 +550,9 @@ def _from_viscous(vis: FreeIdentification, names: list[str]) -> FreeFrictionIden
         c_e = _est(sigma, cov[0, 0], wv(0), quantity_unit("N s/m", x_unit), 2 * mass)
         k_e2 = _est(w0sq, cov[1, 1], wv(1), quantity_unit("N/m", x_unit), mass)
         fc_e = _est(a, cov[2, 2], wv(2), quantity_unit("N", x_unit), mass)
+        warnings.extend(valid.overflow_warnings(mass, [("c = 2σm", c_e, 2 * sigma),
+                                             ("k = ω₀²m", k_e2, w0sq),
+                                             ("f_c = (f_c/m)·m", fc_e, a)]))
     return FreeFrictionIdentification(
         sigma=sig_e, omega0=omega0, zeta=zeta,
         c_over_m=_est(sigma, cov[0, 0], wv(0), "1/s", 2.0), k_over_m=k_e, fc_over_m=a_e,

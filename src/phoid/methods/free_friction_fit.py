@@ -262,8 +262,47 @@ def _truncated(prob: FrictionProblem, span: float) -> FrictionProblem:
     return FrictionProblem(windows=tuple(out), sigma=prob.sigma, w0sq=prob.w0sq)
 
 
+def _pow2(v: float) -> float:
+    """The power of two nearest below |v| (1 for 0 or a non-finite v): dividing by it is exact."""
+    if not (math.isfinite(v) and v != 0.0):
+        return 1.0
+    return math.ldexp(1.0, math.frexp(abs(v))[1] - 1)
+
+
 def fit_free_friction(prob: FrictionProblem, *,
                       start: np.ndarray | None = None) -> FrictionSolution:
+    """Fit (σ, ω₀², a) and each release's (offset, y₀, v₀) (module docstring), in any units.
+
+    The work is done by :func:`_fit_unit` on the windows with t divided by T (the longest
+    window's span) and x by X (the largest |x|), both powers of two (exact), and every number
+    is scaled back: the same record in any time or x unit gives the same fit (no step, bound
+    or tolerance meets a number whose size depends on the unit). Parameters, returns and
+    raises as :func:`_fit_unit`.
+    """
+    T = _pow2(max(float(w.t[-1] - w.t[0]) for w in prob.windows))
+    X = _pow2(max(float(np.max(np.abs(w.x))) for w in prob.windows))
+    unit = FrictionProblem(
+        windows=tuple(ReleaseWindow(t=w.t / T, x=w.x / X, noise=w.noise / X,
+                                    offset=w.offset / X, y0=w.y0 / X, v0=w.v0 * T / X)
+                      for w in prob.windows),
+        sigma=prob.sigma * T, w0sq=prob.w0sq * T * T)
+    rt = np.array([T, T * T, T * T / X])  # θ' = θ·rt: σ, ω₀², a in units of T and X
+    ro = np.array([X, X, X / T])           # own = own'·ro: offset, y₀, v₀
+    f = _fit_unit(unit, start=None if start is None else np.asarray(start, float) * rt)
+    motions = tuple(CoulombDecay(
+        y=m.y * X, v=m.v * (X / T), turns=m.turns * T,
+        stop=None if m.stop is None else m.stop * T,
+        stuck=None if m.stuck is None else m.stuck * X) for m in f.motions)
+    return FrictionSolution(
+        theta=f.theta / rt, own=f.own * ro[None, :], motions=motions,
+        resid=tuple(e * X for e in f.resid), cov_white=f.cov_white / np.outer(rt, rt),
+        jac=tuple(J * (X * rt)[None, :] for J in f.jac),
+        jac_own=tuple(J * (X / ro)[None, :] for J in f.jac_own),
+        resid_var=tuple(v * X * X for v in f.resid_var), converged=f.converged, nfev=f.nfev)
+
+
+def _fit_unit(prob: FrictionProblem, *,
+              start: np.ndarray | None = None) -> FrictionSolution:
     """Fit (σ, ω₀², a) and each release's (offset, y₀, v₀) (module docstring).
 
     Parameters

@@ -21,6 +21,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
+from phoid import _validate as v
 from phoid.errors import IdentificationError
 
 __all__ = ["METHODS", "OPTIONS", "Method", "Option", "Variant", "identify_with", "labelled",
@@ -48,6 +49,9 @@ class Option:
         (True or False).
     unit : str
         The unit of a number.
+    physical : bool
+        A number that must be > 0 and of magnitude 1e-30 … 1e30 in ``unit``
+        (:func:`phoid._validate.physical`), checked here for every method.
     """
 
     name: str
@@ -57,6 +61,7 @@ class Option:
     inverted: bool = False
     kind: str = "flag"
     unit: str = ""
+    physical: bool = False
 
     def words(self, style: str, value: Any = None) -> str:
         """The option as the caller wrote it: ``"cli"`` (``--estimator ols``) or ``"api"``
@@ -73,7 +78,7 @@ OPTIONS: tuple[Option, ...] = (
     Option("delay", "--delay", "delay", None, kind="number", unit="s"),
     Option("estimator", "--estimator", "estimator", None, kind="text"),
     Option("no_compensation", "--no-compensation", "compensate", False, inverted=True),
-    Option("mass", "--mass", "mass", None, kind="number", unit="kg"),
+    Option("mass", "--mass", "mass", None, kind="number", unit="kg", physical=True),
     Option("friction", "--friction", "friction", False),
 )
 
@@ -234,10 +239,10 @@ def _dtype_kind(value: Any) -> str:
 
 
 def _given(opt: Option, value: Any) -> bool:
-    """Whether the option was given: a flag not False (a non-bool is given, and refused by
-    :func:`_check_kind`), any other option not None."""
+    """Whether the option was given: a flag not False (a non-bool, None included, is given,
+    and refused by :func:`_check_kind`), any other option not None."""
     if opt.kind == "flag":
-        return not (value is None or value is False or (_dtype_kind(value) == "b" and not value))
+        return not (value is False or (_dtype_kind(value) == "b" and not value))
     return value is not None
 
 
@@ -251,11 +256,16 @@ def _check_kind(opt: Option, value: Any, where: str, style: str) -> None:
         want = f"a number, in {opt.unit}"
     else:
         ok, want = isinstance(value, str), "a string"
+    name = opt.flag if style == "cli" else f"`{opt.keyword}`"
     if not ok:
         text = repr(value)
-        name = opt.flag if style == "cli" else f"`{opt.keyword}`"
         raise IdentificationError(f"{where}: {name} must be {want}; got "
                                   f"{text if len(text) <= 60 else text[:57] + '...'}")
+    if opt.physical:
+        try:
+            v.physical(name, value, opt.unit)
+        except ValueError as exc:
+            raise IdentificationError(f"{where}: {exc}") from None
 
 
 def identify_with(experiment: Any, options: Mapping[str, Any], *, style: str = "cli") -> Any:
@@ -291,7 +301,10 @@ def identify_with(experiment: Any, options: Mapping[str, Any], *, style: str = "
     if unknown:
         raise IdentificationError(f"unknown identify option {unknown[0]!r}; the options are "
                                   f"{', '.join(o.name for o in OPTIONS)}")
-    given = {o.name: options[o.name] for o in OPTIONS if _given(o, options.get(o.name))}
+    # an option missing from ``options`` is not given; one given as None is, for a flag (and
+    # refused by _check_kind: a flag is True or False)
+    given = {o.name: options[o.name] for o in OPTIONS
+             if o.name in options and _given(o, options[o.name])}
     for name, value in given.items():
         _check_kind(option(name), value, where, style)
     method_name = getattr(experiment, "method", "pho")
