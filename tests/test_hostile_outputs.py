@@ -226,11 +226,20 @@ def test_free_decay_with_a_tiny_mass_prints_no_hundreds_of_digits(tmp_path):
     r = runner.invoke(app, ["simulate", str(out), "--method", "free", "--duration", "2",
                             "--fs", "200", "--noise", "1e-6", "--seed", "1"])
     assert r.exit_code == 0, r.output
-    r = runner.invoke(app, ["identify", str(out), "--mass", "1e-300"])
+    # the smallest mass phoid takes (physical numbers are bounded to 1e-30 … 1e30, docs/format.md)
+    r = runner.invoke(app, ["identify", str(out), "--mass", "1e-30"])
     assert r.exit_code == 0, r.output
     assert max(len(line) for line in r.stdout.splitlines()) < 200, r.stdout
     c_line = next(line for line in r.stdout.splitlines() if line.strip().startswith("c ="))
-    assert "e-30" in c_line, c_line
+    # c = (c/m)·m in exponent form: the report's own c/m times 1e-30, to its printed digits
+    cm_line = next(line for line in r.stdout.splitlines() if line.strip().startswith("c/m ="))
+    c_over_m = float(cm_line.split("=")[1].split("±")[0])
+    c = float(c_line.split("=")[1].split("±")[0])
+    assert "e-3" in c_line and abs(c / (c_over_m * 1e-30) - 1) < 1e-5, (c_line, cm_line)
+    # one below it is refused in one line naming the set and the option, not printed
+    r = runner.invoke(app, ["identify", str(out), "--mass", "1e-300"])
+    assert r.exit_code == 2 and "--mass" in r.stderr and "experiment.toml" in r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1
 
 
 # ------------------------------------------------------------------------------------------
