@@ -62,6 +62,10 @@ __all__ = ["RUNS_DISAGREE", "apply_pho", "assess_pho", "run_sandwich"]
 RUNS_DISAGREE = "the runs disagree more than their noise explains"
 #: fewest windows of 4 cycles a run needs to count in the structure check
 _MIN_WINDOWS = 3
+#: cycles per window (window_rates' default): a run ringing fewer than _WINDOW_CYCLES ×
+#: _MIN_WINDOWS cycles above its noise sd cannot give that many windows above 10 noise sd,
+#: so its window fits are not tried
+_WINDOW_CYCLES = 4.0
 #: a record whose noise is below this fraction of its motion's RMS is noise-free (rounding)
 _ROUNDING = 1e-9
 #: false alarm of the runs' χ² test (the weighted fit's own 99.9 % quantile)
@@ -72,7 +76,8 @@ def _window(t: np.ndarray, fit: Any) -> np.ndarray:
     return (t >= fit.t_start) & (t <= fit.t_end)
 
 
-def run_sandwich(t: np.ndarray, x: np.ndarray, fit: Any) -> tuple[np.ndarray, np.ndarray]:
+def run_sandwich(t: np.ndarray, x: np.ndarray, fit: Any, *, cov: bool = True
+                 ) -> tuple[np.ndarray, np.ndarray | None]:
     """One run's decay-fit residual over its window and the Newey–West covariance of (σ, ω_d).
 
     Parameters
@@ -81,17 +86,22 @@ def run_sandwich(t: np.ndarray, x: np.ndarray, fit: Any) -> tuple[np.ndarray, np
         The run's record (s, x's unit).
     fit : phoid.fits.DecayFit
         Its dominant-mode fit (fast modes included).
+    cov : bool, default True
+        Compute the sandwich (False: the residual alone, the covariance None — the checks
+        need only the residual, and the sandwich is used only where one fails).
 
     Returns
     -------
     (residual, cov)
         The residual x − model over the window; the (2, 2) sandwich of (σ, ω_d), with the
         offset, the dominant mode's amplitudes and the fast modes' amplitudes projected off
-        (nan when it cannot be computed).
+        (nan when it cannot be computed; None with ``cov=False``).
     """
     sel = _window(t, fit)
     tw, xw = t[sel], x[sel]
     e = xw - fit.model(tw, fast=True)
+    if not cov:
+        return e, None
     tau = tw - fit.t_ref
     with np.errstate(over="ignore", invalid="ignore"):
         env = np.exp(-fit.sigma * tau)
@@ -210,12 +220,12 @@ def assess_pho(res: Any, *, x_unit: str = "m") -> tuple[aq.Adequacy, np.ndarray 
         t = np.asarray(res.data[i][0], dtype=float)
         x = np.asarray(res.data[i][1], dtype=float)
         f = res.runs[i].fit
-        e, om = run_sandwich(t, x, f)
+        e, _ = run_sandwich(t, x, f, cov=False)
         resid.append(e)
-        omegas.append(om)
+        omegas.append(None)
         nz = window_noise(t, x, f.t_start, f.t_end)
         sel = _window(t, f)
-        motion = f.model(t[sel], fast=True) - f.offset
+        motion = x[sel] - e - f.offset  # the fitted model less its offset (e = x − model)
         mrms = float(np.sqrt(np.mean(motion * motion))) if motion.size else 0.0
         erms = float(np.sqrt(np.mean(e * e))) if e.size else 0.0
         if not nz > _ROUNDING * mrms or (erms <= 1e-5 * mrms and erms < 0.5 * nz):
@@ -248,6 +258,8 @@ def assess_pho(res: Any, *, x_unit: str = "m") -> tuple[aq.Adequacy, np.ndarray 
             t = np.asarray(res.data[i][0], dtype=float)
             x = np.asarray(res.data[i][1], dtype=float)
             f = res.runs[i].fit
+            if not f.cycles >= _WINDOW_CYCLES * _MIN_WINDOWS:
+                continue  # too short a ring for that many windows: no window fits tried
             a, sg, sg_se, om_d, om_se = _windows(t, x, f, nz)
             if a.size < _MIN_WINDOWS:  # too short a ring to show a trend of its own
                 continue
@@ -286,6 +298,12 @@ def assess_pho(res: Any, *, x_unit: str = "m") -> tuple[aq.Adequacy, np.ndarray 
         causes += list(r_causes) + list(s_causes)
         warns += list(r_warns) + list(s_warns)
     residual_failed = any(c.passed is False for c in checks)
+    if residual_failed:
+        # the runs' sandwiches, only where a check failed (where none did the white
+        # covariances stand, and the sandwich would cost more than the rest together)
+        omegas = [run_sandwich(np.asarray(res.data[i][0], dtype=float),
+                               np.asarray(res.data[i][1], dtype=float), res.runs[i].fit)[1]
+                  for i in idx]
     om_of = dict(zip(idx, omegas, strict=True))
     idx = all_idx  # every used run enters the set's fit (a noise-free one with its own cov)
     white_run = [np.asarray(res.runs[i].fit.cov, dtype=float) for i in idx]
