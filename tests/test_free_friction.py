@@ -365,3 +365,19 @@ def test_a_stiffening_spring_stuck_before_the_middle_widens_by_the_windows_drift
     assert res.omega0.stderr > 50 * res.omega0.white_stderr
     # … which covers the small-amplitude frequency the stiffening moves the fit away from
     assert abs(res.omega0.value - math.sqrt(w0sq)) < 3 * res.omega0.stderr
+
+
+def test_a_release_that_stops_within_two_half_cycles_is_refused(tmp_path):
+    # f_c/m large against the release (exact stick–slip by the integrator above): the mass
+    # stops after 2 half-cycles, where the stop, σ and f_c trade off — a fit there gave
+    # f_c/m at half its truth with a 0.03 % stderr; no number is given, the reason in one line
+    w0sq = (2 * math.pi * 2.0) ** 2
+    t = np.arange(2000) / 200.0
+    y, stop = stick_slip(t, 0.1, w0sq, 3.5, 0.1, 0.0)
+    assert stop is not None and stop < 0.6  # two half-cycles of 0.25 s
+    x = y + 1e-4 * np.random.default_rng(3).standard_normal(t.size)
+    with pytest.raises(IdentificationError) as exc:
+        identify_free_friction_data([(t, x)], source="short.toml")
+    msg = str(exc.value)
+    assert "\n" not in msg and msg.startswith("short.toml: ")
+    assert "fewer than 4 half-cycles" in msg and "without --friction" in msg

@@ -454,6 +454,16 @@ def _from_viscous(vis: FreeIdentification, names: list[str]) -> FreeFrictionIden
                                                 w0sq=vis.k_over_m.value))
     except ValueError as exc:
         raise IdentificationError(f"{where}{exc}") from None
+    halves_of = [int(m.turns.size) for m in sol.motions]
+    if halves_of and max(halves_of) < MIN_HALF_CYCLES:
+        # two or three half-cycles: the stop, σ and f_c trade off (a 2-half-cycle record of
+        # f_c/m = 0.15 fits at 0.074 with a stderr of 2e-5): no release can tell Coulomb from
+        # viscous friction, so no number is given
+        raise IdentificationError(
+            f"{where}every release holds fewer than {MIN_HALF_CYCLES} half-cycles of motion "
+            f"before it stops ({', '.join(str(h) for h in halves_of)}): Coulomb and viscous "
+            "friction cannot be told apart from it; identify without --friction (σ, ω₀ of the "
+            "viscous model, with its adequacy warnings), or record a larger release")
     sigma, w0sq, a = (float(v) for v in sol.theta)
     x_unit = vis.x_unit
     adequacy = assess_free_friction(windows, sol, [names[i] for i in used], x_unit=x_unit)
