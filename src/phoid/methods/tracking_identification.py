@@ -268,7 +268,8 @@ def identify_tracking(experiment: Any, *, delay: float | None = None,
     fixed = dict(getattr(experiment, "fixed", {}) or {})
     given = delay if delay is not None else experiment.loop.get("delay")
     if delay is not None and not (math.isfinite(delay) and delay >= 0):
-        raise IdentificationError(f"{where}: --delay must be a finite number ≥ 0 s; got {delay}")
+        raise IdentificationError(f"{where}: the command delay (--delay, or `delay` in "
+                                  f"Python) must be a finite number ≥ 0 s; got {delay}")
     ctrls = [run_controller(experiment, r, delay=given) for r in runs]
     warnings: list[str] = []
     idim_records: tuple[TrackingRecord, ...] = ()  # the records, once IDIM has run on them
