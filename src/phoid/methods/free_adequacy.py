@@ -38,7 +38,7 @@ from phoid.methods import adequacy as aq
 from phoid.methods._modal import ModalFit, Segment, fit_modal, window_rates
 from phoid.methods.fit_statistics import difference_noise
 
-__all__ = ["assess_free"]
+__all__ = ["agreement_words", "assess_free", "rates_agreement"]
 
 #: fewest samples of a half
 _MIN_HALF = 16
@@ -78,6 +78,33 @@ def _excess(spread: np.ndarray, own: np.ndarray) -> np.ndarray:
     e = np.asarray(spread, dtype=float) - np.asarray(own, dtype=float)
     w, v = np.linalg.eigh(0.5 * (e + e.T))
     return (v * np.clip(w, 0.0, None)) @ v.T
+
+
+def rates_agreement(name: str, parts: Sequence[tuple[np.ndarray, np.ndarray] | None],
+                    labels: Sequence[str], *, of_mean: bool = True) -> aq.Agreement | None:
+    """The χ² of consistency (:func:`phoid.methods.adequacy.agreement`) of parts of a free
+    set fitted alone — the halves of its records, or its runs — on (ω₀, ζ) with their robust
+    covariances; None where fewer than two parts could be fitted (a part that could not is
+    left out). Shared by the viscous and the friction fit's adequacy."""
+    ok = [i for i, p in enumerate(parts) if p is not None]
+    if len(ok) < 2:
+        return None
+    return aq.agreement(name, [parts[i][0] for i in ok], [parts[i][1] for i in ok],
+                        params=("ω₀", "ζ"), units=("rad/s", ""),
+                        labels=[labels[i] for i in ok], of_mean=of_mean)
+
+
+def agreement_words(agreements: Sequence[aq.Agreement]) -> tuple[list[str], list[str]]:
+    """The causes ("drift" for halves, "runs_differ" for runs) and warnings of the
+    agreements that failed, in order."""
+    causes: list[str] = []
+    warns: list[str] = []
+    for ag in agreements:
+        w = ag.warning()
+        if w is not None:
+            causes.append("drift" if ag.check.name == "halves" else "runs_differ")
+            warns.append(w)
+    return causes, warns
 
 
 def _part(segs: list[Segment], fit: ModalFit,
@@ -221,10 +248,9 @@ def assess_free(segs: Sequence[Segment], fit: ModalFit, labels: Sequence[str], *
                          for m, nz, fn in zip(motions, noise, fit.noise, strict=True)))
     halves = [_part(h, fit, fit.noise) for h in (firsts, seconds)] \
         if min(s.t.size for s in segs) >= 2 * _MIN_HALF and snr2 >= _MIN_SNR else [None]
-    if all(h is not None for h in halves) and len(halves) == 2:
-        ag = aq.agreement("halves", [h[0] for h in halves], [h[1] for h in halves],
-                          params=("ω₀", "ζ"), units=("rad/s", ""),
-                          labels=("first half", "second half"), of_mean=False)
+    ag = rates_agreement("halves", halves, ("first half", "second half"), of_mean=False) \
+        if len(halves) == 2 else None
+    if ag is not None:
         checks.append(ag.check)
         agreements.append(ag)
         if ag.check.passed is False or struct.passed is False or noise_c.passed is False:
@@ -244,11 +270,8 @@ def assess_free(segs: Sequence[Segment], fit: ModalFit, labels: Sequence[str], *
         between.append(np.cov(np.vstack([win.sigma, win.omega**2 + win.sigma**2])))
     if len(segs) >= 2:
         parts = [_part([s], fit, [nz]) for s, nz in zip(segs, fit.noise, strict=True)]
-        ok = [i for i, p in enumerate(parts) if p is not None]
-        if len(ok) >= 2:
-            ag = aq.agreement("runs", [parts[i][0] for i in ok], [parts[i][1] for i in ok],
-                              params=("ω₀", "ζ"), units=("rad/s", ""),
-                              labels=[labels[i] for i in ok])
+        ag = rates_agreement("runs", parts, labels)
+        if ag is not None:
             checks.append(ag.check)
             agreements.append(ag)
             if ag.check.passed is False:
@@ -260,10 +283,8 @@ def assess_free(segs: Sequence[Segment], fit: ModalFit, labels: Sequence[str], *
         j = causes.index("coulomb")
         causes.insert(0, causes.pop(j))
         warns.insert(0, warns.pop(len(r_warns) + s_causes.index("coulomb")))
-    for ag in agreements:
-        w = ag.warning()
-        if w is not None:
-            causes.append("drift" if ag.check.name == "halves" else "runs_differ")
-            warns.append(w)
+    a_causes, a_warns = agreement_words(agreements)
+    causes += a_causes
+    warns += a_warns
     return aq.assess(checks, names=names, units=units, white_cov=fit.cov, sandwich_cov=sw,
                      between=between, causes=causes, warnings=warns)

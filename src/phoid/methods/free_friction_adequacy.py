@@ -37,6 +37,7 @@ import numpy as np
 
 from phoid.methods import adequacy as aq
 from phoid.methods._modal import Segment, window_rates
+from phoid.methods.free_adequacy import agreement_words, rates_agreement
 from phoid.methods.free_friction_fit import (
     FrictionProblem,
     FrictionSolution,
@@ -206,10 +207,8 @@ def assess_free_friction(windows: Sequence[ReleaseWindow], sol: FrictionSolution
                          enumerate(zip(windows, mids, strict=True))], theta),
                   _part([_window(w, slice(k, None), sol, j) for j, (w, k) in
                          enumerate(zip(windows, mids, strict=True))], theta)]
-        if halves[0] is not None and halves[1] is not None:
-            ag = aq.agreement("halves", [h[0] for h in halves], [h[1] for h in halves],
-                              params=("ω₀", "ζ"), units=("rad/s", ""),
-                              labels=("first half", "second half"), of_mean=False)
+        ag = rates_agreement("halves", halves, ("first half", "second half"), of_mean=False)
+        if ag is not None:
             checks.append(ag.check)
             agreements.append(ag)
             if ag.check.passed is False:
@@ -221,19 +220,14 @@ def assess_free_friction(windows: Sequence[ReleaseWindow], sol: FrictionSolution
     if len(windows) >= 2:
         parts = [_part([_window(w, slice(0, None), sol, j)], theta)
                  for j, w in enumerate(windows)]
-        ok = [i for i, p in enumerate(parts) if p is not None]
-        if len(ok) >= 2:
-            ag = aq.agreement("runs", [parts[i][0] for i in ok], [parts[i][1] for i in ok],
-                              params=("ω₀", "ζ"), units=("rad/s", ""),
-                              labels=[labels[i] for i in ok])
+        ag = rates_agreement("runs", parts, labels)
+        if ag is not None:
             checks.append(ag.check)
             agreements.append(ag)
             if ag.check.passed is False:
                 between.append(Jb @ ag.between @ Jb.T)
-    for ag in agreements:
-        w = ag.warning()
-        if w is not None:
-            causes.append("drift" if ag.check.name == "halves" else "runs_differ")
-            warns.append(w)
+    a_causes, a_warns = agreement_words(agreements)
+    causes += a_causes
+    warns += a_warns
     return aq.assess(checks, names=_NAMES, units=units, white_cov=sol.cov_white,
                      sandwich_cov=sw, between=between, causes=causes, warnings=warns)
