@@ -84,7 +84,16 @@ if TYPE_CHECKING:  # the real imports, for type checkers and IDEs; at run time s
     from phoid.methods.tracking import fit_tracking
     from phoid.methods.tracking_identification import identify_tracking, replay_set
     from phoid.methods.tracking_validation import validate_tracking
-    from phoid.planning import CramerRao, Design, DesignError, PlannedRun, cramer_rao, design
+    from phoid.planning import (
+        CramerRao,
+        Design,
+        DesignError,
+        InLoopBound,
+        PlannedRun,
+        cramer_rao,
+        design,
+        inloop_cramer_rao,
+    )
     from phoid.simulation import Simulation, TrackingSimulation, simulate, simulate_tracking
 
 __version__ = "0.1.0"
@@ -144,6 +153,8 @@ _LAZY: dict[str, str] = {
     "fit_modes": "phoid.methods",
     "CramerRao": "phoid.planning",
     "cramer_rao": "phoid.planning",
+    "InLoopBound": "phoid.planning",
+    "inloop_cramer_rao": "phoid.planning",
     "Design": "phoid.planning",
     "DesignError": "phoid.planning",
     "PlannedRun": "phoid.planning",
@@ -194,6 +205,7 @@ __all__ = [
     "FrictionFit",
     "Identification",
     "IdentificationError",
+    "InLoopBound",
     "LinearPlant",
     "LoopModes",
     "MCKFit",
@@ -236,6 +248,7 @@ __all__ = [
     "identify_many",
     "identify_tracking",
     "idim_ls",
+    "inloop_cramer_rao",
     "inverse_map",
     "is_stable",
     "linear_plant",

@@ -7,6 +7,7 @@ cycles, stability margins and the **Cramér–Rao standard errors** of m, c, k
 (:mod:`phoid.planning.fisher`) for the planned noise level and record length.
 
 Modules, from the bottom up: :mod:`~phoid.planning.fisher` (the Cramér–Rao bound),
+:mod:`~phoid.planning.inloop_bound` (the bound of a digital set, the noise inside the loop),
 :mod:`~phoid.planning.margins` (exact root counts and delay margins of the delayed loop),
 :mod:`~phoid.planning.settings` (the conditions and the prior plant),
 :mod:`~phoid.planning.evaluation` (the requirements on a run, evaluated over the prior grid),
@@ -25,6 +26,7 @@ from phoid.planning.fisher import (
     power_sums,
     release_amplitude,
 )
+from phoid.planning.inloop_bound import InLoopBound, inloop_cramer_rao
 from phoid.planning.margins import count_roots_right, delay_margin
 from phoid.planning.result import Design, PlannedRun
 from phoid.planning.schedule import read_schedule, schedule_target
@@ -37,6 +39,7 @@ __all__ = [
     "Design",
     "DesignError",
     "DesignSettings",
+    "InLoopBound",
     "PlannedRun",
     "check",
     "check_experiment",
@@ -44,6 +47,7 @@ __all__ = [
     "cramer_rao",
     "delay_margin",
     "design",
+    "inloop_cramer_rao",
     "mode_information",
     "mode_jacobian",
     "power_sums",
