@@ -583,7 +583,7 @@ def acceptance_modes():
     roots = digital_roots(M_, C_, K_, P10, D10, loop)
     rng = np.random.default_rng(2024)
     sim = simulate(PLANT, P10, D10, duration=8.0, fs=1 / TS, x0=X0, hold=0.1, sample_time=TS,
-                   delay_samples=DS, noise=1e-5, rng=rng)
+                   delay_samples=DS, noise=1e-5, rng=rng, noise_in_loop=False)
     fits = [fit_decay(sim.t, sim.x[i], release=0.1, fast_roots=roots.s[i, 2:3])
             for i in range(10)]
     sigma = np.array([f.sigma for f in fits])

@@ -490,7 +490,7 @@ def test_digital_loop_with_friction(tmp_path):
     x0 = np.random.default_rng(1).uniform(5e-3, 10e-3, P8.size)
     sim = simulate(Plant(M, C, K, FC), P8, D8, duration=8.0, fs=FS, x0=x0, hold=HOLD,
                    noise=NOISE, quantum=QUANTUM, offset=OFFSET, rng=np.random.default_rng(101),
-                   sample_time=0.002, delay_samples=3)
+                   sample_time=0.002, delay_samples=3, noise_in_loop=False)
     runs = [run_from_arrays(sim.t, sim.x[i], P=float(P8[i]), D=float(D8[i]), index=i + 1)
             for i in range(P8.size)]
     folder = tmp_path / "dfr"

@@ -487,7 +487,8 @@ def test_a_sampled_loops_identification_exports_its_measured_modes():
     P, D = np.linspace(20.0, 200.0, 4), np.linspace(0.5, 5.0, 4)
     loop = DigitalPD(0.0, 0.0, sample_time=0.002, delay_samples=3)
     sim = phoid.simulate(plant, P, D, duration=10.0, fs=500.0, x0=0.01, hold=0.2, noise=1e-5,
-                         rng=np.random.default_rng(2), sample_time=0.002, delay_samples=3)
+                         rng=np.random.default_rng(2), sample_time=0.002, delay_samples=3,
+                         noise_in_loop=False)
     res = phoid.identify_data([(sim.t, sim.x[i]) for i in range(P.size)], P, D, None,
                               digital=loop)
     for i, run in enumerate(res.runs):

@@ -72,6 +72,18 @@ f_c = 0 that path simply locates the velocity reversals):
 * **Δt = 0.** b·sign(ẋ(t)) opposes the friction while the mass slides: the sliding force is
   −(f_c − b)·sign(ẋ) (b > f_c drives it), while the stick test keeps the threshold f_c. Exact.
 
+Sensor in the loop
+------------------
+With the noise in a continuous loop (an analogue controller reading the sensor) the controller
+reads x + ε, ε(t) = offset + ẽ(t), ẽ the recorder's noise draws joined by straight lines (ẽ = 0
+up to one interval before the record's first sample: noise-free before the record; past its
+last sample, the last slope continued). The loop is linear, so the reading's error is a known
+extra command per run, F(t) = −P ε(t − Δt) − D ε′(t − Δt) (:class:`SensorForce`), added to
+the step forces: on a step between two sample images it is a polynomial of degree 1 in σ, so it
+enters exactly when every sample, and so every image t_j + Δt, is a grid point (refused
+otherwise). The accuracy is then that of the loop itself (item 2). Friction and the bias are
+not simulated with it (refused by :func:`phoid.simulation.response.simulate`).
+
 Sample-rate rule
 ----------------
 ``fs`` must give at least 4 samples per period of the fastest closed-loop oscillation the gains
@@ -105,7 +117,14 @@ from phoid.simulation._propagation import (
 from phoid.simulation._recursion import recurse
 from phoid.simulation._stickslip import Friction, friction_block, initial_mode
 
-__all__ = ["continuous_grid", "feedback_maps", "history", "run_continuous", "run_delayed"]
+__all__ = [
+    "SensorForce",
+    "continuous_grid",
+    "feedback_maps",
+    "history",
+    "run_continuous",
+    "run_delayed",
+]
 
 _SAMPLES_PER_PERIOD = 4.0  # the sample-rate rule: samples per period of the fastest mode
 # quintic Hermite: (r0, r1, r2) -> (c3, c4, c5), see _hermite_matrix
@@ -314,11 +333,19 @@ def continuous_grid(m, c, k, P, D, delay, hold, fs, N) -> _Grid:
     return _make_grid(delay, fs, hold, N, rho, np.size(P))
 
 
-def run_continuous(m, c, k, fc, P, D, delay, x0a, v0a, hold, fs, N, force, bias=None):
-    """The continuous delayed loop (module docstring): exact positions, velocities, forces."""
+def run_continuous(m, c, k, fc, P, D, delay, x0a, v0a, hold, fs, N, force, bias=None,
+                   sensor=None):
+    """The continuous delayed loop (module docstring): exact positions, velocities, forces.
+
+    ``sensor`` = (e, offset): the controller reads the sensor, x + offset + ẽ (e (B, N) the
+    recorder's noise draws, m, or None): see "Sensor in the loop" (f_c = 0, no bias).
+    """
     B = P.size
     grid = continuous_grid(m, c, k, P, D, delay, hold, fs, N)
     A0 = np.array([[0.0, 1.0], [-k / m, -c / m]])
+    extra = None
+    if sensor is not None:
+        extra = SensorForce(sensor[0], sensor[1], P, D, fs, hold, delay, grid, N)
 
     x_true = np.empty((B, N))
     vel = np.empty((B, N))
@@ -333,10 +360,71 @@ def run_continuous(m, c, k, fc, P, D, delay, x0a, v0a, hold, fs, N, force, bias=
         cF = force_coeffs(force, hold, grid.h, grid.n_steps)
         out = (x_true, vel, u)
         if delay > 0:
-            run_delayed(m, fc, A0, P, D, x0a, v0a, cF, grid, out, bias)
+            run_delayed(m, fc, A0, P, D, x0a, v0a, cF, grid, out, bias, extra)
         else:
-            _run_ode(m, c, k, fc, P, D, x0a, v0a, cF, grid, out, bias)
+            _run_ode(m, c, k, fc, P, D, x0a, v0a, cF, grid, out, bias, extra)
+    if extra is not None:  # the recorded force: the feedback of what the controller read
+        u += extra.at_samples()
     return x_true, vel, u
+
+
+class SensorForce:
+    """The command the continuous controller adds by reading the sensor's error (noise in the
+    loop): F(t) = −P ε(t − Δt) − D ε′(t − Δt), ε = offset + ẽ, ẽ the recorder's noise draws
+    joined by straight lines (0 before the record's first sample: noise-free there; after its
+    last, the last interval's slope continued). Each step's F is a polynomial in σ (degree 1),
+    exact, when every sample is a grid point (refused otherwise: ValueError)."""
+
+    def __init__(self, e, offset, P, D, fs, hold, delay, grid: _Grid, N: int):
+        self.P, self.D, self.offset, self.fs = P, D, offset, fs
+        B = P.size
+        p_f = 1.0 / (fs * grid.h)
+        self.p = p = max(1, round(p_f))
+        if grid.n_steps > 0 and not (grid.aligned and abs(p_f - p) <= 1e-7):
+            raise ValueError(
+                f"`noise_in_loop` with a continuous loop needs every recorder sample on the "
+                f"simulator's internal grid, which delay = {delay:g} s and hold = {hold:g} s at "
+                f"fs = {fs:g} Hz do not give: give the delay and the hold in whole samples, a "
+                "sampled controller (`sample_time`) or noise_in_loop=False")
+        self.ext = np.zeros((B, N + 2))  # ẽ at samples −1 … N
+        if e is not None:
+            self.ext[:, 1 : N + 1] = e
+            self.ext[:, N + 1] = 2 * e[:, -1] - e[:, -2] if N >= 2 else e[:, -1]
+        q = int(grid.step[0]) if grid.step.size else 0  # steps from the release to sample j0
+        self.k_step0 = grid.j0 * p - q - grid.d  # κ of step 0: (t − Δt)/h
+        self.d = grid.d
+        # the samples: κ = j p − Δt/h (Δt/h = d on the grid; off it, only the held samples)
+        dh = grid.d if grid.n_steps > 0 else delay * fs * p
+        self.k_samples = np.arange(N) * p - dh
+
+    def _coeffs(self, kappa):
+        """(c0, c1), each (B, len(kappa)), of F on the steps whose delayed start is κ·h."""
+        p = self.p
+        jj = np.floor((kappa + 1e-9) / p)
+        theta = (kappa - jj * p) / p
+        i0 = np.maximum(jj + 1, 0).astype(np.int64)  # ẽ at sample jj (0 before sample −1)
+        i1 = np.maximum(jj + 2, 0).astype(np.int64)
+        E0 = self.ext[:, i0]
+        dE = self.ext[:, i1] - E0
+        P, D = self.P[:, None], self.D[:, None]
+        c0 = -P * (self.offset + E0 + dE * theta) - D * (self.fs * dE)
+        c1 = -P * dE / p
+        return c0, c1
+
+    def pair(self, n0: int, L: int):
+        """(c0, c1) (B, L) on steps n0 … n0 + L − 1."""
+        return self._coeffs(self.k_step0 + np.arange(n0, n0 + L, dtype=float))
+
+    def block(self, n0: int, L: int) -> np.ndarray:
+        """Quintic coefficients (B, 6, L) of F on steps n0 … n0 + L − 1."""
+        c0, c1 = self.pair(n0, L)
+        out = np.zeros((c0.shape[0], NQ, L))
+        out[:, 0], out[:, 1] = c0, c1
+        return out
+
+    def at_samples(self) -> np.ndarray:
+        """F at the samples (B, N), the value after a jump."""
+        return self._coeffs(self.k_samples)[0]
 
 
 # --------------------------------------------------------------------------------------------
@@ -432,7 +520,7 @@ def _dense(ctx: _Ctx, Y, ce, loc, th, cb, splits):
     return xs, vs
 
 
-def run_delayed(m, fc, A0, P, D, x0, v0, cF, grid, out, bias=None):
+def run_delayed(m, fc, A0, P, D, x0, v0, cF, grid, out, bias=None, extra=None):
     """Δt > 0: blocks of d steps; each block's delayed input comes from the previous block.
 
     With a bias b (N, per run), the input gains b·sign(ẋ(t − Δt)): on each step of a block, the
@@ -452,8 +540,10 @@ def run_delayed(m, fc, A0, P, D, x0, v0, cF, grid, out, bias=None):
     cFT = np.ascontiguousarray(cF.T) if cF is not None else None  # (6, Ns)
     y = np.stack([x0, v0], axis=1)
     if fr is None:
-        _linear_blocks(ctx, L10T, cFT, y, x0)
+        _linear_blocks(ctx, L10T, cFT, y, x0, extra)
         return
+    if extra is not None:
+        raise ValueError("the sensor in a continuous loop is simulated without friction or bias")
     # friction: the same blocks, each advanced by the stick–slip bookkeeping of Friction
     xs = x0.copy()
     mode = initial_mode(fr, y, -P * x0 + (cF[0, 0] if cF is not None else 0.0))
@@ -542,12 +632,13 @@ def history(B: int, d: int, x0: np.ndarray, k: float) -> np.ndarray:
     return S
 
 
-def _linear_blocks(ctx: _Ctx, L10T, cFT, y, x0) -> None:
+def _linear_blocks(ctx: _Ctx, L10T, cFT, y, x0, extra=None) -> None:
     """The hot loop for Δt > 0 without friction: one fused matmul and one recursion per block.
 
     For the steps of a block, G_b = [L10ᵀ; K L10ᵀ; (Φ − τI) K L10ᵀ] maps the previous block's
     step data S = (y_m, y_{m+1}, c_m) to the delayed-input polynomial c^u, the step forcing
-    w = K c and the Cayley–Hamilton term (Φ − τI) w in one batched product.
+    w = K c and the Cayley–Hamilton term (Φ − τI) w in one batched product. ``extra``
+    (:class:`SensorForce`) adds each run's own force polynomial on the steps of a block.
     """
     grid, eng = ctx.grid, ctx.eng
     B = y.shape[0]
@@ -573,6 +664,12 @@ def _linear_blocks(ctx: _Ctx, L10T, cFT, y, x0) -> None:
             wm = wm + mF[:, sl]
         else:
             c = cu
+        if extra is not None:
+            cx = extra.block(n0, L)
+            wx = np.matmul(K, cx)
+            c = c + cx
+            wk = wk + wx
+            wm = wm + np.matmul(Mch, wx)
         X = ch_input(y, wk[:, :, 0], wk[:, :, 1:], wm[:, :, :-1], Mch)
         progress_step(L)
         Y = recurse(a_ch, X, overwrite_x=True)
@@ -584,7 +681,7 @@ def _linear_blocks(ctx: _Ctx, L10T, cFT, y, x0) -> None:
         y = Y[:, :, -1]
 
 
-def _run_ode(m, c, k, fc, P, D, x0, v0, cF, grid, out, bias=None):
+def _run_ode(m, c, k, fc, P, D, x0, v0, cF, grid, out, bias=None, extra=None):
     """Δt = 0: the gains are part of A; one exact propagator per distinct (P, D).
 
     A bias b·sign(ẋ(t)) acts, undelayed, against the friction: a sliding mass feels
@@ -613,10 +710,17 @@ def _run_ode(m, c, k, fc, P, D, x0, v0, cF, grid, out, bias=None):
                 w = np.zeros((rows.size, 2, Ns))
             else:
                 w = np.broadcast_to((eng.K[gi] @ cFT)[None], (rows.size, 2, Ns))
+            if extra is not None:  # each run's own force: degree 1 in σ
+                c0, c1 = extra.pair(0, Ns)
+                Kg = eng.K[gi]
+                w = w + (Kg[None, :, 0, None] * c0[rows, None, :]
+                         + Kg[None, :, 1, None] * c1[rows, None, :])
             Y[rows] = eng.recur(gi, y[rows], w)
         ce = np.zeros((1, NQ, Ns)) if cFT is None else cFT[None]
         _emit(ctx, 0, grid.step.size, 0, Y, np.broadcast_to(ce, (B, NQ, Ns)), None)
         return
+    if extra is not None:
+        raise ValueError("the sensor in a continuous loop is simulated without friction or bias")
     xs = x0.copy()
     mode = initial_mode(fr, y, np.full(B, cF[0, 0] if cF is not None else 0.0))
     for n0 in range(0, Ns, _FRICTION_BLOCK):

@@ -39,6 +39,27 @@ Python loops over blocks, i.e. ≈ N/(M(d + 1)) iterations.
 A DC-offset bias b adds one more term to the command, uₙ = −P xₙ − D v̂ₙ + b·sign(v̂ₙ), held by
 the zero-order hold; the loop is then nonlinear and takes the block-by-block path of the
 friction, exact like it (commands after each block).
+
+Sensor in the loop
+------------------
+With the noise in the loop (:class:`Reading`, ``noise_in_loop``) the controller reads, at its
+instant n, x̃ₙ = Q(x(nT_s) + offset + eⱼ) (j = nM the recorder sample there, eⱼ that sample's
+noise draw, Q the quantiser of step q, or none): exactly the value the recorder keeps at that
+sample. Before the record (n < 0) it has read the held position without noise,
+x̃ = Q(x₀ + offset) (v̂ = 0, queued commands −P x̃); while the mass is held it reads
+Q(x₀ + offset + eⱼ), and its commands (v̂ no longer 0) queue with the delay.
+
+* **Linear loop** (f_c = 0, no bias, no quantiser). The estimator is linear, so
+  uₙ = −(P xₙ + D v̂(x)ₙ) + rₙ with rₙ = −(P εₙ + D v̂(ε)ₙ), εₙ = offset + eₙ (ε = offset
+  before the record): the loop of the noise-free case driven by the extra, known command r
+  (superposition). r enters the recursion of item 1 like any applied command, through
+  (z − a)N(z) z^{−3} (as the queued commands' own term), and the commands of item 2 carry it:
+  every instant at once, as exact as the noise-free loop, no extra Python loop.
+* **Quantiser, no friction or bias.** Q makes the loop nonlinear: one Python iteration per
+  controller period after the release (≈ duration/T_s, vectorised over the runs), each the
+  exact 2 × 2 map y_{n+1} = Φ y_n + Γ u_{n−d} (+ the force's share); the samples between
+  instants as in item 3.
+* **Friction or bias.** The block-by-block path reads x̃ instead of x (the same blocks).
 """
 
 from __future__ import annotations
@@ -63,12 +84,53 @@ from phoid.simulation._propagation import NQ, RHO_H, Engine, force_coeffs
 from phoid.simulation._recursion import recurse
 from phoid.simulation._stickslip import Friction
 
-__all__ = ["run_sampled"]
+__all__ = ["Reading", "run_sampled"]
+
+
+@dataclass(frozen=True)
+class Reading:
+    """The sensor that the sampled controller reads (noise in the loop).
+
+    x̃ = Q(x + offset + eⱼ), Q rounding to a multiple of ``quantum`` (none when 0).
+
+    Attributes
+    ----------
+    e : ndarray, shape (B, N), or None
+        The noise draw at every recorder sample, m (None: no noise).
+    offset : float
+        Sensor offset, m.
+    quantum : float
+        Quantisation step, m (0: none).
+    """
+
+    e: np.ndarray | None
+    offset: float
+    quantum: float
+
+    @property
+    def linear(self) -> bool:
+        """No quantiser: x̃ is x plus a known signal."""
+        return self.quantum == 0
+
+    def read(self, x: np.ndarray, j: np.ndarray | None) -> np.ndarray:
+        """x̃ of the true positions x (B, k) at recorder samples j (k,); j None: before the
+        record (no noise). The recorded position's formula, operation for operation, so the
+        reading at a controller instant is the recorded value there bit for bit."""
+        z = x + self.offset
+        if self.e is not None and j is not None:
+            z = z + self.e[:, j]
+        if self.quantum > 0:
+            z = np.round(z / self.quantum) * self.quantum
+        return z
 
 
 def run_sampled(m, c, k, fc, P, D, x0, v0, hold, fs, N, force, loop: DigitalPD, bias=None,
-                 signs=None):
-    """The hybrid loop of :mod:`~phoid.dynamics.digital`: exact positions, velocities, commands."""
+                 signs=None, reading: Reading | None = None):
+    """The hybrid loop of :mod:`~phoid.dynamics.digital`: exact positions, velocities, commands.
+
+    Returns x (B, N), ẋ (B, N), the applied force u (B, N), the bias signs (B, n) or None, and,
+    with ``reading``, what the controller read at its instants (B, n) (else None).
+    """
     B = P.size
     T = loop.sample_time
     d = loop.delay_samples
@@ -98,10 +160,25 @@ def run_sampled(m, c, k, fc, P, D, x0, v0, hold, fs, N, force, loop: DigitalPD, 
     n1 = -(-j_rel // Mr)  # first controller instant at or after the release
     r0 = n1 * Mr - j_rel  # recorder intervals from the release to it
     U = np.repeat((-P * x0)[:, None], n_last + 1, axis=1)  # commands u_n (held: −P x₀)
+    S_out = None
     if bias is not None:  # sign(v̂_n) of each command: prescribed, or recorded here
         S_out = np.zeros((B, n_last + 1))
         if signs is not None:
             S_out[:, : min(n_last + 1, signs.shape[1])] = signs[:, : n_last + 1]
+    u_pre = -P * x0  # the commands queued before the record
+    Xr = rfull = held = None
+    if reading is not None:
+        n_hold = min(n1, n_last + 1)  # the instants while the mass is held
+        Xr = np.empty((B, n_last + 1))
+        Xr[:, :n_hold] = reading.read(x0[:, None], np.arange(n_hold) * Mr)
+        if fc == 0 and bias is None and reading.linear:
+            rfull = _perturbation(P, D, loop, reading, Mr, n_last)
+            U[:, :n_hold] += rfull[:, d + 1 : d + 1 + n_hold]
+            u_pre = u_pre + rfull[:, 0]
+        else:
+            held = _held_commands(P, D, loop, reading, x0, Xr[:, :n_hold], U, bias,
+                                  None if bias is None else (S_out, signs is not None))
+            u_pre = -P * held[0]
     if j_rel <= N - 1:
         S = 1
         if force is not None or fc > 0 or bias is not None:
@@ -124,13 +201,64 @@ def run_sampled(m, c, k, fc, P, D, x0, v0, hold, fs, N, force, loop: DigitalPD, 
         out = (x_true, vel, U)
         if fc > 0 or bias is not None:  # the bias makes the loop nonlinear: block by block
             _sampled_friction(m, c, k, fc, P, D, x0, v0, loop, geo, cF, out, bias,
-                              None if bias is None else (S_out, signs is not None))
+                              None if bias is None else (S_out, signs is not None),
+                              None if reading is None else (reading, Xr, held, u_pre))
+        elif reading is not None and not reading.linear:
+            _sampled_stepwise(m, c, k, P, D, x0, v0, loop, geo, cF, out, reading, Xr, held,
+                              u_pre)
         else:
-            _sampled_linear(m, c, k, P, D, x0, v0, loop, geo, cF, out)
+            _sampled_linear(m, c, k, P, D, x0, v0, loop, geo, cF, out, rfull, reading, Xr)
     # the force applied at each sample: the command u_{n−d} of the period holding it
     n_of = np.arange(N) // Mr - d
-    u = np.where(n_of[None, :] >= 0, U[:, np.maximum(n_of, 0)], (-P * x0)[:, None])
-    return x_true, vel, u, (S_out if bias is not None else None)
+    u = np.where(n_of[None, :] >= 0, U[:, np.maximum(n_of, 0)], u_pre[:, None])
+    return x_true, vel, u, S_out, Xr
+
+
+def _perturbation(P, D, loop: DigitalPD, reading: Reading, Mr: int, n_last: int) -> np.ndarray:
+    """The commands' share of the reading's error, rₙ = −(P εₙ + D v̂(ε)ₙ), εₙ = offset + eₙ.
+
+    Returns (B, n_last + d + 2): column n + d + 1 holds rₙ, n = −d − 1 … n_last (ε = offset,
+    v̂(ε) = 0 before the record, so rₙ = −P·offset there).
+    """
+    B = P.size
+    d = loop.delay_samples
+    a, cf = loop.filter_pole, loop.filter_gain
+    eps = np.full((B, n_last + 1), reading.offset)
+    if reading.e is not None:
+        eps = eps + reading.e[:, : n_last * Mr + 1 : Mr]
+    de = np.diff(eps, axis=1, prepend=reading.offset)  # εₙ − εₙ₋₁ (= eₙ − eₙ₋₁, e₋₁ = 0)
+    ve = recurse([1.0, -a], de, b=[cf])
+    r = np.empty((B, n_last + d + 2))
+    r[:, : d + 1] = (-P * reading.offset)[:, None]
+    r[:, d + 1 :] = -(P[:, None] * eps + D[:, None] * ve)
+    return r
+
+
+def _estimate(a: float, cf: float, x_prev, ve_prev, xs) -> np.ndarray:
+    """v̂ at readings xs (B, k) after the reading x_prev and the estimate ve_prev (B,)."""
+    dx = np.diff(np.concatenate([x_prev[:, None], xs], axis=1), axis=1)
+    return recurse([1.0, -a], dx, b=[cf], zi=(a * ve_prev)[:, None])
+
+
+def _held_commands(P, D, loop: DigitalPD, reading: Reading, x0, Xh, U, bias, signs):
+    """The commands of the held instants (readings Xh (B, n)) into U[:, :n].
+
+    The estimator starts from the reading before the record, Q(x₀ + offset), at rest. Returns
+    that reading, and the last held instant's reading and v̂ (the estimator's state at the
+    release; the reading before the record and 0 when no instant is held).
+    """
+    x_pre = reading.read(x0[:, None], None)[:, 0]
+    n = Xh.shape[1]
+    if n == 0:
+        return x_pre, x_pre, np.zeros(P.size)
+    ve = _estimate(loop.filter_pole, loop.filter_gain, x_pre, np.zeros(P.size), Xh)
+    U[:, :n] = -(P[:, None] * Xh + D[:, None] * ve)
+    if bias is not None:
+        S, given = signs
+        if not given:
+            S[:, :n] = np.sign(ve)
+        U[:, :n] += bias[:, None] * S[:, :n]
+    return x_pre, Xh[:, -1].copy(), ve[:, -1].copy()
 
 
 @dataclass(frozen=True)
@@ -151,22 +279,17 @@ class _SampledGeometry:
         return (n * self.Mr - self.j_rel) * self.S
 
 
-def _sampled_linear(m, c, k, P, D, x0, v0, loop, geo: _SampledGeometry, cF, out) -> None:
-    """f_c = 0: every controller instant at once (IIR filter of χ), refined once; then samples."""
-    x_true, vel, U = out
-    B = P.size
-    T, d = loop.sample_time, loop.delay_samples
-    a, cf = loop.filter_pole, loop.filter_gain
-    Mr, S, j_rel, n1, n_last = geo.Mr, geo.S, geo.j_rel, geo.n1, geo.n_last
-    A0 = np.array([[0.0, 1.0], [-k / m, -c / m]])
+def _to_first_instant(A0, m, x0, v0, up, geo: _SampledGeometry, cF, out):
+    """From the release to the first controller instant n1 under the held command ``up``
+    (+ force), in sub-steps; the samples on the way written. Returns the state (B, 2) at n1."""
+    x_true, vel, _ = out
+    S, j_rel = geo.S, geo.j_rel
     y = np.stack([x0, v0], axis=1)
     x_true[:, j_rel] = x0
     vel[:, j_rel] = v0
     if cF is not None or geo.r0 > 0:
         sub = Engine(A0[None], m, geo.h / S, 1)
         Phs, Ks = sub.Phi[0], sub.K[0]
-    # 1. from the release to the first controller instant: the held command −P x₀ (+ force)
-    up = -P * x0
     for kk in range(min(geo.r0 * S, geo.k_total)):
         y = y @ Phs.T + up[:, None] * Ks[:, 0]
         if cF is not None:
@@ -175,27 +298,81 @@ def _sampled_linear(m, c, k, P, D, x0, v0, loop, geo: _SampledGeometry, cF, out)
             j = j_rel + (kk + 1) // S
             x_true[:, j] = y[:, 0]
             vel[:, j] = y[:, 1]
+    return y
+
+
+def _force_shares(A0, m, geo: _SampledGeometry, cF, L: int):
+    """The external force's share of the plant state over each period n1 … n_last − 1 (L, 2),
+    and inside each period at its recorder samples (L + 1, M, 2); (None, None) without one."""
+    if cF is None:
+        return None, None
+    Mr, S = geo.Mr, geo.S
+    sub = Engine(A0[None], m, geo.h / S, 1)
+    Phs, Ks = sub.Phi[0], sub.K[0]
+    MS = Mr * S
+    idx = geo.r0 * S + np.arange((L + 1) * MS)
+    cP = np.zeros((idx.size, NQ))
+    ok = idx < geo.k_total
+    cP[ok] = cF[idx[ok]]
+    cP = cP.reshape(L + 1, MS, NQ)
+    zF = np.zeros((L + 1, 2))
+    part = np.zeros((L + 1, Mr, 2))
+    for sl in range(MS):
+        zF = zF @ Phs.T + cP[:, sl] @ Ks.T
+        if (sl + 1) % S == 0 and (sl + 1) // S < Mr:
+            part[:, (sl + 1) // S] = zF
+    return zF[:L], part
+
+
+def _record(A0, m, geo: _SampledGeometry, Y, uapp, part, out) -> None:
+    """The recorder's samples from instant n1 on: the plant's states at the instants Y
+    (B, 2, L + 1) and, between them, the exact maps Φ(ih), Γ(ih) of the applied command."""
+    x_true, vel, _ = out
+    B = Y.shape[0]
+    Mr = geo.Mr
+    j0 = geo.n1 * Mr
+    cnt = x_true.shape[1] - j0
+    if Mr == 1 and part is None:
+        x_true[:, j0:] = Y[:, 0, :cnt]
+        vel[:, j0:] = Y[:, 1, :cnt]
+        return
+    L = Y.shape[2] - 1
+    X = np.zeros((Mr, 3, 3))
+    X[:, :2, :2] = A0
+    X[:, 1, 2] = 1.0 / m
+    X = X * (np.arange(Mr) * geo.h)[:, None, None]
+    E = expm_stack(X)  # Φ(ih), Γ(ih), i = 0 … M−1 (i = 0: exactly I and 0)
+    ys = np.einsum("irc,bcn->bnir", E[:, :2, :2], Y)
+    ys += E[None, None, :, :2, 2] * uapp[:, :, None, None]
+    if part is not None:
+        ys += part[None]
+    ys = ys.reshape(B, (L + 1) * Mr, 2)
+    x_true[:, j0:] = ys[:, :cnt, 0]
+    vel[:, j0:] = ys[:, :cnt, 1]
+
+
+def _sampled_linear(m, c, k, P, D, x0, v0, loop, geo: _SampledGeometry, cF, out,
+                    rfull=None, reading=None, Xr=None) -> None:
+    """f_c = 0: every controller instant at once (IIR filter of χ), refined once; then samples.
+
+    With the noise in the loop (``rfull`` of :func:`_perturbation`) the commands carry rₙ and
+    the readings at the instants go into ``Xr``."""
+    _, _, U = out
+    B = P.size
+    T, d = loop.sample_time, loop.delay_samples
+    a, cf = loop.filter_pole, loop.filter_gain
+    Mr, n1, n_last = geo.Mr, geo.n1, geo.n_last
+    A0 = np.array([[0.0, 1.0], [-k / m, -c / m]])
+    # 1. from the release to the first controller instant: the held command u_{n1−1−d} (+ force)
+    up = -P * x0 if rfull is None else -P * x0 + rfull[:, n1]
+    y = _to_first_instant(A0, m, x0, v0, up, geo, cF, out)
     if n1 > n_last:
         return
     L = n_last - n1  # periods propagated by the closed loop
     eng = Engine(A0[None], m, T, max(L, 1))
     Phi, Gam = eng.Phi[0], eng.K[0][:, 0]
     # 2. the external force's share of the plant state, per period and inside each period
-    gF = part = None
-    if cF is not None:
-        MS = Mr * S
-        idx = geo.r0 * S + np.arange((L + 1) * MS)
-        cP = np.zeros((idx.size, NQ))
-        ok = idx < geo.k_total
-        cP[ok] = cF[idx[ok]]
-        cP = cP.reshape(L + 1, MS, NQ)
-        zF = np.zeros((L + 1, 2))
-        part = np.zeros((L + 1, Mr, 2))
-        for sl in range(MS):
-            zF = zF @ Phs.T + cP[:, sl] @ Ks.T
-            if (sl + 1) % S == 0 and (sl + 1) // S < Mr:
-                part[:, (sl + 1) // S] = zF
-        gF = zF[:L]
+    gF, part = _force_shares(A0, m, geo, cF, L)
     # 3. x at the controller instants n1 … n_last: X(z) = [Q(z) + force terms]/χ(z)
     zp = ZOHPlant(Phi, Gam, np.zeros(2), float(Phi[0, 0] + Phi[1, 1]),
                   float(Phi[0, 0] * Phi[1, 1] - Phi[0, 1] * Phi[1, 0]), float(Gam[0]),
@@ -207,8 +384,8 @@ def _sampled_linear(m, c, k, P, D, x0, v0, loop, geo: _SampledGeometry, cF, out)
     Qc[:, 0] += xi
     Qc[:, 1] += g1 - a * xi
     Qc[:, 2] += -a * g1
+    c3 = np.array([zp.b1, zp.b0 - a * zp.b1, -a * zp.b0])  # (z − a)N(z)
     if d > 0:
-        c3 = np.array([zp.b1, zp.b0 - a * zp.b1, -a * zp.b0])
         Qc[:, 1 : d + 3] -= (P * x0)[:, None] * np.convolve(c3, np.ones(d))[None, :]
     Qc[:, d + 1] += D * cf * x0 * zp.b1
     Qc[:, d + 2] += D * cf * x0 * zp.b0
@@ -219,6 +396,13 @@ def _sampled_linear(m, c, k, P, D, x0, v0, loop, geo: _SampledGeometry, cF, out)
         b1c = np.array([0.0, 1.0, -(a + Phi[1, 1]), a * Phi[1, 1]])
         b2c = np.array([0.0, 0.0, Phi[0, 1], -a * Phi[0, 1]])
         inp += (np.convolve(gF[:, 0], b1c) + np.convolve(gF[:, 1], b2c))[None, : L + 1]
+    ra = rcl = None
+    if rfull is not None:  # the applied r_{n1+i−d} enters through (z − a)N(z) z^{−3}, as u does
+        ra = rfull[:, n1 + 1 : n1 + L + 2]
+        rcl = rfull[:, n1 + d + 1 : n_last + d + 2]
+        for j in range(3):
+            if L - j > 0:
+                inp[:, 1 + j :] += c3[j] * ra[:, : L - j]
     x = recurse(chi, inp, overwrite_x=True)  # each run with its own χ
 
     def commands(x):
@@ -229,6 +413,9 @@ def _sampled_linear(m, c, k, P, D, x0, v0, loop, geo: _SampledGeometry, cF, out)
         q = recurse([1.0, -a], w, overwrite_x=True) if a != 0.0 else w  # q_n = v̂_n − c_f x_n
         Ucl = -(P + D * cf)[:, None] * x - D[:, None] * q
         uapp = np.repeat((-P * x0)[:, None], L + 1, axis=1)  # held commands first
+        if ra is not None:
+            Ucl += rcl
+            uapp += ra
         if d <= L:
             uapp[:, d:] = Ucl[:, : L + 1 - d]
         return Ucl, uapp
@@ -250,32 +437,68 @@ def _sampled_linear(m, c, k, P, D, x0, v0, loop, geo: _SampledGeometry, cF, out)
     Ucl, uapp = commands(x)
     Y = plant(uapp)
     U[:, n1:] = Ucl
+    if reading is not None:
+        Xr[:, n1:] = reading.read(x, np.arange(n1, n_last + 1) * Mr)
     # 5. the recorder's samples
-    j0 = n1 * Mr
-    cnt = x_true.shape[1] - j0
-    if Mr == 1 and part is None:
-        x_true[:, j0:] = Y[:, 0, :cnt]
-        vel[:, j0:] = Y[:, 1, :cnt]
+    _record(A0, m, geo, Y, uapp, part, out)
+
+
+def _sampled_stepwise(m, c, k, P, D, x0, v0, loop, geo: _SampledGeometry, cF, out,
+                      reading: Reading, Xr, held, u_pre) -> None:
+    """f_c = 0 with a quantiser in the loop: one exact period at a time from the release
+    (y_{n+1} = Φ y_n + Γ u_{n−d} + the force's share), vectorised over the runs; then samples."""
+    _, _, U = out
+    B = P.size
+    T, d = loop.sample_time, loop.delay_samples
+    a, cf = loop.filter_pole, loop.filter_gain
+    Mr, n1, n_last = geo.Mr, geo.n1, geo.n_last
+    A0 = np.array([[0.0, 1.0], [-k / m, -c / m]])
+    _, x_prev, ve = held
+    up = U[:, n1 - 1 - d] if n1 - 1 - d >= 0 else u_pre
+    y = _to_first_instant(A0, m, x0, v0, up, geo, cF, out)
+    if n1 > n_last:
         return
-    X = np.zeros((Mr, 3, 3))
-    X[:, :2, :2] = A0
-    X[:, 1, 2] = 1.0 / m
-    X = X * (np.arange(Mr) * geo.h)[:, None, None]
-    E = expm_stack(X)  # Φ(ih), Γ(ih), i = 0 … M−1
-    ys = np.einsum("irc,bcn->bnir", E[:, :2, :2], Y)
-    ys += E[None, None, :, :2, 2] * uapp[:, :, None, None]
-    if part is not None:
-        ys += part[None]
-    ys = ys.reshape(B, (L + 1) * Mr, 2)
-    x_true[:, j0:] = ys[:, :cnt, 0]
-    vel[:, j0:] = ys[:, :cnt, 1]
+    L = n_last - n1
+    eng = Engine(A0[None], m, T, 1)
+    PhiT, Gam = eng.Phi[0].T.copy(), eng.K[0][:, 0]
+    gF, part = _force_shares(A0, m, geo, cF, L)
+    Y = np.empty((B, 2, L + 1))
+    uapp = np.empty((B, L + 1))
+    # the draws at the instants, period-major (Reading.read's operations, inlined)
+    e_at = None if reading.e is None else np.ascontiguousarray(
+        reading.e[:, n1 * Mr : n_last * Mr + 1 : Mr].T)
+    off, q = reading.offset, reading.quantum
+    progress_step(0, total=L + 1)  # the progress bar's total (a no-op unless shown)
+    for i in range(L + 1):  # one iteration per controller period
+        n = n1 + i
+        Y[:, :, i] = y
+        xr = y[:, 0] + off
+        if e_at is not None:
+            xr = xr + e_at[i]
+        xr = np.round(xr / q) * q
+        ve = a * ve + cf * (xr - x_prev)
+        U[:, n] = -(P * xr + D * ve)
+        Xr[:, n] = xr
+        x_prev = xr
+        ua = U[:, n - d] if n - d >= 0 else u_pre
+        uapp[:, i] = ua
+        if i < L:
+            y = y @ PhiT + ua[:, None] * Gam
+            if gF is not None:
+                y = y + gF[i]
+        if i % 1024 == 1023:
+            progress_step(1024)
+    _record(A0, m, geo, Y, uapp, part, out)
 
 
 def _sampled_friction(m, c, k, fc, P, D, x0, v0, loop, geo: _SampledGeometry, cF, out,
-                      bias=None, signs=None) -> None:
+                      bias=None, signs=None, inloop=None) -> None:
     """f_c > 0 or a bias: stick–slip propagation in blocks of d + 1 periods, commands after
     each block (u_n = −(P x_n + D v̂_n) + b sign(v̂_n)). ``signs`` = (S, prescribed): S (B, n)
-    receives sign(v̂_n), or, when prescribed, gives it (the switching pattern held fixed)."""
+    receives sign(v̂_n), or, when prescribed, gives it (the switching pattern held fixed).
+    ``inloop`` = (reading, Xr, held, u_pre): the commands read x̃ = reading.read(x) (into Xr)
+    from the held instants' state ``held`` (:func:`_held_commands`) on; u_pre the commands
+    queued before the record."""
     x_true, vel, U = out
     B = P.size
     d = loop.delay_samples
@@ -286,15 +509,12 @@ def _sampled_friction(m, c, k, fc, P, D, x0, v0, loop, geo: _SampledGeometry, cF
     fr = Friction(eng, np.zeros(B, dtype=np.int64), fc)
     y = np.stack([x0, v0], axis=1)
     xs = x0.copy()
-    f0 = -P * x0 + (cF[0, 0] if cF is not None else 0.0)
-    mode = np.sign(v0).astype(np.int64)
-    still = np.flatnonzero(mode == 0)
-    if still.size:
-        mode[still] = fr.decide(still, f0[still, None], x0[still], np.zeros(still.size))
-    x_true[:, j_rel] = x0
-    vel[:, j_rel] = v0
     Xc = np.empty((B, n_last + 1))  # x at the controller instants
     state = {"done": n1 - 1, "x": x0.copy(), "ve": np.zeros(B)}
+    u_pre = -P * x0
+    if inloop is not None:
+        reading, Xr, held, u_pre = inloop
+        state.update(x=held[1], ve=held[2])
 
     def commands(upto: int) -> None:
         """u_n for the instants after the last one done, up to ``upto``."""
@@ -302,6 +522,9 @@ def _sampled_friction(m, c, k, fc, P, D, x0, v0, loop, geo: _SampledGeometry, cF
         if upto < lo:
             return
         xseq = Xc[:, lo : upto + 1]
+        if inloop is not None:  # what the controller reads
+            xseq = reading.read(xseq, np.arange(lo, upto + 1) * Mr)
+            Xr[:, lo : upto + 1] = xseq
         dx = np.diff(np.concatenate([state["x"][:, None], xseq], axis=1), axis=1)
         ve = recurse([1.0, -a], dx, b=[cf], zi=(a * state["ve"])[:, None])
         U[:, lo : upto + 1] = -(P[:, None] * xseq + D[:, None] * ve)
@@ -311,6 +534,22 @@ def _sampled_friction(m, c, k, fc, P, D, x0, v0, loop, geo: _SampledGeometry, cF
                 S[:, lo : upto + 1] = np.sign(ve)
             U[:, lo : upto + 1] += bias[:, None] * S[:, lo : upto + 1]
         state.update(done=upto, x=xseq[:, -1].copy(), ve=ve[:, -1].copy())
+
+    if inloop is None:
+        f0 = -P * x0
+    else:  # the command applied at the release (one read there when it is an instant)
+        if geo.k_inst(n1) == 0 and n1 <= n_last:
+            Xc[:, n1] = x0
+            commands(n1)
+        n_app = j_rel // Mr - d
+        f0 = U[:, n_app] if n_app >= 0 else u_pre
+    f0 = f0 + (cF[0, 0] if cF is not None else 0.0)
+    mode = np.sign(v0).astype(np.int64)
+    still = np.flatnonzero(mode == 0)
+    if still.size:
+        mode[still] = fr.decide(still, f0[still, None], x0[still], np.zeros(still.size))
+    x_true[:, j_rel] = x0
+    vel[:, j_rel] = v0
 
     kb = 0
     progress_step(0, total=geo.k_total)  # the progress bar's total (a no-op unless shown)
@@ -322,7 +561,7 @@ def _sampled_friction(m, c, k, fc, P, D, x0, v0, loop, geo: _SampledGeometry, cF
         ke = min(geo.k_total, geo.k_inst(nb + d + 1))
         ks = np.arange(kb, ke)
         n_step = (j_rel + ks // S) // Mr - d  # the command each step applies
-        uapp = np.where(n_step[None, :] >= 0, U[:, np.maximum(n_step, 0)], (-P * x0)[:, None])
+        uapp = np.where(n_step[None, :] >= 0, U[:, np.maximum(n_step, 0)], u_pre[:, None])
         cb = np.zeros((B, ke - kb, NQ))
         if cF is not None:
             cb += cF[None, kb:ke]

@@ -21,6 +21,15 @@ dispatches to the continuous loop (:mod:`phoid.simulation._continuous`: the sche
 DC-offset bias and the sample-rate rule) or to the sampled one
 (:mod:`phoid.simulation._sampled`); Coulomb friction and the bias go through the stick–slip
 bookkeeping of :mod:`phoid.simulation._stickslip` in either.
+
+Where the sensor is
+-------------------
+The recorded position is x̃ = quantise(x + offset + e), e one white draw per sample. With
+``noise_in_loop`` (the default of a sampled loop, as on a rig) the controller reads x̃ too, so
+the sensor's error is a force on the plant: the sampled scheme's "Sensor in the loop"
+(:mod:`phoid.simulation._sampled`) and, for a continuous controller, that of
+:mod:`phoid.simulation._continuous`. Otherwise it reads the exact x and e only enters the
+record.
 """
 
 from __future__ import annotations
@@ -43,7 +52,7 @@ from phoid.simulation._continuous import (
     run_delayed,
 )
 from phoid.simulation._propagation import NQ, Engine
-from phoid.simulation._sampled import run_sampled
+from phoid.simulation._sampled import Reading, run_sampled
 from phoid.simulation.result import Simulation
 
 __all__ = ["release_response", "simulate"]
@@ -71,12 +80,14 @@ def simulate(
     delay_samples: int = 0,
     bias: np.ndarray | float = 0.0,
     bias_signs: np.ndarray | None = None,
+    noise_in_loop: bool | None = None,
 ) -> Simulation:
     """Simulate B runs of the delayed PD loop of eq. (23), with Coulomb friction (eq. 1).
 
     m x'' + c x' + k x + f_c sign(x') = F(t) + u(t), u(t) = −[D x'(t − Δt) + P x(t − Δt)];
     or, with ``sample_time``, the sampled controller of :mod:`~phoid.dynamics.digital`:
-    u(t) = u_{n−d} on [nT_s, (n+1)T_s), u_n = −(P x(nT_s) + D v̂_n).
+    u(t) = u_{n−d} on [nT_s, (n+1)T_s), u_n = −(P x̃_n + D v̂_n), x̃_n the measured position
+    (noise in the loop, the default of a sampled loop) or x(nT_s) (``noise_in_loop=False``).
 
     Parameters
     ----------
@@ -106,13 +117,17 @@ def simulate(
         called once with a 1-D array of times and must return an array of the same shape.
         Ignored while the mass is held.
     noise : float, default 0
-        Standard deviation of white Gaussian sensor noise, m (≥ 0); needs ``rng``.
+        Standard deviation of white Gaussian sensor noise, m (≥ 0); needs ``rng``. One draw
+        per recorder sample, inside or outside the loop (``noise_in_loop``).
     quantum : float, default 0
-        Quantisation step of the measured position, m (≥ 0; 0 means none). Applied last.
+        Quantisation step of the measured position, m (≥ 0; 0 means none). Applied last:
+        x̃ = quantum·round((x + offset + noise)/quantum).
     offset : float, default 0
-        Offset added to the measured position, m.
+        Offset added to the measured position, m. Read by the controller (noise in the loop),
+        a constant offset is a constant command −P·offset: it moves the equilibrium.
     rng : numpy.random.Generator, optional
         Source of the noise (required when ``noise`` > 0; global random state is never used).
+        The draws are ``noise * rng.standard_normal((B, N))`` wherever the noise is.
     sample_time : float, optional
         Controller sample time T_s, s (> 0): simulate the sampled (digital) loop instead of the
         continuous one (``delay`` must then be 0; the command delay is ``delay_samples``).
@@ -132,6 +147,20 @@ def simulate(
         loop; sign(0) = 0, so none while held or stuck) or + b·sign(v̂_{n}) in the sampled
         command u_n. Simulated exactly: see "DC-offset bias" in
         :mod:`phoid.simulation._continuous` and :mod:`phoid.simulation._sampled`.
+    noise_in_loop : bool or None, default None
+        Whether the controller reads the measured position x̃ (offset, noise and quantisation
+        inside the loop, as on a rig) or the exact one (the sensor's error added to the record
+        afterwards). None: True for a sampled controller (``sample_time``), False for the
+        continuous loop. Sampled loop, in the loop: at its instant n the controller reads
+        x̃ₙ = quantise(x(nT_s) + offset + eⱼ), j = nM, exactly the recorded value there (the
+        samples between instants carry their own draws, not read); while the mass is held it
+        reads x₀ + offset + noise (quantised) and its commands queue with the delay; before
+        the record it had read quantise(x₀ + offset). Continuous loop, in the loop: the
+        controller reads x + offset + ẽ(t), ẽ the draws joined by straight lines (its slope
+        feeds D; 0 before the record's first sample); it needs every sample on the internal
+        grid (delay and hold whole samples, or small-denominator ratios of them) and refuses
+        friction, a bias and a quantiser. Outside the loop, results are those of phoid before
+        the option (the same draws, bit for bit).
     bias_signs : array_like, shape (B, n), optional
         Sampled controller with a bias only: prescribe sign(v̂_n) (−1, 0, 1) for the commands
         n = 0 … n − 1 instead of taking it from v̂_n (later ones 0), e.g. a previous
@@ -142,7 +171,8 @@ def simulate(
     Returns
     -------
     Simulation
-        Times, measured and exact positions, velocities and feedback forces of the B runs.
+        Times, measured and exact positions, velocities and applied feedback forces of the B
+        runs, and where the noise was (``noise_in_loop``).
 
     Raises
     ------
@@ -150,7 +180,8 @@ def simulate(
         For a non-finite, negative or inconsistent input (the message names the parameter and
         its value), a sample rate too low for the closed-loop dynamics (``fs``), or, for a
         sampled controller, an ``fs`` that is not a whole multiple of 1/T_s or a ``hold`` that
-        is not a whole number of recorder intervals.
+        is not a whole number of recorder intervals; with the noise in a continuous loop,
+        friction, a bias, a quantiser or samples off the internal grid.
     phoid.errors.PhoidError
         (a ValueError) Before anything is allocated, when the simulation would exceed its size
         limits: B × (``hold`` + ``duration``) × ``fs`` above :data:`MAX_SAMPLES` (5e7 samples,
@@ -198,6 +229,22 @@ def simulate(
     N = round(n_samples)
     if N < 1:
         raise ValueError(f"`duration` × `fs` must give at least one sample; got {duration:g} s")
+    if noise_in_loop is not None and not isinstance(noise_in_loop, (bool, np.bool_)):
+        raise ValueError("`noise_in_loop` must be True, False or None (the loop's default); "
+                         f"got {noise_in_loop!r}")
+    in_loop = (sample_time is not None) if noise_in_loop is None else bool(noise_in_loop)
+    # the sensor's error reaches the plant only when the controller reads it
+    sensed = in_loop and (noise > 0 or quantum > 0 or offset != 0)
+    if sensed and sample_time is None:
+        what = ("Coulomb friction (fc > 0)" if fc > 0 else "a bias" if biased is not None
+                else "a quantiser (quantum > 0)" if quantum > 0 else None)
+        if what is not None:
+            raise ValueError(
+                f"`noise_in_loop`: {what} with the sensor in a continuous loop is not simulated; "
+                "give a sampled controller (`sample_time`) or noise_in_loop=False")
+    e = None
+    if sensed and noise > 0:  # the draws the recorder keeps, and the controller reads
+        e = noise * rng.standard_normal((B, N))
 
     signs = None
     if bias_signs is not None and sample_time is None:
@@ -219,8 +266,9 @@ def simulate(
                 raise ValueError("`bias_signs` must be an array (B, n) of −1, 0, 1; got shape "
                                  f"{bias_signs.shape}")
         with task(_LONG_TEXT.format(B), show=B * N >= _LONG_SAMPLES):
-            x_true, vel, u, signs = run_sampled(m, c, k, fc, P, D, x0a, v0a, hold, fs, N,
-                                                 force, loop, biased, bias_signs)
+            x_true, vel, u, signs, read = run_sampled(
+                m, c, k, fc, P, D, x0a, v0a, hold, fs, N, force, loop, biased, bias_signs,
+                Reading(e, offset, quantum) if sensed else None)
     else:
         if delay > duration:  # (and its grid would hold delay/h steps of history)
             raise ValueError(
@@ -234,9 +282,10 @@ def simulate(
             )
         with task(_LONG_TEXT.format(B), show=B * N >= _LONG_SAMPLES):
             x_true, vel, u = run_continuous(
-                m, c, k, fc, P, D, delay, x0a, v0a, hold, fs, N, force, biased
+                m, c, k, fc, P, D, delay, x0a, v0a, hold, fs, N, force, biased,
+                (e, offset) if sensed else None
             )
-        loop = None
+        loop = read = None
 
     if not (_finite(x_true) and _finite(vel) and _finite(u)):
         raise PhoidError(
@@ -245,9 +294,12 @@ def simulate(
     with np.errstate(all="ignore"):
         x = x_true + offset
         if noise > 0:
-            x = x + noise * rng.standard_normal((B, N))
+            x = x + (noise * rng.standard_normal((B, N)) if e is None else e)
         if quantum > 0:
             x = np.round(x / quantum) * quantum
+        if read is not None:  # at its instants, what the controller read (the same draws)
+            Mr = round(fs * loop.sample_time)
+            x[:, : (read.shape[1] - 1) * Mr + 1 : Mr] = read
     if not _finite(x):
         raise PhoidError(
             f"the measured position overflows the floating-point range: check `offset` "
@@ -270,6 +322,7 @@ def simulate(
         cutoff=None if loop is None else loop.cutoff,
         bias=arr["bias"].copy(),
         bias_signs=signs,
+        noise_in_loop=in_loop,
     )
 
 

@@ -20,9 +20,11 @@ class Simulation:
     t : ndarray, shape (N,)
         Sample times t_j = j/f_s, s.
     x : ndarray, shape (B, N)
-        Measured position, m: ``x_true + offset + noise``, then quantised.
+        Measured (recorded) position, m: ``x_true + offset + noise``, then quantised. With the
+        noise in a sampled loop, its values at the controller's instants are what the
+        controller read (the same draws).
     x_true : ndarray, shape (B, N)
-        Exact position, m.
+        Exact position, m (the plant's true motion).
     v : ndarray, shape (B, N)
         Exact velocity, m/s.
     u : ndarray, shape (B, N)
@@ -55,6 +57,10 @@ class Simulation:
     bias_signs : ndarray, shape (B, n) or None
         Sampled controller with a bias: sign(v̂_n) used in each command u_n (n = 0 … the last
         controller instant of the record); None otherwise.
+    noise_in_loop : bool
+        True when the controller read the measured position (its offset, noise and
+        quantisation inside the loop; ``u`` is then the force from those readings), False
+        when it read the exact one (the sensor's error only in ``x``).
     """
 
     t: np.ndarray
@@ -73,6 +79,7 @@ class Simulation:
     cutoff: float | None = None
     bias: np.ndarray | None = None
     bias_signs: np.ndarray | None = None
+    noise_in_loop: bool = False
 
     def digital_loop(self, i: int) -> DigitalPD:
         """Run i's sampled controller as a :class:`phoid.dynamics.digital.DigitalPD`.
