@@ -16,6 +16,7 @@ from scipy.integrate import solve_ivp
 from scipy.linalg import expm
 
 from phoid import Plant
+from phoid.errors import PhoidError
 from phoid.simulation import simulate
 
 M_, C_, K_ = 1.0, 2.0, 100.0
@@ -310,3 +311,12 @@ def test_noise_in_loop_must_be_bool_or_none(bad):
     with pytest.raises(ValueError, match="noise_in_loop"):
         simulate(Plant(M_, C_, K_), P2, D2, duration=0.5, fs=1 / TS, sample_time=TS,
                  noise_in_loop=bad)
+
+
+def test_a_motion_the_reading_overflows_is_refused_in_one_line():
+    # an offset of 1e300 m read through P = 1e10 N/m drives the motion past the float range:
+    # the one-line refusal names the sensor's parameters (no RuntimeWarning on the way)
+    with pytest.raises(PhoidError, match="offset") as info:
+        simulate(Plant(M_, C_, K_), 1e10, 0.5, duration=0.5, fs=1 / TS, sample_time=TS,
+                 offset=1e300)
+    assert "\n" not in str(info.value)

@@ -265,7 +265,8 @@ def simulate(
                     or not np.all(np.isin(bias_signs, (-1.0, 0.0, 1.0))):
                 raise ValueError("`bias_signs` must be an array (B, n) of −1, 0, 1; got shape "
                                  f"{bias_signs.shape}")
-        with task(_LONG_TEXT.format(B), show=B * N >= _LONG_SAMPLES):
+        # a motion that overflows becomes inf/nan, refused below in one line (not a warning)
+        with task(_LONG_TEXT.format(B), show=B * N >= _LONG_SAMPLES), np.errstate(all="ignore"):
             x_true, vel, u, signs, read = run_sampled(
                 m, c, k, fc, P, D, x0a, v0a, hold, fs, N, force, loop, biased, bias_signs,
                 Reading(e, offset, quantum) if sensed else None)
@@ -280,7 +281,7 @@ def simulate(
             raise ValueError(
                 f"`{name}` applies only to a sampled controller: give `sample_time` as well"
             )
-        with task(_LONG_TEXT.format(B), show=B * N >= _LONG_SAMPLES):
+        with task(_LONG_TEXT.format(B), show=B * N >= _LONG_SAMPLES), np.errstate(all="ignore"):
             x_true, vel, u = run_continuous(
                 m, c, k, fc, P, D, delay, x0a, v0a, hold, fs, N, force, biased,
                 (e, offset) if sensed else None
@@ -290,7 +291,9 @@ def simulate(
     if not (_finite(x_true) and _finite(vel) and _finite(u)):
         raise PhoidError(
             "the simulated motion overflows the floating-point range: check the plant's m, c, "
-            "k, the gains P, D, the release state x0, v0 and the force")
+            "k, the gains P, D, the release state x0, v0 and the force"
+            + (" (and `offset`, `noise`, `quantum`: the controller reads them, "
+               "`noise_in_loop`)" if sensed else ""))
     with np.errstate(all="ignore"):
         x = x_true + offset
         if noise > 0:
