@@ -174,7 +174,7 @@ LAYERS: dict[str, set[str]] = {
     "phoid.dynamics": BASE,
     "phoid.simulation": BASE | {"phoid.dynamics"},
     "phoid.fits": BASE | {"phoid.dynamics"},
-    "phoid.io": BASE,
+    "phoid.io": BASE | {"phoid.dynamics"},
     "phoid.reports": BASE | {"phoid.dynamics"},
     "phoid.methods": BASE | {"phoid.fits", "phoid.dynamics", "phoid.simulation", "phoid.io",
                              "phoid.reports", "phoid.interop"},

@@ -12,6 +12,10 @@ rightmost
     Its rightmost roots, certified; many runs by continuation; dominant roots.
 loop
     The delayed PD loop (eq. 23): gains, roots, α₁, α₂ and the forward and inverse maps.
+zoh
+    The plant's zero-order-hold discretisation over one controller period.
+velocity
+    The velocity estimators of a sampled controller (the one list of presets, and FIR).
 digital
     The sampled (digital) PD loop: exact characteristic polynomial, roots and modes.
 controller
@@ -20,7 +24,6 @@ controller
 """
 
 from phoid.dynamics.controller import (
-    VELOCITY_PRESETS,
     SampledController,
     closed_loop_poles,
     zoh_pieces,
@@ -30,7 +33,6 @@ from phoid.dynamics.digital import (
     VELOCITY_ESTIMATORS,
     DigitalPD,
     DigitalRoots,
-    ZOHPlant,
     characteristic_coefficients,
     digital_characteristic,
     digital_coefficients,
@@ -39,8 +41,6 @@ from phoid.dynamics.digital import (
     digital_modes,
     digital_residues,
     digital_roots,
-    expm_stack,
-    zoh_plant,
 )
 from phoid.dynamics.loop import (
     DelayedPD,
@@ -59,8 +59,16 @@ from phoid.dynamics.plant import (
 )
 from phoid.dynamics.quasipolynomial import characteristic
 from phoid.dynamics.rightmost import dominant_roots, rightmost_roots, rightmost_roots_many
+from phoid.dynamics.velocity import (
+    FIRST_ORDER_PRESETS,
+    VELOCITY_PRESETS,
+    VelocityFilter,
+    estimator_taps,
+)
+from phoid.dynamics.zoh import ZOHPlant, expm_stack, zoh_plant
 
 __all__ = [
+    "FIRST_ORDER_PRESETS",
     "VELOCITY_ESTIMATORS",
     "VELOCITY_PRESETS",
     "DelayedPD",
@@ -69,6 +77,7 @@ __all__ = [
     "LoopModes",
     "Plant",
     "SampledController",
+    "VelocityFilter",
     "ZOHPlant",
     "alphas",
     "characteristic",
@@ -85,6 +94,7 @@ __all__ = [
     "digital_residues",
     "digital_roots",
     "dominant_roots",
+    "estimator_taps",
     "expm_stack",
     "forward_map",
     "free_response",

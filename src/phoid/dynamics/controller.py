@@ -7,10 +7,10 @@ the controller
 
 1. samples the position, x_n = x(t_n);
 2. estimates the velocity with a linear filter (b, a),
-   a₀ v̂_n = Σ_j b_j x_{n−j} − Σ_{i≥1} a_i v̂_{n−i}
-   (presets: ``"backward-difference"`` (x_n − x_{n−1})/T, ``"central-difference"``
-   (x_n − x_{n−2})/(2T), ``"filtered"`` = DigitalPD's first-order low pass of the backward
-   difference; or any FIR coefficients b_j in 1/s);
+   a₀ v̂_n = Σ_j b_j x_{n−j} − Σ_{i≥1} a_i v̂_{n−i}, one of phoid's estimators
+   (:mod:`phoid.dynamics.velocity`, the one definition: ``"backward-difference"``
+   (x_n − x_{n−1})/T, ``"central-difference"`` (x_n − x_{n−2})/(2T), ``"filtered"``, the
+   first-order low pass of the backward difference; or any FIR coefficients b_j in 1/s);
 3. computes the command u_n = K·(P·(r_n − x_n) − D·v̂_n) in its own units (volts, say), r the
    reference;
 4. saturates it to ±u_max and adds a sampled command input w_n (test pulses), and an amplifier
@@ -43,15 +43,16 @@ powers), have the closed-loop poles as roots (:func:`closed_loop_poles`).
 from __future__ import annotations
 
 import math
-import numbers
 import sys
 from collections.abc import Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from phoid import _validate as v
-from phoid.dynamics.digital import DigitalPD, expm_stack
+from phoid.dynamics.digital import DigitalPD
+from phoid.dynamics.velocity import VELOCITY_PRESETS, VelocityFilter
+from phoid.dynamics.zoh import expm_stack
 
 __all__ = [
     "VELOCITY_PRESETS",
@@ -60,19 +61,12 @@ __all__ = [
     "zoh_pieces",
 ]
 
-VELOCITY_PRESETS = ("backward-difference", "central-difference", "filtered")
-
 # the smallest scale whose square is a normal float (≈ 1.5e-154): the loop's statistics square
 # forces, periods and filter gains, and below it they underflow to zero (a zero norm, a zero
 # covariance) — a period, command gain or saturation that small is refused, not computed
 _SMALLEST = math.sqrt(sys.float_info.min)
 # the largest period whose square is finite (≈ 1.3e154 s): the plant's ZOH map holds T²/m
 _LARGEST = 1.0 / _SMALLEST
-# the largest error of the "filtered" estimator's DC gain, cf·T/(1 − e^{−ω_c T}), accepted: the
-# pole e^{−ω_c T} is rounded to a float, and for ω_c·T below ≈ 1e-10 the rounding alone makes a
-# constant velocity read wrong by more than this (at ω_c·T < 1.1e-16 the pole is 1 exactly and
-# the estimator is a pure integrator with no DC gain at all)
-_FILTER_DC_RTOL = 1e-6
 
 
 @dataclass(frozen=True)
@@ -92,8 +86,9 @@ class SampledController:
     command_gain : float, default 1
         G, N per command unit (amplifier and motor: volts to newtons); > 0.
     velocity : str or sequence of float, default "backward-difference"
-        ``"backward-difference"``, ``"central-difference"``, ``"filtered"`` (needs ``cutoff``),
-        or FIR coefficients b₀, b₁, … in 1/s, v̂_n = Σ_j b_j x_{n−j}.
+        A name of :data:`VELOCITY_PRESETS`: ``"backward-difference"``, ``"central-difference"``,
+        ``"filtered"`` (needs ``cutoff``), or FIR coefficients b₀, b₁, … in 1/s,
+        v̂_n = Σ_j b_j x_{n−j} (kept as a tuple; :class:`phoid.dynamics.velocity.VelocityFilter`).
     cutoff : float, optional
         ω_c of the ``"filtered"`` estimator, rad/s (> 0); refused otherwise.
     delay : float, default 0
@@ -108,7 +103,12 @@ class SampledController:
         negative delay, an unknown estimator, coefficients that are not finite numbers, or a
         missing or superfluous cut-off; a period, command gain or saturation whose square is
         not a normal float (below ≈ 1.5e-154; a period above ≈ 1.3e154 s), and a cut-off so
-        low for the period that the rounded filter pole e^(−ω_c T) misstates its DC gain.
+        low for the period that the rounded filter pole e^(−ω_c T) misstates the filter.
+
+    Attributes
+    ----------
+    estimator : phoid.dynamics.velocity.VelocityFilter
+        The velocity estimator with its coefficients (b, a) at this period.
     """
 
     sample_time: float
@@ -120,6 +120,7 @@ class SampledController:
     cutoff: float | None = None
     delay: float = 0.0
     saturation: float | None = None
+    estimator: VelocityFilter = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__
@@ -132,25 +133,10 @@ class SampledController:
         set_(self, "delay", v.nonnegative("delay", self.delay, "s"))
         if self.saturation is not None:
             set_(self, "saturation", _scale("saturation", self.saturation, "command units"))
-        set_(self, "velocity", _velocity(self.velocity))
-        if self.velocity == "filtered":
-            if self.cutoff is None:
-                raise ValueError("`cutoff` (rad/s) is required with velocity='filtered'; got None")
-            set_(self, "cutoff", v.positive("cutoff", self.cutoff, "rad/s"))
-            wT = self.cutoff * self.sample_time
-            exact = -math.expm1(-wT)  # 1 − e^{−ω_c T}, to rounding
-            if not abs((1.0 - math.exp(-wT)) - exact) <= _FILTER_DC_RTOL * exact:
-                raise ValueError(
-                    f"`cutoff` ω_c = {self.cutoff:g} rad/s is too low for the period "
-                    f"T = {self.sample_time:g} s: ω_c·T = {wT:.3g}, and the filter's pole "
-                    f"e^(-ω_c·T) rounds so close to 1 that its DC gain is off by more than "
-                    f"{_FILTER_DC_RTOL:g} (give ω_c in rad/s, not Hz·T or similar)"
-                )
-        elif self.cutoff is not None:
-            raise ValueError(
-                "`cutoff` applies only to velocity='filtered'; got cutoff="
-                f"{self.cutoff!r} with velocity={self.velocity!r}"
-            )
+        est = VelocityFilter(self.velocity, self.sample_time, self.cutoff)
+        set_(self, "velocity", est.velocity)
+        set_(self, "cutoff", est.cutoff)
+        set_(self, "estimator", est)
 
     @classmethod
     def from_digital(cls, loop: DigitalPD) -> SampledController:
@@ -159,22 +145,14 @@ class SampledController:
                    cutoff=loop.cutoff, delay=loop.delay)
 
     def velocity_filter(self) -> tuple[np.ndarray, np.ndarray]:
-        """The estimator as a linear filter (b in 1/s, a dimensionless), v̂ = lfilter(b, a, x)."""
-        T = self.sample_time
-        if self.velocity == "backward-difference":
-            return np.array([1.0, -1.0]) / T, np.array([1.0])
-        if self.velocity == "central-difference":
-            return np.array([1.0, 0.0, -1.0]) / (2.0 * T), np.array([1.0])
-        if self.velocity == "filtered":
-            a = math.exp(-self.cutoff * T)
-            cf = -math.expm1(-self.cutoff * T) / T
-            return np.array([cf, -cf]), np.array([1.0, -a])
-        return np.asarray(self.velocity, dtype=float), np.array([1.0])
+        """The estimator as a linear filter (b in 1/s, a dimensionless), v̂ = lfilter(b, a, x)
+        (:meth:`phoid.dynamics.velocity.VelocityFilter.coefficients`)."""
+        return self.estimator.coefficients()
 
     @property
     def taps(self) -> int:
         """Past samples the velocity estimate reads, len(b) − 1 (the record needs taps + 1)."""
-        return len(self.velocity_filter()[0]) - 1
+        return self.estimator.taps
 
     @property
     def delay_split(self) -> tuple[int, float]:
@@ -202,37 +180,6 @@ def _scale(name: str, value, unit: str, largest: float = math.inf) -> float:
             "square is still a normal floating-point number (the loop's statistics square it)"
         )
     return x
-
-
-def _velocity(value) -> str | tuple[float, ...]:
-    if isinstance(value, str):
-        if value not in VELOCITY_PRESETS:
-            raise ValueError(
-                f"`velocity` must be one of {', '.join(map(repr, VELOCITY_PRESETS))} or a sequence "
-                f"of FIR coefficients (1/s); got {value!r}"
-            )
-        return value
-    if isinstance(value, Sequence | np.ndarray) and not isinstance(value, bytes):
-        coeffs = []
-        for i, c in enumerate(value):
-            if isinstance(c, bool) or not isinstance(c, numbers.Real) or not math.isfinite(c):
-                raise ValueError(
-                    f"`velocity` coefficient {i} must be a finite number (1/s); got {c!r}"
-                )
-            coeffs.append(float(c))
-        if len(coeffs) < 2:
-            raise ValueError(
-                f"`velocity` needs at least 2 FIR coefficients (1/s); got {len(coeffs)}"
-            )
-        if abs(sum(coeffs)) > 1e-9 * sum(abs(c) for c in coeffs):
-            raise ValueError(
-                "`velocity` FIR coefficients must sum to 0 (a constant position has zero "
-                f"velocity); they sum to {sum(coeffs):.6g} 1/s"
-            )
-        return tuple(coeffs)
-    raise ValueError(
-        f"`velocity` must be a preset name or a sequence of FIR coefficients; got {value!r}"
-    )
 
 
 def zoh_pieces(m: float, c: float, k: float, hs: Sequence[float]) -> tuple[np.ndarray, np.ndarray]:

@@ -11,12 +11,16 @@ simulator) runs in continuous time. With sample time T_s (controller clock t_n =
 controller
 
 1. samples the position, x_n = x(nT_s);
-2. estimates the velocity, either by the **backward difference**
-   v̂_n = (x_n − x_{n−1})/T_s, or by the **filtered** backward difference
-   v̂_n = a v̂_{n−1} + (1 − a)(x_n − x_{n−1})/T_s with a = e^{−ω_c T_s}: a first-order low pass
-   of cut-off ω_c (rad/s) whose pole is mapped exactly (z = e^{−ω_c T_s}) and whose DC gain is 1.
-   The backward difference is its ω_c → ∞ limit, a = 0; both are written with
-   c_f = (1 − a)/T_s, v̂_n = a v̂_{n−1} + c_f (x_n − x_{n−1});
+2. estimates the velocity with one of phoid's estimators (:mod:`phoid.dynamics.velocity`, the
+   one definition), a linear filter Σ_i a_i v̂_{n−i} = Σ_j b_j x_{n−j}: the **backward
+   difference** v̂_n = (x_n − x_{n−1})/T_s, the **central difference**
+   v̂_n = (x_n − x_{n−2})/(2T_s), the **filtered** backward difference
+   v̂_n = a v̂_{n−1} + (1 − a)(x_n − x_{n−1})/T_s with a = e^{−ω_c T_s} (a first-order low pass
+   of cut-off ω_c, rad/s, whose pole is mapped exactly and whose DC gain is 1), or any FIR
+   filter v̂_n = Σ_j b_j x_{n−j}. With r the filter's order, its polynomials in z are
+   A(z) = z^r Σ_i a_i z^{−i} (monic) and B(z) = z^r Σ_j b_j z^{−j}; for the first-order
+   estimators (backward difference: a = 0) A(z) = z − a and B(z) = c_f (z − 1),
+   c_f = (1 − a)/T_s;
 3. computes u_n = −(P x_n + D v̂_n) (eq. 23's PD law on the sampled signals);
 4. applies it through a zero-order hold, d whole samples late:
    u(t) = u_{n−d} for nT_s ≤ t < (n+1)T_s.
@@ -33,11 +37,13 @@ so the plant's pulse transfer function is G(z) = [1 0](zI − Φ)^{−1}Γ = N(z
     Δ(z) = z² − τ z + δ,  τ = tr Φ,  δ = det Φ = e^{−cT_s/m};
     N(z) = b₁ z + b₀,     b₁ = Γ₁,   b₀ = Φ₁₂Γ₂ − Φ₂₂Γ₁.
 
-The controller is K(z) = P + D c_f (z − 1)/(z − a), the delay z^{−d}; the closed loop
-1 + z^{−d} K(z) G(z) = 0 is the polynomial equation of degree d + 3 (monic)
+The controller is K(z) = P + D B(z)/A(z), the delay z^{−d}; the closed loop
+1 + z^{−d} K(z) G(z) = 0 is the polynomial equation of degree d + r + 2 (monic)
 
-    χ(z) = z^d (z − a) Δ(z) + [P (z − a) + D c_f (z − 1)] N(z) = 0.
+    χ(z) = z^d A(z) Δ(z) + [P A(z) + D B(z)] N(z) = 0,
 
+for the first-order estimators (degree d + 3)
+χ(z) = z^d (z − a) Δ(z) + [P (z − a) + D c_f (z − 1)] N(z).
 It is exact: no approximation of the delay, the hold or the difference quotient. Each root z_j
 is a mode z_j^n of the loop at the sample instants; its continuous-time rate is
 s_j = ln(z_j)/T_s (principal branch, |Im s_j| ≤ π/T_s), s_j = −σ_j + iω_{d,j} as in the paper's
@@ -46,17 +52,21 @@ eqs. (2)–(15). The loop is stable when every |z_j| < 1.
 The response at the sample instants
 -----------------------------------
 Released at a controller instant from a held position x₀ (the controller running meanwhile, so
-x_{−1} = x₀, v̂_{−1} = 0 and the queued commands are −P x₀) with velocity v₀, the z-transform of
-x_n is X(z) = Q(z)/χ(z) with
+x_{−1} = x_{−2} = … = x₀, v̂_{−1} = v̂_{−2} = … = 0 and the queued commands are −P x₀) with
+velocity v₀, the one-sided transforms obey A(z)V̂(z) = B(z)X(z) + x₀E(z) with
+E(z) = Σ_{k=0}^{r−1} (Σ_{j>k} b_j) z^{r−k}
+(:meth:`phoid.dynamics.velocity.VelocityFilter.polynomials`; E = −c_f z for the first-order
+estimators), and the z-transform of x_n is X(z) = Q(z)/χ(z) with
 
-    Q(z) = z^{d+1}(z − a)[(z − Φ₂₂) x₀ + Φ₁₂ v₀] − P x₀ (z − a) N(z) Σ_{j=1}^{d} z^j
-           + D c_f x₀ z N(z),
+    Q(z) = z^{d+1} A(z) [(z − Φ₂₂) x₀ + Φ₁₂ v₀] − P x₀ A(z) N(z) Σ_{j=1}^{d} z^j
+           − D x₀ E(z) N(z),
 
-so, for simple roots, x_n = Σ_j a_j z_j^n exactly for every n ≥ 0 (n ≥ 1 when χ(0) = 0,
-e.g. D = 0 with the backward difference), a_j = Q(z_j)/(z_j χ′(z_j))
-(:func:`digital_residues`). A decay fit of a record taken at the controller's instants therefore
-measures s_j = ln(z_j)/T_s exactly: the sampled loop *is* a sum of damped sinusoids there, with
-the rates of this module, not an approximation of a continuous loop.
+so, for simple roots, x_n = Σ_j a_j z_j^n exactly for every n ≥ n₀, n₀ the multiplicity of the
+root z = 0 (0 when χ(0) ≠ 0; e.g. 1 for D = 0 with the backward difference), a_j =
+Q(z_j)/(z_j χ′(z_j)) (:func:`digital_residues`). A decay fit of a record taken at the
+controller's instants therefore measures s_j = ln(z_j)/T_s exactly: the sampled loop *is* a sum
+of damped sinusoids there, with the rates of this module, not an approximation of a continuous
+loop.
 
 A recorder faster than the controller (f_s = M/T_s) also sees the plant between the controller's
 instants, where it moves under a constant command: x(nT_s + θ) = Σ_j a_j(θ) z_j^n, 0 ≤ θ < T_s.
@@ -79,12 +89,13 @@ from __future__ import annotations
 
 import math
 import numbers
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from phoid import _validate as v
-from phoid.dynamics.plant import quadratic_roots
+from phoid.dynamics.velocity import VELOCITY_PRESETS, VelocityFilter
+from phoid.dynamics.zoh import ZOHPlant, expm_stack, zoh_plant
 
 __all__ = [
     "VELOCITY_ESTIMATORS",
@@ -101,10 +112,13 @@ __all__ = [
     "digital_roots",
     "expm_stack",
     "record_problem",
+    "timing_problem",
     "zoh_plant",
 ]
 
-VELOCITY_ESTIMATORS = ("backward-difference", "filtered")
+VELOCITY_ESTIMATORS = VELOCITY_PRESETS
+"""The velocity estimators :class:`DigitalPD` models by name: the one list,
+:data:`phoid.dynamics.velocity.VELOCITY_PRESETS` itself (and FIR coefficients)."""
 
 
 # --------------------------------------------------------------------------------------------
@@ -133,7 +147,7 @@ class DigitalPD:
     """A sampled PD controller with zero-order hold and a whole-sample delay.
 
     u_n = −(P x_n + D v̂_n) from x_n = x(nT_s), applied as u(t) = u_{n−d} on [nT_s, (n+1)T_s)
-    (the module docstring gives the velocity estimators and the exact loop).
+    (the module docstring gives the exact loop; :mod:`phoid.dynamics.velocity` the estimators).
 
     Parameters
     ----------
@@ -145,62 +159,68 @@ class DigitalPD:
         Controller sample time T_s, s (> 0).
     delay_samples : int, default 0
         Command delay d in whole samples (≥ 0); d = 0 applies u_n from t_n on.
-    velocity : {"backward-difference", "filtered"}
-        Velocity estimator: v̂_n = (x_n − x_{n−1})/T_s, or that difference low-pass filtered,
-        v̂_n = a v̂_{n−1} + (1 − a)(x_n − x_{n−1})/T_s with a = e^{−ω_c T_s}.
+    velocity : str or sequence of float, default "backward-difference"
+        The velocity estimator: a name of :data:`VELOCITY_ESTIMATORS` (``"backward-difference"``
+        v̂_n = (x_n − x_{n−1})/T_s, ``"central-difference"`` (x_n − x_{n−2})/(2T_s),
+        ``"filtered"`` v̂_n = a v̂_{n−1} + (1 − a)(x_n − x_{n−1})/T_s with a = e^{−ω_c T_s}),
+        or FIR coefficients b₀, b₁, … (1/s) of v̂_n = Σ_j b_j x_{n−j} (kept as a tuple).
     cutoff : float, optional
         The filter's cut-off ω_c, rad/s (> 0); required with ``velocity="filtered"`` and
         refused otherwise.
+
+    Attributes
+    ----------
+    estimator : phoid.dynamics.velocity.VelocityFilter
+        The velocity estimator with its coefficients (b, a) at this sample time.
 
     Raises
     ------
     ValueError
         Naming the parameter, for a non-finite gain, a non-positive sample time, a delay that is
-        not a whole number ≥ 0, an unknown estimator or a missing/superfluous cut-off.
+        not a whole number ≥ 0, an unknown estimator, FIR coefficients that are no velocity
+        estimator, or a missing, superfluous or (for the period) too low cut-off.
     """
 
     P: float
     D: float
     sample_time: float
     delay_samples: int = 0
-    velocity: str = "backward-difference"
+    velocity: str | tuple[float, ...] = "backward-difference"
     cutoff: float | None = None
+    estimator: VelocityFilter = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "P", v.finite("P", self.P, "N/m"))
         object.__setattr__(self, "D", v.finite("D", self.D, "N·s/m"))
         object.__setattr__(self, "sample_time", v.positive("sample_time", self.sample_time, "s"))
         object.__setattr__(self, "delay_samples", _delay_samples(self.delay_samples))
-        if self.velocity not in VELOCITY_ESTIMATORS:
-            raise ValueError(
-                f"`velocity` must be one of {', '.join(map(repr, VELOCITY_ESTIMATORS))}; "
-                f"got {self.velocity!r}"
-            )
-        if self.velocity == "filtered":
-            if self.cutoff is None:
-                raise ValueError(
-                    "`cutoff` (rad/s) is required with velocity='filtered'; got None"
-                )
-            object.__setattr__(self, "cutoff", v.positive("cutoff", self.cutoff, "rad/s"))
-        elif self.cutoff is not None:
-            raise ValueError(
-                "`cutoff` applies only to velocity='filtered' (the backward difference has no "
-                f"filter); got cutoff={self.cutoff!r} with velocity={self.velocity!r}"
-            )
+        est = VelocityFilter(self.velocity, self.sample_time, self.cutoff)
+        object.__setattr__(self, "velocity", est.velocity)
+        object.__setattr__(self, "cutoff", est.cutoff)
+        object.__setattr__(self, "estimator", est)
 
     @property
     def filter_pole(self) -> float:
-        """a = e^{−ω_c T_s} (0 for the backward difference), dimensionless."""
-        if self.velocity == "filtered":
-            return math.exp(-self.cutoff * self.sample_time)
-        return 0.0
+        """a = e^{−ω_c T_s} (0 for the backward difference), dimensionless.
+
+        Raises
+        ------
+        ValueError
+            For an estimator that is not first-order (the central difference, FIR): use
+            :attr:`estimator`.
+        """
+        return self.estimator.filter_pole
 
     @property
     def filter_gain(self) -> float:
-        """c_f = (1 − a)/T_s, 1/s: v̂_n = a v̂_{n−1} + c_f (x_n − x_{n−1})."""
-        if self.velocity == "filtered":
-            return -math.expm1(-self.cutoff * self.sample_time) / self.sample_time
-        return 1.0 / self.sample_time
+        """c_f = (1 − a)/T_s, 1/s: v̂_n = a v̂_{n−1} + c_f (x_n − x_{n−1}).
+
+        Raises
+        ------
+        ValueError
+            For an estimator that is not first-order: use :attr:`estimator`.
+        """
+        return self.estimator.filter_gain
 
     @property
     def delay(self) -> float:
@@ -209,17 +229,52 @@ class DigitalPD:
 
     @property
     def order(self) -> int:
-        """Degree of the characteristic polynomial, d + 3."""
-        return self.delay_samples + 3
+        """Degree of the characteristic polynomial, d + r + 2 (d + 3 for a first-order
+        estimator; r the estimator's order)."""
+        return self.delay_samples + self.estimator.order + 2
 
 
 def record_problem(loop: DigitalPD, span: float) -> tuple[str, str] | None:
     """What a record of ``span`` seconds after the release cannot show of ``loop``, or None.
 
+    :func:`timing_problem` of the loop's sample time, delay, cut-off (of ``"filtered"``) and
+    estimator.
+
+    Returns
+    -------
+    tuple of str or None
+        (key, reason): the :class:`DigitalPD` field at fault and the rest of a one-line message
+        (it begins with `` = value``).
+    """
+    return timing_problem(loop.sample_time, loop.delay_samples,
+                          loop.cutoff if loop.velocity == "filtered" else None,
+                          loop.estimator.taps, span, loop.estimator.name)
+
+
+def timing_problem(sample_time: float, delay_samples: int, cutoff: float | None, taps: int,
+                   span: float, velocity: str = "the estimator") -> tuple[str, str] | None:
+    """What a record of ``span`` seconds after the release cannot show of a sampled loop, or None.
+
     A sample time longer than the record (the controller never samples the motion), a command
     delay d·T_s longer than it (the command never reaches the plant within it; the loop's
-    polynomial would have degree d + 3) or a velocity filter whose time constant 1/ω_c is longer
-    than it (the filtered velocity hardly moves: the D term is not in the record).
+    polynomial would have degree d + r + 2), a velocity filter whose time constant 1/ω_c is
+    longer than it (the filtered velocity hardly moves: the D term is not in the record) or an
+    estimator whose taps span more than it (its estimate never fills).
+
+    Parameters
+    ----------
+    sample_time : float
+        T_s, s (> 0).
+    delay_samples : int
+        d, whole periods.
+    cutoff : float or None
+        ω_c of a ``"filtered"`` estimator, rad/s (None for the others).
+    taps : int
+        The estimator's earlier samples (:func:`phoid.dynamics.velocity.estimator_taps`).
+    span : float
+        The record's length after the release, s (no check unless finite and > 0).
+    velocity : str, default "the estimator"
+        The estimator's name, for the message.
 
     Returns
     -------
@@ -229,143 +284,23 @@ def record_problem(loop: DigitalPD, span: float) -> tuple[str, str] | None:
     """
     if not (math.isfinite(span) and span > 0):
         return None
-    T = loop.sample_time
+    T = sample_time
     if T > span:
         return ("sample_time", f" = {T:g} s is longer than the record ({span:.4g} s): the "
                                "controller would not sample it")
-    if loop.delay_samples * T > span:
-        return ("delay_samples", f" = {loop.delay_samples} periods ({loop.delay_samples * T:.4g} "
+    if delay_samples * T > span:
+        return ("delay_samples", f" = {delay_samples} periods ({delay_samples * T:.4g} "
                                  f"s at sample_time {T:g} s) is longer than the record "
                                  f"({span:.4g} s): the command would never reach the plant")
-    if loop.velocity == "filtered" and loop.cutoff * span < 1.0:
-        return ("cutoff", f" = {loop.cutoff:g} rad/s: the velocity filter's time constant "
-                          f"1/cutoff = {1.0 / loop.cutoff:.3g} s is longer than the record "
+    if cutoff is not None and cutoff * span < 1.0:
+        return ("cutoff", f" = {cutoff:g} rad/s: the velocity filter's time constant "
+                          f"1/cutoff = {1.0 / cutoff:.3g} s is longer than the record "
                           f"({span:.4g} s), so the filtered velocity would hardly move; is it "
                           "in rad/s?")
+    if taps * T > span:
+        return ("velocity", f" = {velocity} reads {taps} earlier samples ({taps * T:.4g} s at "
+                            f"sample_time {T:g} s), more than the record ({span:.4g} s) holds")
     return None
-
-
-# --------------------------------------------------------------------------------------------
-# zero-order-hold discretisation of the plant
-
-
-def expm_stack(M: np.ndarray) -> np.ndarray:
-    """e^M for a stack (G, n, n) of small matrices: scaling and squaring of a Taylor series.
-
-    After scaling to ‖M/2^s‖₁ ≤ 1/2, 20 Taylor terms leave < 1e-25 of truncation, and the s
-    squarings cost a few ulps. Plain matrix products only: no LAPACK call, whose thread pool
-    would otherwise wake up on every simulation (costly on a busy machine).
-    """
-    nrm = float(np.max(np.sum(np.abs(M), axis=-2))) if M.size else 0.0
-    s = max(0, math.ceil(math.log2(nrm / 0.5))) if nrm > 0.5 else 0
-    X = M / 2.0**s
-    n = M.shape[-1]
-    E = np.broadcast_to(np.eye(n), M.shape).copy()
-    term = E.copy()
-    for i in range(1, 21):
-        term = np.matmul(term, X) / i
-        E += term
-    for _ in range(s):
-        E = np.matmul(E, E)
-    return E
-
-
-@dataclass(frozen=True)
-class ZOHPlant:
-    """Zero-order-hold discretisation of m x'' + c x' + k x = u over one sample time.
-
-    Attributes
-    ----------
-    phi : ndarray, shape (2, 2)
-        Φ = e^{AT_s} (state y = (x, ẋ)).
-    gamma : ndarray, shape (2,)
-        Γ = ∫₀^{T_s} e^{Aτ}dτ b, (m, m/s) per N.
-    lam : ndarray, shape (2,)
-        Eigenvalues of Φ, e^{p T_s} with p the plant's roots (eqs. 2–15): Δ(z) = (z−λ₁)(z−λ₂).
-    tau, delta : float
-        τ = tr Φ and δ = det Φ = e^{−cT_s/m} (Δ(z) = z² − τz + δ).
-    b1, b0 : float
-        N(z) = b₁z + b₀, m/N: b₁ = Γ₁, b₀ = Φ₁₂Γ₂ − Φ₂₂Γ₁.
-    d_tau, d_delta, d_b1, d_b0 : ndarray, shape (3,) or None
-        Their derivatives with respect to (m, c, k) when requested.
-    """
-
-    phi: np.ndarray
-    gamma: np.ndarray
-    lam: np.ndarray
-    tau: float
-    delta: float
-    b1: float
-    b0: float
-    d_tau: np.ndarray | None = None
-    d_delta: np.ndarray | None = None
-    d_b1: np.ndarray | None = None
-    d_b0: np.ndarray | None = None
-
-
-def zoh_plant(
-    m: float, c: float, k: float, sample_time: float, *, derivatives: bool = False
-) -> ZOHPlant:
-    """Exact ZOH discretisation Φ = e^{AT_s}, Γ = ∫₀^{T_s}e^{Aτ}dτ b of the plant (eq. 1).
-
-    Φ and Γ come from one exponential of the augmented matrix [[A, b], [0, 0]]·T_s, valid for
-    every damping (eqs. 2–15 all follow from e^{At}); their derivatives with respect to
-    θ = (m, c, k) from the block-triangular exponential exp([[X, E], [0, X]]) whose upper-right
-    block is the Fréchet derivative of e^X in the direction E = (∂[[A, b], [0, 0]]/∂θ)·T_s.
-
-    Parameters
-    ----------
-    m, c, k : float
-        Mass (kg, > 0), damping (N·s/m) and stiffness (N/m); c and k may have any sign (fits).
-    sample_time : float
-        T_s, s.
-    derivatives : bool, default False
-        Also return ∂(τ, δ, b₁, b₀)/∂(m, c, k).
-
-    Returns
-    -------
-    ZOHPlant
-    """
-    T = sample_time
-    X = np.zeros((3, 3))
-    X[0, 1] = T
-    X[1, 0] = -k / m * T
-    X[1, 1] = -c / m * T
-    X[1, 2] = T / m
-    if derivatives:
-        E = np.zeros((3, 3, 3))
-        E[0, 1, :] = np.array([k / m**2, c / m**2, -1.0 / m**2]) * T  # ∂/∂m of row 1
-        E[1, 1, 1] = -T / m  # ∂/∂c
-        E[2, 1, 0] = -T / m  # ∂/∂k
-        big = np.zeros((4, 6, 6))
-        big[:, :3, :3] = X
-        big[:, 3:, 3:] = X
-        big[1:, :3, 3:] = E
-        ex = expm_stack(big)
-        F = ex[0, :3, :3]
-        dF = ex[1:, :3, 3:]  # (3, 3, 3): ∂ exp / ∂θ_j
-    else:
-        F = expm_stack(X[None])[0]
-    phi = F[:2, :2].copy()
-    gamma = F[:2, 2].copy()
-    p = quadratic_roots(m, c, k)
-    lam = np.exp(p * T)
-    tau = float(phi[0, 0] + phi[1, 1])
-    delta = float(phi[0, 0] * phi[1, 1] - phi[0, 1] * phi[1, 0])
-    b1 = float(gamma[0])
-    b0 = float(phi[0, 1] * gamma[1] - phi[1, 1] * gamma[0])
-    if not derivatives:
-        return ZOHPlant(phi, gamma, lam, tau, delta, b1, b0)
-    dphi = dF[:, :2, :2]
-    dgam = dF[:, :2, 2]
-    d_tau = dphi[:, 0, 0] + dphi[:, 1, 1]
-    # δ = e^{−cT/m} exactly (Liouville): its derivatives in closed form
-    d_delta = delta * np.array([c * T / m**2, -T / m, 0.0])
-    d_b1 = dgam[:, 0].copy()
-    d_b0 = dphi[:, 0, 1] * gamma[1] + phi[0, 1] * dgam[:, 1] - dphi[:, 1, 1] * gamma[0] - (
-        phi[1, 1] * dgam[:, 0]
-    )
-    return ZOHPlant(phi, gamma, lam, tau, delta, b1, b0, d_tau, d_delta, d_b1, d_b0)
 
 
 # --------------------------------------------------------------------------------------------
@@ -393,20 +328,34 @@ def _gains(P, D) -> tuple[np.ndarray, np.ndarray]:
     return P, D
 
 
-def characteristic_coefficients(zp: ZOHPlant, P, D, a: float, cf: float, d: int) -> np.ndarray:
-    """Coefficients of χ (highest power first), shape (B, d + 4)."""
+def _filter_polys(a: float, cf: float) -> tuple[np.ndarray, np.ndarray]:
+    """A(z) = z − a and B(z) = c_f (z − 1) of a first-order estimator."""
+    return np.array([1.0, -a]), np.array([cf, -cf])
+
+
+def _coefficients(zp: ZOHPlant, P, D, fp, d: int) -> np.ndarray:
+    """Coefficients of χ = z^d A Δ + (P A + D B) N, highest power first, shape (B, d + r + 3)."""
+    Af, Bf = fp
+    r = Af.size - 1
     B = P.size
-    coef = np.zeros((B, d + 4))
-    coef[:, 0] = 1.0
-    coef[:, 1] = -(zp.tau + a)
-    coef[:, 2] = zp.delta + a * zp.tau
-    coef[:, 3] = -a * zp.delta
-    k1 = P + D * cf  # Kn(z) = k1 z + k0
-    k0 = -(P * a + D * cf)
-    coef[:, -3] += k1 * zp.b1
-    coef[:, -2] += k1 * zp.b0 + k0 * zp.b1
-    coef[:, -1] += k0 * zp.b0
+    coef = np.zeros((B, d + r + 3))
+    coef[:, : r + 3] = np.convolve(Af, [1.0, -zp.tau, zp.delta])
+    K = P[:, None] * Af + D[:, None] * Bf  # P A(z) + D B(z), (B, r + 1)
+    coef[:, -(r + 2):-1] += K * zp.b1
+    coef[:, -(r + 1):] += K * zp.b0
     return coef
+
+
+def characteristic_coefficients(zp: ZOHPlant, P, D, a: float, cf: float, d: int) -> np.ndarray:
+    """Coefficients of χ for a first-order estimator (highest power first), shape (B, d + 4).
+
+    χ(z) = z^d (z − a)Δ(z) + [P(z − a) + D c_f (z − 1)]N(z) (module docstring), ``a`` and
+    ``cf`` the estimator's :attr:`DigitalPD.filter_pole` and :attr:`DigitalPD.filter_gain`
+    (:func:`digital_coefficients`: every estimator).
+    """
+    P = np.atleast_1d(np.asarray(P, dtype=float))
+    D = np.atleast_1d(np.asarray(D, dtype=float))
+    return _coefficients(zp, P, D, _filter_polys(a, cf), d)
 
 
 def digital_coefficients(
@@ -414,7 +363,8 @@ def digital_coefficients(
 ) -> np.ndarray:
     """Coefficients of the characteristic polynomial χ(z), highest power first.
 
-    χ(z) = z^d (z − a)(z² − τz + δ) + [P(z − a) + D c_f (z − 1)](b₁z + b₀) (module docstring).
+    χ(z) = z^d A(z)(z² − τz + δ) + [P A(z) + D B(z)](b₁z + b₀) (module docstring); for the
+    first-order estimators A = z − a, B = c_f (z − 1).
 
     Parameters
     ----------
@@ -427,32 +377,49 @@ def digital_coefficients(
 
     Returns
     -------
-    ndarray, shape (B, d + 4)
+    ndarray, shape (B, loop.order + 1)
         Monic, dimensionless; ``np.roots(coef[i])`` are run i's closed-loop z-roots.
     """
     _check_loop(loop)
     m = v.positive("m", m, "kg")
     P, D = _gains(P, D)
     zp = zoh_plant(m, c, k, loop.sample_time)
-    return characteristic_coefficients(zp, P, D, loop.filter_pole,
-                                       loop.filter_gain, loop.delay_samples)
+    return _coefficients(zp, P, D, _polys(loop), loop.delay_samples)
 
 
-def _chi(z, zp: ZOHPlant, P, D, a, cf, d):
+def _polys(loop: DigitalPD) -> tuple[np.ndarray, np.ndarray]:
+    """The estimator's A(z) and B(z), highest power first."""
+    return loop.estimator.polynomials()[:2]
+
+
+def _horner(c: np.ndarray, z):
+    """p(z) and p′(z) of the real polynomial c (highest power first)."""
+    p = np.zeros_like(z) + c[0]
+    dp = np.zeros_like(z)
+    for ci in c[1:]:
+        dp = dp * z + p
+        p = p * z + ci
+    return p, dp
+
+
+def _chi(z, zp: ZOHPlant, P, D, fp, d):
     """χ(z) and χ′(z) in factored form (accurate near the plant poles λ)."""
     z = np.asarray(z, dtype=complex)
+    Af, Bf = fp
     l1, l2 = zp.lam
     delta_z = (z - l1) * (z - l2)
     ddelta_z = 2.0 * z - (l1 + l2)
-    A = (z - a) * delta_z
-    dA = delta_z + (z - a) * ddelta_z
+    Az, dAz = _horner(Af, z)
+    Bz, dBz = _horner(Bf, z)
+    A = Az * delta_z
+    dA = dAz * delta_z + Az * ddelta_z
     N = zp.b1 * z + zp.b0
-    k1 = P + D * cf
-    Kn = k1 * z - (P * a + D * cf)
+    Kn = P * Az + D * Bz
+    dKn = P * dAz + D * dBz
     zd = z**d
     dzd = d * z ** (d - 1) if d > 0 else 0.0
     chi = zd * A + Kn * N
-    dchi = dzd * A + zd * dA + k1 * N + Kn * zp.b1
+    dchi = dzd * A + zd * dA + dKn * N + Kn * zp.b1
     return chi, dchi
 
 
@@ -489,7 +456,7 @@ def digital_characteristic(
     P = np.asarray(P, dtype=float)
     D = np.asarray(D, dtype=float)
     zp = zoh_plant(m, c, k, loop.sample_time)
-    return _chi(z, zp, P, D, loop.filter_pole, loop.filter_gain, loop.delay_samples)
+    return _chi(z, zp, P, D, _polys(loop), loop.delay_samples)
 
 
 # --------------------------------------------------------------------------------------------
@@ -502,10 +469,11 @@ class DigitalRoots:
 
     Attributes
     ----------
-    z : ndarray of complex, shape (B, d + 3)
+    z : ndarray of complex, shape (B, loop.order)
         Roots of χ, sorted by decreasing |z| (decreasing Re s); of a conjugate pair the one
-        with positive imaginary part first.
-    s : ndarray of complex, shape (B, d + 3)
+        with positive imaginary part first. A root at z = 0 is exactly 0 (as many as χ has
+        zero trailing coefficients).
+    s : ndarray of complex, shape (B, loop.order)
         s = ln(z)/T_s, 1/s (principal branch; −inf for a root at z = 0).
     dominant : ndarray of complex, shape (B,)
         The rightmost s of each run, with Im s ≥ 0 (the paper's −σ + iω_d).
@@ -525,17 +493,19 @@ class DigitalRoots:
 
 
 def _log_s(z: np.ndarray, T: float) -> np.ndarray:
+    """ln(z)/T, part by part: a root at z = 0 gives −inf + 0j (not −inf + nan·j)."""
     with np.errstate(divide="ignore", invalid="ignore"):
-        return np.log(z) / T
+        w = np.log(z)
+    return w.real / T + 1j * (w.imag / T)
 
 
-def _polish(z, zp, P, D, a, cf, d, iters=3):
+def _polish(z, zp, P, D, fp, d, iters=3):
     """Newton steps on the factored χ, each kept only where it lowers |χ|."""
-    chi, dchi = _chi(z, zp, P, D, a, cf, d)
+    chi, dchi = _chi(z, zp, P, D, fp, d)
     for _ in range(iters):
         with np.errstate(all="ignore"):
             zn = z - chi / dchi
-        chin, dchin = _chi(zn, zp, P, D, a, cf, d)
+        chin, dchin = _chi(zn, zp, P, D, fp, d)
         better = np.isfinite(zn) & (np.abs(chin) < np.abs(chi))
         if not better.any():
             break
@@ -545,15 +515,23 @@ def _polish(z, zp, P, D, a, cf, d, iters=3):
     return z
 
 
-def _all_roots(zp: ZOHPlant, P, D, a, cf, d, T) -> DigitalRoots:
-    coef = characteristic_coefficients(zp, P, D, a, cf, d)
-    B, n = P.size, d + 3
+def _all_roots(zp: ZOHPlant, P, D, fp, d, T) -> DigitalRoots:
+    coef = _coefficients(zp, P, D, fp, d)
+    B, n = P.size, coef.shape[1] - 1
     comp = np.zeros((B, n, n))
     comp[:, 0, :] = -coef[:, 1:]
     idx = np.arange(1, n)
     comp[:, idx, idx - 1] = 1.0
     z = np.linalg.eigvals(comp).astype(complex)
-    z = _polish(z, zp, P[:, None], D[:, None], a, cf, d)
+    # χ's exactly zero trailing coefficients are as many exact roots at z = 0 (e.g. D = 0 with
+    # the backward difference, or an FIR estimator): the eigenvalue solver returns them only
+    # to rounding (a multiple root at 0 as a tiny circle), so the smallest are set to 0
+    trailing = np.argmax(coef[:, ::-1] != 0.0, axis=1)
+    if trailing.any():
+        smallest = np.argsort(np.abs(z), axis=1)
+        rows, cols = np.nonzero(np.arange(n)[None, :] < trailing[:, None])
+        z[rows, smallest[rows, cols]] = 0.0
+    z = _polish(z, zp, P[:, None], D[:, None], fp, d)
     s = _log_s(z, T)
     order = np.lexsort((-z.imag, -np.round(np.abs(z), 12)), axis=-1)
     z = np.take_along_axis(z, order, axis=1)
@@ -565,7 +543,7 @@ def _all_roots(zp: ZOHPlant, P, D, a, cf, d, T) -> DigitalRoots:
 def digital_roots(
     m: float, c: float, k: float, P: np.ndarray | float, D: np.ndarray | float, loop: DigitalPD
 ) -> DigitalRoots:
-    """All d + 3 closed-loop roots of each run's sampled loop, and the dominant one.
+    """All d + r + 2 closed-loop roots of each run's sampled loop, and the dominant one.
 
     The roots of χ are the eigenvalues of its companion matrix (batched over runs, as
     ``np.roots`` does one at a time), polished by Newton's method on the factored χ, and mapped
@@ -583,15 +561,14 @@ def digital_roots(
     Returns
     -------
     DigitalRoots
-        ``z``, ``s`` (B, d + 3) sorted by decreasing real part of s, ``dominant`` (B,) and
-        ``stable`` (B,).
+        ``z``, ``s`` (B, ``loop.order``) sorted by decreasing real part of s, ``dominant`` (B,)
+        and ``stable`` (B,).
     """
     _check_loop(loop)
     m = v.positive("m", m, "kg")
     P, D = _gains(P, D)
     zp = zoh_plant(m, c, k, loop.sample_time)
-    return _all_roots(zp, P, D, loop.filter_pole, loop.filter_gain, loop.delay_samples,
-                      loop.sample_time)
+    return _all_roots(zp, P, D, _polys(loop), loop.delay_samples, loop.sample_time)
 
 
 def digital_is_stable(
@@ -663,47 +640,49 @@ def digital_modes(
     ds_dtheta : ndarray of complex, shape (B, 3)
         ∂sᵢ/∂(m, c, k), in 1/(s·kg), m/(N·s²) and m/(N·s) (s per unit of each parameter),
         from χ(z; θ) = 0: ∂z/∂θ = −(∂χ/∂θ)/(∂χ/∂z), ∂s/∂θ = (∂z/∂θ)/(z T_s), with
-        ∂χ/∂θ = z^d (z − a)(−z ∂τ/∂θ + ∂δ/∂θ) + [P(z − a) + D c_f(z − 1)](z ∂b₁/∂θ + ∂b₀/∂θ).
+        ∂χ/∂θ = z^d A(z)(−z ∂τ/∂θ + ∂δ/∂θ) + [P A(z) + D B(z)](z ∂b₁/∂θ + ∂b₀/∂θ).
 
     Notes
     -----
     Tracked roots are not certified here; :func:`digital_is_dominant` checks a solution
-    (exactly: the loop has d + 3 roots).
+    (exactly: the loop has d + r + 2 roots).
     """
     _check_loop(loop)
     m = v.positive("m", m, "kg")
     P, D = _gains(P, D)
     T = loop.sample_time
-    a, cf, d = loop.filter_pole, loop.filter_gain, loop.delay_samples
+    fp, d = _polys(loop), loop.delay_samples
     zp = zoh_plant(m, c, k, T, derivatives=True)
     if s_guess is None:
-        s0 = _all_roots(zp, P, D, a, cf, d, T).dominant
+        s0 = _all_roots(zp, P, D, fp, d, T).dominant
         z = np.exp(s0 * T)
         ref = s0
     else:
         ref = np.broadcast_to(np.asarray(s_guess, dtype=complex), P.shape)
         z = np.exp(ref * T)
         for _ in range(40):
-            chi, dchi = _chi(z, zp, P, D, a, cf, d)
+            chi, dchi = _chi(z, zp, P, D, fp, d)
             with np.errstate(all="ignore"):
                 step = chi / dchi
             z = z - step
             # quadratic convergence: a step of 1e-12 |z| leaves an error at rounding level
             if np.all(np.abs(step) <= 1e-12 * np.abs(z)):
                 break
-        chi, dchi = _chi(z, zp, P, D, a, cf, d)
+        chi, dchi = _chi(z, zp, P, D, fp, d)
         with np.errstate(all="ignore"):
             ok = np.isfinite(z) & (np.abs(chi) <= 1e-10 * np.abs(dchi * z))
         if not ok.all():  # a start that went astray: the dominant root from all roots
-            dom = _all_roots(zp, P[~ok], D[~ok], a, cf, d, T).dominant
+            dom = _all_roots(zp, P[~ok], D[~ok], fp, d, T).dominant
             z = z.copy()
             z[~ok] = np.exp(dom * T)
-    z = _polish(z, zp, P, D, a, cf, d, iters=2)
-    _, dchi = _chi(z, zp, P, D, a, cf, d)
+    z = _polish(z, zp, P, D, fp, d, iters=2)
+    _, dchi = _chi(z, zp, P, D, fp, d)
     zd = z**d
-    Kn = (P + D * cf) * z - (P * a + D * cf)
+    Az, _ = _horner(fp[0], z)
+    Bz, _ = _horner(fp[1], z)
+    Kn = P * Az + D * Bz
     dth = (
-        zd[:, None] * (z - a)[:, None] * (-z[:, None] * zp.d_tau + zp.d_delta)
+        zd[:, None] * Az[:, None] * (-z[:, None] * zp.d_tau + zp.d_delta)
         + Kn[:, None] * (z[:, None] * zp.d_b1 + zp.d_b0)
     )
     dz = -dth / dchi[:, None]
@@ -735,8 +714,10 @@ def digital_residues(
     """Modes and amplitudes of the response to a release at a controller instant.
 
     Held at x₀ with the controller running, released with velocity v₀ at t = 0 (a controller
-    instant): x(nT_s) = Σ_j a_j z_j^n exactly for n ≥ 0 (n ≥ 1 if χ(0) = 0), with
-    a_j = Q(z_j)/(z_j χ′(z_j)) and Q the numerator of the module docstring.
+    instant): x(nT_s) = Σ_j a_j z_j^n exactly for n ≥ n₀ (n₀ the multiplicity of a root at
+    z = 0, else 0), with a_j = Q(z_j)/(z_j χ′(z_j)) and Q the numerator of the module
+    docstring, Q(z) = z^{d+1}A(z)[(z − Φ₂₂)x₀ + Φ₁₂v₀] − P x₀ A(z)N(z)Σ_{j=1}^d z^j
+    − D x₀ E(z)N(z).
 
     Parameters
     ----------
@@ -753,31 +734,34 @@ def digital_residues(
 
     Returns
     -------
-    s : ndarray of complex, shape (B, d + 3)
+    s : ndarray of complex, shape (B, loop.order)
         s_j = ln(z_j)/T_s, sorted as in :func:`digital_roots` (roots at z = 0 have s = −inf and
-        amplitude 0: they contribute at n = 0 only).
-    amplitude : ndarray of complex, shape (B, d + 3)
+        amplitude 0: they contribute at n < n₀ only).
+    amplitude : ndarray of complex, shape (B, loop.order)
         a_j, m. Conjugate roots have conjugate amplitudes. Requires simple roots (a repeated
-        root gives inf/nan).
+        root other than 0 gives inf/nan).
     """
     _check_loop(loop)
     m = v.positive("m", m, "kg")
     P, D = _gains(P, D)
     T = loop.sample_time
-    a, cf, d = loop.filter_pole, loop.filter_gain, loop.delay_samples
+    Af, Bf, Ef = loop.estimator.polynomials()
+    fp, d = (Af, Bf), loop.delay_samples
     zp = zoh_plant(m, c, k, T)
-    rts = _all_roots(zp, P, D, a, cf, d, T)
+    rts = _all_roots(zp, P, D, fp, d, T)
     z = rts.z
     Pc, Dc = P[:, None], D[:, None]
-    _, dchi = _chi(z, zp, Pc, Dc, a, cf, d)
+    _, dchi = _chi(z, zp, Pc, Dc, fp, d)
     N = zp.b1 * z + zp.b0
+    Az, _ = _horner(Af, z)
+    Ez, _ = _horner(Ef, z)
     geo = np.zeros_like(z)
     for j in range(1, d + 1):
         geo = geo + z**j
     Q = (
-        z ** (d + 1) * (z - a) * ((z - zp.phi[1, 1]) * x0 + zp.phi[0, 1] * v0)
-        - Pc * x0 * (z - a) * N * geo
-        + Dc * cf * x0 * z * N
+        z ** (d + 1) * Az * ((z - zp.phi[1, 1]) * x0 + zp.phi[0, 1] * v0)
+        - Pc * x0 * Az * N * geo
+        - Dc * x0 * Ez * N
     )
     zero = z == 0
     with np.errstate(all="ignore"):

@@ -50,6 +50,7 @@ Modules: :mod:`phoid.io.records` (:class:`Run`, :class:`ExperimentSet`,
 :mod:`phoid.io.manifest` (:func:`read_manifest`), :mod:`phoid.io.datafile` (the bounded CSV
 reader), :mod:`phoid.io.limits` (the limits), :mod:`phoid.io.writing`
 (:func:`write_experiment`), :mod:`phoid.io.tracking` (a tracking set's keys),
+:mod:`phoid.io.loop` (a PHO set's ``[loop]`` read: the digital loop and ``noise``),
 :mod:`phoid.io.containers` (the MATLAB, HDF5 and Parquet readers); ``_format`` and ``_files``
 hold what they share (:func:`open_regular` and :func:`not_regular`, the rule that only regular
 files are read, are exported here for the other commands that read a file).
@@ -68,6 +69,13 @@ from phoid.io.limits import (
     MAX_RUNS,
     MAX_SET_ROWS,
 )
+from phoid.io.loop import (
+    DIGITAL_KEYS,
+    NOISE_PLACEMENTS,
+    PHO_LOOP_KEYS,
+    read_digital_loop,
+    read_noise_placement,
+)
 from phoid.io.manifest import parse_manifest, read_manifest, read_manifest_bytes
 from phoid.io.reading import read_experiment
 from phoid.io.records import ExperimentSet, Run, run_from_arrays
@@ -83,6 +91,7 @@ from phoid.io.writing import write_experiment
 
 __all__ = [
     "CONTAINER_SUFFIXES",
+    "DIGITAL_KEYS",
     "ESTIMATORS",
     "FIXED_KEYS",
     "FORMAT",
@@ -97,6 +106,8 @@ __all__ = [
     "MAX_SET_ROWS",
     "METHODS",
     "MIN_TRACKING_SAMPLES",
+    "NOISE_PLACEMENTS",
+    "PHO_LOOP_KEYS",
     "TRACKING_COLUMNS",
     "TRACKING_LOOP_KEYS",
     "VELOCITY_PRESETS",
@@ -105,9 +116,11 @@ __all__ = [
     "not_regular",
     "open_regular",
     "parse_manifest",
+    "read_digital_loop",
     "read_experiment",
     "read_manifest",
     "read_manifest_bytes",
+    "read_noise_placement",
     "run_from_arrays",
     "write_experiment",
 ]

@@ -10,7 +10,8 @@ and ``command_gain`` (G) and the ``[run.columns]`` table that names the signals 
 file. The gains ``P``, ``D``, ``gain`` and ``command_gain`` may sit in ``[loop]`` (every run) or
 in a ``[[run]]`` table (which overrides), each a number or the name of a scalar variable of the
 run's file; :func:`tracking_run_spec` records which, and the reader resolves the names when it
-reads the file.
+reads the file. The velocity estimators are phoid's one list
+(:data:`phoid.dynamics.velocity.VELOCITY_PRESETS`, and FIR coefficients).
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ import numbers
 from collections.abc import Mapping
 from typing import Any
 
+from phoid.dynamics.velocity import VELOCITY_PRESETS, estimator_taps, fir_problem
 from phoid.io._format import case_clash, checked_number, fail, kind_of, show, unknown_hint
 
 __all__ = [
@@ -67,9 +69,6 @@ TRACKING_RUN_KEYS = ("file", *RUN_GAINS, "columns")
 TRACKING_COLUMNS = ("t", "x", "r", "u", "w")
 """The signals of a tracking run, in the order they are kept: ``t``, ``x``, ``r`` needed,
 ``u`` (recorded command) and ``w`` (additive command input) optional."""
-VELOCITY_PRESETS = {"backward-difference": 1, "central-difference": 2, "filtered": 1}
-"""The velocity estimators by name, with their taps (earlier samples of x each estimate
-uses)."""
 MIN_TRACKING_SAMPLES = 5
 """Fewest samples of a tracking run, whatever the estimator (:func:`min_samples`)."""
 
@@ -113,10 +112,11 @@ def check_fixed(where: str, table: Any) -> dict[str, float]:
 def velocity_taps(where: str, velocity: Any, cutoff: Any = None) -> int:
     """Check ``[loop] velocity`` and ``cutoff``; return the estimator's taps.
 
-    ``velocity`` is a name of :data:`VELOCITY_PRESETS` (None: ``"backward-difference"``) or a
-    non-empty array of finite FIR coefficients b_j (1/s), v̂_n = Σ_j b_j x_{n−j}, whose taps are
-    its length − 1. ``cutoff`` (rad/s, > 0) is required with ``"filtered"`` and refused
-    otherwise.
+    ``velocity`` is a name of :data:`VELOCITY_PRESETS` (None: ``"backward-difference"``) or an
+    array of finite FIR coefficients b_j (1/s), v̂_n = Σ_j b_j x_{n−j}: at least two, not all
+    zero, summing to zero (:func:`phoid.dynamics.velocity.fir_problem`), whose taps are its
+    length − 1 (:func:`phoid.dynamics.velocity.estimator_taps`). ``cutoff`` (rad/s, > 0) is
+    required with ``"filtered"`` and refused otherwise.
     """
     lwhere = f"{where}: [loop]"
     if velocity is None:
@@ -126,7 +126,7 @@ def velocity_taps(where: str, velocity: Any, cutoff: Any = None) -> int:
             fail(lwhere, f"key 'velocity' must be one of "
                           f"{', '.join(map(repr, VELOCITY_PRESETS))} or an array of FIR "
                           f"coefficients (1/s); got {show(velocity)}")
-        taps = VELOCITY_PRESETS[velocity]
+        taps = estimator_taps(velocity)
     elif isinstance(velocity, list | tuple):
         if not velocity:
             fail(lwhere, "key 'velocity' is an empty array; give the FIR coefficients b_0, "
@@ -136,7 +136,10 @@ def velocity_taps(where: str, velocity: Any, cutoff: Any = None) -> int:
                     or not math.isfinite(float(b)):
                 fail(lwhere, f"key 'velocity': coefficient {j} must be a finite number; got "
                               f"{show(b)} ({kind_of(b)})")
-        taps = len(velocity) - 1
+        problem = fir_problem([float(b) for b in velocity])
+        if problem is not None:
+            fail(lwhere, f"key 'velocity' {problem}")
+        taps = estimator_taps(velocity)
     else:
         fail(lwhere, f"key 'velocity' must be a preset name or an array of numbers; got "
                       f"{show(velocity)} ({kind_of(velocity)})")

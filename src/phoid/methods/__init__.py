@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING
 from phoid._lazy import lazy_exports
 
 if TYPE_CHECKING:  # the real imports, for type checkers and IDEs
+    from phoid.io.loop import DIGITAL_KEYS, read_digital_loop
     from phoid.methods.diagnose import (
         SIGN_CONVENTION,
         probable_cause,
@@ -56,7 +57,7 @@ if TYPE_CHECKING:  # the real imports, for type checkers and IDEs
         fit_lines,
         fit_modes,
     )
-    from phoid.methods.pho_checks import DIGITAL_KEYS, read_digital_loop, refuse_bias
+    from phoid.methods.pho_checks import refuse_bias
     from phoid.methods.pho_measure import measure_modes
     from phoid.methods.pho_result import Identification, RunMode
     from phoid.methods.result_base import PlantResult, ResultBase
@@ -133,8 +134,8 @@ _EXPORTS = {
     "delay_profile": "phoid.methods.pho",
     "fit_lines": "phoid.methods.pho",
     "fit_modes": "phoid.methods.pho",
-    "DIGITAL_KEYS": "phoid.methods.pho_checks",
-    "read_digital_loop": "phoid.methods.pho_checks",
+    "DIGITAL_KEYS": "phoid.io.loop",
+    "read_digital_loop": "phoid.io.loop",
     "refuse_bias": "phoid.methods.pho_checks",
     "measure_modes": "phoid.methods.pho_measure",
     "Identification": "phoid.methods.pho_result",

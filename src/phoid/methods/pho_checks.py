@@ -3,20 +3,20 @@
 Each refuses, or warns of, a set that cannot be what it says: a biased command, a loop delay or
 controller sample time far from the records' own time scale (a unit mistake), an added mass far
 beyond the plant's, a recorded force that contradicts the gains, records sampled too coarsely
-for the release's timing; and the manifest's digital loop ([loop] sample_time, …) read and
-checked.
+for the release's timing. The manifest's digital loop ([loop] sample_time, …) is read and
+checked in io (:func:`phoid.io.loop.read_digital_loop`, re-exported here).
 """
 
 from __future__ import annotations
 
 import math
-import numbers
 from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
 
 from phoid.errors import IdentificationError
+from phoid.io.loop import DIGITAL_KEYS, MAX_DELAY_SAMPLES, read_digital_loop
 from phoid.io.units import quantity_unit, unit_hint
 from phoid.methods.pho import fit_lines
 from phoid.methods.savgol import savgol_filter
@@ -24,6 +24,7 @@ from phoid.reports.text import format_ratio
 
 __all__ = [
     "DIGITAL_KEYS",
+    "MAX_DELAY_SAMPLES",
     "check_added_mass",
     "check_delay",
     "check_gain_magnitudes",
@@ -184,95 +185,6 @@ def check_sample_time(experiment: Any, digital: Any, runs: Sequence[Any]) -> str
                 f"([loop] sample_time) is {digital.sample_time:.3g} s, "
                 f"{format_ratio(h, digital.sample_time)} times shorter: {hint}")
     return None
-
-
-DIGITAL_KEYS = ("sample_time", "delay_samples", "velocity", "cutoff")
-
-#: the longest command delay of a digital loop phoid identifies, in controller periods: each
-#: evaluation of the loop's roots is an eigenvalue problem of order delay_samples + 3 per run
-#: (about 1 s at 1000); a real controller's delay is a few periods
-MAX_DELAY_SAMPLES = 1000
-
-
-def read_digital_loop(experiment: Any) -> Any:
-    """The manifest's digital loop ([loop] sample_time, …) as a DigitalPD, or None.
-
-    Every key is checked by type and range, one line naming the manifest and the key:
-    ``sample_time`` a number > 0 (s), ``delay_samples`` a whole number ≥ 0, ``velocity`` one of
-    the estimators' names, ``cutoff`` a number > 0 (rad/s); and against the records
-    (:func:`phoid.dynamics.digital.record_problem`): no sample time, command delay or velocity
-    filter time constant longer than the longest record.
-    """
-    from phoid.dynamics.digital import VELOCITY_ESTIMATORS, DigitalPD, record_problem
-
-    loop = dict(getattr(experiment, "loop", {}) or {})
-    where = f"{experiment.path}: [loop]"
-    unknown = sorted(set(loop) - {"delay", *DIGITAL_KEYS})
-    if unknown:
-        raise IdentificationError(
-            f"{where} {unknown[0]}: unknown key (known: delay, " + ", ".join(DIGITAL_KEYS) + ")"
-        )
-    if "sample_time" not in loop:
-        extra = [key for key in DIGITAL_KEYS if key in loop]
-        if extra:
-            raise IdentificationError(
-                f"{where} {extra[0]}: needs [loop] sample_time (s), the controller's sampling "
-                "period"
-            )
-        return None
-    T = _loop_number(where, "sample_time", loop["sample_time"], "s")
-    d = loop.get("delay_samples", 0)
-    whole = isinstance(d, numbers.Integral) or (isinstance(d, float) and d.is_integer())
-    if isinstance(d, bool) or not whole or not 0 <= d <= 2**62:
-        raise IdentificationError(
-            f"{where} delay_samples must be a whole number ≥ 0 (controller periods); got "
-            f"{_shown(d)}")
-    if d > MAX_DELAY_SAMPLES:
-        raise IdentificationError(
-            f"{where} delay_samples = {int(d)}: phoid models a command delay of at most "
-            f"{MAX_DELAY_SAMPLES} controller periods (the loop's polynomial has degree "
-            "delay_samples + 3, its roots cost the cube of that)")
-    velocity = loop.get("velocity", "backward-difference")
-    if not isinstance(velocity, str) or velocity not in VELOCITY_ESTIMATORS:
-        raise IdentificationError(
-            f"{where} velocity must be one of {', '.join(map(repr, VELOCITY_ESTIMATORS))}; got "
-            f"{_shown(velocity)}")
-    cutoff = loop.get("cutoff")
-    if cutoff is not None:
-        cutoff = _loop_number(where, "cutoff", cutoff, "rad/s")
-    try:
-        digital = DigitalPD(P=0.0, D=0.0, sample_time=T, delay_samples=int(d),
-                            velocity=velocity, cutoff=cutoff)
-    except (ValueError, TypeError) as exc:
-        raise IdentificationError(f"{where}: {exc}") from None
-    spans = []
-    for r in getattr(experiment, "runs", ()):
-        t = getattr(r, "t", None)
-        if t is not None and np.size(t) >= 2:
-            spans.append(float(t[-1]) - float(t[0]))
-    problem = record_problem(digital, max(spans)) if spans else None
-    if problem is not None:
-        raise IdentificationError(f"{where} {problem[0]}{problem[1]}")
-    return digital
-
-
-def _loop_number(where: str, key: str, value: Any, unit: str) -> float:
-    """A [loop] number > 0 (a TOML number, not a string or a boolean), or one line."""
-    if isinstance(value, bool) or not isinstance(value, numbers.Real):
-        raise IdentificationError(
-            f"{where} {key} must be a number > 0 ({unit}); got {_shown(value)}")
-    v = float(value)
-    if not (math.isfinite(v) and v > 0):
-        raise IdentificationError(f"{where} {key} must be a finite number > 0 ({unit}); got {v:g}")
-    return v
-
-
-def _shown(value: Any) -> str:
-    """A manifest value as messages quote it: repr, cut, with its TOML kind."""
-    kind = {bool: "a boolean", str: "a string", int: "an integer", float: "a number",
-            list: "an array", dict: "a table"}.get(type(value), type(value).__name__)
-    text = repr(value)
-    return f"{text[:40] + '…' if len(text) > 40 else text} ({kind})"
 
 
 #: the largest gain magnitude (N/m, N·s/m) a run may give: beyond any loop a rig closes, and

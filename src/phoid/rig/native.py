@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import ctypes
 import hashlib
-import math
 import os
 import shlex
 import shutil
@@ -28,6 +27,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from phoid._output import OutputFolder
+from phoid.dynamics.velocity import VelocityFilter
 from phoid.errors import PhoidError
 
 __all__ = [
@@ -46,6 +46,9 @@ SOURCES = (C_DIR / "phoid_ctrl.h", C_DIR / "phoid_ctrl.c")
 CFLAGS = ("-std=c99", "-O2", "-fPIC", "-shared", "-Wall", "-Wextra", "-Werror")
 
 STATES = ("idle", "hold", "run", "done", "fault")
+# the C enum phoid_velocity (phoid_ctrl.h) of each of phoid's presets: the controller computes
+# their coefficients itself, as phoid.dynamics.velocity defines them (a filtered one from the pole
+# a = exp(-cutoff·T) that VelocityFilter gives); tests/test_velocity_model.py checks both
 VELOCITIES = {"backward-difference": 0, "central-difference": 1, "filtered": 2}
 
 # phoid_init's error codes (phoid_ctrl.h, enum phoid_error): the field and what it must be
@@ -256,8 +259,9 @@ class Controller:
         Fields of ``phoid_config`` (phoid_ctrl.h; unnamed fields keep
         ``phoid_config_default``'s values): ``sample_time`` (s), ``P`` (command units/m),
         ``D`` (command units/(m/s)), ``gain`` K, ``command_gain`` G, ``velocity`` (a preset
-        name of :data:`phoid.dynamics.controller.VELOCITY_PRESETS` or 0, 1, 2),
-        ``filter_pole`` a = exp(−ω_c T) or ``cutoff`` ω_c (rad/s, converted), ``delay_samples``,
+        name of :data:`phoid.dynamics.velocity.VELOCITY_PRESETS` or 0, 1, 2),
+        ``filter_pole`` a = exp(−ω_c T) or ``cutoff`` ω_c (rad/s, converted to the pole of
+        :class:`phoid.dynamics.velocity.VelocityFilter`, which checks it), ``delay_samples``,
         ``hold_P``, ``hold_D``, ``x_start`` (m), ``hold_samples``, ``run_samples``, ``x_min``,
         ``x_max`` (m), ``u_max`` (command units), ``growth_limit``, ``stall_samples``,
         ``stall_epsilon`` (m), ``has_force`` (1: a force sensor is declared, every
@@ -283,9 +287,9 @@ class Controller:
         if "cutoff" in items:
             if "filter_pole" in items:
                 raise ValueError("give `cutoff` (rad/s) or `filter_pole`, not both")
-            cutoff = float(items.pop("cutoff"))
-            T = float(items.get("sample_time", cfg.sample_time))
-            items["filter_pole"] = math.exp(-cutoff * T) if cutoff > 0 else -1.0
+            cutoff = items.pop("cutoff")
+            T = items.get("sample_time", cfg.sample_time)
+            items["filter_pole"] = VelocityFilter("filtered", T, cutoff).filter_pole
         for key, value in items.items():
             if key not in names:
                 raise ValueError(f"unknown controller field `{key}`; the fields are "

@@ -29,6 +29,7 @@ from phoid.errors import ExperimentError
 from phoid.io.limits import MAX_MANIFEST_BYTES
 from phoid.io.manifest import read_manifest
 from phoid.rig.checks import MANIFEST, MAX_COUNT, RigError, clip, variant
+from phoid.rig.native import VELOCITIES
 
 __all__ = [
     "EVENT_CHARS",
@@ -441,6 +442,22 @@ def check_targets(folder: OutputFolder, files: list[str], status: list[str],
 
 
 
+def _loop_table(cfg: Mapping[str, Any]) -> dict[str, Any]:
+    """The set's ``[loop]`` from the controller's configuration: its period, delay and velocity
+    estimator, named as phoid names it (the C code's preset, :data:`phoid.rig.native.VELOCITIES`;
+    a filtered one with its cut-off −ln(a)/T from the pole a)."""
+    code = cfg.get("velocity", 0)
+    name = next((n for n, c in VELOCITIES.items() if c == code), None)
+    if name is None:
+        raise RigError(f"the controller's velocity estimator {code!r} is none of "
+                       f"{', '.join(f'{c} ({n})' for n, c in VELOCITIES.items())}")
+    loop = {"sample_time": cfg["sample_time"], "delay_samples": cfg["delay_samples"],
+            "velocity": name}
+    if name == "filtered":
+        loop["cutoff"] = -math.log(cfg["filter_pole"]) / cfg["sample_time"]
+    return loop
+
+
 def compose(sched: Mapping[str, Any], configs: list[dict[str, Any]],
              attempts: list[dict[str, Any]], status: list[str], keep: int) -> bytes:
     """The manifest's bytes, with at most ``keep`` events recorded per attempt."""
@@ -462,8 +479,7 @@ def compose(sched: Mapping[str, Any], configs: list[dict[str, Any]],
         "title": f"phoid run: {sum(s == 'complete' for s in status)} of {len(status)} runs of "
                  f"{sched['path']}",
         "format": "phoid/1", "method": "pho",
-        "loop": {"sample_time": cfg0["sample_time"], "delay_samples": cfg0["delay_samples"],
-                 "velocity": "backward-difference"},
+        "loop": _loop_table(cfg0),
         "rig": {"tool": "phoid run", "protocol": 1, "plan": str(Path(sched["path"]).resolve()),
                 "complete": all(s == "complete" for s in status),
                 "hold_P": cfg0["hold_P"], "hold_D": cfg0["hold_D"],

@@ -149,7 +149,7 @@ int phoid_init(phoid_ctrl *c, const phoid_config *cfg)
     }
     c->cfg = *cfg;
     T = cfg->sample_time;
-    /* the coefficients as phoid's SampledController.velocity_filter computes them */
+    /* the coefficients as phoid.dynamics.velocity.VelocityFilter defines them */
     if (cfg->velocity == PHOID_VEL_BACKWARD) {
         c->c0 = 1.0 / T;
         c->c1 = 0.0;
