@@ -37,6 +37,7 @@ import bench_adequacy  # noqa: E402
 import bench_batch  # noqa: E402
 import bench_emps  # noqa: E402
 import bench_identify  # noqa: E402
+import bench_inloop  # noqa: E402
 import bench_scaling  # noqa: E402
 import bench_simulate  # noqa: E402
 import bench_startup  # noqa: E402
@@ -586,7 +587,8 @@ def _targets(res: dict) -> tuple[list[str], list[str]]:
                 x = bench_scaling.times_record(p)
                 rep.append((name, x <= FEW_TIMES, f"{x:.1f}×"))
     for t in (*res.get("emps", {}).get("targets", []),
-              *res.get("adequacy", {}).get("targets", [])):
+              *res.get("adequacy", {}).get("targets", []),
+              *res.get("inloop", {}).get("targets", [])):
         (acc if t["enforced"] else rep).append((t["name"], t["ok"], t["got"]))
     st = res.get("startup")
     if st:
@@ -717,7 +719,8 @@ def main() -> int:
                     help="Monte Carlo replicas for phoid (1000; --quick: 100)")
     ap.add_argument("--repeats", type=int, default=None, help="timing repeats (9)")
     ap.add_argument("--workers", type=int, default=2, help="Monte Carlo worker processes (2)")
-    ap.add_argument("--only", default="sets,mc,speed,sim,scaling,startup,emps,batch,adequacy",
+    ap.add_argument("--only",
+                    default="sets,mc,speed,sim,scaling,startup,emps,batch,adequacy,inloop",
                     help="comma-separated sections to run (for development; the default runs "
                          "all and is what BENCHMARKS.md must come from)")
     ap.add_argument("--write", action="store_true",
@@ -758,6 +761,7 @@ def main() -> int:
                     "blas_threads": os.environ.get("OPENBLAS_NUM_THREADS")},
         "sets": {}, "monte_carlo": {}, "identification_speed": {}, "simulation": {},
         "scaling": {}, "startup": {}, "emps": {}, "batch": {}, "adequacy": {},
+        "inloop": {},
     }
 
     # one step of the progress bar per log line: the sets, then each section (per set)
@@ -765,6 +769,7 @@ def main() -> int:
                     for sec in ("speed", "sim", "mc", "scaling", "startup", "emps", "batch")
                     if sec in only)
     steps += len(bench_adequacy.CASES) if "adequacy" in only else 0
+    steps += len(bench_inloop.CASE_NAMES) if "inloop" in only else 0
     if sys.stdout.isatty() and not args.no_progress:
         phoid_progress(True)
     with progress_task("benchmark", total=steps) as advance:  # erased before the report
@@ -830,6 +835,9 @@ def _run_sections(args, res, only, replicas, phoid_replicas, repeats, t_start, a
         res["adequacy"] = bench_adequacy.run(
             bench_adequacy.QUICK_REPLICAS if args.quick else bench_adequacy.FULL_REPLICAS,
             workers=args.workers, log=log)
+    if "inloop" in only:  # issue 28: noise inside a digital loop, against the in-loop bound
+        res["inloop"] = bench_inloop.run(replicas, workers=args.workers,
+                                         repeats=min(repeats, 5), log=log)
     res["wall_s"] = time.perf_counter() - t_start
 
 
@@ -855,7 +863,8 @@ def _report(args, res, opts, command) -> int:
     lines += [*target_lines, ""]
     for sec in (_sets_section, _mc_section, _speed_section, _sim_section, _scaling_section,
                 _startup_section, _emps_section, lambda r: bench_batch.section(r.get("batch")),
-                lambda r: bench_adequacy.section(r.get("adequacy"))):
+                lambda r: bench_adequacy.section(r.get("adequacy")),
+                lambda r: bench_inloop.section(r.get("inloop"), r.get("monte_carlo"))):
         part = sec(res)
         if part:
             lines += [*part, ""]
