@@ -35,11 +35,26 @@ TS = 0.002
 REL = 1e-9
 
 
-def _sampled_reference(P, D, *, M, d, cutoff, hold, duration, e, quantum, plant=(M_, C_, K_),
-                       v0=V0):
+# velocity estimators, by hand: Σᵢ aᵢ v̂ₙ₋ᵢ = Σⱼ bⱼ x̃ₙ₋ⱼ (b in 1/s)
+_POLE = np.exp(-300.0 * TS)
+ESTIMATORS = {
+    "backward-difference": (dict(velocity="backward-difference"), (1 / TS, -1 / TS), (1.0,)),
+    "filtered": (dict(velocity="filtered", cutoff=300.0),
+                 ((1 - _POLE) / TS, -(1 - _POLE) / TS), (1.0, -_POLE)),
+    "central-difference": (dict(velocity="central-difference"),
+                           (0.5 / TS, 0.0, -0.5 / TS), (1.0,)),
+    "fir": (dict(velocity=(3 / (6 * TS), -1 / (6 * TS), -1 / (6 * TS), -1 / (6 * TS))),
+            (3 / (6 * TS), -1 / (6 * TS), -1 / (6 * TS), -1 / (6 * TS)), (1.0,)),
+}
+
+
+def _sampled_reference(P, D, *, M, d, est, hold, duration, e, quantum, plant=(M_, C_, K_),
+                       v0=V0, offset=OFFSET):
     """Per-recorder-interval loop: exact ZOH maps Φ(h), Γ(h) from expm; the controller reads
-    x̃ = Q(x + offset + e_j) at j = nM, v̂_n = a v̂_{n−1} + c_f (x̃_n − x̃_{n−1}) from
-    x̃_{−1} = Q(x₀ + offset), v̂_{−1} = 0; applied u_{n−d} (−P x̃_{−1} before the record)."""
+    x̃ = Q(x + offset + e_j) at j = nM, v̂_n = Σ b_j x̃_{n−j} − Σ_{i≥1} a_i v̂_{n−i} with
+    x̃ = Q(x₀ + offset), v̂ = 0 before the record; applied u_{n−d} (−P Q(x₀ + offset) before
+    the record)."""
+    b, a = (np.array(c) for c in ESTIMATORS[est][1:])
     m, c, k = plant
     fs = M / TS
     h = 1.0 / fs
@@ -50,31 +65,31 @@ def _sampled_reference(P, D, *, M, d, cutoff, hold, duration, e, quantum, plant=
     Mx[1, 2] = h / m
     E = expm(Mx)
     Phi, Gam = E[:2, :2], E[:2, 2]
-    a = np.exp(-cutoff * TS) if cutoff is not None else 0.0
-    cf = (1.0 - a) / TS
 
     def Q(z):
         return np.round(z / quantum) * quantum if quantum > 0 else z
 
     B = len(P)
     X, XR, UA = np.empty((B, N)), np.empty((B, N)), np.empty((B, N))
-    for b in range(B):
-        x_pre = Q(X0 + OFFSET)
-        xr_prev, ve, U = x_pre, 0.0, {}
+    for r in range(B):
+        x_pre = Q(X0 + offset)
+        xs, vs, U = [x_pre] * (b.size - 1), [0.0] * (a.size - 1), {}  # the histories
         y = np.array([X0, 0.0])
         for j in range(N):
             if j == j_rel:
                 y = np.array([X0, v0])
-            X[b, j] = y[0]
-            XR[b, j] = Q(y[0] + OFFSET + e[b, j])
+            X[r, j] = y[0]
+            XR[r, j] = Q(y[0] + offset + e[r, j])
             n = j // M
             if j % M == 0:
-                ve = a * ve + cf * (XR[b, j] - xr_prev)
-                xr_prev = XR[b, j]
-                U[n] = -(P[b] * XR[b, j] + D[b] * ve)
-            UA[b, j] = U[n - d] if n - d >= 0 else -P[b] * x_pre
+                xs.append(XR[r, j])
+                ve = sum(b[i] * xs[-1 - i] for i in range(b.size))
+                ve -= sum(a[i] * vs[-i] for i in range(1, a.size))
+                vs.append(ve)
+                U[n] = -(P[r] * XR[r, j] + D[r] * ve)
+            UA[r, j] = U[n - d] if n - d >= 0 else -P[r] * x_pre
             if j >= j_rel:
-                y = Phi @ y + Gam * UA[b, j]
+                y = Phi @ y + Gam * UA[r, j]
     return X, XR, UA
 
 
@@ -95,18 +110,16 @@ def _close(sim, ref, what=""):
 @pytest.mark.parametrize("quantum", [0.0, 1e-6])
 @pytest.mark.parametrize("M", [1, 4])
 @pytest.mark.parametrize("d", [0, 3])
-@pytest.mark.parametrize("cutoff", [None, 300.0])
-def test_sampled_in_loop_matches_reference(cutoff, d, M, quantum):
+@pytest.mark.parametrize("est", list(ESTIMATORS))
+def test_sampled_in_loop_matches_reference(est, d, M, quantum):
     # hold 0.203 s with M = 4: a release between two controller instants (a partial period)
     hold = 0.203 if M == 4 else 0.2
-    velocity = "filtered" if cutoff else "backward-difference"
     sim = simulate(Plant(M_, C_, K_), P2, D2, duration=1.0, fs=M / TS, x0=X0, v0=V0,
-                   hold=hold, sample_time=TS, delay_samples=d, velocity=velocity,
-                   cutoff=cutoff, noise=NOISE, quantum=quantum, offset=OFFSET,
-                   rng=np.random.default_rng(5))
+                   hold=hold, sample_time=TS, delay_samples=d, noise=NOISE, quantum=quantum,
+                   offset=OFFSET, rng=np.random.default_rng(5), **ESTIMATORS[est][0])
     assert sim.noise_in_loop is True  # the default of a sampled loop
     e = _draws(5, sim.x.shape)
-    _close(sim, _sampled_reference(P2, D2, M=M, d=d, cutoff=cutoff, hold=hold, duration=1.0,
+    _close(sim, _sampled_reference(P2, D2, M=M, d=d, est=est, hold=hold, duration=1.0,
                                    e=e, quantum=quantum))
     # the recorded value at a controller instant is what the controller read: bit for bit
     # with the quantiser (both are quantise(x_true + offset + e) of the same x_true there)
@@ -116,17 +129,37 @@ def test_sampled_in_loop_matches_reference(cutoff, d, M, quantum):
         assert np.array_equal(inst, again)
 
 
+@pytest.mark.parametrize("est", ["backward-difference", "central-difference"])
 @pytest.mark.parametrize("quantum", [0.0, 1e-6])
-def test_block_path_reads_the_sensor(quantum):
+def test_block_path_reads_the_sensor(quantum, est):
     # a bias with every sign prescribed 0 leaves the loop linear but takes the block-by-block
     # path (the friction's): it must read x̃ like the others
     M, d, hold = 3, 2, 0.006
     sim = simulate(Plant(M_, C_, K_), P2, D2, duration=0.8, fs=M / TS, x0=X0, v0=V0,
                    hold=hold, sample_time=TS, delay_samples=d, noise=NOISE, quantum=quantum,
                    offset=OFFSET, rng=np.random.default_rng(8), bias=0.1,
-                   bias_signs=np.zeros((2, 1000)))
-    _close(sim, _sampled_reference(P2, D2, M=M, d=d, cutoff=None, hold=hold, duration=0.8,
+                   bias_signs=np.zeros((2, 1000)), **ESTIMATORS[est][0])
+    _close(sim, _sampled_reference(P2, D2, M=M, d=d, est=est, hold=hold, duration=0.8,
                                    e=_draws(8, sim.x.shape), quantum=quantum))
+
+
+@pytest.mark.parametrize("est", ["central-difference", "fir"])
+@pytest.mark.parametrize("bias", [None, 0.1])
+def test_other_estimators_outside_the_loop(est, bias):
+    # estimators that are not first-order (no χ recursion): the exact x read, one exact step
+    # per period (linear) or the block path (a bias, its signs prescribed 0), as the reference
+    # reading x itself (offset and noise 0)
+    M, d, hold = 2, 1, 0.1
+    kw = {} if bias is None else dict(bias=bias, bias_signs=np.zeros((2, 1000)))
+    sim = simulate(Plant(M_, C_, K_), P2, D2, duration=0.8, fs=M / TS, x0=X0, v0=V0, hold=hold,
+                   sample_time=TS, delay_samples=d, noise=NOISE, offset=OFFSET,
+                   rng=np.random.default_rng(4), noise_in_loop=False, **kw,
+                   **ESTIMATORS[est][0])
+    X, _, UA = _sampled_reference(P2, D2, M=M, d=d, est=est, hold=hold, duration=0.8,
+                                  e=np.zeros(sim.x.shape), quantum=0.0, offset=0.0)
+    np.testing.assert_allclose(sim.x_true, X, rtol=0, atol=REL * np.max(np.abs(X)))
+    np.testing.assert_allclose(sim.u, UA, rtol=0, atol=REL * np.max(np.abs(UA)))
+    assert np.array_equal(sim.x, sim.x_true + OFFSET + _draws(4, sim.x.shape))
 
 
 def test_friction_stuck_mass_commands_from_readings():
@@ -137,7 +170,7 @@ def test_friction_stuck_mass_commands_from_readings():
     sim = simulate(Plant(M_, C_, K_, 5.0), P2, D2, duration=0.5, fs=M / TS, x0=X0, hold=0.1,
                    sample_time=TS, delay_samples=d, velocity="filtered", cutoff=300.0,
                    noise=NOISE, quantum=q, offset=OFFSET, rng=np.random.default_rng(9))
-    _, XR, UA = _sampled_reference(P2, D2, M=M, d=d, cutoff=300.0, hold=0.6, duration=1e-9,
+    _, XR, UA = _sampled_reference(P2, D2, M=M, d=d, est="filtered", hold=0.6, duration=1e-9,
                                    e=_draws(9, sim.x.shape), quantum=q, v0=0.0)
     assert np.all(sim.x_true == X0)
     assert np.array_equal(sim.x, XR)
@@ -320,3 +353,4 @@ def test_a_motion_the_reading_overflows_is_refused_in_one_line():
         simulate(Plant(M_, C_, K_), 1e10, 0.5, duration=0.5, fs=1 / TS, sample_time=TS,
                  offset=1e300)
     assert "\n" not in str(info.value)
+

@@ -1,13 +1,14 @@
 r"""The sampled (digital) control loop of :mod:`phoid.dynamics.digital`, simulated exactly.
 
 With ``sample_time`` = T_s the controller samples x_n = x(nT_s) on its own clock (t_n = nT_s
-from t = 0), estimates the velocity by the backward difference or its first-order low pass,
-computes u_n = −(P x_n + D v̂_n) and holds u(t) = u_{n−d} on [nT_s, (n+1)T_s)
-(``delay_samples`` = d). While the mass is held the controller runs on x = x₀ (v̂ = 0,
-commands −P x₀), as in the continuous path. The recorder samples at f_s = M/T_s, M a whole
+from t = 0), estimates the velocity (:mod:`phoid.dynamics.velocity`: the backward difference,
+its first-order low pass, the central difference or FIR coefficients), computes
+u_n = −(P x_n + D v̂_n) and holds u(t) = u_{n−d} on [nT_s, (n+1)T_s) (``delay_samples`` = d).
+While the mass is held the controller runs on x = x₀ (v̂ = 0, commands −P x₀), as in the
+continuous path. The recorder samples at f_s = M/T_s, M a whole
 number ≥ 1, and ``hold`` must be a whole number of recorder intervals (a release between two
 controller instants is allowed: the first period after it is partial). Scheme, for the linear
-plant (f_c = 0):
+plant (f_c = 0) and a first-order estimator (v̂_n = a v̂_{n−1} + c_f (x_n − x_{n−1})):
 
 1. **Controller instants.** From the first controller instant after the release, x_n obeys
    χ(q) x_n = [Q-terms of the release state] + [the external force], χ the exact characteristic
@@ -60,6 +61,13 @@ Q(x₀ + offset + eⱼ), and its commands (v̂ no longer 0) queue with the delay
   exact 2 × 2 map y_{n+1} = Φ y_n + Γ u_{n−d} (+ the force's share); the samples between
   instants as in item 3.
 * **Friction or bias.** The block-by-block path reads x̃ instead of x (the same blocks).
+
+Other estimators
+----------------
+An estimator that is not first-order (the central difference, FIR coefficients; Σᵢ aᵢ v̂ₙ₋ᵢ =
+Σⱼ bⱼ xₙ₋ⱼ) has no χ recursion here: the linear loop takes the period-by-period path of the
+quantiser (reading x, or x̃ with the noise in the loop), and the block path runs the estimator
+from its histories (the last r_b readings and r_a estimates).
 """
 
 from __future__ import annotations
@@ -166,12 +174,14 @@ def run_sampled(m, c, k, fc, P, D, x0, v0, hold, fs, N, force, loop: DigitalPD, 
         if signs is not None:
             S_out[:, : min(n_last + 1, signs.shape[1])] = signs[:, : n_last + 1]
     u_pre = -P * x0  # the commands queued before the record
-    Xr = rfull = held = None
+    first = loop.estimator.first_order  # v̂ₙ = a v̂ₙ₋₁ + c_f (xₙ − xₙ₋₁): the χ recursion
+    n_hold = min(n1, n_last + 1)  # the instants while the mass is held
+    Xr = rfull = None
+    held = (x0, np.zeros((B, n_hold)))  # reading before the record, v̂ while held
     if reading is not None:
-        n_hold = min(n1, n_last + 1)  # the instants while the mass is held
         Xr = np.empty((B, n_last + 1))
         Xr[:, :n_hold] = reading.read(x0[:, None], np.arange(n_hold) * Mr)
-        if fc == 0 and bias is None and reading.linear:
+        if fc == 0 and bias is None and reading.linear and first:
             rfull = _perturbation(P, D, loop, reading, Mr, n_last)
             U[:, :n_hold] += rfull[:, d + 1 : d + 1 + n_hold]
             u_pre = u_pre + rfull[:, 0]
@@ -202,8 +212,8 @@ def run_sampled(m, c, k, fc, P, D, x0, v0, hold, fs, N, force, loop: DigitalPD, 
         if fc > 0 or bias is not None:  # the bias makes the loop nonlinear: block by block
             _sampled_friction(m, c, k, fc, P, D, x0, v0, loop, geo, cF, out, bias,
                               None if bias is None else (S_out, signs is not None),
-                              None if reading is None else (reading, Xr, held, u_pre))
-        elif reading is not None and not reading.linear:
+                              (reading, Xr, held, u_pre))
+        elif not first or (reading is not None and not reading.linear):
             _sampled_stepwise(m, c, k, P, D, x0, v0, loop, geo, cF, out, reading, Xr, held,
                               u_pre)
         else:
@@ -234,31 +244,51 @@ def _perturbation(P, D, loop: DigitalPD, reading: Reading, Mr: int, n_last: int)
     return r
 
 
-def _estimate(a: float, cf: float, x_prev, ve_prev, xs) -> np.ndarray:
-    """v̂ at readings xs (B, k) after the reading x_prev and the estimate ve_prev (B,)."""
-    dx = np.diff(np.concatenate([x_prev[:, None], xs], axis=1), axis=1)
-    return recurse([1.0, -a], dx, b=[cf], zi=(a * ve_prev)[:, None])
+def _estimate(est, xs, x_hist, v_hist) -> np.ndarray:
+    """v̂ (B, k) of the estimator ``est`` (:class:`~phoid.dynamics.velocity.VelocityFilter`,
+    Σᵢ aᵢ v̂ₙ₋ᵢ = Σⱼ bⱼ xₙ₋ⱼ) at the readings xs (B, k), after the readings x_hist (B, ≥ r_b)
+    and estimates v_hist (B, ≥ r_a) before them (oldest first)."""
+    b, a = est.coefficients()
+    rb, ra = b.size - 1, a.size - 1
+    k = xs.shape[1]
+    z = np.zeros((xs.shape[0], min(max(rb, ra), k)))  # the history's share of the first ones
+    for n in range(z.shape[1]):
+        for j in range(n + 1, rb + 1):
+            z[:, n] += b[j] * x_hist[:, x_hist.shape[1] + n - j]
+        for i in range(n + 1, ra + 1):
+            z[:, n] -= a[i] * v_hist[:, v_hist.shape[1] + n - i]
+    return recurse(a, xs, b=b, zi=z if z.size else None)
+
+
+def _histories(est, x_pre, v_held, Xh):
+    """The last r_b readings and r_a estimates (oldest first) at the last held instant: the
+    held readings Xh (B, n) and estimates v_held after the pre-record reading x_pre at rest."""
+    B = x_pre.size
+    b, a = est.coefficients()
+    rb, ra = b.size - 1, a.size - 1
+    xh = np.concatenate([np.repeat(x_pre[:, None], rb, axis=1), Xh], axis=1)[:, Xh.shape[1]:]
+    vh = np.concatenate([np.zeros((B, ra)), v_held], axis=1)[:, v_held.shape[1]:]
+    return xh, vh
 
 
 def _held_commands(P, D, loop: DigitalPD, reading: Reading, x0, Xh, U, bias, signs):
     """The commands of the held instants (readings Xh (B, n)) into U[:, :n].
 
     The estimator starts from the reading before the record, Q(x₀ + offset), at rest. Returns
-    that reading, and the last held instant's reading and v̂ (the estimator's state at the
-    release; the reading before the record and 0 when no instant is held).
+    that reading and the estimates v̂ (B, n) of the held instants.
     """
     x_pre = reading.read(x0[:, None], None)[:, 0]
     n = Xh.shape[1]
-    if n == 0:
-        return x_pre, x_pre, np.zeros(P.size)
-    ve = _estimate(loop.filter_pole, loop.filter_gain, x_pre, np.zeros(P.size), Xh)
-    U[:, :n] = -(P[:, None] * Xh + D[:, None] * ve)
-    if bias is not None:
+    est = loop.estimator
+    ve = _estimate(est, Xh, *_histories(est, x_pre, np.zeros((P.size, 0)), Xh[:, :0]))
+    if n:
+        U[:, :n] = -(P[:, None] * Xh + D[:, None] * ve)
+    if bias is not None and n:
         S, given = signs
         if not given:
             S[:, :n] = np.sign(ve)
         U[:, :n] += bias[:, None] * S[:, :n]
-    return x_pre, Xh[:, -1].copy(), ve[:, -1].copy()
+    return x_pre, ve
 
 
 @dataclass(frozen=True)
@@ -444,16 +474,15 @@ def _sampled_linear(m, c, k, P, D, x0, v0, loop, geo: _SampledGeometry, cF, out,
 
 
 def _sampled_stepwise(m, c, k, P, D, x0, v0, loop, geo: _SampledGeometry, cF, out,
-                      reading: Reading, Xr, held, u_pre) -> None:
-    """f_c = 0 with a quantiser in the loop: one exact period at a time from the release
-    (y_{n+1} = Φ y_n + Γ u_{n−d} + the force's share), vectorised over the runs; then samples."""
+                      reading: Reading | None, Xr, held, u_pre) -> None:
+    """f_c = 0 with a quantiser in the loop, or an estimator that is not first-order: one exact
+    period at a time from the release (y_{n+1} = Φ y_n + Γ u_{n−d} + the force's share),
+    vectorised over the runs; then samples. ``reading`` None: the controller reads x."""
     _, _, U = out
     B = P.size
     T, d = loop.sample_time, loop.delay_samples
-    a, cf = loop.filter_pole, loop.filter_gain
     Mr, n1, n_last = geo.Mr, geo.n1, geo.n_last
     A0 = np.array([[0.0, 1.0], [-k / m, -c / m]])
-    _, x_prev, ve = held
     up = U[:, n1 - 1 - d] if n1 - 1 - d >= 0 else u_pre
     y = _to_first_instant(A0, m, x0, v0, up, geo, cF, out)
     if n1 > n_last:
@@ -462,24 +491,41 @@ def _sampled_stepwise(m, c, k, P, D, x0, v0, loop, geo: _SampledGeometry, cF, ou
     eng = Engine(A0[None], m, T, 1)
     PhiT, Gam = eng.Phi[0].T.copy(), eng.K[0][:, 0]
     gF, part = _force_shares(A0, m, geo, cF, L)
+    # the readings and estimates from r_b and r_a instants before n1 on (oldest first)
+    b, a = loop.estimator.coefficients()
+    rb, ra = b.size - 1, a.size - 1
+    x_pre, v_held = held
+    n_held = v_held.shape[1]  # = n1 (the held instants)
+    Xh = np.repeat(x0[:, None], n_held, axis=1) if reading is None else Xr[:, :n_held]
+    xh, vh = _histories(loop.estimator, x_pre, v_held, Xh)
+    XP = np.empty((B, rb + L + 1))
+    XP[:, :rb] = xh
+    VP = np.empty((B, ra + L + 1))
+    VP[:, :ra] = vh
+    b_rev, a_rev = b[::-1].copy(), a[:0:-1].copy()  # b_rb … b_0 and a_ra … a_1
+    # the draws at the instants, period-major (Reading.read's operations, inlined)
+    e_at = None
+    if reading is not None and reading.e is not None:
+        e_at = np.ascontiguousarray(reading.e[:, n1 * Mr : n_last * Mr + 1 : Mr].T)
     Y = np.empty((B, 2, L + 1))
     uapp = np.empty((B, L + 1))
-    # the draws at the instants, period-major (Reading.read's operations, inlined)
-    e_at = None if reading.e is None else np.ascontiguousarray(
-        reading.e[:, n1 * Mr : n_last * Mr + 1 : Mr].T)
-    off, q = reading.offset, reading.quantum
     progress_step(0, total=L + 1)  # the progress bar's total (a no-op unless shown)
     for i in range(L + 1):  # one iteration per controller period
         n = n1 + i
         Y[:, :, i] = y
-        xr = y[:, 0] + off
-        if e_at is not None:
-            xr = xr + e_at[i]
-        xr = np.round(xr / q) * q
-        ve = a * ve + cf * (xr - x_prev)
+        xr = y[:, 0]
+        if reading is not None:
+            xr = xr + reading.offset
+            if e_at is not None:
+                xr = xr + e_at[i]
+            if reading.quantum > 0:
+                xr = np.round(xr / reading.quantum) * reading.quantum
+        XP[:, rb + i] = xr
+        ve = XP[:, i : i + rb + 1] @ b_rev
+        if ra:
+            ve = ve - VP[:, i : i + ra] @ a_rev
+        VP[:, ra + i] = ve
         U[:, n] = -(P * xr + D * ve)
-        Xr[:, n] = xr
-        x_prev = xr
         ua = U[:, n - d] if n - d >= 0 else u_pre
         uapp[:, i] = ua
         if i < L:
@@ -488,6 +534,8 @@ def _sampled_stepwise(m, c, k, P, D, x0, v0, loop, geo: _SampledGeometry, cF, ou
                 y = y + gF[i]
         if i % 1024 == 1023:
             progress_step(1024)
+    if Xr is not None:
+        Xr[:, n1:] = XP[:, rb:]
     _record(A0, m, geo, Y, uapp, part, out)
 
 
@@ -496,13 +544,15 @@ def _sampled_friction(m, c, k, fc, P, D, x0, v0, loop, geo: _SampledGeometry, cF
     """f_c > 0 or a bias: stick–slip propagation in blocks of d + 1 periods, commands after
     each block (u_n = −(P x_n + D v̂_n) + b sign(v̂_n)). ``signs`` = (S, prescribed): S (B, n)
     receives sign(v̂_n), or, when prescribed, gives it (the switching pattern held fixed).
-    ``inloop`` = (reading, Xr, held, u_pre): the commands read x̃ = reading.read(x) (into Xr)
-    from the held instants' state ``held`` (:func:`_held_commands`) on; u_pre the commands
-    queued before the record."""
+    ``inloop`` = (reading, Xr, held, u_pre): with a ``reading`` the commands read
+    x̃ = reading.read(x) (into Xr); ``held`` = (the reading before the record, the estimates
+    of the held instants) (:func:`_held_commands`); u_pre the commands queued before the
+    record."""
     x_true, vel, U = out
     B = P.size
     d = loop.delay_samples
-    a, cf = loop.filter_pole, loop.filter_gain
+    if loop.estimator.first_order:
+        a, cf = loop.filter_pole, loop.filter_gain
     Mr, S, j_rel, n1, n_last = geo.Mr, geo.S, geo.j_rel, geo.n1, geo.n_last
     A0 = np.array([[0.0, 1.0], [-k / m, -c / m]])
     eng = Engine(A0[None], m, geo.h / S, geo.k_total)
@@ -511,10 +561,14 @@ def _sampled_friction(m, c, k, fc, P, D, x0, v0, loop, geo: _SampledGeometry, cF
     xs = x0.copy()
     Xc = np.empty((B, n_last + 1))  # x at the controller instants
     state = {"done": n1 - 1, "x": x0.copy(), "ve": np.zeros(B)}
-    u_pre = -P * x0
-    if inloop is not None:
-        reading, Xr, held, u_pre = inloop
-        state.update(x=held[1], ve=held[2])
+    reading, Xr, held, u_pre = inloop
+    est = loop.estimator
+    general = reading is not None or not est.first_order
+    if general:  # the estimator's histories (oldest first) at the last held instant
+        x_pre, v_held = held
+        n_h = v_held.shape[1]
+        Xh = Xr[:, :n_h] if reading is not None else np.repeat(x0[:, None], n_h, axis=1)
+        state["xh"], state["vh"] = _histories(est, x_pre, v_held, Xh)
 
     def commands(upto: int) -> None:
         """u_n for the instants after the last one done, up to ``upto``."""
@@ -522,11 +576,17 @@ def _sampled_friction(m, c, k, fc, P, D, x0, v0, loop, geo: _SampledGeometry, cF
         if upto < lo:
             return
         xseq = Xc[:, lo : upto + 1]
-        if inloop is not None:  # what the controller reads
+        if reading is not None:  # what the controller reads
             xseq = reading.read(xseq, np.arange(lo, upto + 1) * Mr)
             Xr[:, lo : upto + 1] = xseq
-        dx = np.diff(np.concatenate([state["x"][:, None], xseq], axis=1), axis=1)
-        ve = recurse([1.0, -a], dx, b=[cf], zi=(a * state["ve"])[:, None])
+        if general:
+            ve = _estimate(est, xseq, state["xh"], state["vh"])
+            cnt = xseq.shape[1]
+            state["xh"] = np.concatenate([state["xh"], xseq], axis=1)[:, cnt:]
+            state["vh"] = np.concatenate([state["vh"], ve], axis=1)[:, cnt:]
+        else:  # first-order, the exact x
+            dx = np.diff(np.concatenate([state["x"][:, None], xseq], axis=1), axis=1)
+            ve = recurse([1.0, -a], dx, b=[cf], zi=(a * state["ve"])[:, None])
         U[:, lo : upto + 1] = -(P[:, None] * xseq + D[:, None] * ve)
         if bias is not None:
             S, given = signs
@@ -535,7 +595,7 @@ def _sampled_friction(m, c, k, fc, P, D, x0, v0, loop, geo: _SampledGeometry, cF
             U[:, lo : upto + 1] += bias[:, None] * S[:, lo : upto + 1]
         state.update(done=upto, x=xseq[:, -1].copy(), ve=ve[:, -1].copy())
 
-    if inloop is None:
+    if reading is None:
         f0 = -P * x0
     else:  # the command applied at the release (one read there when it is an instant)
         if geo.k_inst(n1) == 0 and n1 <= n_last:

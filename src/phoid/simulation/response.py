@@ -34,7 +34,7 @@ record.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
@@ -75,7 +75,7 @@ def simulate(
     offset: float = 0.0,
     rng: np.random.Generator | None = None,
     sample_time: float | None = None,
-    velocity: str = "backward-difference",
+    velocity: str | Sequence[float] = "backward-difference",
     cutoff: float | None = None,
     delay_samples: int = 0,
     bias: np.ndarray | float = 0.0,
@@ -133,9 +133,12 @@ def simulate(
         continuous one (``delay`` must then be 0; the command delay is ``delay_samples``).
         ``fs`` must be a whole multiple M ≥ 1 of 1/T_s and ``hold`` a whole number of 1/fs.
         The four-samples-per-period rule of the continuous loop does not apply.
-    velocity : {"backward-difference", "filtered"}
-        Velocity estimator of the sampled controller (see
-        :class:`phoid.dynamics.digital.DigitalPD`).
+    velocity : str or sequence of float, default "backward-difference"
+        Velocity estimator of the sampled controller: a preset of
+        :mod:`phoid.dynamics.velocity` (``"backward-difference"``, ``"central-difference"``,
+        ``"filtered"``) or FIR coefficients b₀, b₁, … (1/s) of v̂ₙ = Σⱼ bⱼ xₙ₋ⱼ (see
+        :class:`phoid.dynamics.digital.DigitalPD`). The first-order ones take the χ recursion
+        of :mod:`phoid.simulation._sampled`; the others one exact step per controller period.
     cutoff : float, optional
         Cut-off ω_c of the filtered estimator, rad/s (required with ``velocity="filtered"``).
     delay_samples : int, default 0
@@ -275,9 +278,10 @@ def simulate(
             raise ValueError(
                 f"`delay` = {delay:g} s is longer than `duration` ({duration:g} s): the "
                 "feedback would never act on the released motion within the record")
-        if delay_samples != 0 or velocity != "backward-difference" or cutoff is not None:
+        plain = isinstance(velocity, str) and velocity == "backward-difference"
+        if delay_samples != 0 or not plain or cutoff is not None:
             name = "delay_samples" if delay_samples != 0 else (
-                "velocity" if velocity != "backward-difference" else "cutoff")
+                "velocity" if not plain else "cutoff")
             raise ValueError(
                 f"`{name}` applies only to a sampled controller: give `sample_time` as well"
             )

@@ -47,8 +47,9 @@ class Simulation:
         ``delay`` is the command delay d·T_s and ``u`` the held command u_{n−d}.
     delay_samples : int
         Command delay d of the sampled controller, samples (0 for a continuous loop).
-    velocity : str or None
-        Velocity estimator of the sampled controller (None for a continuous loop).
+    velocity : str, tuple of float or None
+        Velocity estimator of the sampled controller: a preset name or FIR coefficients, 1/s
+        (None for a continuous loop).
     cutoff : float or None
         Cut-off ω_c of the filtered velocity estimator, rad/s.
     bias : ndarray, shape (B,) or None
@@ -75,7 +76,7 @@ class Simulation:
     fs: float
     sample_time: float | None = None
     delay_samples: int = 0
-    velocity: str | None = None
+    velocity: str | tuple[float, ...] | None = None
     cutoff: float | None = None
     bias: np.ndarray | None = None
     bias_signs: np.ndarray | None = None
