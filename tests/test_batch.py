@@ -172,7 +172,7 @@ def test_rows_equal_identify_json_and_a_rerun_skips_them(base_sets, tmp_path):
     assert row["meta_temperature"] == 21.5
     assert row["time"] == pd.Timestamp("2026-11-30T08:15:00Z")
     assert json.loads(row["options"]) == {"delay": None, "estimator": None, "friction": False,
-                                          "mass": None, "no_compensation": False}
+                                          "mass": None, "no_compensation": False, "noise": None}
     assert not out.with_suffix(".journal.jsonl").exists()  # finished: all in the table
 
     again = json.loads(cli("batch", *names, "--out", out, "--workers", "0", "--json").stdout)

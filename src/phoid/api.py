@@ -38,6 +38,7 @@ def identify(
     compensate: bool = True,
     mass: float | None = None,
     friction: bool = False,
+    noise_placement: str | None = None,
 ) -> Identification | ForcedIdentification | FreeIdentification | FrictionFit | \
         FreeFrictionIdentification | TrackingIdentification:
     """Identify a read experiment set by its ``method``: m, c, k (or what the method gives).
@@ -68,6 +69,12 @@ def identify(
         (:func:`phoid.methods.friction.identify_friction_set`); free sets: the decay with
         Coulomb and viscous friction and its stop
         (:func:`phoid.methods.free_friction.identify_free_friction`).
+    noise_placement : {"auto", "in-loop", "outside"}, optional
+        PHO sets: where the sensor noise enters. ``"in-loop"``: the controller reads the
+        recorded position (a digital rig), m, c, k from the output error of the plant driven by
+        the applied force; ``"outside"``: from the runs' modes; None or ``"auto"``: the
+        manifest's ``[loop] noise``, else chosen by the data (digital loops;
+        :mod:`phoid.methods.inloop_route`). The result's ``noise_placement`` says which.
 
     Returns
     -------
@@ -100,7 +107,8 @@ def identify(
                         f"the path of a set's folder or manifest; got {type(experiment).__name__}")
     return identify_with(experiment, {"delay": delay, "estimator": estimator,
                                       "no_compensation": _no_compensation(compensate),
-                                      "mass": mass, "friction": friction}, style="api")
+                                      "mass": mass, "friction": friction,
+                                      "noise": noise_placement}, style="api")
 
 
 def _no_compensation(compensate: Any) -> Any:

@@ -55,23 +55,25 @@ def canonical_options(options: Mapping[str, Any]) -> dict[str, Any]:
     if unknown:
         raise ValueError(f"unknown identify option {unknown[0]!r}; the options are "
                          f"{', '.join(OPTION_DEFAULTS)}")
+    kinds = {o.name: o for o in OPTIONS}
     for name, value in options.items():
         default = OPTION_DEFAULTS[name]
+        text = kinds[name].kind == "text"
         if isinstance(default, bool):
             ok = isinstance(value, bool)
-        elif name == "estimator":
+        elif text:  # estimator, noise: a string or None
             ok = value is None or isinstance(value, str)
         else:  # delay (s) and mass (kg): a finite number or None
             ok = value is None or (isinstance(value, int | float) and not isinstance(value, bool)
                                    and math.isfinite(value))
-        if ok and name == "estimator" and value is not None \
-                and value not in ESTIMATOR_VALUES:
-            raise ValueError(f"identify option 'estimator' must be one of "
-                             f"{', '.join(ESTIMATOR_VALUES)}; got {value!r}")
+        choices = ESTIMATOR_VALUES if name == "estimator" else kinds[name].choices
+        if ok and text and value is not None and choices and value not in choices:
+            raise ValueError(f"identify option {name!r} must be one of "
+                             f"{', '.join(choices)}; got {value!r}")
         if not ok:
             raise ValueError(f"identify option {name!r} must be "
                              + ("True or False" if isinstance(default, bool) else
-                                "a string or None" if name == "estimator" else
+                                "a string or None" if text else
                                 "a finite number or None") + f"; got {value!r}")
     return {**OPTION_DEFAULTS, **options}
 

@@ -17,7 +17,7 @@ __all__ = ["identify_set"]
 
 def identify_set(exp: Any, *, estimator: str | None = None, delay: float | None = None,
                  no_compensation: bool = False, mass: float | None = None,
-                 friction: bool = False) -> Any:
+                 friction: bool = False, noise: str | None = None) -> Any:
     """Identify a read experiment set by its method, with ``phoid identify``'s options.
 
     Parameters
@@ -37,6 +37,9 @@ def identify_set(exp: Any, *, estimator: str | None = None, delay: float | None 
         pho: fit Coulomb friction f_c too, through the stick-slip simulator; free: the decay
         with Coulomb and viscous friction and its stop
         (:func:`phoid.methods.free_friction.identify_free_friction`).
+    noise : str, optional
+        pho: where the sensor noise enters, ``"in-loop"``, ``"outside"`` or ``"auto"``
+        (default: the manifest's ``[loop] noise``, else chosen by the data).
 
     Returns
     -------
@@ -53,4 +56,4 @@ def identify_set(exp: Any, *, estimator: str | None = None, delay: float | None 
     """
     return identify_with(exp, {"estimator": estimator, "delay": delay,
                                "no_compensation": no_compensation, "mass": mass,
-                               "friction": friction}, style="cli")
+                               "friction": friction, "noise": noise}, style="cli")

@@ -23,6 +23,7 @@ from phoid.errors import IdentificationError
 from phoid.fits import start_decays
 from phoid.methods.chi2 import chi2_isf
 from phoid.methods.estimate import Estimate
+from phoid.methods.inloop_route import check_placement, identify_digital, read_stated_placement
 from phoid.methods.pho import MCKFit, delay_profile, fit_lines, fit_modes
 from phoid.methods.pho_adequacy import apply_pho
 from phoid.methods.pho_checks import (
@@ -111,6 +112,7 @@ def identify_pho(
     delay: float | None = None,
     estimator: str = "gls",
     compensate: bool = True,
+    noise_placement: str | None = None,
 ) -> Identification:
     """Identify m, c, k from a PHO experiment set (``method = "pho"``).
 
@@ -131,6 +133,9 @@ def identify_pho(
     compensate : bool, default True
         Correct for the delay (eqs. 28–32). False reproduces the paper's uncompensated column
         (only with ``estimator="ols"``).
+    noise_placement : {"auto", "in-loop", "outside"}, optional
+        Where the sensor noise enters; None or ``"auto"``: the manifest's ``[loop] noise``,
+        else the data's choice (:mod:`phoid.methods.inloop_route`).
 
     Returns
     -------
@@ -143,6 +148,8 @@ def identify_pho(
         all gains equal, …).
     """
     check_estimator(estimator, compensate)
+    check_placement(noise_placement)
+    noise = {"noise_placement": noise_placement, "stated": read_stated_placement(experiment)}
     method = getattr(experiment, "method", "pho")
     if method != "pho":
         raise IdentificationError(
@@ -167,7 +174,7 @@ def identify_pho(
             np.array([r.D for r in runs], dtype=float),
             None, files=[r.file for r in runs], names=[getattr(r, "name", r.file) for r in runs],
             estimator=estimator, source=str(experiment.path), digital=digital,
-            added_mass=added_mass,
+            added_mass=added_mass, **noise,
         )
         return result if note is None else replace(result, warnings=(note, *result.warnings))
     if delay is None:
@@ -189,7 +196,7 @@ def identify_pho(
         compensate=compensate,
         source=str(experiment.path),
         u=[getattr(r, "u", None) for r in runs],
-        x_unit=str(getattr(experiment, "x_unit", "m")),
+        x_unit=str(getattr(experiment, "x_unit", "m")), **noise,
     )
 
 
@@ -219,10 +226,14 @@ def identify_pho_data(
     added_mass: np.ndarray | None = None,
     u: Sequence[np.ndarray | None] | None = None,
     x_unit: str = "m",
+    noise_placement: str | None = None,
+    stated: str | None = None,
 ) -> Identification:
     """The PHO pipeline on plain arrays: ``data`` is a sequence of (t, x) per run.
 
-    The estimates of :func:`_identify_runs`, then their
+    The route by the noise placement (:func:`phoid.methods.inloop_route.identify_digital`:
+    for a digital loop the output error of the plant driven by the applied force where the
+    noise is in the loop), else the estimates of :func:`_identify_runs`, then their
     adequacy (:func:`phoid.methods.pho_adequacy.apply_pho`: each run's residual against its
     noise and for whiteness, the runs' agreement; where a check fails, the robust stderr with
     the white-noise ones in ``white_stderr`` and a warning).
@@ -237,6 +248,9 @@ def identify_pho_data(
         Loop delay Δt, s; None estimates it with m, c, k.
     files, names, estimator, compensate, source, digital, added_mass, u, x_unit
         As in :func:`_identify_runs`.
+    noise_placement, stated : str, optional
+        The option (``"auto"``, ``"in-loop"``, ``"outside"``) and the manifest's ``[loop]
+        noise``.
 
     Returns
     -------
@@ -247,10 +261,18 @@ def identify_pho_data(
     IdentificationError
         When the data cannot determine m, c, k (no usable runs, all gains equal, …).
     """
-    return apply_pho(_identify_runs(data, P, D, delay, files=files, names=names,
-                                    estimator=estimator, compensate=compensate, source=source,
-                                    digital=digital, added_mass=added_mass, u=u,
-                                    x_unit=x_unit))
+    def modal() -> Identification:
+        return apply_pho(_identify_runs(data, P, D, delay, files=files, names=names,
+                                        estimator=estimator, compensate=compensate,
+                                        source=source, digital=digital,
+                                        added_mass=added_mass, u=u, x_unit=x_unit))
+
+    n = len(data)
+    files = list(files) if files is not None else [f"run{i + 1}" for i in range(n)]
+    return identify_digital(modal, data, P, D, digital, option=noise_placement, stated=stated,
+                            names=list(names) if names is not None else files, files=files,
+                            added_mass=added_mass, source=source, estimator=estimator,
+                            x_unit=x_unit)
 
 
 def _identify_runs(

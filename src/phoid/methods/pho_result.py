@@ -133,6 +133,15 @@ class Identification(PlantResult, LoopExports):
     u : tuple of (ndarray or None)
         Each run's recorded feedback force, N, on the record's samples (None where not
         recorded; empty when none was given), for the figures.
+    noise_placement, noise_placement_source : str
+        Where the sensor noise enters (``"outside"`` the loop: m, c, k from the runs' modes;
+        ``"in-loop"``: from the output error of the plant driven by the applied force) and
+        what decided it (``"manifest"``, ``"data"``, ``"option"``, ``"continuous loop"``).
+    placement_test : phoid.methods.inloop_route.PlacementTest or None
+        The data's test of the placement (where made).
+    inloop : phoid.methods.inloop.InLoopFit or None
+        The in-loop fit (with ``noise_placement == "in-loop"``): its Jacobian-based
+        covariance ``cov`` and ``information``.
     """
 
     m: Estimate
@@ -149,6 +158,19 @@ class Identification(PlantResult, LoopExports):
     #: what the set's x is in ("m"; "rad": m, c, k are J, N m s/rad, N m/rad), set by the
     #: registry (phoid.methods.registry.labelled)
     x_unit: str = "m"
+    #: where the sensor noise enters: "outside" the loop (m, c, k from the runs' modes) or
+    #: "in-loop" (the output error of the plant driven by the applied force,
+    #: phoid.methods.inloop_route)
+    noise_placement: str = "outside"
+    #: what decided it: "manifest" ([loop] noise), "data" (the residuals' test), "option"
+    #: (noise_placement / --noise) or "continuous loop" (no in-loop route)
+    noise_placement_source: str = "continuous loop"
+    #: the data's test of the placement (phoid.methods.inloop_route.PlacementTest; None where
+    #: not made)
+    placement_test: Any = None
+    #: the in-loop output-error fit (phoid.methods.inloop.InLoopFit: its Jacobian-based
+    #: covariance and information), None for the modal route
+    inloop: Any = field(default=None, repr=False)
 
     METHOD: ClassVar[str] = "pho"
     REPORT: ClassVar[str] = "phoid.reports.text:identification_text"
@@ -180,6 +202,10 @@ class Identification(PlantResult, LoopExports):
             out["loop"] = {"model": "digital", "sample_time": g.sample_time,
                            "delay_samples": g.delay_samples, "velocity": g.velocity,
                            "cutoff": g.cutoff}
+        out["noise_placement"] = self.noise_placement
+        out["noise_placement_source"] = self.noise_placement_source
+        if self.placement_test is not None:
+            out["noise_placement_test"] = self.placement_test.to_dict()
         return out | self.derived_entries() | self.adequacy_entry() | self.fit_statistics()
 
     def residual_noise_ratios(self) -> list[float | None]:
@@ -187,6 +213,8 @@ class Identification(PlantResult, LoopExports):
         without the model (:func:`phoid.methods.fit_statistics.difference_noise` over the fit's
         window); ≈ 1 when the decay model explains the record to its noise, ≫ 1 for a misfit.
         None for a run set aside or not fitted, or when the result carries no records."""
+        if self.inloop is not None:  # the in-loop fit's own residuals
+            return list(self.inloop.noise_ratios(len(self.runs)))
         out: list[float | None] = []
         for i, r in enumerate(self.runs):
             f = r.fit
@@ -210,9 +238,17 @@ class Identification(PlantResult, LoopExports):
         χ²/dof ≈ 1 when one plant explains every run's mode within its own noise. With a delay
         estimated from x and u (``delay_from == "x+u"``) the runs' delays from their joint
         x–u fits are residuals too (:func:`phoid.methods.udelay.combine`), dof = 2·runs +
-        runs with u − 4. The paper's OLS lines (``ols``) have no χ² (null).
+        runs with u − 4. The paper's OLS lines (``ols``) have no χ² (null). With the noise in
+        the loop (``inloop`` set) the parameters are m, c, k of the output-error fit and χ² is
+        Σ over its windows of the residual's squares over the window's noise level from third
+        differences, dof = samples − parameters (θ, start states, offset).
         """
         fit = self.fit
+        if self.inloop is not None:
+            return (["m", "c", "k"], ["kg", "N s/m", "N/m"], fit.cov, fit.chi2, fit.dof,
+                    "the output error of the plant driven by the force the controller applied "
+                    "(the noise in the loop): each run's residual over its noise level from "
+                    "third differences, dof = samples - (m, c, k, start states, offset)")
         if fit.cov_full is not None:
             names, units, cov = ["m", "c", "k", "delay"], ["kg", "N s/m", "N/m", "s"], \
                 fit.cov_full

@@ -52,6 +52,9 @@ class Option:
     physical : bool
         A number that must be > 0 and of magnitude 1e-30 … 1e30 in ``unit``
         (:func:`phoid._validate.physical`), checked here for every method.
+    choices : tuple of str
+        The values a text option may take (empty: any string; ``estimator``'s depend on the
+        method and are checked per variant).
     """
 
     name: str
@@ -62,6 +65,7 @@ class Option:
     kind: str = "flag"
     unit: str = ""
     physical: bool = False
+    choices: tuple[str, ...] = ()
 
     def words(self, style: str, value: Any = None) -> str:
         """The option as the caller wrote it: ``"cli"`` (``--estimator ols``) or ``"api"``
@@ -80,6 +84,8 @@ OPTIONS: tuple[Option, ...] = (
     Option("no_compensation", "--no-compensation", "compensate", False, inverted=True),
     Option("mass", "--mass", "mass", None, kind="number", unit="kg", physical=True),
     Option("friction", "--friction", "friction", False),
+    Option("noise", "--noise", "noise_placement", None, kind="text",
+           choices=("auto", "in-loop", "outside")),
 )
 
 
@@ -173,7 +179,7 @@ FREE_FRICTION = Variant("phoid.methods.free_friction:identify_free_friction", ("
 METHODS: dict[str, Method] = {m.name: m for m in (
     Method("pho", (
         Variant("phoid.methods.identification:identify_pho",
-                ("delay", "estimator", "no_compensation"),
+                ("delay", "estimator", "no_compensation", "noise"),
                 result="phoid.methods.pho_result:Identification",
                 report="phoid.reports.text:identification_text", schema="`pho` sets",
                 estimators=("gls", "ols"), default_estimator="gls",
@@ -257,6 +263,8 @@ def _check_kind(opt: Option, value: Any, where: str, style: str) -> None:
     else:
         ok, want = isinstance(value, str), "a string"
     name = opt.flag if style == "cli" else f"`{opt.keyword}`"
+    if ok and opt.choices and value not in opt.choices:
+        ok, want = False, "one of " + ", ".join(map(repr, opt.choices))
     if not ok:
         text = repr(value)
         raise IdentificationError(f"{where}: {name} must be {want}; got "
@@ -277,7 +285,7 @@ def identify_with(experiment: Any, options: Mapping[str, Any], *, style: str = "
         The set (its ``method``, default ``"pho"``, and ``path``).
     options : Mapping[str, Any]
         Options by :attr:`Option.name` (``delay``, ``estimator``, ``no_compensation``,
-        ``mass``, ``friction``); a missing one is not given.
+        ``mass``, ``friction``, ``noise``); a missing one is not given.
     style : {"cli", "api"}
         The words the messages name the options in.
 

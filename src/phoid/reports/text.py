@@ -162,6 +162,7 @@ def identification_text(ident: Any) -> str:
     lines.append(f"  estimator {ident.fit.estimator}, delay {delay} ({ident.delay_source}"
                  f"{origin})")
     lines.extend(_digital_line(ident))
+    lines.extend(_noise_line(ident))
     lines.append("")
     for name, est in (("m", ident.m), ("c", ident.c), ("k", ident.k)):
         lines.append(f"  {name} = {format_estimate(est.value, est.stderr)} {est.unit}")
@@ -261,6 +262,27 @@ def _digital_line(result: Any) -> list[str]:
     filt = f", cut-off {g.cutoff:g} rad/s" if g.cutoff is not None else ""
     return [f"  digital loop (exact sampled model): T_s = {g.sample_time:g} s, "
             f"{g.delay_samples}-sample delay, {g.velocity} velocity{filt}"]
+
+
+def _noise_line(result: Any) -> list[str]:
+    """Where the sensor noise was taken to enter and why, for a digital loop (a continuous
+    loop has one route: its ``noise_placement_source`` is "continuous loop")."""
+    source = getattr(result, "noise_placement_source", None)
+    if getattr(result, "digital", None) is None or source in (None, "continuous loop"):
+        return []
+    test = getattr(result, "placement_test", None)
+    why = {"manifest": "stated by [loop] noise", "option": "as asked"}.get(source, "")
+    if source == "data":
+        why = "chosen by the data"
+        if test is not None and test.z is not None:
+            why += (f": z = {test.z:.3g} {'>' if test.z > test.threshold else '≤'} "
+                    f"{test.threshold:g}")
+        elif test is not None and test.reason:
+            why += f" ({safe_text(test.reason)})"
+    if result.noise_placement == "in-loop":
+        return [f"  noise in the loop ({why}): m, c, k from the output error of the plant "
+                "driven by the applied force"]
+    return [f"  noise outside the loop ({why}): m, c, k from the runs' modes"]
 
 
 def friction_text(fit: Any) -> str:
