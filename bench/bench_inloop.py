@@ -205,14 +205,22 @@ def cases() -> dict[str, Case]:
 # one replica
 
 
-def simulate_set(case: Case, rng: np.random.Generator) -> ExperimentSet:
-    """One noisy replica of the case as a pho experiment set with a digital [loop]."""
+def simulate_set(case: Case, rng: np.random.Generator, error: dict | None = None
+                 ) -> ExperimentSet:
+    """One noisy replica of the case as a pho experiment set with a digital [loop]; ``error``
+    (a dict) receives the recorded error x̃ − x after the release: its sd over the bound's σ
+    and its lag-1 autocorrelation (white quantisation: 1 and 0)."""
     P, D = np.asarray(case.P), np.asarray(case.D)
     sim = phoid.simulate(phoid.Plant(case.m, case.c, case.k), P, D, duration=case.duration,
                          fs=case.fs, x0=case.x0, hold=case.hold, noise=case.noise,
                          quantum=case.quantum, offset=case.offset, rng=rng,
                          sample_time=case.sample_time, delay_samples=case.delay_samples,
                          velocity=case.velocity, noise_in_loop=case.noise_in_loop)
+    if error is not None:
+        e = (sim.x - sim.x_true)[:, round(case.hold * case.fs):]
+        e = e - e.mean(axis=1, keepdims=True)
+        error["sd_over_sigma"] = float(np.sqrt(np.mean(e**2))) / case.sigma_eff
+        error["acf1"] = float(np.sum(e[:, 1:] * e[:, :-1]) / np.sum(e * e))
     runs = tuple(run_from_arrays(sim.t, sim.x[i], P=float(P[i]), D=float(D[i]), index=i + 1,
                                  file=f"run{i + 1:02d}.csv") for i in range(P.size))
     loop = {"sample_time": case.sample_time, "delay_samples": case.delay_samples,
@@ -232,6 +240,8 @@ def identify_once(exp: ExperimentSet, placement: str | None) -> dict[str, Any]:
     out = {"wall_s": time.perf_counter() - w0, "cpu_s": time.process_time() - c0,
            "est": [float(r.m.value), float(r.c.value), float(r.k.value)],
            "se": [float(r.m.stderr), float(r.c.stderr), float(r.k.stderr)],
+           "wse": [float(e.stderr if getattr(e, "white_stderr", None) is None
+                         else e.white_stderr) for e in (r.m, r.c, r.k)],
            "warnings": list(r.warnings),
            "placement": str(getattr(r, "noise_placement", "outside"))}
     return out
@@ -243,8 +253,9 @@ def replicas(job: tuple[Case, list[tuple[int, np.random.SeedSequence]], int]
     case, seeds, auto_n = job
     out = []
     for i, ss in seeds:
-        exp = simulate_set(case, np.random.default_rng(ss))
-        rec: dict[str, Any] = {"i": i}
+        err: dict[str, float] = {}
+        exp = simulate_set(case, np.random.default_rng(ss), err)
+        rec: dict[str, Any] = {"i": i, "error": err}
         for route in case.routes():
             rec[route] = identify_once(exp, ROUTES[route])
         if i < auto_n:
@@ -297,6 +308,8 @@ def summarise(case: Case, recs: list[dict[str, Any]], route: str, bound: np.ndar
     ms = np.mean(err**2, axis=0)
     ms_se = np.std(err**2, axis=0, ddof=1) / math.sqrt(n)
     z = err / np.where(se > 0, se, np.nan)
+    wse = np.array([r["wse"] for r in ok])
+    zw = err / np.where(wse > 0, wse, np.nan)
     out.update({
         "bias": _vec(err.mean(axis=0)),
         "rmse": _vec(np.sqrt(ms)),
@@ -311,6 +324,11 @@ def summarise(case: Case, recs: list[dict[str, Any]], route: str, bound: np.ndar
         "coverage_3se": _vec(np.mean(np.abs(err) < COVER * np.where(np.isfinite(se), se, 0.0),
                                      axis=0)),
         "se_median_over_bound": _vec(np.median(se, axis=0) / bound),
+        "white_se_median_over_bound": _vec(np.median(wse, axis=0) / bound),
+        "z_white_mean": _vec(np.nanmean(zw, axis=0)),
+        "z_white_sd": _vec(np.nanstd(zw, axis=0, ddof=1)),
+        "coverage_3se_white": _vec(np.mean(
+            np.abs(err) < COVER * np.where(np.isfinite(wse), wse, 0.0), axis=0)),
         "sd_over_bound": _vec(est.std(axis=0, ddof=1) / bound),
     })
     return out
@@ -437,12 +455,15 @@ def run(replicas_per_case: int = FULL_REPLICAS, workers: int = 2, seed: int = SE
             parts = [replicas(j) for j in jobs]
         recs = sorted((r for part in parts for r in part), key=lambda r: r["i"])
         routes = {r: summarise(case, recs, r, bound) for r in (*case.routes(), "auto")}
+        errs = [r["error"] for r in recs]
         mc_wall = time.perf_counter() - t0
         res["cases"][name] = {
             "label": case.label, "description": case.describe(), "spec": asdict(case),
             "noise_in_loop": case.noise_in_loop, "truth": _vec(case.theta),
             "bound": _vec(bound), "bound_inloop": _vec(inside), "bound_outside": _vec(outside),
             "routes": routes, "timing": timing(case, repeats), "wall_s": mc_wall,
+            "record_error": {k: float(np.median([e[k] for e in errs]))
+                             for k in ("sd_over_sigma", "acf1")},
         }
         if log:
             log(f"in-loop study: {name} ({mc_wall:.0f} s)")
@@ -478,6 +499,17 @@ def _outside_today(mc: dict | None) -> list[str]:
     return parts
 
 
+def _record_error(c: dict[str, Any]) -> str:
+    """The records' sensor error against the bound's white-noise model (median over the
+    replicas), or nothing for older results."""
+    e = c.get("record_error")
+    if not e:
+        return ""
+    return (f" Recorded error x̃ − x after the release (median over the replicas): sd "
+            f"{e['sd_over_sigma']:.2f} × the bound's σ, lag-1 autocorrelation {e['acf1']:.3f}"
+            " (1 and 0 if the quantiser's error were white, of variance q²/12).")
+
+
 def section(res: dict[str, Any] | None, monte_carlo: dict | None = None) -> list[str]:
     """BENCHMARKS.md's section for :func:`run`'s results; ``monte_carlo``: the "Accuracy at the
     physical limit" results (``results.json``'s ``monte_carlo``) to quote beside them."""
@@ -499,7 +531,9 @@ def section(res: dict[str, Any] | None, monte_carlo: dict | None = None) -> list
         "same plant, gains, loop, rate, record, noise, quantum, release and hold (in-loop for "
         "the in-loop cases; `noise_in_loop=False`, the sampled loop's dominant-mode bound, for "
         "the outside ones). z = (estimate − truth)/stderr; coverage: share with |z| < 3; "
-        "se / bound: the median reported stderr over the bound; sd / bound: the estimates' "
+        "se / bound: the median reported stderr over the bound (white se: the "
+        "white-noise stderr `Estimate.white_stderr`, before the misfit and agreement "
+        "inflations; white z sd: the z-scores' sd with it); sd / bound: the estimates' "
         "spread over the bound. Time per set: median wall (CPU) time of one identification "
         "in the Monte Carlo, two workers sharing the machine.",
         "",
@@ -511,17 +545,18 @@ def section(res: dict[str, Any] | None, monte_carlo: dict | None = None) -> list
                   + "; outside " + ", ".join(f"{q} {bo[q]:.3g}" for q in "mck")
                   + "; in-loop / outside " + ", ".join(f"{q} {bi[q] / bo[q]:.2f}" for q in "mck")
                   + ". Judged against the " + ("in-loop" if c["noise_in_loop"] else "outside")
-                  + " bound.", "",
+                  + " bound." + _record_error(c), "",
                   "| route | n | | RMSE | RMSE / bound (95 %) | sd / bound | z mean | z sd "
-                  "| ±3 se coverage | se / bound | fails / warned | time per set |",
-                  "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+                  "| ±3 se coverage | se / bound | white se / bound | white z sd "
+                  "| fails / warned | time per set |",
+                  "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
         for route, s in c["routes"].items():
             if route == "auto":
                 continue
             if "rmse" not in s:
                 err = "; ".join(s.get("errors", [])[:1]) or "no replicas"
                 lines.append(f"| {route} | {s.get('n', 0)} | | failed ({s.get('failed', 0)}):"
-                             f" {err} | | | | | | | | |")
+                             f" {err} | | | | | | | | | | |")
                 continue
             for j, q in enumerate("mck"):
                 lo, hi = s["rmse_over_bound_95ci"][q]
@@ -539,7 +574,9 @@ def section(res: dict[str, Any] | None, monte_carlo: dict | None = None) -> list
                     f"| {head[0]} | {head[1]} | {q} | {s['rmse'][q]:.3g} {UNIT[q]} | "
                     f"{s['rmse_over_bound'][q]:.2f} ({lo:.2f}–{hi:.2f}) | "
                     f"{s['sd_over_bound'][q]:.2f} | {zm_t} | {zs_t} | "
-                    f"{s['coverage_3se'][q]:.1%} | {sb_t} | {tail[0]} | {tail[1]} |")
+                    f"{s['coverage_3se'][q]:.1%} | {sb_t} | "
+                    f"{_f(s.get('white_se_median_over_bound', {}).get(q))} | "
+                    f"{_f(s.get('z_white_sd', {}).get(q))} | {tail[0]} | {tail[1]} |")
         au = c["routes"].get("auto", {})
         if au.get("replicas"):
             pl = ", ".join(f"{p} {n}" for p, n in au.get("placements", {}).items()) or "none"
