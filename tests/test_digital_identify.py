@@ -39,7 +39,7 @@ LOOP = DigitalPD(0.0, 0.0, sample_time=0.002, delay_samples=3)
 def _data(seed, noise=1e-5):
     sim = simulate(PLANT, P, D, duration=10.0, fs=500.0, x0=0.01, hold=0.2, noise=noise,
                    quantum=1e-6, offset=-1e-4, rng=np.random.default_rng(seed),
-                   sample_time=0.002, delay_samples=3)
+                   sample_time=0.002, delay_samples=3, noise_in_loop=False)
     return sim, [(sim.t, sim.x[i]) for i in range(P.size)]
 
 
@@ -127,11 +127,12 @@ def test_simulate_and_identify_a_digital_set_from_the_cli(tmp_path):
     r = runner.invoke(app, ["simulate", str(out), "--m", "1", "--c", "2", "--k", "100",
                             "--P", "20:200:10", "--D", "0.5:5:10", "--sample-time", "0.002",
                             "--delay-samples", "3", "--fs", "500", "--duration", "10",
-                            "--noise", "1e-5", "--seed", "4"])
+                            "--noise", "1e-5", "--seed", "4", "--noise-outside"])
     assert r.exit_code == 0, r.output
     exp = read_experiment(out)
     assert exp.delay is None and dict(exp.loop) == {
-        "sample_time": 0.002, "delay_samples": 3, "velocity": "backward-difference"}
+        "sample_time": 0.002, "delay_samples": 3, "velocity": "backward-difference",
+        "noise": "outside"}
     r = runner.invoke(app, ["identify", str(out), "--json"])
     assert r.exit_code == 0, r.output
     s = json.loads(r.stdout)

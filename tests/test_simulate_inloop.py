@@ -354,3 +354,75 @@ def test_a_motion_the_reading_overflows_is_refused_in_one_line():
                  offset=1e300)
     assert "\n" not in str(info.value)
 
+
+# --- the CLI ---------------------------------------------------------------------------------
+
+_CLI_COMMON = ["--m", "1", "--c", "2", "--k", "100", "--P", "50,80", "--D", "0.5,1",
+               "--duration", "0.5", "--hold", "0.1", "--seed", "3"]
+
+
+def _manifest(folder):
+    import tomllib
+
+    return tomllib.loads((folder / "experiment.toml").read_text(encoding="utf-8"))
+
+
+@pytest.mark.parametrize(("flag", "placement"), [
+    ([], "in-loop"), (["--noise-in-loop"], "in-loop"), (["--noise-outside"], "outside")])
+def test_cli_digital_loop_writes_the_noise_placement(tmp_path, flag, placement):
+    from typer.testing import CliRunner
+
+    from phoid.cli import app
+
+    out = tmp_path / "set"
+    r = CliRunner().invoke(app, ["simulate", str(out), *_CLI_COMMON, "--sample-time", "0.002",
+                                 "--delay-samples", "1", "--fs", "500", "--noise", "1e-5",
+                                 *flag])
+    assert r.exit_code == 0, r.output
+    assert _manifest(out)["loop"]["noise"] == placement
+    # the recorded x is the simulator's for that placement (same seed, same draws)
+    sim = simulate(Plant(1.0, 2.0, 100.0), [50.0, 80.0], [0.5, 1.0], duration=0.5, hold=0.1,
+                   fs=500.0, sample_time=0.002, delay_samples=1, noise=1e-5,
+                   rng=np.random.default_rng(3), noise_in_loop=placement == "in-loop")
+    import phoid.io
+
+    runs = phoid.io.read_experiment(out).runs
+    for i in range(2):  # the CSV holds the shortest repr: the same doubles
+        assert np.array_equal(runs[i].x, sim.x[i])
+
+
+def test_cli_without_noise_or_continuous_writes_no_placement(tmp_path):
+    from typer.testing import CliRunner
+
+    from phoid.cli import app
+
+    runner = CliRunner()
+    clean = tmp_path / "clean"
+    r = runner.invoke(app, ["simulate", str(clean), *_CLI_COMMON, "--sample-time", "0.002",
+                            "--fs", "500"])
+    assert r.exit_code == 0, r.output
+    assert "noise" not in _manifest(clean)["loop"]
+    cont = tmp_path / "cont"
+    r = runner.invoke(app, ["simulate", str(cont), *_CLI_COMMON, "--delay", "0.01",
+                            "--fs", "500", "--noise", "1e-5", "--noise-in-loop"])
+    assert r.exit_code == 0, r.output
+    assert "noise" not in _manifest(cont).get("loop", {})
+
+
+@pytest.mark.parametrize(("args", "needle"), [
+    (["--delay", "0.01", "--noise-in-loop", "--quantum", "1e-6"], "--noise-outside"),
+    (["--delay", "0.0123456789", "--noise-in-loop"], "internal grid"),
+    (["--method", "free", "--noise-outside"], "--noise-in-loop/--noise-outside does not apply"),
+])
+def test_cli_noise_in_loop_refusals(tmp_path, args, needle):
+    from typer.testing import CliRunner
+
+    from phoid.cli import app
+
+    common = [a for a in _CLI_COMMON if a not in ("--P", "50,80", "--D", "0.5,1")] \
+        if "free" in args else _CLI_COMMON
+    r = CliRunner().invoke(app, ["simulate", str(tmp_path / "x"), *common, "--fs", "1000",
+                                 "--noise", "1e-5", *args])
+    assert r.exit_code == 2 and "Traceback" not in r.output
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and needle in lines[0], lines

@@ -343,7 +343,8 @@ _SIMULATE_NUMBERS = (
 )
 _OPTION_OF = {name: option for name, option, _u, _s in _SIMULATE_NUMBERS} | {
     "P": "--P", "D": "--D", "bias": "--bias", "omega": "--omega",
-    "delay_samples": "--delay-samples", "velocity": "--velocity", "seed": "--seed"}
+    "delay_samples": "--delay-samples", "velocity": "--velocity", "seed": "--seed",
+    "noise_in_loop": "--noise-in-loop"}
 
 
 def _check_simulate_options(params: dict) -> None:
@@ -364,6 +365,7 @@ def _in_option_words(message: str) -> str:
     --sample-time (the keyword arguments it names are the options)."""
     import re
 
+    message = message.replace("noise_in_loop=False", "--noise-outside")
     return re.sub(r"`(\w+)`", lambda mt: _OPTION_OF.get(mt.group(1), mt.group(0)), message)
 
 
@@ -403,6 +405,15 @@ def simulate(
     quantum: Annotated[float, typer.Option(
         help="Encoder quantisation step, m (0: none).")] = 0.0,
     offset: Annotated[float, typer.Option(help="Constant sensor offset, m.")] = 0.0,
+    noise_in_loop: Annotated[bool | None, typer.Option(
+        "--noise-in-loop/--noise-outside",
+        help="pho: whether the controller reads the recorded position (--offset, --noise and "
+             "--quantum inside the loop, as on a rig: the recorded x at each controller "
+             "instant is what it read) or the exact one (the sensor's error added to the "
+             "record only). Default: in the loop for a digital loop (--sample-time), outside "
+             "for the continuous one (which, in the loop, needs --delay and --hold in whole "
+             "samples and takes no --fc, --bias or --quantum). A digital loop with --noise or "
+             "--quantum writes it as [loop] noise = \"in-loop\" or \"outside\".")] = None,
     u_noise: Annotated[float, typer.Option(
         "--u-noise", help="pho: white-noise standard deviation on the recorded force u, N.")
     ] = 0.0,
@@ -464,10 +475,11 @@ def simulate(
     The plant m x'' + c x' + k x + fc sign(x') = u runs under u = -[D x'(t - delay) +
     P x(t - delay)] (+ bias sign(x'(t - delay)) with --bias), held at x0 for --hold seconds
     with the controller on, then released; the recorded position gets the offset, white noise
-    and quantisation asked for. Columns t, x and the applied feedback force u (with --u-noise:
-    plus white noise of that sd, N, as a force sensor would record it). Use it to rehearse an
-    experiment or to build test fixtures; --schedule rehearses a schedule written by
-    `phoid design --out` (same runs and file names).
+    and quantisation asked for, which the controller reads too with --noise-in-loop (the
+    default for a digital loop, --sample-time). Columns t, x and the applied feedback force u
+    (with --u-noise: plus white noise of that sd, N, as a force sensor would record it). Use
+    it to rehearse an experiment or to build test fixtures; --schedule rehearses a schedule
+    written by `phoid design --out` (same runs and file names).
     """
     import numpy as np
 
@@ -557,7 +569,7 @@ def simulate(
         sim = _simulate(plant, np.array(Ps), np.array(Ds),
                         **({} if digital else {"delay": delay}), duration=duration,
                         fs=fs, x0=x0, hold=hold, noise=noise, quantum=quantum, offset=offset,
-                        rng=rng, bias=np.array(bs), **digital)
+                        rng=rng, bias=np.array(bs), noise_in_loop=noise_in_loop, **digital)
         # the recorded force: the applied u plus the force sensor's white noise (same rng,
         # drawn after the position noise)
         u_rec = (sim.u + u_noise * rng.standard_normal(sim.u.shape)) if u_noise else sim.u
@@ -571,6 +583,8 @@ def simulate(
                  **({"u_noise": u_noise} if u_noise else {}), **(loop_table or {})}
         if seed is not None:
             truth["seed"] = seed
+        if loop_table is not None and (noise > 0 or quantum > 0):  # where the noise was
+            loop_table["noise"] = "in-loop" if sim.noise_in_loop else "outside"
         # the schedule read is an input: not even --overwrite writes the set over it
         inputs = [] if schedule is None else [
             schedule / "experiment.toml" if schedule.is_dir() else schedule]
@@ -620,11 +634,13 @@ def _simulate_other(ctx, out, *, method, m, c, k, fc, B, omega, duration, fs, x0
             raise ValueError(f"`method` must be 'pho', 'forced' or 'free'; got {method!r}")
         own = {"forced": ("B", "omega"), "free": ("v0", "write_mass")}
         for name in ("P", "D", "schedule", "delay", "omit_delay", "sample_time",
-                     "delay_samples", "velocity", "cutoff", "bias", *own["free" if method ==
+                     "delay_samples", "velocity", "cutoff", "bias", "noise_in_loop",
+                     *own["free" if method ==
                                                                       "forced" else "forced"]):
             if given(name):
-                raise ValueError(f"--{name.replace('_', '-')} does not apply to "
-                                 f"--method {method}")
+                flag = ("--noise-in-loop/--noise-outside" if name == "noise_in_loop"
+                        else f"--{name.replace('_', '-')}")
+                raise ValueError(f"{flag} does not apply to --method {method}")
         plant = Plant(m, c, k, fc)
         rng = np.random.default_rng(seed)
         truth = {"m": m, "c": c, "k": k, "fc": fc, "noise": noise, "quantum": quantum,
