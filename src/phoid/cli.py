@@ -137,6 +137,12 @@ def identify(
                            "fit through the stick-slip simulator (seconds, not milliseconds; "
                            "the loop delay must be known). free: a decay with Coulomb and "
                            "viscous friction and its stop (fc_over_m; fc with --mass).")] = False,
+    noise: Annotated[str | None, typer.Option(
+        "--noise", help="pho: where the sensor noise enters. 'in-loop': the controller reads "
+                        "the recorded position (a digital rig), m, c, k from the output error "
+                        "of the plant driven by the applied force; 'outside': from the runs' "
+                        "modes; 'auto' (default): the manifest's [loop] noise, else chosen by "
+                        "the data (digital loops).")] = None,
     html: Annotated[Path | None, typer.Option(
         "--html", help="Write a single-file HTML report (summary, runs, figures, environment, "
                        "SHA-256 of the input files) to this path.")] = None,
@@ -171,7 +177,8 @@ def identify(
             exp = read_experiment(experiment)
             with protect_inputs(_experiment_files(exp)):
                 result = identify_set(exp, estimator=estimator, delay=delay, mass=mass,
-                                      no_compensation=no_compensation, friction=friction)
+                                      no_compensation=no_compensation, friction=friction,
+                                      noise=noise)
                 written = result.plot(plots, overwrite=overwrite) if plots is not None else []
                 _write_html(result, html, exp, overwrite)
     except (ValueError, OSError) as exc:
