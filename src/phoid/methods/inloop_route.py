@@ -146,15 +146,19 @@ def _release_index(t: np.ndarray, x: np.ndarray, fit: Any) -> int:
     """The first sample of the window that the release allows: :data:`MARGIN` samples after
     the modal route's model-fitted release, else :data:`MARGIN_DETECTED` after the data-only
     one (:func:`phoid.fits.detect_release`; the modal route falls back on it, to the bit,
-    where its model fit of the release fails)."""
+    where its model fit of the release fails) — :data:`MARGIN` where that is the record's
+    first sample (a record from its release on, as ``phoid run`` writes)."""
     h = float(t[1] - t[0]) if t.size > 1 else 1.0
     try:
         detected = float(detect_release(t, x))
+        # no held level at all: the record starts at its release (as `phoid run` writes it),
+        # so no held sample can come into the window
+        at_start = abs(detected - float(t[0])) <= 1e-9 * h
     except (ValueError, IdentificationError):
-        detected = float(t[0])
+        detected, at_start = float(t[0]), False
     rel = getattr(fit, "release", None)
     if rel is None or not math.isfinite(rel) or abs(rel - detected) <= 1e-9 * h:
-        rel, margin = detected, MARGIN_DETECTED
+        rel, margin = detected, MARGIN if at_start else MARGIN_DETECTED
     else:
         margin = MARGIN
     return int(np.searchsorted(t, rel - 1e-6 * h, side="left")) + margin
