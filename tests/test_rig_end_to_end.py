@@ -102,8 +102,9 @@ def test_design_run_identify_recovers_the_plant(build, tmp_path, case):
     assert r.exit_code == 0, r.output
     doc = _manifest(tmp_path / "set")
     d = round(case["delay"] * case["fs"])
+    # a rig's controller reads the recorded encoder: the noise is in the loop
     assert doc["loop"] == {"sample_time": 1 / case["fs"], "delay_samples": d,
-                           "velocity": "backward-difference"}
+                           "velocity": "backward-difference", "noise": "in-loop"}
     assert [run["file"] for run in doc["run"]] == [run["file"] for run in sched["run"]]
     assert doc["rig"]["complete"] is True
     for a in doc["rig"]["attempt"]:

@@ -5,11 +5,16 @@ fields, checking every option and what the plan and the options make against the
 the controller and the reader (docs/rig-protocol.md, "Limits of the host"); :class:`RigError`
 is the host's one-line error, :func:`clip` the one-line form of any text it prints or records.
 
-Each run's configuration: T = 1/fs, the plan's P and D, K = G = 1, backward-difference
-velocity, d = Δt/T whole samples of command delay (the plan's ``[loop] delay``), the hold at
+Each run's configuration: the plan's P and D, K = G = 1 and its loop — a sampled loop's plan
+(``phoid design --sample-time T --delay-samples d``) its ``[loop] sample_time``,
+``delay_samples``, ``velocity`` (and ``cutoff``, sent as the filter's pole e^(−ω_c T)), recorded
+at [design] fs = 1/T; a continuous loop's plan T = 1/fs, backward-difference velocity and
+d = Δt/T whole samples of command delay (its ``[loop] delay``) —, the hold at
 the plan's release amplitude A with a stiff, about critically damped loop on the plan's prior
 (hold_P = 3 k, hold_D = 2√(m (k + hold_P)) − c, at least 0) for about seven of its slowest time
-constants, position limits ±3A and the growth bound 2.
+constants — its reference x_start = A (1 + k/hold_P), the prior's k (the middle of a range), so
+that it settles at A, where hold_P (x_start − x) = k x —, position limits ±3A and the growth
+bound 2.
 """
 
 from __future__ import annotations
@@ -112,6 +117,72 @@ def check_names(manifest: Path, files: list[str]) -> None:
                                f"{clip(each, 80)!r}; give each run its own file name")
 
 
+def _continuous_loop(manifest: Path, sched: Mapping[str, Any]) -> float:
+    """A continuous loop's plan: the controller's period T = 1/fs (s), checked."""
+    fs = sched["fs"]
+    T = 1.0 / fs
+    if not (math.isfinite(T) and MIN_SAMPLE_TIME <= T <= MAX_TIMEOUT):
+        raise RigError(f"{manifest}: [design] fs = {fs:g} Hz: the sample time 1/fs must be "
+                       f"from {MIN_SAMPLE_TIME:g} s to {MAX_TIMEOUT:g} s (a day)")
+    return T
+
+
+def _delay_samples(manifest: Path, sched: Mapping[str, Any], T: float) -> int:
+    """A continuous loop's plan: its ``[loop] delay`` in whole samples of T (0 without one)."""
+    fs = sched["fs"]
+    delay = sched["delay"] if sched["delay"] is not None else 0.0
+    ds = delay * fs
+    if not (math.isfinite(ds) and ds <= MAX_DELAY):
+        raise RigError(f"{manifest}: [loop] delay = {delay:g} s is more than {MAX_DELAY} "
+                       f"samples at fs = {fs:g} Hz")
+    d = round(ds)
+    if abs(d - ds) > 1e-6 * max(1.0, d):
+        raise RigError(f"{manifest}: [loop] delay = {delay:g} s is not a whole number of "
+                       f"samples at fs = {fs:g} Hz (T = {T:g} s); design the rig's loop with "
+                       "--sample-time and --delay-samples")
+    return d
+
+
+def _sampled_loop(manifest: Path, loop: Mapping[str, Any], sched: Mapping[str, Any]
+                  ) -> tuple[float, int, dict[str, Any]]:
+    """A sampled loop's plan (``[loop] sample_time``, ``delay_samples``, ``velocity``,
+    ``cutoff``): the controller's period T (s), its delay d (samples) and its velocity
+    estimator's CONFIG fields (``velocity``, ``filter_pole``), each checked as ``phoid
+    identify`` reads them (:func:`phoid.io.loop.read_digital_loop`), and the record's rate
+    ``[design] fs`` = 1/T: a rig records once per controller period."""
+    from types import SimpleNamespace
+
+    from phoid.io.loop import read_digital_loop
+    from phoid.rig.native import VELOCITIES
+
+    span = np.array([0.0, sched["duration"]])
+    try:
+        dig = read_digital_loop(SimpleNamespace(path=manifest, loop=dict(loop),
+                                                runs=(SimpleNamespace(t=span),)))
+    except PhoidError as exc:
+        raise RigError(f"not a plan: {exc}") from None
+    assert dig is not None  # sample_time is there
+    T, d, fs = float(dig.sample_time), int(dig.delay_samples), sched["fs"]
+    if not (MIN_SAMPLE_TIME <= T <= MAX_TIMEOUT):
+        raise RigError(f"{manifest}: [loop] sample_time = {T:g} s must be from "
+                       f"{MIN_SAMPLE_TIME:g} s to {MAX_TIMEOUT:g} s (a day)")
+    if not abs(fs * T - 1.0) <= 1e-9:
+        raise RigError(f"{manifest}: [design] fs = {fs:g} Hz records {fs * T:.6g} samples per "
+                       f"controller period ([loop] sample_time = {T:g} s); a rig records its "
+                       "loop once per period: design with --fs 1/sample_time (the default)")
+    if d > MAX_DELAY:
+        raise RigError(f"{manifest}: [loop] delay_samples = {d} is more than {MAX_DELAY} "
+                       "samples")
+    delay = sched["delay"]  # read_schedule's check: a finite number >= 0, or None
+    if delay is not None and not abs(delay - d * T) <= 1e-9 * T:
+        raise RigError(f"{manifest}: [loop] delay = {delay:g} s is not delay_samples x "
+                       f"sample_time = {d * T:g} s; give one or the other")
+    velocity: dict[str, Any] = {"velocity": VELOCITIES[dig.velocity]}
+    if dig.velocity == "filtered":
+        velocity["filter_pole"] = float(dig.filter_pole)
+    return T, d, velocity
+
+
 def plan_configs(plan: str | Path, *, pmax: float | None = None, dmax: float | None = None,
                  hold_p: float | None = None, hold_d: float | None = None,
                  hold: float | None = None, x_limit: float | None = None,
@@ -159,19 +230,12 @@ def plan_configs(plan: str | Path, *, pmax: float | None = None, dmax: float | N
                            "is missing")
     check_names(manifest, sched["files"])
     fs, amp = sched["fs"], sched["amplitude"]
-    T = 1.0 / fs
-    if not (math.isfinite(T) and MIN_SAMPLE_TIME <= T <= MAX_TIMEOUT):
-        raise RigError(f"{manifest}: [design] fs = {fs:g} Hz: the sample time 1/fs must be "
-                       f"from {MIN_SAMPLE_TIME:g} s to {MAX_TIMEOUT:g} s (a day)")
-    delay = sched["delay"] if sched["delay"] is not None else 0.0
-    ds = delay * fs
-    if not (math.isfinite(ds) and ds <= MAX_DELAY):
-        raise RigError(f"{manifest}: [loop] delay = {delay:g} s is more than {MAX_DELAY} "
-                       f"samples at fs = {fs:g} Hz")
-    d = round(ds)
-    if abs(d - ds) > 1e-6 * max(1.0, d):
-        raise RigError(f"{manifest}: [loop] delay = {delay:g} s is not a whole number of "
-                       f"samples at fs = {fs:g} Hz (T = {T:g} s); design with --delay d/fs")
+    loop = doc.get("loop") if isinstance(doc.get("loop"), Mapping) else {}
+    if "sample_time" in loop:  # a sampled loop's plan (design --sample-time): its own loop
+        T, d, velocity = _sampled_loop(manifest, loop, sched)
+    else:  # a continuous loop's plan: T = 1/fs, its delay a whole number of samples
+        T = _continuous_loop(manifest, sched)
+        d, velocity = _delay_samples(manifest, sched, T), {"velocity": 0}
     for i, (P, D) in enumerate(zip(sched["P"], sched["D"], strict=True), start=1):
         if opts["pmax"] is not None and abs(P) > opts["pmax"]:
             raise RigError(f"{manifest}: run {i}: |P| = {abs(P):g} N/m exceeds the rig's limit "
@@ -184,6 +248,8 @@ def plan_configs(plan: str | Path, *, pmax: float | None = None, dmax: float | N
     c = _prior_value(prior, "c", min, -math.inf) or 0.0
     k = _prior_value(prior, "k", max, -math.inf) or 0.0
     k = max(k, 0.0)
+    k_mid = max(_prior_value(prior, "k", lambda v: 0.5 * v[0] + 0.5 * v[1], -math.inf) or 0.0,
+                0.0)
     with np.errstate(all="ignore"):
         hP = 3.0 * k if opts["hold_p"] is None else opts["hold_p"]
         if opts["hold_p"] is None and not hP + k > 0:
@@ -199,6 +265,9 @@ def plan_configs(plan: str | Path, *, pmax: float | None = None, dmax: float | N
                 if poles.size and np.all(np.isfinite(poles)) and np.all(poles.real < 0):
                     slow = float(np.min(np.abs(poles.real)))
             hold_s = min(30.0, max(0.5, 7.0 / slow))
+        # the hold loop settles where hold_P (x_start - x) = k x: its reference is set so that
+        # the mass is held (and released) at the plan's amplitude A on the prior's k
+        x_ref = amp * (1.0 + k_mid / hP) if hP > 0 else math.inf
     n_hold, n_run = hold_s * fs, sched["duration"] * fs
     most = min(MAX_COUNT - 2, MAX_LINES - 1)  # the controller's count; the reader's rows
     if not (math.isfinite(n_run) and round(n_run) <= most):
@@ -218,15 +287,22 @@ def plan_configs(plan: str | Path, *, pmax: float | None = None, dmax: float | N
         what = "--x-limit" if opts["x_limit"] is not None else "the default --x-limit (3 A)"
         raise RigError(f"{what} {x_lim:g} m must be finite and larger than the plan's release "
                        f"amplitude A ([design] amplitude = {amp:g} m); nothing was sent")
+    if math.isfinite(x_ref) and not x_ref < x_lim:
+        raise RigError(f"the hold loop's reference x_start = A (1 + k/hold_P) = {x_ref:g} m "
+                       f"(which holds the mass at the plan's amplitude A = {amp:g} m against "
+                       f"the prior's k = {k_mid:g} N/m with hold_P = {hP:g} N/m) is beyond the "
+                       f"position limit {x_lim:g} m; give a stiffer --hold-p or a larger "
+                       "--x-limit; nothing was sent")
     base = {
-        "sample_time": T, "gain": 1.0, "command_gain": 1.0, "velocity": 0, "delay_samples": d,
-        "hold_P": float(hP), "hold_D": float(hD), "x_start": amp,
+        "sample_time": T, "gain": 1.0, "command_gain": 1.0, **velocity, "delay_samples": d,
+        "hold_P": float(hP), "hold_D": float(hD), "x_start": float(x_ref),
         "hold_samples": max(1, round(n_hold)), "run_samples": n_run,
         "x_min": -x_lim, "x_max": x_lim, "growth_limit": opts["growth_limit"],
     }
     if opts["u_max"] is not None:
         base["u_max"] = opts["u_max"]
     source = {"hold_P": "--hold-p (default: 3 k of the plan's prior)",
+              "x_start": "--hold-p (the hold's reference A (1 + k/hold_P))",
               "hold_D": "--hold-d (default: from the plan's prior m, c, k)"}
     for key, val in base.items():
         if not math.isfinite(val):

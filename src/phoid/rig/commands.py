@@ -28,6 +28,7 @@ def _fail(message: str) -> None:
 _RIG_OPTIONS = {"force_noise": "--force-noise", "offset_force": "--offset-force",
                 "idle_timeout": "--idle-timeout", "max_session": "--max-session",
                 "max_samples": "--max-samples", "max_rate": "--max-rate", "noise": "--noise",
+                "quantum": "--quantum",
                 "`offset`": "--offset-force", "`fc`": "--fc", "`m`": "--m", "`c`": "--c",
                 "`k`": "--k", "`max_rate`": "--max-rate", "seed": "--seed"}
 
@@ -84,6 +85,9 @@ def virtual_rig(
     offset_force: Annotated[float, typer.Option(
         "--offset-force", help="Constant offset force, N.")] = 0.0,
     noise: Annotated[float, typer.Option(help="Position sensor noise sd, m.")] = 0.0,
+    quantum: Annotated[float, typer.Option(
+        help="The encoder's count, m: the position read and streamed is rounded to a multiple "
+             "of it (0: none).")] = 0.0,
     seed: Annotated[int | None, typer.Option(help="Seed of the noise.")] = None,
     noise_outside_loop: Annotated[bool, typer.Option(
         "--noise-outside-loop", help="Add the noise to the streamed x only; the controller "
@@ -124,7 +128,8 @@ def virtual_rig(
     try:
         host, port = _parse_listen(listen)
         rig = VirtualRig(Plant(m=m, c=c, k=k, fc=fc), offset_force=offset_force, noise=noise,
-                         seed=seed, realtime=realtime, build=build, max_rate=max_rate,
+                         quantum=quantum, seed=seed, realtime=realtime, build=build,
+                         max_rate=max_rate,
                          noise_in_loop=not noise_outside_loop, force_noise=force_noise,
                          idle_timeout=idle_timeout, max_session=max_session,
                          max_samples=max_samples)

@@ -445,7 +445,8 @@ def check_targets(folder: OutputFolder, files: list[str], status: list[str],
 def _loop_table(cfg: Mapping[str, Any]) -> dict[str, Any]:
     """The set's ``[loop]`` from the controller's configuration: its period, delay and velocity
     estimator, named as phoid names it (the C code's preset, :data:`phoid.rig.native.VELOCITIES`;
-    a filtered one with its cut-off −ln(a)/T from the pole a)."""
+    a filtered one with its cut-off −ln(a)/T from the pole a), and ``noise = "in-loop"``: a
+    rig's controller reads the encoder that is recorded (the file's x is what it read)."""
     code = cfg.get("velocity", 0)
     name = next((n for n, c in VELOCITIES.items() if c == code), None)
     if name is None:
@@ -455,6 +456,7 @@ def _loop_table(cfg: Mapping[str, Any]) -> dict[str, Any]:
             "velocity": name}
     if name == "filtered":
         loop["cutoff"] = -math.log(cfg["filter_pole"]) / cfg["sample_time"]
+    loop["noise"] = "in-loop"
     return loop
 
 

@@ -8,12 +8,13 @@ last ``CONFIG`` and steps it sample by sample against
 
     m ẍ + c ẋ + k x + f_c sign(ẋ) + f₀ = G·uₙ   on [nT, (n + 1)T)
 
-starting at rest at x = 0: per sample n the measured position x̃ₙ = x(nT) + εₙ (εₙ white
-Gaussian, standard deviation ``noise``) goes into ``phoid_step`` (or, with
-``noise_in_loop=False``, the exact x(nT) does and only the streamed x̃ₙ is noisy), whose
-returned command uₙ (the controller's own delay ring has already delayed it) is held for one
-period. Each step is
-streamed as ``SAMPLE n nT x̃ₙ uₙ state``; with ``force_noise`` set, the rig also reports a
+starting at rest at x = 0: per sample n the measured position x̃ₙ = Q(x(nT) + εₙ) (εₙ white
+Gaussian, standard deviation ``noise``; Q the encoder's rounding to a multiple of ``quantum``,
+none when 0) goes into ``phoid_step`` (or, with ``noise_in_loop=False``, the exact x(nT) does
+and only the streamed x̃ₙ is noisy and quantised), whose returned command uₙ (the controller's
+own delay ring has already delayed it: u_{n−d} of its law) is held for one period. Each step is
+streamed as ``SAMPLE n nT x̃ₙ uₙ state`` — x̃ₙ exactly the number the controller read (in the
+loop), uₙ the command applied over [nT, (n + 1)T); with ``force_noise`` set, the rig also reports a
 measured force f̃ₙ = G·uₙ + ηₙ (N: the force applied to the plant over [nT, (n + 1)T), ηₙ white
 Gaussian of standard deviation ``force_noise``) as the line's ``force`` field, and steps the
 controller with the force measured at the previous sample (what a load cell reads at nT; 0 at
@@ -69,6 +70,7 @@ MAX_SAMPLE_TIME = 1.0  # s: the slowest sample rate the rig runs (1 Hz)
 MAX_RATE = 1e9  # Hz: the fastest --max-rate (the controller's shortest sample time is 1 ns)
 MAX_WAIT = 86400.0  # s: the longest --idle-timeout and --max-session (a day)
 MAX_FORCE_NOISE = 1e300  # N: the largest --force-noise (G·u + η stays a finite double)
+MIN_QUANTUM, MAX_QUANTUM = 1e-30, 1e30  # m: --quantum other than 0 (x/quantum stays finite)
 BUSY_GRACE = 1.0  # s a new connection waits for the last session to finish closing
 LINGER = 1.0  # s the rig reads what the host still sends after its last ERROR, then closes
 SEND_TIMEOUT = 5.0  # s, at least: a host that reads nothing for this long is dropped
@@ -186,6 +188,9 @@ class VirtualRig:
         Constant offset force f₀, N.
     noise : float, default 0
         Standard deviation of the position sensor's white noise, m.
+    quantum : float, default 0
+        The encoder's count, m: the position read (and streamed) is rounded to a multiple of
+        it, after the noise (0: no rounding; else from 1e-30 to 1e30 m).
     seed : int, optional
         Seed of the noise.
     realtime : bool, default False
@@ -227,7 +232,7 @@ class VirtualRig:
     """
 
     def __init__(self, plant, *, offset_force: float = 0.0, noise: float = 0.0,
-                 seed: int | None = None, realtime: bool = False,
+                 quantum: float = 0.0, seed: int | None = None, realtime: bool = False,
                  build: str | Path | None = None, max_rate: float = 20000.0,
                  faults: Mapping[str, tuple[int, int]] | None = None,
                  noise_in_loop: bool = True, force_noise: float | None = None,
@@ -235,6 +240,10 @@ class VirtualRig:
                  max_samples: int = MAX_SAMPLES) -> None:
         if not (math.isfinite(noise) and noise >= 0):
             raise ValueError(f"noise must be a finite number ≥ 0 m; got {noise!r}")
+        if not (isinstance(quantum, (int, float)) and not isinstance(quantum, bool)
+                and (quantum == 0 or MIN_QUANTUM <= quantum <= MAX_QUANTUM)):
+            raise ValueError(f"quantum must be 0 (no rounding) or a number from {MIN_QUANTUM:g} "
+                             f"to {MAX_QUANTUM:g} m (the encoder's count); got {quantum!r}")
         if force_noise is not None and not (math.isfinite(force_noise) and force_noise >= 0):
             raise ValueError(f"force_noise must be a finite number ≥ 0 N; got {force_noise!r}")
         if force_noise is not None and force_noise > MAX_FORCE_NOISE:
@@ -254,6 +263,7 @@ class VirtualRig:
             raise ValueError(f"max_samples must be a whole number ≥ 3; got {max_samples!r}")
         _check_plant(plant, float(offset_force), float(max_rate))
         self.plant, self.offset, self.noise = plant, float(offset_force), float(noise)
+        self.quantum = float(quantum)
         self.rng = np.random.default_rng(seed)
         # the force noise has its own stream, so the position noise is the same with or without
         self.force_rng = np.random.default_rng(None if seed is None else [seed, 1])
@@ -507,7 +517,7 @@ class VirtualRig:
         while True:
             if n > total:  # the controller stops by itself; a bound all the same
                 raise RuntimeError(f"the run went past its {total} samples")
-            x = plant.x + (self.noise * float(self.rng.standard_normal()) if self.noise else 0.0)
+            x = self._read(plant.x)
             if not (math.isfinite(x) and math.isfinite(plant.x)):  # diverged
                 ctrl.step(math.nan, 0.0, sensed)  # the controller faults: fault-input
                 break
@@ -556,6 +566,16 @@ class VirtualRig:
         out += encode("END", end)
         link.send(bytes(out))
         return not refused
+
+    def _read(self, x: float) -> float:
+        """The encoder's reading of the position ``x``: x + ε, rounded to the quantum."""
+        if self.noise:
+            x += self.noise * float(self.rng.standard_normal())
+        if self.quantum:
+            counts = x / self.quantum
+            if math.isfinite(counts):  # to the nearest count, ties to even (as phoid simulate)
+                x = self.quantum * round(counts)
+        return x
 
     @staticmethod
     def _poll(link: Link, lines: _Lines, ctrl: Controller) -> bool:
