@@ -311,15 +311,17 @@ def read_state(out: OutputFolder, sched: Mapping[str, Any]
 
 
 # where each CONFIG field comes from, to name what changed between sessions
-_SOURCE = {"sample_time": "the plan's [design] fs", "delay_samples": "the plan's [loop] delay",
+_SOURCE = {"sample_time": "the plan's [loop] sample_time or [design] fs",
+           "delay_samples": "the plan's [loop] delay_samples or delay",
            "hold_P": "--hold-p, or the plan's prior", "hold_D": "--hold-d, or the plan's prior",
            "hold_samples": "--hold, or the plan's fs and prior",
            "run_samples": "the plan's [design] duration and fs",
-           "x_start": "the plan's [design] amplitude",
+           "x_start": "the plan's [design] amplitude and prior k, or --hold-p",
            "x_min": "--x-limit, or the plan's [design] amplitude",
            "x_max": "--x-limit, or the plan's [design] amplitude", "u_max": "--u-max",
            "growth_limit": "the growth limit", "gain": "the host's loop gain K",
-           "command_gain": "the host's command gain G", "velocity": "the host's velocity",
+           "command_gain": "the host's command gain G",
+           "velocity": "the plan's [loop] velocity", "filter_pole": "the plan's [loop] cutoff",
            "P": "the plan's [[run]] P",
            "D": "the plan's [[run]] D"}
 
