@@ -42,6 +42,7 @@ from __future__ import annotations
 
 import contextlib
 import math
+import numbers
 import select
 import shutil
 import socket
@@ -240,7 +241,7 @@ class VirtualRig:
                  max_samples: int = MAX_SAMPLES) -> None:
         if not (math.isfinite(noise) and noise >= 0):
             raise ValueError(f"noise must be a finite number ≥ 0 m; got {noise!r}")
-        if not (isinstance(quantum, (int, float)) and not isinstance(quantum, bool)
+        if not (isinstance(quantum, numbers.Real) and not isinstance(quantum, (bool, np.bool_))
                 and (quantum == 0 or MIN_QUANTUM <= quantum <= MAX_QUANTUM)):
             raise ValueError(f"quantum must be 0 (no rounding) or a number from {MIN_QUANTUM:g} "
                              f"to {MAX_QUANTUM:g} m (the encoder's count); got {quantum!r}")
