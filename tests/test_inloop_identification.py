@@ -239,9 +239,10 @@ def test_manifest_and_option(tmp_path):
     with pytest.raises(IdentificationError) as exc:
         phoid.identify(wrong)
     assert "\n" not in str(exc.value) and "[loop] noise" in str(exc.value)
-    # the option does not apply to --friction, nor to other methods' sets
-    with pytest.raises(IdentificationError, match="does not apply"):
-        phoid.identify(plain, friction=True, noise_placement="in-loop")
+    # --friction takes the option too (issue 28, tests/test_friction_inloop.py), and refuses a
+    # bad value the same way, before fitting
+    with pytest.raises(IdentificationError, match="must be one of 'auto', 'in-loop'"):
+        phoid.identify(plain, friction=True, noise_placement="sideways")
 
 
 def test_continuous_loop_is_modal(tmp_path):

@@ -185,7 +185,7 @@ METHODS: dict[str, Method] = {m.name: m for m in (
                 estimators=("gls", "ols"), default_estimator="gls",
                 requires=(("no_compensation", "estimator", "ols", "the eq. (35) lines"),),
                 checks=(_BIAS,)),
-        Variant("phoid.methods.friction:identify_friction_set", ("delay",),
+        Variant("phoid.methods.friction:identify_friction_set", ("delay", "noise"),
                 result="phoid.methods.friction:FrictionFit",
                 report="phoid.reports.text:friction_text",
                 schema="`pho` sets with `--friction`", selected_by="friction",

@@ -27,6 +27,9 @@ data path:
 - :mod:`~phoid.methods.friction.solver`: Levenberg–Marquardt;
 - :mod:`~phoid.methods.friction.fit`: the two-stage fit, the runs set aside, the result
   (:func:`identify_friction`, :func:`identify_friction_set`);
+- :mod:`~phoid.methods.friction.inloop`: with the sensor noise inside a digital loop, the
+  output error of the plant with friction driven by the force the controller applied (chosen
+  by the option, the manifest's ``[loop] noise`` or the data);
 - :mod:`~phoid.methods.friction.evidence`: the score test (:func:`friction_evidence`);
 - :mod:`~phoid.methods.friction.results`: :class:`FrictionRun`, :class:`FrictionFit`,
   :class:`FrictionEvidence`.

@@ -46,6 +46,7 @@ from phoid._threads import single_blas_thread
 from phoid.errors import ExperimentError, IdentificationError
 from phoid.methods.estimate import Estimate
 from phoid.methods.friction.adequacy import assess_friction
+from phoid.methods.friction.inloop import apply_placement
 from phoid.methods.friction.model import Problem
 from phoid.methods.friction.results import FrictionFit, FrictionRun
 from phoid.methods.friction.setup import Setup, StartError, dominant, prepare
@@ -170,6 +171,8 @@ def identify_friction(
     digital: Any = None,
     bias: Sequence[float] | None = None,
     u: Sequence[np.ndarray | None] | None = None,
+    noise_placement: str | None = None,
+    stated_placement: str | None = None,
 ) -> FrictionFit:
     """Estimate m, c, k and the kinetic friction force f_c from a PHO experiment set.
 
@@ -213,6 +216,14 @@ def identify_friction(
         with (Pᵢ, Dᵢ) to 20 % of the force swing; runs that do not are named in a warning with
         the probable cause (D's sign convention, u's sign, the units of x or u, the gains or
         the delay).
+    noise_placement : {"auto", "in-loop", "outside"}, optional
+        Where the sensor noise enters (a digital loop): ``"in-loop"`` (the controller reads
+        the recorded position: m, c, k, f_c then come from the output error of the plant with
+        friction driven by the force the controller applied, started from this fit,
+        :mod:`phoid.methods.friction.inloop`), ``"outside"`` (the closed loop simulated from
+        the true position), or ``"auto"``/None: ``stated_placement``, else the data's test.
+    stated_placement : {"in-loop", "outside"}, optional
+        The manifest's ``[loop] noise`` (:func:`identify_friction_set` passes it).
 
     Returns
     -------
@@ -240,6 +251,15 @@ def identify_friction(
     >>> round(fit.fc.value, 2), round(fit.c.value, 1)
     (0.05, 2.0)
     """
+    from phoid.methods.inloop_route import check_placement
+
+    if check_placement(noise_placement) == "in-loop" and digital is None:
+        raise IdentificationError(
+            "the noise placement 'in-loop' needs a digital loop ([loop] sample_time): a "
+            "continuous loop's friction fit simulates the closed loop")
+    if stated_placement not in (None, "in-loop", "outside"):
+        raise ExperimentError("`stated_placement` must be 'in-loop', 'outside' or None; got "
+                              f"{stated_placement!r}")
     with task("friction fit: the starting point") as advance:  # then one step per LM step
         setup = prepare(data, P, D, delay, start, names, need_fc=True, added_mass=added_mass,
                         digital=digital, bias=bias, u=u)
@@ -292,7 +312,9 @@ def identify_friction(
                                                    for i in range(n))
                 )
             theta = theta_f
-        return _result(setup, idx, reasons, prob, fixed, res, facts, iterations)
+        base = _result(setup, idx, reasons, prob, fixed, res, facts, iterations)
+    return apply_placement(base, setup.P, setup.D, setup.digital, setup.dm,
+                           option=noise_placement, stated=stated_placement)
 
 
 def _result(setup, idx, reasons, prob, fixed, res, facts, iterations) -> FrictionFit:
@@ -390,7 +412,8 @@ def _result(setup, idx, reasons, prob, fixed, res, facts, iterations) -> Frictio
     )
 
 
-def identify_friction_set(experiment: Any, *, delay: float | None = None) -> FrictionFit:
+def identify_friction_set(experiment: Any, *, delay: float | None = None,
+                          noise_placement: str | None = None) -> FrictionFit:
     """:func:`identify_friction` on an experiment set (``phoid identify --friction``).
 
     Parameters
@@ -400,6 +423,9 @@ def identify_friction_set(experiment: Any, *, delay: float | None = None) -> Fri
         (``[loop] sample_time``, ``delay_samples``, ``velocity``, ``cutoff``).
     delay : float, optional
         Loop delay Δt (s), overriding the manifest's (continuous loops only).
+    noise_placement : {"auto", "in-loop", "outside"}, optional
+        Where the sensor noise enters (``--noise``); the manifest's ``[loop] noise`` where not
+        given, else the data (:func:`identify_friction`).
 
     Raises
     ------
@@ -407,9 +433,16 @@ def identify_friction_set(experiment: Any, *, delay: float | None = None) -> Fri
         A set the friction fit does not model (not ``pho``, no delay), conflicting loop keys,
         or no usable run; the message names the set.
     """
+    from phoid.io.loop import read_noise_placement
+    from phoid.methods.inloop_route import check_placement
     from phoid.methods.pho_checks import read_digital_loop
 
     where = str(getattr(experiment, "path", "experiment"))
+    try:
+        check_placement(noise_placement)
+    except IdentificationError as exc:
+        raise IdentificationError(f"{where}: {exc}") from None
+    stated = read_noise_placement(experiment)
     if getattr(experiment, "method", "pho") != "pho":
         raise IdentificationError(f"{where}: --friction applies to PHO sets (method = \"pho\")")
     digital = read_digital_loop(experiment)
@@ -433,7 +466,8 @@ def identify_friction_set(experiment: Any, *, delay: float | None = None) -> Fri
                                  added_mass=[getattr(r, "added_mass", 0.0) for r in runs],
                                  digital=digital,
                                  bias=[getattr(r, "bias", 0.0) for r in runs],
-                                 u=[getattr(r, "u", None) for r in runs])
+                                 u=[getattr(r, "u", None) for r in runs],
+                                 noise_placement=noise_placement, stated_placement=stated)
     except ExperimentError as exc:
         raise ExperimentError(f"{where}: {exc}") from None
     except StartError as exc:  # in the command line's words (no `start=`)

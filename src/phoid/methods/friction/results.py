@@ -141,6 +141,14 @@ class FrictionFit(ResultBase, LoopExports):
     adequacy : phoid.methods.adequacy.Adequacy or None
         The fit's adequacy checks (:mod:`phoid.methods.friction.adequacy`); where one fails
         the stderr are the robust ones and ``white_stderr`` the fit's own.
+    noise_placement : str or None
+        Where the sensor noise was taken to be: ``"in-loop"`` (m, c, k, f_c from the output
+        error of the plant driven by the force the controller applied,
+        :mod:`phoid.methods.friction.inloop`) or ``"outside"`` (the stick–slip closed loop).
+    noise_placement_source : str or None
+        What decided it: ``"option"``, ``"manifest"``, ``"data"`` or ``"continuous loop"``.
+    placement_test : phoid.methods.inloop_route.PlacementTest or None
+        The data's test of the placement, where made.
     """
 
     m: Estimate
@@ -159,6 +167,9 @@ class FrictionFit(ResultBase, LoopExports):
     digital: Any = None
     sim_rate: float = math.nan
     x_unit: str = "m"
+    noise_placement: str | None = None
+    noise_placement_source: str | None = None
+    placement_test: Any = None
 
     METHOD: ClassVar[str] = "pho"
     REPORT: ClassVar[str] = "phoid.reports.text:friction_text"
@@ -213,6 +224,8 @@ class FrictionFit(ResultBase, LoopExports):
         fitted loop's dominant mode), ``c_prime``, ``k_prime`` (eq. 32 at that mode) and
         ``cycles`` (velocity reversals / 2) — and the friction fit's own (release, x0, offset,
         stick_time, …) and ``residual_noise_ratio`` (:meth:`residual_noise_ratios`).
+        A digital loop's result adds ``noise_placement``, ``noise_placement_source`` and,
+        where made, ``noise_placement_test`` (:mod:`phoid.methods.friction.inloop`).
         ``covariance``, ``correlation`` and ``statistics`` (χ²/dof) are :meth:`fit_statistics`;
         convergence is :attr:`converged` (a fit that did not converge, or misfits, says so in
         the warnings).
@@ -249,6 +262,11 @@ class FrictionFit(ResultBase, LoopExports):
                          "delay_samples": self.digital.delay_samples,
                          "velocity": self.digital.velocity, "cutoff": self.digital.cutoff}}
                if self.digital is not None else {}),
+            **({"noise_placement": self.noise_placement,
+                "noise_placement_source": self.noise_placement_source}
+               if self.noise_placement is not None and self.digital is not None else {}),
+            **({"noise_placement_test": self.placement_test.to_dict()}
+               if self.placement_test is not None else {}),
             **self.summary_tail(),
         }
 
