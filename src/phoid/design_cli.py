@@ -34,6 +34,45 @@ def _band(text: str) -> tuple[float, float]:
     return lo, hi
 
 
+# the sampled loop's keywords as the command spells them (messages from the library name the
+# Python keyword in backticks)
+_OPTIONS = {"sample_time": "--sample-time", "delay_samples": "--delay-samples",
+            "velocity": "--velocity", "cutoff": "--cutoff", "noise_in_loop": "--noise-in-loop",
+            "delay_margin_samples": "--delay-margin-samples"}
+
+
+def _option_words(message: str) -> str:
+    """A library message in the command's words for the sampled loop's keywords."""
+    import re
+
+    from phoid.dynamics.velocity import FIR_WORDS
+
+    # the option takes a preset's name only (no FIR coefficients)
+    message = message.replace(FIR_WORDS, "")
+    return re.sub(r"`(\w+)`", lambda mt: _OPTIONS.get(mt.group(1), mt.group(0)), message)
+
+
+def _check_loop_options(settings: dict, delay: float | None, *, check: bool) -> None:
+    """The loop's options together, refused in one line naming them (ValueError)."""
+    sampled = settings.get("sample_time") is not None
+    if sampled and delay is not None:
+        raise ValueError("--delay (s) and --sample-time together: a sampled loop's delay is "
+                         "--delay-samples, whole periods of --sample-time; give one or the "
+                         "other")
+    if sampled and settings.get("delay_margin") is not None:
+        raise ValueError("--delay-margin (s) is a continuous loop's; a sampled loop's least "
+                         "delay margin is --delay-margin-samples (whole samples)")
+    if not sampled and not check:
+        for key in ("delay_samples", "velocity", "cutoff", "delay_margin_samples"):
+            if settings.get(key) is not None:
+                raise ValueError(f"{_OPTIONS[key]} applies to a sampled loop: give its "
+                                 "--sample-time (s)")
+        if settings.get("noise_in_loop") is not None:
+            raise ValueError("--noise-in-loop/--noise-outside apply to a sampled loop "
+                             "(--sample-time): a continuous loop's prediction is the modal "
+                             "bound, with the noise outside the loop")
+
+
 def design(
     m: Annotated[str | None, typer.Option(
         "--m", help="Prior mass, kg: a value or a range lo:hi.")] = None,
@@ -42,14 +81,35 @@ def design(
     k: Annotated[str | None, typer.Option(
         "--k", help="Prior stiffness, N/m: a value or a range lo:hi.")] = None,
     delay: Annotated[float | None, typer.Option(
-        help="Loop delay, s (with --check: default the set's).")] = None,
+        help="Loop delay of a continuous loop, s (with --check: default the set's).")] = None,
+    sample_time: Annotated[float | None, typer.Option(
+        "--sample-time", help="A sampled (digital) loop: the controller's period T, s; the "
+                              "runs' modes, stability and margins are the sampled loop's, "
+                              "exactly (with --check: default the set's [loop]).")] = None,
+    delay_samples: Annotated[int | None, typer.Option(
+        "--delay-samples", help="Sampled loop: command delay, whole periods [0].")] = None,
+    velocity: Annotated[str | None, typer.Option(
+        help="Sampled loop: velocity estimator, 'backward-difference' or 'filtered' (with "
+             "--cutoff) [backward-difference].")] = None,
+    cutoff: Annotated[float | None, typer.Option(
+        help="Sampled loop: cut-off of the filtered velocity, rad/s.")] = None,
+    noise_in_loop: Annotated[bool | None, typer.Option(
+        "--noise-in-loop/--noise-outside",
+        help="Sampled loop: whether the controller reads the noisy record (predicted with the "
+             "in-loop bound) or acts on the true position (the modal bound) [in the loop; "
+             "with --check: the set's [loop] noise].")] = None,
+    delay_margin_samples: Annotated[int | None, typer.Option(
+        "--delay-margin-samples", help="Sampled loop: least delay margin, whole samples "
+                                       "[max(1, 0.2 delay-samples)].")] = None,
     runs: Annotated[int, typer.Option(help="Number of runs, 2 to 1000.")] = 10,
     pmax: Annotated[float | None, typer.Option(help="Limit on |P|, N/m.")] = None,
     dmax: Annotated[float | None, typer.Option(help="Limit on |D|, N s/m.")] = None,
     max_freq: Annotated[float | None, typer.Option(
         "--max-freq", help="Highest damped frequency of a run, rad/s (rig bandwidth); "
                            "0.2 x the Nyquist rate caps it in any case.")] = None,
-    fs: Annotated[float | None, typer.Option(help="Sample rate, Hz [1000].")] = None,
+    fs: Annotated[float | None, typer.Option(
+        help="Sample rate of the record, Hz [1000; a sampled loop 1/T, and a whole multiple "
+             "of it].")] = None,
     duration: Annotated[float | None, typer.Option(
         help="Record length after the release, s [10].")] = None,
     noise: Annotated[float | None, typer.Option(
@@ -62,7 +122,7 @@ def design(
     min_cycles: Annotated[float, typer.Option(
         "--min-cycles", help="Fewest cycles above the noise floor within the record.")] = 5.0,
     delay_margin: Annotated[float | None, typer.Option(
-        "--delay-margin", help="Least extra delay each loop must tolerate, s "
+        "--delay-margin", help="Continuous loop: least extra delay each loop must tolerate, s "
                                "[max(0.2 delay, 1/fs)].")] = None,
     tolerance: Annotated[float, typer.Option(
         help="Relative width of the safety checks around a prior given as one value.")
@@ -103,14 +163,18 @@ def design(
     prior, each closed loop is stable with margin and rings with its damping ratio in the band,
     and prints each run's predicted sigma, omega_d, zeta, cycles above the noise floor and
     stability margins with the predicted (Cramer-Rao) standard errors of m, c, k for the given
-    noise, sample rate and record length. --out writes the schedule as an experiment.toml
-    skeleton; --check evaluates an existing set's gains the same way and exits with status 1
-    when any run is unsafe on the prior. --rehearse N simulates N replicas of the schedule
-    (the nominal plant, the design's noise, delay, sample rate and record length; independent
-    seeds spawned from --seed), identifies them on a Dask cluster (--scheduler, or a local
-    cluster of --workers processes) and reports, for m, c, k, the predicted stderr against the
-    replicas' SD, the mean reported stderr, the bias with its Monte Carlo error, RMSE/predicted
-    and the coverage of +-3 reported stderr.
+    noise, sample rate and record length. With --sample-time T (and --delay-samples d) the loop
+    is the rig's sampled one: the runs' modes are the sampled loop's, exactly, the delay margins
+    are in whole samples, --fs defaults to 1/T, and the prediction is the in-loop bound (the
+    controller reads the noisy record; --noise-outside for the modal bound). --out writes the
+    schedule as an experiment.toml skeleton (`phoid run` runs it); --check evaluates an
+    existing set's gains the same way (a digital set, such as `phoid run`'s, on its sampled
+    loop) and exits with status 1 when any run is unsafe on the prior. --rehearse N simulates
+    N replicas of the schedule (the nominal plant, the design's loop, noise placement, sample
+    rate and record length; independent seeds spawned from --seed), identifies them on a Dask
+    cluster (--scheduler, or a local cluster of --workers processes) and reports, for m, c,
+    k, the predicted stderr against the replicas' SD, the mean reported stderr, the bias with
+    its Monte Carlo error, RMSE/predicted and the coverage of +-3 reported stderr.
     """
     from phoid._output import protect_inputs, safe_text
     from phoid.batch.sets import set_files
@@ -124,7 +188,11 @@ def design(
             settings = {key: val for key, val in {
                 "fs": fs, "duration": duration, "noise": noise, "amplitude": amplitude,
                 "pmax": pmax, "dmax": dmax, "max_freq": max_freq, "delay_margin": delay_margin,
+                "sample_time": sample_time, "delay_samples": delay_samples,
+                "velocity": velocity, "cutoff": cutoff, "noise_in_loop": noise_in_loop,
+                "delay_margin_samples": delay_margin_samples,
             }.items() if val is not None}
+            _check_loop_options(settings, delay, check=check_set is not None)
             settings.update(zeta=_band(zeta), min_cycles=min_cycles, tolerance=tolerance)
             if check_set is not None and out is not None:
                 raise ValueError("`--out` writes a designed schedule; it cannot be used with "
@@ -160,8 +228,9 @@ def design(
                 if missing:
                     raise ValueError(f"give the prior plant: {', '.join(missing)} missing "
                                      "(a value or a range lo:hi each)")
-                if delay is None:
-                    raise ValueError("give the loop delay --delay (s)")
+                if delay is None and sample_time is None:
+                    raise ValueError("give the loop: --delay (s) for a continuous loop, or "
+                                     "--sample-time (s) and --delay-samples for a sampled one")
                 from phoid.planning import MAX_RUNS
 
                 if not 2 <= runs <= MAX_RUNS:
@@ -188,7 +257,7 @@ def design(
 
                 write_report(result, html, overwrite=overwrite, inputs=inputs[:1])
     except (ValueError, OSError) as exc:
-        _fail(str(exc))
+        _fail(_option_words(str(exc)))
     if as_json:
         summary = result.summary()
         if rehearsal is not None:

@@ -1,12 +1,18 @@
 """A design rehearsed: simulated replicas of its sweep identified, set against its prediction.
 
 Each replica simulates every run of the design's schedule — the designed gains (P, D) on the
-design's nominal plant (m, c, k), with its loop delay, sample rate, record length, release
+design's nominal plant (m, c, k), with its loop, sample rate, record length, release
 amplitude and white sensor noise (:func:`phoid.simulation.simulate`, in memory) — and
 identifies it with the PHO pipeline (:func:`phoid.methods.identification.identify_pho_data`,
-the delay known, as the design assumes). Replica i draws its noise from the i-th child of
-``numpy.random.SeedSequence(seed).spawn(n)``: the replicas are independent, and the same seed
-gives the same numbers wherever and in whatever order they run.
+the loop known, as the design assumes). A design for a sampled loop is rehearsed on that loop
+(its ``sample_time``, ``delay_samples``, ``velocity``, ``cutoff``) with the noise where the
+design put it (``noise_in_loop``: the controller reads the noisy record, as on a rig, or the
+true position), held for (d + taps)·T before the release (the hold the in-loop bound assumes:
+the first command after the release is computable from the record); its records are
+identified with that placement stated, as a set whose ``[loop] noise`` states it. Replica i
+draws its noise from the i-th child of ``numpy.random.SeedSequence(seed).spawn(n)``: the
+replicas are independent, and the same seed gives the same numbers wherever and in whatever
+order they run.
 
 Over the replicas that identify, for each of m, c, k with true value θ, estimates θ̂ᵢ and
 reported stderrs sᵢ, and the design's Cramér–Rao prediction σ_CR:
@@ -162,12 +168,17 @@ class Rehearsal:
 
 
 def _spec(design: Any) -> dict[str, Any]:
-    """What a replica needs of a design (small, picklable): plant, gains, settings."""
+    """What a replica needs of a design (small, picklable): plant, gains, settings, and a
+    sampled loop's keys with the noise placement."""
     s = design.settings
-    return {"m": float(design.m.value), "c": float(design.c.value), "k": float(design.k.value),
+    spec = {"m": float(design.m.value), "c": float(design.c.value), "k": float(design.k.value),
             "P": np.asarray(design.P, float), "D": np.asarray(design.D, float),
             "delay": float(s.delay), "duration": float(s.duration), "fs": float(s.fs),
             "amplitude": float(s.amplitude), "noise": float(s.noise)}
+    if getattr(s, "sample_time", None) is not None:
+        spec.update(sample_time=float(s.sample_time), delay_samples=int(s.delay_samples),
+                    velocity=s.velocity, cutoff=s.cutoff, noise_in_loop=bool(s.noise_in_loop))
+    return spec
 
 
 def rehearse_replica(spec: dict[str, Any], seed: np.random.SeedSequence
@@ -179,7 +190,9 @@ def rehearse_replica(spec: dict[str, Any], seed: np.random.SeedSequence
     spec : dict
         ``m``, ``c``, ``k`` (the plant: kg, N·s/m, N/m), ``P``, ``D`` (the runs' gains, N/m
         and N·s/m), ``delay`` (s), ``duration`` (s), ``fs`` (Hz), ``amplitude`` (release
-        position, m) and ``noise`` (sensor noise SD, m).
+        position, m) and ``noise`` (sensor noise SD, m); for a sampled loop also
+        ``sample_time`` (s), ``delay_samples``, ``velocity``, ``cutoff`` (rad/s or None) and
+        ``noise_in_loop``.
     seed : numpy.random.SeedSequence
         The replica's seed.
 
@@ -194,15 +207,30 @@ def rehearse_replica(spec: dict[str, Any], seed: np.random.SeedSequence
         When the replica's records do not determine m, c, k.
     """
     from phoid.dynamics import Plant
+    from phoid.dynamics.digital import DigitalPD
     from phoid.methods.identification import identify_pho_data
     from phoid.simulation import simulate
 
     rng = np.random.default_rng(seed)
-    sim = simulate(Plant(spec["m"], spec["c"], spec["k"]), spec["P"], spec["D"],
-                   delay=spec["delay"], duration=spec["duration"], fs=spec["fs"],
-                   x0=spec["amplitude"], noise=spec["noise"], rng=rng)
-    result = identify_pho_data([(sim.t, sim.x[i]) for i in range(len(spec["P"]))],
-                               spec["P"], spec["D"], spec["delay"])
+    plant = Plant(spec["m"], spec["c"], spec["k"])
+    if spec.get("sample_time") is not None:
+        loop = DigitalPD(0.0, 0.0, spec["sample_time"], spec["delay_samples"],
+                         spec["velocity"], spec["cutoff"])
+        hold = (loop.delay_samples + loop.estimator.taps) * loop.sample_time
+        sim = simulate(plant, spec["P"], spec["D"], duration=spec["duration"], fs=spec["fs"],
+                       x0=spec["amplitude"], noise=spec["noise"], rng=rng, hold=hold,
+                       sample_time=loop.sample_time, delay_samples=loop.delay_samples,
+                       velocity=loop.velocity, cutoff=loop.cutoff,
+                       noise_in_loop=spec["noise_in_loop"])
+        placement = "in-loop" if spec["noise_in_loop"] else "outside"
+        result = identify_pho_data([(sim.t, sim.x[i]) for i in range(len(spec["P"]))],
+                                   spec["P"], spec["D"], None, digital=loop, stated=placement)
+    else:
+        sim = simulate(plant, spec["P"], spec["D"], delay=spec["delay"],
+                       duration=spec["duration"], fs=spec["fs"], x0=spec["amplitude"],
+                       noise=spec["noise"], rng=rng)
+        result = identify_pho_data([(sim.t, sim.x[i]) for i in range(len(spec["P"]))],
+                                   spec["P"], spec["D"], spec["delay"])
     est = [getattr(result, n) for n in _NAMES]
     return (np.array([e.value for e in est], float),
             np.array([np.nan if e.stderr is None else e.stderr for e in est], float))
@@ -243,7 +271,8 @@ def rehearse(design: Any, n: int, *, client: Any = None, seed: int | None = None
     design : phoid.Design
         A design or a check (:func:`phoid.design`, :func:`phoid.planning.check_experiment`);
         read: the nominal plant ``m``, ``c``, ``k`` with their Cramér–Rao stderrs, the gains
-        ``P``, ``D`` and ``settings`` (delay, fs, duration, amplitude, noise).
+        ``P``, ``D`` and ``settings`` (delay, fs, duration, amplitude, noise; a sampled loop's
+        sample_time, delay_samples, velocity, cutoff and noise_in_loop).
     n : int
         Number of replicas, 2 to 100 000.
     client : distributed.Client, optional

@@ -16,9 +16,11 @@ from typing import Any
 import numpy as np
 
 import phoid._validate as v
+from phoid._threads import single_blas_thread
 from phoid.errors import PhoidError
 from phoid.fits import detect_release
 from phoid.io import ExperimentSet, read_experiment
+from phoid.io.loop import read_digital_loop, read_noise_placement
 from phoid.planning.result import Design, assemble, roots_in_range
 from phoid.planning.schedule import read_schedule
 from phoid.planning.settings import DesignError, DesignSettings, make_prior
@@ -27,6 +29,7 @@ __all__ = ["check", "check_experiment"]
 
 
 @roots_in_range
+@single_blas_thread
 def check(
     P: Sequence[float] | np.ndarray,
     D: Sequence[float] | np.ndarray,
@@ -34,8 +37,8 @@ def check(
     c: Any,
     k: Any,
     *,
-    delay: float,
-    fs: float = 1000.0,
+    delay: float | None = None,
+    fs: float | None = None,
     duration: float = 10.0,
     noise: float = 1e-5,
     amplitude: float = 0.01,
@@ -47,12 +50,19 @@ def check(
     delay_margin: float | None = None,
     separation: float = 2.0,
     tolerance: float = 0.1,
+    sample_time: float | None = None,
+    delay_samples: int | None = None,
+    velocity: str | None = None,
+    cutoff: float | None = None,
+    noise_in_loop: bool | None = None,
+    delay_margin_samples: int | None = None,
 ) -> Design:
     """Evaluate given gains like :func:`~phoid.planning.search.design`: which runs are unsafe or
     uninformative.
 
     Parameters are those of :func:`design`, with the gains ``P`` (N/m) and ``D`` (N·s/m) of the
-    runs instead of ``runs``.
+    runs instead of ``runs``; with ``sample_time`` the gains are judged on the sampled loop
+    (exact modes, margins in samples, the bound for ``noise_in_loop``).
 
     Returns
     -------
@@ -63,7 +73,9 @@ def check(
     st = DesignSettings(delay=delay, fs=fs, duration=duration, noise=noise,
                         amplitude=amplitude, zeta=zeta, pmax=pmax, dmax=dmax,
                         max_freq=max_freq, min_cycles=min_cycles, delay_margin=delay_margin,
-                        separation=separation, tolerance=tolerance)
+                        separation=separation, tolerance=tolerance, sample_time=sample_time,
+                        delay_samples=delay_samples, velocity=velocity, cutoff=cutoff,
+                        noise_in_loop=noise_in_loop, delay_margin_samples=delay_margin_samples)
     P = v.finite_array("P", P, ndim=1)
     D = v.finite_array("D", D, ndim=1)
     if P.size != D.size or P.size == 0:
@@ -90,10 +102,15 @@ def check_experiment(
         The plant to check against; when omitted, the set's data are identified
         (:func:`phoid.identify`) and the estimate is used.
     **settings
-        Further keywords of :func:`check`. ``delay`` defaults to the set's; for a set with data,
-        ``fs``, ``duration`` (from the release), ``amplitude`` and ``noise`` default to what
-        the records show (median over the runs) — the skeleton's ``[design]`` values for a
-        skeleton.
+        Further keywords of :func:`check`. The loop defaults to the set's: ``delay`` from
+        ``[loop] delay``, or a digital loop (``[loop] sample_time``, ``delay_samples``,
+        ``velocity``, ``cutoff``, read by :func:`phoid.io.loop.read_digital_loop`) whose keys
+        given here override the set's (``delay`` with a digital set is refused); the noise
+        placement (``noise_in_loop``) from ``[loop] noise``, else in the loop for a digital
+        set (a note says which). For a set with data, ``fs``, ``duration`` (from the release),
+        ``amplitude`` and ``noise`` default to what the records show (median over the runs;
+        a digital set's ``fs`` the whole multiple of 1/T nearest) — the skeleton's
+        ``[design]`` values for a skeleton.
 
     Returns
     -------
@@ -111,6 +128,7 @@ def check_experiment(
             except DesignError:
                 raise exc from None
             exp, read_error = None, " ".join(str(exc).split())
+    notes: list[str] = []
     if exp is not None:
         if exp.method != "pho":
             raise DesignError(f"{exp.path}: method is {exp.method!r}; only pho sets have gains "
@@ -118,17 +136,59 @@ def check_experiment(
         P = np.array([r.P for r in exp.runs], dtype=float)
         D = np.array([r.D for r in exp.runs], dtype=float)
         delay = exp.delay
-        from_data = _record_settings(exp)
+        try:
+            digital = read_digital_loop(exp)
+            stated = read_noise_placement(exp)
+        except PhoidError as exc:
+            raise DesignError(str(exc)) from None
+        loop = {} if digital is None else {
+            "sample_time": digital.sample_time, "delay_samples": digital.delay_samples,
+            "velocity": digital.velocity, "cutoff": digital.cutoff}
+        from_data = _record_settings(exp, digital)
     else:
         P, D, delay = sched["P"], sched["D"], sched["delay"]
+        stated = sched.get("noise_placement")
+        loop = {key: sched[key] for key in ("sample_time", "delay_samples", "velocity",
+                                            "cutoff") if sched.get(key) is not None}
         from_data = {key: sched[key] for key in ("fs", "duration", "noise", "amplitude")
                      if sched.get(key) is not None}
-    if settings.get("delay") is None:
+    where = exp.path if exp is not None else experiment
+    digital_keys = ("sample_time", "delay_samples", "velocity", "cutoff")
+    asked = settings.get("noise_in_loop")
+    given_loop = [key for key in digital_keys if settings.get(key) is not None]
+    if loop or settings.get("sample_time") is not None:  # a sampled loop
+        if settings.get("delay") is not None:
+            raise DesignError(
+                f"{where}: the loop is sampled ([loop] sample_time): its delay is whole "
+                "samples (--delay-samples), not --delay" if loop else
+                "--delay (s) and --sample-time together: a sampled loop's delay is "
+                "--delay-samples, whole periods of --sample-time; give one or the other")
+        if not loop and delay is not None:
+            raise DesignError(f"{where}: the set's loop is continuous ([loop] delay = "
+                              f"{delay:g} s); --sample-time would judge another loop: give "
+                              "--delay to change its delay")
         settings.pop("delay", None)
-        if delay is None:
-            raise DesignError("the set has no [loop] delay: give --delay")
-        settings["delay"] = delay
-    notes: list[str] = []
+        for key in digital_keys:
+            if settings.get(key) is None and key in loop:
+                settings[key] = loop[key]
+        if settings.get("velocity") != "filtered" and "cutoff" not in given_loop:
+            settings.pop("cutoff", None)
+        if settings.get("noise_in_loop") is None:
+            if stated is not None:
+                settings["noise_in_loop"] = stated == "in-loop"
+                notes.append(f"noise placement {stated!r}: the set's [loop] noise")
+            else:
+                settings["noise_in_loop"] = True
+                notes.append("noise placement 'in-loop': the default for a digital loop (the "
+                             "set does not state [loop] noise)")
+    else:
+        if settings.get("delay") is None:
+            settings.pop("delay", None)
+            if delay is None:
+                raise DesignError("the set has no [loop] delay and no digital loop ([loop] "
+                                  "sample_time): give --delay, or --sample-time and "
+                                  "--delay-samples")
+            settings["delay"] = delay
     carried: list[str] = []  # warnings of the identification the check relies on
     if read_error is not None:
         notes.append(f"the set's data were not used ({read_error}): gains checked against the "
@@ -139,7 +199,13 @@ def check_experiment(
                               "alone give the prior plant --m, --c and --k")
         from phoid.methods.identification import identify_pho as identify
 
-        ident = identify(exp, delay=settings["delay"])
+        if loop:  # the set's digital loop, the placement asked for (else the data's)
+            ident = identify(exp, noise_placement=None if asked is None
+                             else ("in-loop" if asked else "outside"))
+        elif settings.get("sample_time") is not None:
+            ident = identify(exp)
+        else:
+            ident = identify(exp, delay=settings["delay"])
         m = ident.m.value if m is None else m
         c = ident.c.value if c is None else c
         k = ident.k.value if k is None else k
@@ -148,9 +214,11 @@ def check_experiment(
             + ", ".join(f"{n} = {e.value:.6g} ± {e.stderr:.3g} {e.unit}"
                         for n, e in (("m", ident.m), ("c", ident.c), ("k", ident.k))))
         if "noise" not in from_data:
-            sds = [r.fit.noise_sd for r in ident.runs if r.fit is not None
-                   and math.isfinite(r.fit.noise_sd)]
-            if sds:
+            fit = getattr(ident, "inloop", None)
+            sds = [float(fit.sigma)] if fit is not None and math.isfinite(fit.sigma) else [
+                r.fit.noise_sd for r in ident.runs if r.fit is not None
+                and math.isfinite(r.fit.noise_sd)]
+            if sds and float(np.median(sds)) > 0:
                 from_data["noise"] = float(np.median(sds))
         # the check relies on this estimate: what the identification warned of stays with it
         carried.extend(f"identification of the set: {w}" for w in ident.warnings)
@@ -163,7 +231,6 @@ def check_experiment(
     for key, val in from_data.items():
         if settings.get(key) is None:
             settings[key] = val
-    where = exp.path if exp is not None else experiment
     dur, given_delay = settings.get("duration"), settings.get("delay")
     if (isinstance(given_delay, int | float) and isinstance(dur, int | float)
             and math.isfinite(dur) and not 3.0 * given_delay < dur):
@@ -188,8 +255,10 @@ def check_experiment(
     return d
 
 
-def _record_settings(exp) -> dict[str, float]:
-    """Sample rate, record length after the release and release amplitude seen in a set."""
+def _record_settings(exp, digital=None) -> dict[str, float]:
+    """Sample rate, record length after the release and release amplitude seen in a set; a
+    digital set's rate the whole multiple of its loop's rate 1/T nearest the records' (one
+    line naming the set when none is within 10 %)."""
     fs, dur, amp = [], [], []
     for r in exp.runs:
         t, x = np.asarray(r.t), np.asarray(r.x)
@@ -204,6 +273,15 @@ def _record_settings(exp) -> dict[str, float]:
         tail = x[-max(10, x.size // 10):]
         amp.append(abs(float(x[min(j, x.size - 1)]) - float(np.median(tail))))
     out = {"fs": float(np.median(fs)), "duration": float(np.median(dur))}
+    if digital is not None:
+        T = digital.sample_time
+        per = out["fs"] * T
+        M = max(1, round(per))
+        if not abs(per - M) <= 0.1 * M:
+            raise DesignError(f"{exp.path}: the records' sample rate {out['fs']:.6g} Hz is not a "
+                              f"whole multiple of the loop's rate 1/sample_time = {1 / T:g} Hz "
+                              f"([loop] sample_time = {T:g} s): is sample_time in seconds?")
+        out["fs"] = M / T
     a = float(np.median(amp))
     if a > 0:
         out["amplitude"] = a

@@ -27,7 +27,9 @@ What a run must satisfy (:func:`phoid.planning.search.design` only proposes such
   as fast, so the record is a single-mode decay after a short transient).
 
 Roots are counted exactly by :mod:`phoid.planning.margins`; the information of a run is that of
-:mod:`phoid.planning.fisher`.
+:mod:`phoid.planning.fisher`. A sampled loop is searched on this module's continuous surrogate
+(the delay :attr:`DesignSettings.model_delay`) and evaluated exactly by
+:mod:`phoid.planning.sampled`, into the same :class:`Evaluation`.
 """
 
 from __future__ import annotations
@@ -41,7 +43,7 @@ from phoid.planning.fisher import mode_information, release_amplitude
 from phoid.planning.margins import count_roots_right, delay_margin
 from phoid.planning.settings import DesignSettings, Prior
 
-__all__ = ["Evaluation", "evaluate", "log_var", "place", "run_information"]
+__all__ = ["Evaluation", "evaluate", "log_var", "place", "run_information", "stack"]
 
 
 @dataclass(frozen=True)
@@ -62,6 +64,8 @@ class Evaluation:
     ok_freq: np.ndarray
     ok_limits: np.ndarray  # per run
     ok: np.ndarray  # per run and plant: safe (stable, ringing, margins, bandwidth)
+    # a sampled loop's delay margin in whole samples (``dmargin`` is it × T); None: continuous
+    dsamples: np.ndarray | None = None
 
     def informative(self, st: DesignSettings) -> np.ndarray:
         """Per run: at the nominal plant, ζ in the band, enough cycles, separated modes."""
@@ -69,7 +73,17 @@ class Evaluation:
 
     def take(self, sel: np.ndarray) -> Evaluation:
         """The runs ``sel`` only."""
-        return Evaluation(**{f: getattr(self, f)[sel] for f in self.__dataclass_fields__})
+        return Evaluation(**{f: None if getattr(self, f) is None else getattr(self, f)[sel]
+                             for f in self.__dataclass_fields__})
+
+
+def stack(parts: list[Evaluation]) -> Evaluation:
+    """The runs of several evaluations (on the same prior grid), in order, as one."""
+    out = {}
+    for f in Evaluation.__dataclass_fields__:
+        vals = [getattr(e, f) for e in parts]
+        out[f] = None if any(x is None for x in vals) else np.concatenate(vals, axis=0)
+    return Evaluation(**out)
 
 
 def place(m: float, c: float, k: float, s: np.ndarray, delay: float
@@ -163,7 +177,7 @@ def evaluate(P: np.ndarray, D: np.ndarray, s0: np.ndarray, prior: Prior, st: Des
     P = np.asarray(P, dtype=float)
     D = np.asarray(D, dtype=float)
     plants = prior.plants
-    s = _track(np.asarray(s0, dtype=complex), plants, P, D, st.delay) if s_grid is None \
+    s = _track(np.asarray(s0, dtype=complex), plants, P, D, st.model_delay) if s_grid is None \
         else s_grid
     m, c, k = (plants[:, j][None, :] for j in range(3))
     PP, DD = P[:, None], D[:, None]
@@ -171,23 +185,23 @@ def evaluate(P: np.ndarray, D: np.ndarray, s0: np.ndarray, prior: Prior, st: Des
     with np.errstate(invalid="ignore"):
         tiny = 1e-9 * np.abs(s) + 1e-12
         n_right = count_roots_right(np.where(np.isfinite(re), re + tiny, 0.0), m, c, k, PP, DD,
-                                    st.delay)
+                                    st.model_delay)
         n_sep = count_roots_right(np.where(np.isfinite(re), st.separation * re - tiny, 0.0),
-                                  m, c, k, PP, DD, st.delay)
-        n_unstable = count_roots_right(np.zeros_like(re), m, c, k, PP, DD, st.delay)
+                                  m, c, k, PP, DD, st.model_delay)
+        n_unstable = count_roots_right(np.zeros_like(re), m, c, k, PP, DD, st.model_delay)
     found = np.isfinite(re) & (s.imag > 0)
     rightmost = found & (n_right == 0)
     stable = (n_unstable == 0) & ~np.isnan(n_unstable)
     separated = rightmost & (n_sep == 2)
     zeta = np.where(found, -re / np.abs(s), np.nan)
     w = np.where(found, release_amplitude(np.where(found, s, -1.0 + 1j), m, c, k, PP, DD,
-                                          st.delay, st.amplitude), np.nan)
+                                          st.model_delay, st.amplitude), np.nan)
     sig = -re
     with np.errstate(all="ignore"):
         t_above = np.where(np.abs(w) > st.noise,
                            np.minimum(st.duration, np.log(np.abs(w) / st.noise) / sig), 0.0)
         cycles = np.where(found & (sig > 0), s.imag * t_above / (2 * np.pi), 0.0)
-    dmargin = delay_margin(m, c, k, PP, DD, st.delay)
+    dmargin = delay_margin(m, c, k, PP, DD, st.model_delay)
     dmargin = np.where(stable, dmargin, 0.0)
     in_band = (zeta[:, 0] >= st.zeta[0] * (1 - 1e-9)) & (zeta[:, 0] <= st.zeta[1] * (1 + 1e-9))
     ok_freq = found & (s.imag <= st.omega_max * (1 + 1e-9))
@@ -212,7 +226,7 @@ def run_information(ev: Evaluation, prior: Prior, st: DesignSettings) -> np.ndar
     s = ev.s[ri, gi]
     info = mode_information(s, ev.w[ri, gi], fs=st.fs, duration=st.duration, noise=st.noise)
     pl = prior.plants[gi]
-    Gm = _jacobian(s, pl, ev.P[ri], ev.D[ri], st.delay)
+    Gm = _jacobian(s, pl, ev.P[ri], ev.D[ri], st.model_delay)
     out[ri, gi] = np.einsum("nai,nab,nbj->nij", Gm, info, Gm)
     return out
 

@@ -13,41 +13,74 @@ import numpy as np
 from phoid._output import OutputFolder, png_writer
 from phoid.planning.settings import UNITS, DesignError, fmt_range
 
-__all__ = ["design_report", "plot_design"]
+__all__ = ["design_report", "loop_words", "plot_design"]
 
 
 def design_report(d: Any) -> str:
     """Human-readable schedule, margins and predicted uncertainties of a design ``d``."""
     st = d.settings
+    sampled = st.sample_time is not None
     lines = []
     title = "Designed PHO schedule" if d.kind == "design" else "Checked PHO schedule"
     pr = ", ".join(f"{n} = {fmt_range(d.prior[n])} {UNITS[n]}" for n in "mck")
-    lines.append(f"{title} for {pr}, delay {st.delay:g} s")
+    if sampled:
+        lines.append(f"{title} for {pr}")
+        lines.append(loop_words(st) + "; noise "
+                     + ("in the loop (the controller reads the noisy record)"
+                        if st.noise_in_loop else "outside the loop"))
+    else:
+        lines.append(f"{title} for {pr}, delay {st.delay:g} s")
     lines.append(f"record {st.duration:g} s at {st.fs:g} Hz, noise {st.noise:g} m, "
                  f"release amplitude {st.amplitude:g} m; safety checked over "
                  + ", ".join(f"{n} {fmt_range(r)}"
                              for n, r in d.prior["checked_ranges"].items()))
     lines.append("")
+    dm_head = "dm(smp)" if sampled else "dmargin"
     head = (f"{'run':>3} {'P (N/m)':>11} {'D (N s/m)':>11} {'sigma':>8} {'omega_d':>8} "
-            f"{'zeta':>6} {'cycles':>7} {'margin':>8} {'dmargin':>8} {'share':>6}  status")
+            f"{'zeta':>6} {'cycles':>7} {'margin':>8} {dm_head:>8} {'share':>6}  status")
     lines.append(head)
     for i, r in enumerate(d.runs, start=1):
         status = "ok" if r.safe and r.informative else (
             "UNSAFE" if not r.safe else "uninformative")
+        dm = (f"{r.delay_margin_samples:>8g}" if sampled else f"{r.delay_margin:>8.3g}")
         lines.append(
             f"{i:>3} {r.P:>11.5g} {r.D:>11.5g} {r.sigma:>8.4g} {r.omega_d:>8.4g} "
-            f"{r.zeta:>6.3f} {r.cycles:>7.1f} {r.margin:>8.3g} {r.delay_margin:>8.3g} "
+            f"{r.zeta:>6.3f} {r.cycles:>7.1f} {r.margin:>8.3g} {dm} "
             f"{r.share:>6.3f}  {status}")
-    lines.append("  sigma 1/s, omega_d rad/s (nominal plant); margin: smallest decay rate "
-                 "of the rightmost root (1/s) and dmargin: smallest extra delay before "
-                 "instability (s), both over the prior")
+    if sampled:
+        lines.append("  sigma 1/s, omega_d rad/s: the dominant mode of the sampled loop, exact "
+                     "(nominal plant); margin: smallest decay rate of the rightmost root (1/s) "
+                     f"and dm(smp): smallest extra delay in whole samples before instability "
+                     f"(stable up to delay_samples {st.delay_samples} + dm), both over the "
+                     "prior")
+        lines.append("")
+        order = len(d.runs[0].roots) if d.runs else 0
+        lines.append(f"Sampled loop modes at the nominal plant (all {order} roots of its "
+                     "characteristic polynomial, rightmost first; s = ln(z)/T, 1/s):")
+        for i, r in enumerate(d.runs, start=1):
+            lines.append(f"  run {i}: " + _modes_text(r.roots))
+    else:
+        lines.append("  sigma 1/s, omega_d rad/s (nominal plant); margin: smallest decay rate "
+                     "of the rightmost root (1/s) and dmargin: smallest extra delay before "
+                     "instability (s), both over the prior")
     lines.append("")
-    lines.append("Predicted standard errors (Cramér–Rao bound at the nominal plant; worst "
-                 "over the prior in brackets):")
+    if d.bound == "in-loop":
+        lines.append("Predicted standard errors (in-loop Cramér–Rao bound at the nominal plant: "
+                     "the controller reads the noisy record, the plant is driven by the "
+                     "command it applied; worst over the prior in brackets, the modal bound "
+                     "of the runs' dominant modes after it):")
+    elif sampled:
+        lines.append("Predicted standard errors (Cramér–Rao bound of the sampled loop's "
+                     "dominant modes, noise outside the loop, at the nominal plant; worst over "
+                     "the prior in brackets):")
+    else:
+        lines.append("Predicted standard errors (Cramér–Rao bound at the nominal plant; worst "
+                     "over the prior in brackets):")
     for j, name in enumerate(("m", "c", "k")):
         e = getattr(d, name)
+        extra = f"  (modal {_g(d.modal_stderr[j])})" if d.bound == "in-loop" else ""
         lines.append(f"  {name} = {e.value:.6g} {e.unit}  ± {_g(e.stderr)}  "
-                     f"[{_g(d.stderr_worst[j])}]")
+                     f"[{_g(d.stderr_worst[j])}]{extra}")
     if d.notes:
         lines.append("")
         lines.extend(f"Note: {n}" for n in d.notes)
@@ -56,6 +89,39 @@ def design_report(d: Any) -> str:
         lines.append("Warnings:")
         lines.extend(f"  - {w}" for w in d.warnings)
     return "\n".join(lines)
+
+
+def loop_words(st: Any) -> str:
+    """A sampled loop in words: ``"sampled loop: sample_time 0.001 s, delay_samples 1,
+    backward-difference velocity"``."""
+    vel = st.velocity if st.cutoff is None else f"{st.velocity} (cutoff {st.cutoff:g} rad/s)"
+    per = round(st.fs * st.sample_time)
+    rec = "" if per == 1 else f", {per} recorded samples per period"
+    return (f"sampled loop: sample_time {st.sample_time:g} s, delay_samples "
+            f"{st.delay_samples}, {vel} velocity{rec}")
+
+
+def _modes_text(roots: Any, shown: int = 4) -> str:
+    """The first ``shown`` roots of a run (conjugate pairs as ``a ± bi``), and how many more."""
+    parts: list[str] = []
+    used = 0
+    i = 0
+    rts = list(roots)
+    while i < len(rts) and len(parts) < shown:
+        r = rts[i]
+        if not np.isfinite(r.real):
+            parts.append("-inf (z = 0)")
+            i += 1
+        elif r.imag > 0 and i + 1 < len(rts) and abs(rts[i + 1] - r.conjugate()) <= 1e-9 * abs(r):
+            parts.append(f"{r.real:.4g} ± {r.imag:.4g}i")
+            i += 2
+        else:
+            parts.append(f"{r.real:.4g}" + (f" {'+' if r.imag >= 0 else '-'} "
+                                            f"{abs(r.imag):.4g}i" if r.imag else ""))
+            i += 1
+        used = i
+    rest = len(rts) - used
+    return ", ".join(parts) + (f", … ({rest} more, all faster)" if rest > 0 else "")
 
 
 def plot_design(d: Any, path: str | Path | None = None, *, ax: Any = None,

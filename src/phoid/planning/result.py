@@ -20,10 +20,12 @@ from typing import Any
 import numpy as np
 
 from phoid.dynamics import rightmost_roots
+from phoid.dynamics.digital import digital_roots
 from phoid.methods.estimate import Estimate
-from phoid.planning.evaluation import evaluate, run_information
+from phoid.planning.evaluation import Evaluation, evaluate, run_information
 from phoid.planning.fisher import mode_information, safe_inverse
 from phoid.planning.render import design_report, plot_design
+from phoid.planning.sampled import evaluate_sampled, predicted_covariance, sampled_information
 from phoid.planning.schedule import schedule_target
 from phoid.planning.settings import DesignError, DesignSettings, Prior
 from phoid.reports.display import NotebookDisplay
@@ -68,6 +70,16 @@ class PlannedRun:
         Rings with at least ``min_cycles`` cycles on the whole prior grid and ζ in the band at
         the nominal plant.
     warnings : tuple of str
+    delay_margin_samples : float or None
+        A sampled loop's delay margin, whole samples: the smallest over the prior of d′ − d,
+        d′ the largest command delay for which the loop stays stable (``inf``: no delay
+        destabilises it; 0 where unstable). None for a continuous loop.
+    max_delay_samples : float or None
+        d + ``delay_margin_samples``: the longest command delay, whole samples, the run stays
+        stable with on the whole prior.
+    roots : tuple of complex
+        A sampled loop's d + 3 exact roots s = ln(z)/T (1/s) at the nominal plant, rightmost
+        first (:func:`phoid.dynamics.digital.digital_roots`); empty for a continuous loop.
     """
 
     P: float
@@ -88,10 +100,15 @@ class PlannedRun:
     safe: bool
     informative: bool
     warnings: tuple[str, ...] = ()
+    delay_margin_samples: float | None = None
+    max_delay_samples: float | None = None
+    roots: tuple[complex, ...] = ()
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready dict; non-finite numbers become null (a null ``delay_margin`` means that
-        no extra delay destabilises the loop, a null mode that the run does not ring)."""
+        no extra delay destabilises the loop, a null mode that the run does not ring); a
+        sampled loop's run adds ``delay_margin_samples``, ``max_delay_samples`` and ``roots``
+        (``[re, im]`` of each s, 1/s; a root at z = 0 has re null)."""
 
         def num(x):
             return float(x) if x is not None and math.isfinite(x) else None
@@ -102,6 +119,10 @@ class PlannedRun:
                     "zeta_max", "share"):
             out[key] = num(getattr(self, key))
         out.update(safe=self.safe, informative=self.informative, warnings=list(self.warnings))
+        if self.delay_margin_samples is not None:  # a sampled loop's
+            out["delay_margin_samples"] = num(self.delay_margin_samples)
+            out["max_delay_samples"] = num(self.max_delay_samples)
+            out["roots"] = [[num(r.real), num(r.imag)] for r in self.roots]
         return out
 
 
@@ -131,6 +152,14 @@ class Design(NotebookDisplay):
         The prior grid (row 0 the nominal plant).
     roots : ndarray, shape (n, G)
         Dominant root of every run at every plant of the grid.
+    bound : {"modal", "in-loop"}
+        What the predicted stderrs are: ``"modal"`` the Cramér–Rao bound of the runs'
+        dominant modes (:mod:`phoid.planning.fisher`; noise outside the loop), ``"in-loop"``
+        the bound of the plant driven by the applied command with the noise read by the
+        controller (:func:`phoid.planning.inloop_bound.inloop_cramer_rao`).
+    modal_stderr : ndarray, shape (3,)
+        The modal bound's standard errors at the nominal plant (= ``stderr`` when ``bound``
+        is ``"modal"``), kept for comparison.
     """
 
     runs: tuple[PlannedRun, ...]
@@ -146,6 +175,8 @@ class Design(NotebookDisplay):
     notes: tuple[str, ...] = ()
     plants: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)), repr=False)
     roots: np.ndarray = field(default_factory=lambda: np.zeros((0, 0), complex), repr=False)
+    bound: str = "modal"
+    modal_stderr: np.ndarray = field(default_factory=lambda: np.full(3, np.nan), repr=False)
 
     @property
     def P(self) -> np.ndarray:
@@ -177,7 +208,8 @@ class Design(NotebookDisplay):
         for j, name in enumerate(("m", "c", "k")):
             e = getattr(self, name)
             predicted[name] = {"value": float(e.value), "stderr": num(e.stderr),
-                               "stderr_worst": num(self.stderr_worst[j]), "unit": e.unit}
+                               "stderr_worst": num(self.stderr_worst[j]), "unit": e.unit,
+                               "modal_stderr": num(self.modal_stderr[j])}
         return {
             "kind": self.kind,
             "runs": [r.to_dict() for r in self.runs],
@@ -189,7 +221,22 @@ class Design(NotebookDisplay):
             "checked_ranges": {n: list(r) for n, r in self.prior["checked_ranges"].items()},
             "settings": self.settings.to_dict(),
             "safe": self.safe,
+            "loop": self.loop_summary(),
+            "noise_placement": self.settings.noise_placement,
+            "bound": self.bound,
         }
+
+    def loop_summary(self) -> dict[str, Any]:
+        """The loop designed for: ``{"kind": "continuous", "delay"}`` or ``{"kind":
+        "sampled", "sample_time", "delay_samples", "velocity", "cutoff", "samples_per_period",
+        "equivalent_delay"}`` (the continuous surrogate's delay the search used, s)."""
+        st = self.settings
+        if st.digital is None:
+            return {"kind": "continuous", "delay": st.delay}
+        return {"kind": "sampled", "sample_time": st.sample_time,
+                "delay_samples": st.delay_samples, "velocity": st.velocity,
+                "cutoff": st.cutoff, "samples_per_period": round(st.fs * st.sample_time),
+                "equivalent_delay": st.model_delay}
 
     def report(self) -> str:
         """Human-readable schedule, margins and predicted uncertainties."""
@@ -224,7 +271,10 @@ class Design(NotebookDisplay):
 
         Runs name the files the rig operator will record (``run01.csv`` …); the prediction is
         kept in extra keys (``[design]`` at the top level, ``predicted_*`` in each run), which
-        :func:`phoid.read_experiment` keeps and ignores.
+        :func:`phoid.read_experiment` keeps and ignores. A sampled loop is written as
+        ``[loop] sample_time``, ``delay_samples``, ``velocity`` (``cutoff``) and ``noise``
+        (the placement the prediction assumed), with ``[design] fs`` the record's rate:
+        ``phoid run`` runs its controller at 1/fs with ``delay_samples`` samples of delay.
         """
         import tomli_w
 
@@ -247,6 +297,12 @@ class Design(NotebookDisplay):
             },
             "loop": {"delay": st.delay},
         }
+        if st.digital is not None:
+            doc["design"]["bound"] = self.bound
+            doc["loop"] = {"sample_time": st.sample_time, "delay_samples": st.delay_samples,
+                           "velocity": st.velocity,
+                           **({"cutoff": st.cutoff} if st.cutoff is not None else {}),
+                           "noise": st.noise_placement}
         parts = [tomli_w.dumps(doc)]
         for i, r in enumerate(self.runs, start=1):
             table = {"file": f"run{i:0{width}d}{suffix}", "P": float(r.P), "D": float(r.D)}
@@ -277,7 +333,8 @@ class Design(NotebookDisplay):
 
 
 def assemble(P: np.ndarray, D: np.ndarray, prior: Prior, st: DesignSettings, kind: str,
-             extra_warnings: Sequence[str] = ()) -> Design:
+             extra_warnings: Sequence[str] = (), *, evaluation: Evaluation | None = None
+             ) -> Design:
     """Evaluate gains exactly on the prior grid and assemble the :class:`Design`.
 
     Parameters
@@ -292,6 +349,9 @@ def assemble(P: np.ndarray, D: np.ndarray, prior: Prior, st: DesignSettings, kin
         Who asks, kept in :attr:`Design.kind`.
     extra_warnings : sequence of str
         Warnings put before those of the evaluation.
+    evaluation : Evaluation, optional
+        A sampled loop's runs already evaluated exactly on ``prior``
+        (:func:`phoid.planning.sampled.evaluate_sampled` of these gains).
 
     Returns
     -------
@@ -300,30 +360,25 @@ def assemble(P: np.ndarray, D: np.ndarray, prior: Prior, st: DesignSettings, kin
     P = np.asarray(P, dtype=float)
     D = np.asarray(D, dtype=float)
     m0, c0, k0 = prior.nominal
-    s0 = np.array([_nominal_root(m0, c0, k0, float(p), float(d), st.delay)
-                   for p, d in zip(P, D, strict=True)])
-    ev = evaluate(P, D, s0, prior, st)
-    # where tracking failed or another root is further right, take the certified rightmost
-    s = ev.s.copy()
-    redo = ~(ev.dominant)
-    if np.any(redo):
-        for i, g in zip(*np.nonzero(redo), strict=True):
-            m, c, k = prior.plants[g]
-            try:
-                r = rightmost_roots(float(m), float(c), float(k), float(P[i]), float(D[i]),
-                                     st.delay, count=2)[0]
-            except RuntimeError:  # pathological loop: leave the root unknown (unsafe)
-                continue
-            s[i, g] = complex(r.real, abs(r.imag))
-        ev = evaluate(P, D, s0, prior, st, s_grid=s)
-    info = run_information(ev, prior, st)
+    sampled = st.digital is not None
+    if sampled:
+        ev = evaluate_sampled(P, D, prior, st) if evaluation is None else evaluation
+        info = sampled_information(ev, prior, st)
+    else:
+        ev = _evaluate_continuous(P, D, prior, st)
+        info = run_information(ev, prior, st)
     total = info.sum(axis=0)  # (G, 3, 3)
-    cov0 = safe_inverse(total[0])
+    modal0 = safe_inverse(total[0])
+    cov0, run_info, bound = modal0, info[:, 0], "modal"
     worst = np.array([max(safe_inverse(t)[j, j] for t in total) for j in range(3)])
+    if sampled:
+        cov0, run_info, bound, worst = _sampled_prediction(P, D, prior, st, ev, info)
     # per-run information share at the nominal plant
     with np.errstate(all="ignore"):
-        share = np.einsum("ij,nji->n", cov0, info[:, 0]) / 3.0 if np.all(
+        share = np.einsum("ij,nji->n", cov0, run_info) / 3.0 if np.all(
             np.isfinite(cov0)) else np.full(P.size, np.nan)
+    nominal_roots = (digital_roots(m0, c0, k0, P, D, st.digital).s if sampled
+                     else np.zeros((P.size, 0), complex))
     runs: list[PlannedRun] = []
     warnings: list[str] = list(extra_warnings)
     found: dict[str, list[tuple[int, float]]] = {}  # warning kind -> [(run, value)]
@@ -357,10 +412,16 @@ def assemble(P: np.ndarray, D: np.ndarray, prior: Prior, st: DesignSettings, kin
             if zmin < 0.5 * zlo:
                 rw.append(("damping", zmin, f"barely damped for some plants (zeta down to "
                                             f"{zmin:.3g} < {0.5 * zlo:g})"))
-            dm = float(np.min(ev.dmargin[i]))
-            if dm < st.delay_margin:
-                rw.append(("dmargin", dm, f"delay margin only {dm:.3g} s "
-                                          f"(< {st.delay_margin:.3g} s)"))
+            if sampled:
+                dm = float(np.min(ev.dsamples[i]))
+                if dm < st.delay_margin_samples:
+                    rw.append(("dmargin", dm, f"delay margin only {dm:g} samples "
+                                              f"(< {st.delay_margin_samples} samples)"))
+            else:
+                dm = float(np.min(ev.dmargin[i]))
+                if dm < st.delay_margin:
+                    rw.append(("dmargin", dm, f"delay margin only {dm:.3g} s "
+                                              f"(< {st.delay_margin:.3g} s)"))
             if not np.all(ev.separated[i]):
                 rw.append(("separation", 0.0, f"another mode decays less than "
                                               f"{st.separation:g}x faster than the ringing one "
@@ -379,9 +440,10 @@ def assemble(P: np.ndarray, D: np.ndarray, prior: Prior, st: DesignSettings, kin
         if not ev.ok_limits[i]:
             rw.append(("limits", 0.0, f"gains beyond the limits (|P| <= {st.pmax:g} N/m, "
                                       f"|D| <= {st.dmax:g} N s/m)"))
+        margin_ok = (np.all(ev.dsamples[i] >= st.delay_margin_samples) if sampled
+                     else np.all(ev.dmargin[i] >= st.delay_margin))
         safe = bool(np.all(ev.stable[i]) and np.all(ringing)
-                    and np.all(ev.zeta[i] >= 0.5 * zlo)
-                    and np.all(ev.dmargin[i] >= st.delay_margin) and ev.ok_limits[i])
+                    and np.all(ev.zeta[i] >= 0.5 * zlo) and margin_ok and ev.ok_limits[i])
         informative = bool(rings and ev.cycles[i, 0] >= st.min_cycles and ev.in_band[i]
                            and np.all(ev.ok_freq[i]))
         if math.isfinite(share[i]) and share[i] < 0.1 / P.size and safe and informative:
@@ -390,6 +452,12 @@ def assemble(P: np.ndarray, D: np.ndarray, prior: Prior, st: DesignSettings, kin
         for kind_, val, _msg in rw:
             found.setdefault(kind_, []).append((i + 1, val))
         finite_z = ev.zeta[i][np.isfinite(ev.zeta[i])]
+        extra: dict[str, Any] = {}
+        if sampled:
+            least = float(np.min(ev.dsamples[i]))
+            extra = {"delay_margin_samples": least,
+                     "max_delay_samples": st.delay_samples + least,
+                     "roots": tuple(complex(r) for r in nominal_roots[i])}
         runs.append(PlannedRun(
             P=float(P[i]), D=float(D[i]), sigma=float(sig_i) if rings else math.nan,
             omega_d=float(wd_i) if rings else math.nan,
@@ -404,7 +472,7 @@ def assemble(P: np.ndarray, D: np.ndarray, prior: Prior, st: DesignSettings, kin
             zeta_min=float(finite_z.min()) if finite_z.size else math.nan,
             zeta_max=float(finite_z.max()) if finite_z.size else math.nan,
             share=float(share[i]), safe=safe, informative=informative,
-            warnings=tuple(msg for _k, _v, msg in rw),
+            warnings=tuple(msg for _k, _v, msg in rw), **extra,
         ))
     warnings.extend(_grouped(found, st, P.size))
     if not np.all(np.isfinite(np.diag(cov0))):
@@ -419,8 +487,57 @@ def assemble(P: np.ndarray, D: np.ndarray, prior: Prior, st: DesignSettings, kin
         m=Estimate(m0, float(se[0]), "kg"), c=Estimate(c0, float(se[1]), "N s/m"),
         k=Estimate(k0, float(se[2]), "N/m"), stderr_worst=worst_se, cov=cov0, settings=st,
         prior=prior_info, kind=kind, warnings=tuple(warnings), plants=prior.plants.copy(),
-        roots=ev.s.copy(),
+        roots=ev.s.copy(), bound=bound,
+        modal_stderr=np.sqrt(np.clip(np.diag(modal0), 0.0, None)),
     )
+
+
+def _evaluate_continuous(P: np.ndarray, D: np.ndarray, prior: Prior, st: DesignSettings):
+    """The continuous loop's evaluation from the certified nominal roots (tracked over the
+    prior grid; where tracking failed or another root is further right, the certified
+    rightmost)."""
+    m0, c0, k0 = prior.nominal
+    s0 = np.array([_nominal_root(m0, c0, k0, float(p), float(d), st.delay)
+                   for p, d in zip(P, D, strict=True)])
+    ev = evaluate(P, D, s0, prior, st)
+    s = ev.s.copy()
+    redo = ~(ev.dominant)
+    if np.any(redo):
+        for i, g in zip(*np.nonzero(redo), strict=True):
+            m, c, k = prior.plants[g]
+            try:
+                r = rightmost_roots(float(m), float(c), float(k), float(P[i]), float(D[i]),
+                                     st.delay, count=2)[0]
+            except RuntimeError:  # pathological loop: leave the root unknown (unsafe)
+                continue
+            s[i, g] = complex(r.real, abs(r.imag))
+        ev = evaluate(P, D, s0, prior, st, s_grid=s)
+    return ev
+
+
+def _sampled_prediction(P, D, prior: Prior, st: DesignSettings, ev, info):
+    """A sampled loop's prediction for its noise placement (:func:`predicted_covariance`):
+    the covariance and each run's information at the nominal plant (over the runs stable
+    there), the bound's name, and the worst variances over the prior grid.
+
+    The modal bound is evaluated at every plant of the grid. The in-loop bound (about 4 µs
+    per recorded sample) is evaluated at the nominal plant only; its worst over the prior is
+    the modal bound's worst scaled, parameter by parameter, by the in-loop/modal ratio of the
+    variances at the nominal plant (docs/design-notes/planning.md, "Sampled loops").
+    """
+    keep = ev.stable[:, 0]
+    plant = tuple(float(x) for x in prior.plants[0])
+    cov0, run_info, bound = predicted_covariance(plant, P[keep], D[keep], st, info[keep, 0])
+    run0 = np.zeros((P.size, 3, 3))
+    run0[keep] = run_info
+    modal = [safe_inverse(info[ev.stable[:, g], g].sum(axis=0)) for g in range(len(prior.plants))]
+    worst = np.array([max(c[j, j] for c in modal) for j in range(3)])
+    if bound != "modal":
+        with np.errstate(all="ignore"):
+            ratio = np.diag(cov0) / np.diag(modal[0])
+        worst = np.where(np.isfinite(ratio), np.maximum(worst * ratio, np.diag(cov0)),
+                         np.diag(cov0))
+    return cov0, run0, bound, worst
 
 
 def _runs_text(items: list[tuple[int, float]]) -> str:
@@ -447,6 +564,9 @@ def _grouped(found: dict[str, list[tuple[int, float]]], st: DesignSettings, n: i
         elif kind == "damping":
             out.append(f"{runs}: barely damped for some plants of the prior (zeta down to "
                        f"{min(vals):.3g})")
+        elif kind == "dmargin" and st.digital is not None:
+            out.append(f"{runs}: delay margin down to {min(vals):g} samples "
+                       f"(< {st.delay_margin_samples} samples)")
         elif kind == "dmargin":
             out.append(f"{runs}: delay margin down to {min(vals):.3g} s "
                        f"(< {st.delay_margin:.3g} s)")

@@ -1,8 +1,9 @@
 """Schedule files: where a designed ``experiment.toml`` goes, and reading one back.
 
-A schedule is a ``phoid/1`` manifest skeleton (gains, delay and the ``[design]`` table, no data)
-as :meth:`phoid.planning.result.Design.write` writes it; ``phoid simulate --schedule`` and the
-check of a skeleton read it with :func:`read_schedule`.
+A schedule is a ``phoid/1`` manifest skeleton (gains, the loop — ``[loop] delay``, or a sampled
+loop's ``sample_time``, ``delay_samples``, ``velocity``, ``noise`` — and the ``[design]`` table,
+no data) as :meth:`phoid.planning.result.Design.write` writes it; ``phoid simulate --schedule``,
+``phoid run`` and the check of a skeleton read it with :func:`read_schedule`.
 """
 
 from __future__ import annotations
@@ -15,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from phoid._output import OutputFolder
-from phoid.errors import ExperimentError
+from phoid.errors import ExperimentError, PhoidError
 from phoid.io.manifest import read_manifest  # regular files only, size and nesting limited
 from phoid.planning.settings import DesignError
 
@@ -50,6 +51,11 @@ def read_schedule(path: str | Path) -> dict[str, Any]:
     dict
         ``P``, ``D`` (ndarrays), ``delay`` (s or None), ``files`` (names of the runs) and, from
         the ``[design]`` table when present, ``fs``, ``duration``, ``noise``, ``amplitude``.
+        A sampled loop's plan (``[loop] sample_time``) adds ``sample_time`` (s),
+        ``delay_samples``, ``velocity``, ``cutoff`` (rad/s or None) and ``noise_placement``
+        (``[loop] noise``: ``"in-loop"``, ``"outside"`` or None), with ``delay`` =
+        ``delay_samples`` × ``sample_time`` (the command delay, s, as a host running the plan
+        at 1/``fs`` = T reads it).
 
     Raises
     ------
@@ -85,6 +91,8 @@ def read_schedule(path: str | Path) -> dict[str, Any]:
         raise DesignError(f"{path}: [loop] delay must be a finite number ≥ 0 s; got {delay!r}")
     out: dict[str, Any] = {"P": np.array(P), "D": np.array(D),
                            "delay": None if delay is None else float(delay), "files": files}
+    if isinstance(loop, Mapping) and "sample_time" in loop:
+        out.update(_sampled_loop(path, loop))
     des = doc.get("design", {})
     if isinstance(des, Mapping):
         for key in ("fs", "duration", "noise", "amplitude"):
@@ -93,3 +101,24 @@ def read_schedule(path: str | Path) -> dict[str, Any]:
                     and math.isfinite(val) and val > 0:
                 out[key] = float(val)
     return out
+
+
+def _sampled_loop(path: Path, loop: Mapping[str, Any]) -> dict[str, Any]:
+    """A plan's digital ``[loop]`` checked as a set's is (:mod:`phoid.io.loop`), one line."""
+    from types import SimpleNamespace
+
+    from phoid.io.loop import read_digital_loop, read_noise_placement
+
+    if "delay" in loop:
+        raise DesignError(f"{path}: [loop] delay and [loop] sample_time: a sampled loop's delay "
+                          "is delay_samples (whole periods of sample_time); give one or the "
+                          "other")
+    plan = SimpleNamespace(loop=dict(loop), path=path, runs=())
+    try:
+        digital = read_digital_loop(plan)
+        noise = read_noise_placement(plan)
+    except PhoidError as exc:
+        raise DesignError(str(exc)) from None
+    return {"sample_time": digital.sample_time, "delay_samples": digital.delay_samples,
+            "velocity": digital.velocity, "cutoff": digital.cutoff, "noise_placement": noise,
+            "delay": digital.delay}

@@ -26,6 +26,15 @@ A prior so wide that no run meets the band while staying safe on all of it (e.g.
 runs with at least 3 cycles (``phoid.fits.MIN_CYCLES``) at the nominal plant, with a
 warning: such a schedule is a first experiment whose identification narrows the prior for a
 second design. With so few cycles the prediction is optimistic (docs/design-notes/planning.md).
+
+A **sampled loop** (``sample_time``: the digital controller of :mod:`phoid.dynamics.digital`) is
+searched as above on its continuous surrogate, whose delay is the sampled loop's lag
+(:func:`phoid.planning.settings.equivalent_delay`); each run's target root is then placed on
+the sampled loop itself and the run evaluated on its exact roots over the prior
+(:func:`sampled_runs`, :mod:`phoid.planning.sampled`), a run that fails there moved to the
+nearest target that passes, or dropped. The schedule is chosen by the modal criterion above;
+its prediction is the bound for the noise placement (the in-loop bound by default,
+:func:`phoid.planning.inloop_bound.inloop_cramer_rao`), evaluated on the chosen runs.
 """
 
 from __future__ import annotations
@@ -35,12 +44,21 @@ from typing import Any
 
 import numpy as np
 
+from phoid._threads import single_blas_thread
 from phoid.fits import MIN_CYCLES
-from phoid.planning.evaluation import Evaluation, evaluate, log_var, place, run_information
+from phoid.planning.evaluation import (
+    Evaluation,
+    evaluate,
+    log_var,
+    place,
+    run_information,
+    stack,
+)
 from phoid.planning.result import Design, assemble, roots_in_range
+from phoid.planning.sampled import evaluate_sampled, place_sampled
 from phoid.planning.settings import DesignError, DesignSettings, Prior, fmt_range, make_prior
 
-__all__ = ["MAX_RUNS", "design"]
+__all__ = ["MAX_RUNS", "design", "sampled_runs"]
 
 MAX_RUNS = 1000
 """Most runs :func:`design` plans (its work and memory grow with the number of runs)."""
@@ -48,20 +66,23 @@ _N_OMEGA = 96  # grid of target natural frequencies
 _N_ZETA = 10  # grid of target damping ratios in the band
 _N_ZETA_ABOVE = 7  # … and above it, up to _ZETA_CAP, for priors too wide for the band
 _ZETA_CAP = 0.7
+_REPAIR = 64  # grid targets tried for a run whose sampled loop fails the requirements
+_REPAIR_BATCH = 16  # … evaluated together
 
 
 @roots_in_range
+@single_blas_thread
 def design(
     m: Any,
     c: Any,
     k: Any,
     *,
-    delay: float,
+    delay: float | None = None,
     runs: int = 10,
     pmax: float | None = None,
     dmax: float | None = None,
     max_freq: float | None = None,
-    fs: float = 1000.0,
+    fs: float | None = None,
     duration: float = 10.0,
     noise: float = 1e-5,
     amplitude: float = 0.01,
@@ -70,6 +91,12 @@ def design(
     delay_margin: float | None = None,
     separation: float = 2.0,
     tolerance: float = 0.1,
+    sample_time: float | None = None,
+    delay_samples: int | None = None,
+    velocity: str | None = None,
+    cutoff: float | None = None,
+    noise_in_loop: bool | None = None,
+    delay_margin_samples: int | None = None,
 ) -> Design:
     """Propose the gains of a PHO experiment for a plant known roughly (see the module doc).
 
@@ -78,8 +105,9 @@ def design(
     m, c, k : float, (lo, hi) or "lo:hi"
         Prior guess of the mass (kg, > 0), damping (N·s/m, ≥ 0) and stiffness (N/m, ≥ 0); a
         range makes the schedule safe for every plant in it.
-    delay : float
-        Loop delay Δt, s.
+    delay : float, optional
+        Loop delay Δt of a continuous loop, s (required unless ``sample_time`` is given; refused
+        with it).
     runs : int, default 10
         Number of runs N (2 ≤ N ≤ :data:`MAX_RUNS` = 1000: the work and memory grow with N).
     pmax, dmax : float, optional
@@ -87,8 +115,9 @@ def design(
     max_freq : float, optional
         Highest damped frequency of a run, rad/s (the bandwidth of the rig); the cap 0.2 π f_s
         (10 samples per period) applies in any case.
-    fs : float, default 1000
-        Sample rate, Hz.
+    fs : float, optional
+        Sample rate of the record, Hz: default 1000, or 1/``sample_time`` for a sampled loop
+        (a rig records at its loop's rate), where it must be a whole multiple of 1/T.
     duration : float, default 10
         Record length after the release, s.
     noise : float, default 1e-5
@@ -105,6 +134,24 @@ def design(
         Other roots must decay at least this many times faster than the dominant one.
     tolerance : float, default 0.1
         Relative width of the safety checks around a prior given as a single value.
+    sample_time : float, optional
+        A sampled loop: the digital controller's period T, s (:mod:`phoid.dynamics.digital`:
+        zero-order hold, the PD law on the sampled position and estimated velocity). The
+        runs' modes, stability and margins are then those of the sampled loop, exactly
+        (docs/design-notes/planning.md, "Sampled loops").
+    delay_samples : int, optional
+        The sampled loop's command delay d, whole periods (default 0).
+    velocity : {"backward-difference", "filtered"}, optional
+        The sampled loop's velocity estimator (default the backward difference).
+    cutoff : float, optional
+        The filtered velocity's cut-off, rad/s.
+    noise_in_loop : bool, optional
+        Whether the controller reads the noisy recorded position: default True for a sampled
+        loop (as on a rig; the prediction is then the in-loop bound), False for a continuous
+        one (True is refused there). False predicts with the modal bound.
+    delay_margin_samples : int, optional
+        A sampled loop's least delay margin, whole samples (default max(1, ⌈0.2 d⌉)); refused
+        for a continuous loop, whose margin is ``delay_margin`` (s).
 
     Returns
     -------
@@ -129,7 +176,9 @@ def design(
     st = DesignSettings(delay=delay, fs=fs, duration=duration, noise=noise,
                         amplitude=amplitude, zeta=zeta, pmax=pmax, dmax=dmax,
                         max_freq=max_freq, min_cycles=min_cycles, delay_margin=delay_margin,
-                        separation=separation, tolerance=tolerance)
+                        separation=separation, tolerance=tolerance, sample_time=sample_time,
+                        delay_samples=delay_samples, velocity=velocity, cutoff=cutoff,
+                        noise_in_loop=noise_in_loop, delay_margin_samples=delay_margin_samples)
     prior = make_prior(m, c, k, st.tolerance)
     m0, c0, k0 = prior.nominal
     zlo, zhi = st.zeta
@@ -148,7 +197,7 @@ def design(
     nz = Zs.size
     WW, ZZ = np.meshgrid(W, Zs, indexing="ij")  # (n_w, n_z)
     S = (-ZZ * WW + 1j * WW * np.sqrt(1.0 - ZZ * ZZ)).ravel()
-    P, D = place(m0, c0, k0, S, st.delay)
+    P, D = place(m0, c0, k0, S, st.model_delay)
     ok_lim = (np.abs(P) <= st.pmax) & (np.abs(D) <= st.dmax)
     idx = np.flatnonzero(ok_lim)
     if idx.size == 0:
@@ -202,7 +251,7 @@ def design(
     j = np.clip(np.searchsorted(W[cols], wr) - 1, a, max(b - 1, a))
     zr = np.maximum(fz[j], fz[np.minimum(j + 1, b)])
     sr = -zr * wr + 1j * wr * np.sqrt(1.0 - zr * zr)
-    Pr, Dr = place(m0, c0, k0, sr, st.delay)
+    Pr, Dr = place(m0, c0, k0, sr, st.model_delay)
     evr = evaluate(Pr, Dr, sr, prior, st)
     good = np.all(evr.ok, axis=1) & evr.ok_limits & (
         evr.informative(st) if np.any(tier1)
@@ -212,7 +261,96 @@ def design(
         near = np.array([a + int(np.argmin(np.abs(np.log(W[cols][a:b + 1] / x)))) for x in wr])
         Pr = np.where(good, Pr, ev_front.P[near])
         Dr = np.where(good, Dr, ev_front.D[near])
+        sr = np.where(good, sr, ev_front.s[near, 0])
+    if st.digital is not None:
+        # the surrogate's targets, placed and checked on the sampled loop itself
+        wa, wb = W[cols][a], W[cols][b]
+        span = (W >= wa * (1 - 1e-12)) & (W <= wb * (1 + 1e-12))
+        grid = (WW[span].ravel(), ZZ[span].ravel())
+        evs, more = sampled_runs(sr, grid, prior, st, informative=bool(np.any(tier1)))
+        warnings.extend(more)
+        return assemble(evs.P, evs.D, prior, st, "design", warnings, evaluation=evs)
     return assemble(Pr, Dr, prior, st, "design", warnings)
+
+
+def _meets(ev: Evaluation, st: DesignSettings, informative: bool) -> np.ndarray:
+    """Per run: safe on the whole prior, within the limits, and informative at the nominal
+    plant (or, for a prior too wide for the band, ringing for a few cycles there)."""
+    rings = (ev.informative(st) if informative
+             else ev.separated[:, 0] & (ev.cycles[:, 0] >= min(st.min_cycles, MIN_CYCLES)))
+    return np.all(ev.ok, axis=1) & ev.ok_limits & rings
+
+
+def sampled_runs(targets: np.ndarray, grid: tuple[np.ndarray, np.ndarray], prior: Prior,
+                 st: DesignSettings, *, informative: bool) -> tuple[Evaluation, list[str]]:
+    """The runs of a sampled loop: the surrogate's targets placed exactly, checked exactly.
+
+    Each target root is put on the sampled loop at the nominal plant
+    (:func:`phoid.planning.sampled.place_sampled`) and the run evaluated on its exact roots
+    over the prior grid (:func:`phoid.planning.sampled.evaluate_sampled`). A run that fails
+    there (the surrogate's delay is an approximation) moves to the nearest target of ``grid``
+    (natural frequencies ω₀ and damping ratios ζ of the search, within the sweep's span:
+    nearest in log ω₀, then the lightest ζ) whose placement meets the requirements, trying at
+    most :data:`_REPAIR` of them; a run for which none does is dropped, with a warning.
+
+    Returns
+    -------
+    Evaluation
+        The runs kept (their gains ``P``, ``D``), evaluated exactly on the prior grid.
+    warnings : list of str
+
+    Raises
+    ------
+    DesignError
+        Fewer than two runs left.
+    """
+    m0, c0, k0 = prior.nominal
+    loop = st.digital
+    P, D = place_sampled(m0, c0, k0, targets, loop)
+    rows: list[Evaluation | None] = [None] * P.size  # each run's exact evaluation
+    fin = np.flatnonzero(np.isfinite(P) & np.isfinite(D))
+    good = np.zeros(P.size, dtype=bool)
+    if fin.size:
+        ev = evaluate_sampled(P[fin], D[fin], prior, st)
+        good[fin] = _meets(ev, st, informative)
+        for n, i in enumerate(fin):
+            rows[i] = ev.take(np.array([n]))
+    gw, gz = grid
+    gs = -gz * gw + 1j * gw * np.sqrt(1.0 - gz * gz)
+    tried: dict[int, tuple[bool, Evaluation | None]] = {}
+    for i in np.flatnonzero(~good):
+        order = np.lexsort((gz, np.abs(np.log(gw / abs(targets[i])))))[:_REPAIR]
+        for start in range(0, order.size, _REPAIR_BATCH):
+            batch = order[start:start + _REPAIR_BATCH]
+            new = np.array([j for j in batch if j not in tried], dtype=int)
+            if new.size:
+                Pc, Dc = place_sampled(m0, c0, k0, gs[new], loop)
+                okc = np.flatnonzero(np.isfinite(Pc) & np.isfinite(Dc))
+                tried.update({int(j): (False, None) for j in new})
+                if okc.size:
+                    evc = evaluate_sampled(Pc[okc], Dc[okc], prior, st)
+                    for n, (o, j) in enumerate(zip(_meets(evc, st, informative), new[okc],
+                                                   strict=True)):
+                        tried[int(j)] = (bool(o), evc.take(np.array([n])))
+            hit = next((int(j) for j in batch if tried[int(j)][0]), None)
+            if hit is not None:
+                rows[i] = tried[hit][1]
+                good[i] = True
+                break
+    warnings = []
+    if not np.all(good):
+        lost = np.abs(targets[~good])
+        warnings.append(
+            f"{lost.size} of {P.size} runs dropped: near their targets (omega0 "
+            + ", ".join(f"{w:.4g}" for w in lost) + " rad/s) no gains make the sampled loop "
+            "ring stably with the margins over the whole prior; the schedule has "
+            f"{int(good.sum())} runs")
+    if good.sum() < 2:
+        raise DesignError(
+            f"the sampled loop (sample_time {st.sample_time:g} s, delay_samples "
+            f"{st.delay_samples}) leaves fewer than two runs that ring stably with the margins "
+            "over the whole prior: narrow the prior, lower the delay or record faster")
+    return stack([r for r, g in zip(rows, good, strict=True) if g]), warnings
 
 
 def _count(name: str, value: Any, most: int = MAX_RUNS) -> int:
@@ -277,24 +415,30 @@ def _why_infeasible(st: DesignSettings, prior: Prior, ok_lim: np.ndarray, ev: Ev
                 f"|P| <= {st.pmax:g} N/m, |D| <= {st.dmax:g} N s/m: raise --pmax/--dmax")
     span = (f"omega_d {w_lo:.4g}-{st.omega_max:.4g} rad/s ({st.min_cycles:g} cycles in "
             f"{st.duration:g} s up to the bandwidth limit)")
+    loop = (f"a delay of {st.delay:g} s" if st.sample_time is None else
+            f"the sampled loop (sample_time {st.sample_time:g} s, delay_samples "
+            f"{st.delay_samples}: about {st.model_delay:.3g} s of lag)")
     keep = ev.stable[:, 0] & ev.dominant[:, 0]
     if not np.any(keep):
-        return (f"a delay of {st.delay:g} s makes every useful gain unstable: no gains within "
+        return (f"{loop} makes every useful gain unstable: no gains within "
                 f"the limits give a stable loop whose slowest mode rings with {band} and "
                 f"{span}; shorten the delay, or record longer for slower runs")
     keep = np.all(ev.stable & ev.dominant, axis=1)
     if not np.any(keep):
         return (f"no gains keep the loop stable and ringing for every plant in the prior "
-                f"({checked}) with delay {st.delay:g} s: narrow the prior")
+                f"({checked}) with {loop}: narrow the prior")
     keep &= np.all(ev.zeta >= 0.5 * st.zeta[0], axis=1)
     if not np.any(keep):
         return (f"no gains keep the loop damped (zeta >= {0.5 * st.zeta[0]:g}) for every plant "
                 f"in the prior ({checked}): narrow the prior")
     keep &= np.all(ev.dmargin >= st.delay_margin, axis=1)
     if not np.any(keep):
-        return (f"no gains leave a delay margin of {st.delay_margin:.3g} s for every plant in "
-                f"the prior ({checked}) with delay {st.delay:g} s: narrow the prior, or lower "
-                "--delay-margin only if the delay is well known")
+        need = (f"{st.delay_margin:.3g} s" if st.sample_time is None
+                else f"{st.delay_margin_samples} samples")
+        lower = "--delay-margin" if st.sample_time is None else "--delay-margin-samples"
+        return (f"no gains leave a delay margin of {need} for every plant in "
+                f"the prior ({checked}) with {loop}: narrow the prior, or lower "
+                f"{lower} only if the delay is well known")
     keep &= np.all(ev.ok_freq, axis=1)
     if not np.any(keep):
         return (f"every safe run rings above the bandwidth limit {st.omega_max:.4g} rad/s for "

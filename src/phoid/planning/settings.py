@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import itertools
 import math
+import numbers
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -20,8 +21,10 @@ import numpy as np
 import phoid._validate as v
 from phoid.errors import PhoidError
 from phoid.io.limits import MAX_LINES
+from phoid.io.loop import DIGITAL_VELOCITIES, MAX_DELAY_SAMPLES
 
-__all__ = ["UNITS", "DesignError", "DesignSettings", "Prior", "fmt_range", "make_prior"]
+__all__ = ["UNITS", "DesignError", "DesignSettings", "Prior", "equivalent_delay", "fmt_range",
+           "make_prior", "whole_number"]
 
 
 _NYQUIST_FRACTION = 0.2  # ω_d ≤ 0.2 π f_s: at least 10 samples per period
@@ -84,16 +87,38 @@ def _is_number(text: str) -> bool:
     return True
 
 
+def whole_number(name: str, value: Any, least: int = 0, most: int | None = None) -> int:
+    """``value`` as an int when it is a whole number ≥ ``least`` (and ≤ ``most``); else one
+    ValueError naming ``name`` (a bool, a fraction, NaN or a string is refused)."""
+    bad = isinstance(value, (bool, np.bool_)) or not isinstance(value, (numbers.Real,))
+    if not bad:
+        f = float(value)
+        bad = not (math.isfinite(f) and f.is_integer())
+    top = "" if most is None else f" and ≤ {most}"
+    if bad:
+        raise ValueError(f"`{name}` must be a whole number ≥ {least}{top}; got {value!r}")
+    n = int(value)
+    if n < least or (most is not None and n > most):
+        raise ValueError(f"`{name}` must be a whole number ≥ {least}{top}; got {n}")
+    return n
+
+
 @dataclass(frozen=True)
 class DesignSettings:
     """The conditions a schedule is designed or checked for (all SI).
 
+    The loop is either continuous with a delay Δt (``delay``), or sampled (``sample_time``
+    given): the digital PD controller of :mod:`phoid.dynamics.digital`, zero-order hold,
+    ``delay_samples`` whole periods of command delay and the ``velocity`` estimator.
+
     Attributes
     ----------
     delay : float
-        Loop delay Δt, s.
+        Loop delay Δt, s; for a sampled loop its command delay d·T (set from
+        ``delay_samples``; giving ``delay`` with ``sample_time`` is refused).
     fs : float
-        Sample rate, Hz.
+        Sample rate of the record, Hz (default 1000, or 1/T for a sampled loop: a rig records
+        at its loop's rate); for a sampled loop a whole multiple of 1/T.
     duration : float
         Record length after the release, s.
     noise : float
@@ -109,15 +134,32 @@ class DesignSettings:
     min_cycles : float
         Fewest cycles above the noise floor within the record.
     delay_margin : float
-        Least delay margin, s.
+        Least delay margin, s (a sampled loop: ``delay_margin_samples`` × T).
     separation : float
         Other roots must lie left of ``separation``·Re s of the dominant one.
     tolerance : float
         Relative width given to a prior that is a single value (safety checks only).
+    sample_time : float or None
+        The controller's period T, s (None: a continuous loop).
+    delay_samples : int or None
+        Command delay d of a sampled loop, whole periods (default 0).
+    velocity : str or None
+        A sampled loop's velocity estimator, one of :data:`phoid.io.loop.DIGITAL_VELOCITIES`
+        (the estimators a PHO set's ``[loop]`` takes): ``"backward-difference"`` (default) or
+        ``"filtered"`` (with ``cutoff``, rad/s).
+    cutoff : float or None
+        The filtered velocity's cut-off, rad/s.
+    noise_in_loop : bool
+        Whether the controller reads the noisy recorded position (the prediction is then the
+        in-loop bound); default True for a sampled loop, False for a continuous one (where
+        True is refused: the in-loop bound models a digital controller).
+    delay_margin_samples : int or None
+        A sampled loop's least delay margin, whole samples (default max(1, ⌈0.2 d⌉): one more
+        sample of latency must not drive the rig unstable).
     """
 
-    delay: float
-    fs: float = 1000.0
+    delay: float | None = None
+    fs: float | None = None
     duration: float = 10.0
     noise: float = 1e-5
     amplitude: float = 0.01
@@ -129,14 +171,43 @@ class DesignSettings:
     delay_margin: float | None = None
     separation: float = 2.0
     tolerance: float = 0.1
+    sample_time: float | None = None
+    delay_samples: int | None = None
+    velocity: str | None = None
+    cutoff: float | None = None
+    noise_in_loop: bool | None = None
+    delay_margin_samples: int | None = None
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__
-        set_(self, "delay", v.nonnegative("delay", self.delay, "s"))
-        set_(self, "fs", v.positive("fs", self.fs, "Hz"))
+        sampled = self.sample_time is not None
+        if sampled:
+            self._sampled_loop()
+        else:
+            stray = [n for n in ("delay_samples", "velocity", "cutoff", "delay_margin_samples")
+                     if getattr(self, n) is not None]
+            if stray:
+                raise ValueError(f"`{stray[0]}` applies to a sampled loop: give its "
+                                 "`sample_time` (s)")
+            if self.delay is None:
+                raise ValueError("give the loop delay `delay` (s), or a sampled loop's "
+                                 "`sample_time` (s) and `delay_samples`")
+            if self.noise_in_loop is not None and not isinstance(self.noise_in_loop,
+                                                                 (bool, np.bool_)):
+                raise ValueError(f"`noise_in_loop` must be True, False or None; got "
+                                 f"{self.noise_in_loop!r}")
+            if self.noise_in_loop:
+                raise ValueError("`noise_in_loop` = True needs a sampled loop (`sample_time`): "
+                                 "the in-loop bound models a digital controller reading the "
+                                 "recorded position")
+            set_(self, "noise_in_loop", False)
+            set_(self, "delay", v.nonnegative("delay", self.delay, "s"))
+            set_(self, "fs", v.positive("fs", 1000.0 if self.fs is None else self.fs, "Hz"))
         set_(self, "duration", v.positive("duration", self.duration, "s"))
         set_(self, "noise", v.positive("noise", self.noise, "m"))
         set_(self, "amplitude", v.positive("amplitude", self.amplitude, "m"))
+        if sampled:  # a sample time or delay the record cannot show, named first
+            self._sampled_record()
         # each option's range error names that option (a record of 1e300 s used to come out
         # as "a delay of 0.01 s makes every useful gain unstable")
         samples = self.fs * self.duration
@@ -153,18 +224,19 @@ class DesignSettings:
             raise ValueError(f"`noise` = {self.noise:g} m is below 1e-15 × the release "
                              f"`amplitude` {self.amplitude:g} m: positions recorded as doubles "
                              "cannot resolve it; are `noise` and `amplitude` in m?")
-        if 3.0 * self.delay >= self.duration:
-            # the identification fits each decay from 3 delays after the release (the loop's
-            # fast transient): a longer delay leaves nothing to fit, and the loop's roots for
-            # it are many and slow to certify
-            raise ValueError(f"`delay` (--delay) = {self.delay:g} s is too long for the record "
-                             f"(`duration` = {self.duration:g} s): the identification fits "
-                             "each decay from 3 delays after the release; is the delay in "
-                             "seconds?")
-        if 0 < self.delay * self.fs < _MIN_DELAY_SAMPLES:
-            raise ValueError(f"`delay` = {self.delay:g} s is less than a millionth of a "
-                             f"sample period (`fs` = {self.fs:g} Hz), too short for the "
-                             "loop's roots to be computed: give 0 for a loop without delay")
+        if not sampled:
+            if 3.0 * self.delay >= self.duration:
+                # the identification fits each decay from 3 delays after the release (the
+                # loop's fast transient): a longer delay leaves nothing to fit, and the loop's
+                # roots for it are many and slow to certify
+                raise ValueError(f"`delay` (--delay) = {self.delay:g} s is too long for the "
+                                 f"record (`duration` = {self.duration:g} s): the "
+                                 "identification fits each decay from 3 delays after the "
+                                 "release; is the delay in seconds?")
+            if 0 < self.delay * self.fs < _MIN_DELAY_SAMPLES:
+                raise ValueError(f"`delay` = {self.delay:g} s is less than a millionth of a "
+                                 f"sample period (`fs` = {self.fs:g} Hz), too short for the "
+                                 "loop's roots to be computed: give 0 for a loop without delay")
         for name in ("pmax", "dmax", "max_freq"):
             val = getattr(self, name)
             if val is None:
@@ -190,15 +262,16 @@ class DesignSettings:
         if self.min_cycles < _MIN_CYCLES:
             raise ValueError(f"`min_cycles` must be ≥ {_MIN_CYCLES:g} (a run that rings for "
                              f"less does not ring); got {self.min_cycles:g}")
-        dm = self.delay_margin
-        given = dm is not None
-        if dm is None:
-            dm = max(0.2 * self.delay, 1.0 / self.fs)
-        set_(self, "delay_margin", v.nonnegative("delay_margin", dm, "s"))
-        if given and self.delay_margin > self.duration:  # the default's: the delay's message
-            raise ValueError(f"`delay_margin` = {self.delay_margin:g} s is longer than the "
-                             f"record (`duration` = {self.duration:g} s): no loop that rings "
-                             "within the record tolerates that much extra delay")
+        if not sampled:
+            dm = self.delay_margin
+            given = dm is not None
+            if dm is None:
+                dm = max(0.2 * self.delay, 1.0 / self.fs)
+            set_(self, "delay_margin", v.nonnegative("delay_margin", dm, "s"))
+            if given and self.delay_margin > self.duration:  # the default's: the delay's message
+                raise ValueError(f"`delay_margin` = {self.delay_margin:g} s is longer than the "
+                                 f"record (`duration` = {self.duration:g} s): no loop that "
+                                 "rings within the record tolerates that much extra delay")
         sep = v.finite("separation", self.separation)
         if not sep >= 1.0:
             raise ValueError(f"`separation` must be ≥ 1; got {sep:g}")
@@ -208,25 +281,138 @@ class DesignSettings:
             raise ValueError(f"`tolerance` must be < 1; got {tol:g}")
         set_(self, "tolerance", tol)
 
+    def _sampled_loop(self) -> None:
+        """A sampled loop's keys checked and completed (before the record's checks)."""
+        from phoid.dynamics.digital import DigitalPD
+
+        set_ = object.__setattr__
+        if self.delay is not None:
+            raise ValueError("`delay` (s) and `sample_time` together: a sampled loop's delay is "
+                             "`delay_samples`, whole periods of `sample_time`; give one or the "
+                             "other")
+        if self.delay_margin is not None:
+            raise ValueError("`delay_margin` (s) is a continuous loop's; a sampled loop's least "
+                             "delay margin is `delay_margin_samples`, whole samples")
+        T = v.positive("sample_time", self.sample_time, "s")
+        d = whole_number("delay_samples", 0 if self.delay_samples is None
+                         else self.delay_samples, 0, MAX_DELAY_SAMPLES)
+        velocity = "backward-difference" if self.velocity is None else self.velocity
+        if not isinstance(velocity, str) or velocity not in DIGITAL_VELOCITIES:
+            raise ValueError(f"`velocity` must be one of "
+                             f"{', '.join(map(repr, DIGITAL_VELOCITIES))} (the estimators a "
+                             f"PHO set's [loop] takes); got {velocity!r}")
+        # the loop's own checks (cut-off), with its messages
+        DigitalPD(P=0.0, D=0.0, sample_time=T, delay_samples=d, velocity=velocity,
+                  cutoff=self.cutoff)
+        fs = 1.0 / T if self.fs is None else v.positive("fs", self.fs, "Hz")
+        M = fs * T
+        if not (M >= 1.0 - 1e-9 and abs(M - round(M)) <= 1e-9 * max(1.0, M)):
+            raise ValueError(f"`fs` = {fs:g} Hz must be a whole multiple of the loop's rate "
+                             f"{1.0 / T:g} Hz (the inverse of `sample_time`: a rig records at "
+                             f"its loop's rate, or a whole number of samples per period); got "
+                             f"{M:.6g} samples per period")
+        nil = self.noise_in_loop
+        if nil is not None and not isinstance(nil, (bool, np.bool_)):
+            raise ValueError(f"`noise_in_loop` must be True, False or None; got {nil!r}")
+        margin = (max(1, math.ceil(0.2 * d)) if self.delay_margin_samples is None
+                  else whole_number("delay_margin_samples", self.delay_margin_samples, 0,
+                                    MAX_DELAY_SAMPLES))
+        set_(self, "sample_time", T)
+        set_(self, "delay_samples", d)
+        set_(self, "velocity", velocity)
+        set_(self, "fs", float(fs))
+        set_(self, "delay", d * T)
+        set_(self, "noise_in_loop", True if nil is None else bool(nil))
+        set_(self, "delay_margin_samples", margin)
+        set_(self, "delay_margin", margin * T)
+
+    def _sampled_record(self) -> None:
+        """What a record of ``duration`` cannot show of the sampled loop, refused."""
+        from phoid.dynamics.digital import record_problem
+
+        problem = record_problem(self.digital, self.duration)
+        if problem is not None:
+            raise ValueError(f"`{problem[0]}`{problem[1]}")
+        if 3.0 * self.model_delay >= self.duration:
+            raise ValueError(f"`delay_samples` = {self.delay_samples} at `sample_time` "
+                             f"{self.sample_time:g} s (a loop lag of about "
+                             f"{self.model_delay:.4g} s) is too long for the record "
+                             f"(`duration` = {self.duration:g} s); is `sample_time` in "
+                             "seconds?")
+
+    @property
+    def digital(self) -> Any:
+        """The sampled loop as a :class:`phoid.dynamics.digital.DigitalPD` (gains 0), or None."""
+        if self.sample_time is None:
+            return None
+        from phoid.dynamics.digital import DigitalPD
+
+        return DigitalPD(P=0.0, D=0.0, sample_time=self.sample_time,
+                         delay_samples=self.delay_samples, velocity=self.velocity,
+                         cutoff=self.cutoff)
+
+    @property
+    def model_delay(self) -> float:
+        """The continuous loop's delay, s; for a sampled loop the equivalent delay of its
+        continuous surrogate (:func:`equivalent_delay`), which the search works with."""
+        if self.sample_time is None:
+            return self.delay
+        return equivalent_delay(self.sample_time, self.delay_samples, self.velocity,
+                                self.cutoff)
+
+    @property
+    def noise_placement(self) -> str:
+        """``"in-loop"`` or ``"outside"``: where the sensor noise enters (the bound's model)."""
+        return "in-loop" if self.noise_in_loop else "outside"
+
     @property
     def omega_max(self) -> float:
-        """Highest allowed damped frequency, rad/s: min(max_freq, 0.2 π f_s)."""
-        return min(self.max_freq, _NYQUIST_FRACTION * math.pi * self.fs)
+        """Highest allowed damped frequency, rad/s: min(max_freq, 0.2 π f_s), with f_s the
+        loop's rate 1/T for a sampled loop."""
+        rate = self.fs if self.sample_time is None else min(self.fs, 1.0 / self.sample_time)
+        return min(self.max_freq, _NYQUIST_FRACTION * math.pi * rate)
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-ready settings (``None`` for an absent limit)."""
+        """JSON-ready settings (``None`` for an absent limit, and for a continuous loop's
+        sampled-loop keys)."""
 
         def lim(x):
             return None if math.isinf(x) else float(x)
 
+        sampled = self.sample_time is not None
         return {
             "delay": self.delay, "fs": self.fs, "duration": self.duration,
             "noise": self.noise, "amplitude": self.amplitude, "zeta": list(self.zeta),
             "pmax": lim(self.pmax), "dmax": lim(self.dmax), "max_freq": lim(self.max_freq),
             "omega_max": self.omega_max, "min_cycles": self.min_cycles,
             "delay_margin": self.delay_margin, "separation": self.separation,
-            "tolerance": self.tolerance,
+            "tolerance": self.tolerance, "sample_time": self.sample_time,
+            "delay_samples": self.delay_samples, "velocity": self.velocity,
+            "cutoff": self.cutoff, "delay_margin_samples": self.delay_margin_samples,
+            "equivalent_delay": self.model_delay if sampled else None,
+            "noise_placement": self.noise_placement,
         }
+
+
+def equivalent_delay(sample_time: float, delay_samples: int, velocity: Any = "backward-difference",
+                     cutoff: float | None = None) -> float:
+    """The delay of the continuous surrogate of a sampled loop, s: (d + ½ + τ_v)·T.
+
+    The zero-order hold lags both paths by T/2 and the command delay by d·T; the velocity
+    estimator v̂ = lfilter(b, a, x) (:class:`phoid.dynamics.velocity.VelocityFilter`) lags the D
+    path by its low-frequency group delay τ_v = Σ j²b_j/(2 Σ j b_j) − Σ i a_i/Σ a_i samples
+    (½ for the backward difference, 1 for the central difference, ½ + a/(1 − a) for the
+    filtered one, a = e^{−ω_c T}). The P path's lag is (d + ½)·T, the D path's
+    (d + ½ + τ_v)·T: the surrogate takes the longer, which errs on the side of less stability
+    margin (docs/design-notes/planning.md, "Sampled loops").
+    """
+    from phoid.dynamics.velocity import VelocityFilter
+
+    est = VelocityFilter(velocity, sample_time, cutoff)
+    b, a = np.array(est.b), np.array(est.a)
+    j, i = np.arange(b.size), np.arange(a.size)
+    lag = 0.5 * float(np.sum(j * j * b) / np.sum(j * b)) - float(np.sum(i * a) / np.sum(a))
+    return (delay_samples + 0.5 + max(lag, 0.0)) * sample_time
 
 
 @dataclass(frozen=True)
