@@ -374,11 +374,18 @@ def fit_friction_inloop(windows: Sequence[RunWindow], theta0: Sequence[float], o
         raise IdentificationError("the in-loop friction fit leaves m, c, k, fc undetermined")
     Js = J / np.where(d > 0, d, 1.0)
     H = Js.T @ Js
+    # a nuisance the records do not determine (a column of zeros: a run stuck throughout its
+    # window leaves its velocity free) is held at its value; θ must be determined
+    live = np.flatnonzero(d > 0)
+    inv = np.zeros_like(H)
     try:
-        inv = np.linalg.pinv(H, rcond=1e-12, hermitian=True)
+        Hl = H[np.ix_(live, live)]
+        if not np.linalg.cond(Hl) < 1e12:
+            raise np.linalg.LinAlgError
+        inv[np.ix_(live, live)] = np.linalg.inv(Hl)
     except np.linalg.LinAlgError:
-        raise IdentificationError("the in-loop friction fit leaves m, c, k, fc undetermined") \
-            from None
+        raise IdentificationError("the in-loop friction fit leaves m, c, k, fc undetermined "
+                                  "(the runs' responses do not separate them)") from None
     s2 = rss / dof
     cov = s2 * inv[:4, :4] / np.outer(d[:4], d[:4])
     resid = tuple(r[prob.rows[i]:prob.rows[i + 1]].copy() for i in range(len(windows)))
