@@ -184,19 +184,23 @@ def test_paper_plant_with_a_long_delay():
 
 def test_outside_loop_data_keep_the_modal_route():
     """(d) Noise added after the loop (the controller acts on the true position): with the
-    placement chosen by the data the modal route is kept (z ≤ 3), its values exactly those of
-    the modal route asked for; noise in the loop: the in-loop route is chosen (z > 3)."""
+    placement chosen by the data the modal route is kept only where the data say outside
+    (z < −3: the in-loop model misfits by more than the noise), its values exactly those of
+    the modal route asked for; noise in the loop: the in-loop route (z > 3, "chosen by the
+    data"). A digital loop's default is in-loop (its controller reads the recorded sensor):
+    the modal route needs z < −3."""
     loop = DigitalPD(0, 0, 1e-3, 1)
     out = simulate_loop(OVER, OVER_P, OVER_D, noise=1e-6, in_loop=False, seed=5)
     auto = identify_pho_data(records(out), OVER_P, OVER_D, None, digital=loop)
     modal = identify_pho_data(records(out), OVER_P, OVER_D, None, digital=loop,
                               noise_placement="outside")
     assert auto.noise_placement == "outside" and auto.noise_placement_source == "data"
-    assert auto.placement_test.z <= 3.0
+    assert auto.placement_test.z < -3.0
     for p in MKC:
         assert getattr(auto, p) == getattr(modal, p)
     assert auto.warnings == modal.warnings
     assert auto.summary()["noise_placement_test"]["z"] == auto.placement_test.z
+    assert "noise outside the loop (chosen by the data: z = " in auto.report()
     inside = simulate_loop(OVER, OVER_P, OVER_D, noise=1e-6, in_loop=True, seed=5)
     chosen = identify_pho_data(records(inside), OVER_P, OVER_D, None, digital=loop)
     assert chosen.noise_placement == "in-loop" and chosen.placement_test.z > 3.0

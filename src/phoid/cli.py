@@ -412,15 +412,19 @@ def simulate(
     quantum: Annotated[float, typer.Option(
         help="Encoder quantisation step, m (0: none).")] = 0.0,
     offset: Annotated[float, typer.Option(help="Constant sensor offset, m.")] = 0.0,
-    noise_in_loop: Annotated[bool | None, typer.Option(
-        "--noise-in-loop/--noise-outside",
+    noise_in_loop: Annotated[bool, typer.Option(
+        "--noise-in-loop",
         help="pho: whether the controller reads the recorded position (--offset, --noise and "
              "--quantum inside the loop, as on a rig: the recorded x at each controller "
              "instant is what it read) or the exact one (the sensor's error added to the "
              "record only). Default: in the loop for a digital loop (--sample-time), outside "
              "for the continuous one (which, in the loop, needs --delay and --hold in whole "
              "samples and takes no --fc, --bias or --quantum). A digital loop with --noise or "
-             "--quantum writes it as [loop] noise = \"in-loop\" or \"outside\".")] = None,
+             "--quantum writes it as [loop] noise = \"in-loop\" or \"outside\".")] = False,
+    noise_outside: Annotated[bool, typer.Option(
+        "--noise-outside",
+        help="pho: the controller reads the exact position; the sensor's error is added to "
+             "the record only (the opposite of --noise-in-loop; give one of them).")] = False,
     u_noise: Annotated[float, typer.Option(
         "--u-noise", help="pho: white-noise standard deviation on the recorded force u, N.")
     ] = 0.0,
@@ -495,6 +499,9 @@ def simulate(
     from phoid.io import run_from_arrays, write_experiment
     from phoid.simulation import simulate as _simulate
 
+    if noise_in_loop and noise_outside:
+        _fail("--noise-in-loop and --noise-outside contradict each other: give one of them")
+    placement = True if noise_in_loop else (False if noise_outside else None)
     try:
         _check_simulate_options(ctx.params)
     except ValueError as exc:
@@ -576,7 +583,7 @@ def simulate(
         sim = _simulate(plant, np.array(Ps), np.array(Ds),
                         **({} if digital else {"delay": delay}), duration=duration,
                         fs=fs, x0=x0, hold=hold, noise=noise, quantum=quantum, offset=offset,
-                        rng=rng, bias=np.array(bs), noise_in_loop=noise_in_loop, **digital)
+                        rng=rng, bias=np.array(bs), noise_in_loop=placement, **digital)
         # the recorded force: the applied u plus the force sensor's white noise (same rng,
         # drawn after the position noise)
         u_rec = (sim.u + u_noise * rng.standard_normal(sim.u.shape)) if u_noise else sim.u
@@ -642,11 +649,11 @@ def _simulate_other(ctx, out, *, method, m, c, k, fc, B, omega, duration, fs, x0
         own = {"forced": ("B", "omega"), "free": ("v0", "write_mass")}
         for name in ("P", "D", "schedule", "delay", "omit_delay", "sample_time",
                      "delay_samples", "velocity", "cutoff", "bias", "noise_in_loop",
+                     "noise_outside",
                      *own["free" if method ==
                                                                       "forced" else "forced"]):
             if given(name):
-                flag = ("--noise-in-loop/--noise-outside" if name == "noise_in_loop"
-                        else f"--{name.replace('_', '-')}")
+                flag = f"--{name.replace('_', '-')}"
                 raise ValueError(f"{flag} does not apply to --method {method}")
         plant = Plant(m, c, k, fc)
         rng = np.random.default_rng(seed)

@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from phoid.dynamics.digital import DigitalPD, timing_problem
-from phoid.dynamics.velocity import FIRST_ORDER_PRESETS, estimator_taps
+from phoid.dynamics.velocity import FIRST_ORDER_PRESETS, VELOCITY_PRESETS, estimator_taps
 from phoid.errors import IdentificationError
 
 __all__ = [
@@ -33,6 +33,7 @@ __all__ = [
     "MAX_DELAY_SAMPLES",
     "NOISE_PLACEMENTS",
     "PHO_LOOP_KEYS",
+    "PHO_VELOCITIES",
     "read_digital_loop",
     "read_noise_placement",
 ]
@@ -45,8 +46,13 @@ recorded position) or outside it (the controller acts on the true position)."""
 PHO_LOOP_KEYS = ("delay", *DIGITAL_KEYS, "noise")
 """Every key of a PHO set's ``[loop]``; another is refused by name."""
 DIGITAL_VELOCITIES = FIRST_ORDER_PRESETS
-"""The estimators a PHO set's digital loop takes (``[loop] velocity``): the first-order ones of
-:mod:`phoid.dynamics.velocity`, which the release simulator models."""
+"""The first-order estimators of :mod:`phoid.dynamics.velocity` (what the design's settings
+take, :mod:`phoid.planning.settings`)."""
+PHO_VELOCITIES = VELOCITY_PRESETS
+"""The estimators a PHO set's digital loop takes (``[loop] velocity``): every preset of
+:mod:`phoid.dynamics.velocity` (``phoid simulate`` writes each): the in-loop route rebuilds the
+force from any of them, and the modal route's exact modes and release model
+(:func:`phoid.simulation.simulate`) take each."""
 
 #: the longest command delay of a digital loop phoid identifies, in controller periods: each
 #: evaluation of the loop's roots is an eigenvalue problem of order delay_samples + 3 per run
@@ -99,7 +105,7 @@ def read_digital_loop(experiment: Any) -> DigitalPD | None:
 
     Every key is checked by type and range, one line naming the manifest and the key:
     ``sample_time`` a number > 0 (s), ``delay_samples`` a whole number from 0 to
-    :data:`MAX_DELAY_SAMPLES`, ``velocity`` one of :data:`DIGITAL_VELOCITIES`, ``cutoff`` a
+    :data:`MAX_DELAY_SAMPLES`, ``velocity`` one of :data:`PHO_VELOCITIES`, ``cutoff`` a
     number > 0 (rad/s), ``noise`` (:func:`read_noise_placement`); a key not in
     :data:`PHO_LOOP_KEYS` is refused; and against the records
     (:func:`phoid.dynamics.digital.timing_problem`): no sample time, command delay or velocity
@@ -147,10 +153,9 @@ def read_digital_loop(experiment: Any) -> DigitalPD | None:
             f"{MAX_DELAY_SAMPLES} controller periods (the loop's polynomial has degree "
             "delay_samples + 3, its roots cost the cube of that)")
     velocity = loop.get("velocity", "backward-difference")
-    if not isinstance(velocity, str) or velocity not in DIGITAL_VELOCITIES:
+    if not isinstance(velocity, str) or velocity not in PHO_VELOCITIES:
         raise IdentificationError(
-            f"{where} velocity must be one of {', '.join(map(repr, DIGITAL_VELOCITIES))} (the "
-            f"first-order estimators, which a PHO set's release model simulates); got "
+            f"{where} velocity must be one of {', '.join(map(repr, PHO_VELOCITIES))}; got "
             f"{_shown(velocity)}")
     cutoff = loop.get("cutoff")
     if cutoff is not None:

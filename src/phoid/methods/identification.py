@@ -163,7 +163,12 @@ def identify_pho(
     digital = read_digital_loop(experiment)
     if digital is not None:
         note = check_sample_time(experiment, digital, runs)
-        if delay is not None or experiment.delay is not None:
+        if delay is not None:
+            raise IdentificationError(
+                f"{experiment.path}: --delay (delay = {delay!r}) does not apply to a digital "
+                "loop ([loop] sample_time): its delay is [loop] delay_samples, in whole "
+                "samples; leave the option out")
+        if experiment.delay is not None:
             raise IdentificationError(
                 f"{experiment.path}: [loop] delay: a digital loop (sample_time) takes its delay "
                 "as delay_samples, in whole samples; give one or the other"

@@ -18,8 +18,15 @@ The choice (:func:`identify_digital`)
   each run's fitted decay with its fast modes) is compared with the white noise σ̂² of the
   in-loop fit. Under the wrong placement each route's residual carries the loop's filtered
   noise T·e; D's mean is then ±‖Te‖² and its cross term with the white noise has sd
-  2σ‖Te‖, so z = √D/(2σ̂) > 3 (D > 36σ̂²) says the in-loop model explains what the modal one
-  leaves. Otherwise the modal route's result stands, unchanged.
+  2σ‖Te‖, so z = sign(D)√|D|/(2σ̂). A digital controller reads its sensor (a rig has the
+  noise in the loop), so the in-loop route is the default and the modal route is chosen only
+  where the data say outside: z < −3 (D < −36σ̂²). Noise-free records have no placement to
+  choose (the in-loop route, exact for them).
+- A stated placement the data contradict by the same margin is used, with a warning.
+- An in-loop fit whose residual is more than :data:`FAR` times the records' model-free noise
+  is never reported (a one-line refusal where asked for, else the modal route with a
+  warning); a set whose runs all share one gain pair has no in-loop fit (only the closed-loop
+  family is fixed); runs the modal route set aside get no window.
 - A continuous loop (no ``sample_time``) has no in-loop route: the modal one, reported as
   ``"outside"`` from ``"continuous loop"``; ``"in-loop"`` asked for by the option is refused.
 """
@@ -75,6 +82,24 @@ MIN_WINDOW = 16
 MAX_SAMPLES = 1 << 20
 #: σ̂ within this factor of the records' own noise: a fit good enough to stop trying starts
 _GOOD = 1.25
+#: an in-loop fit whose residual is more than this many times its records' model-free noise
+#: (the noise check's statistic) is no fit of them: never reported. A wrong model (a delay off
+#: by one sample, friction) leaves a misfit that grows as the noise shrinks (10.7× for a delay
+#: off by one at 1 µm noise on the overdamped plant: reported, with robust stderr and the
+#: delay's warning); a start stuck on the closed-loop family, or gains in other units, leave
+#: 3.6e2–1e21× (measured on the prober's sets)
+FAR = 100.0
+#: a residual below this fraction of the motion's RMS is rounding (noise-free records)
+_EXACT = 1e-5
+#: why a set whose runs all have one gain pair has no in-loop fit (measured: docs/design-notes/
+#: inloop.md, "One gain pair")
+_SAME_GAINS = (
+    "all its runs have the same gains (P, D): their ringing fixes only the closed-loop family "
+    "(λm, λ(c + D) − D, λ(k + P) − P), and what singles one out — the noise the controller "
+    "feeds back — leaves m, c, k biased by tens of stderr (measured on simulated sets of one "
+    "gain pair); record runs with at least two different gain pairs")
+#: the closed-loop family's scale factors tried as starts (:func:`_family`)
+_LAMBDAS = tuple(2.0 ** (0.5 * i) for i in range(-8, 25))
 
 
 @dataclass(frozen=True)
@@ -104,6 +129,26 @@ class PlacementTest:
     sigma: float | None = None
     samples: int = 0
     reason: str | None = None
+    noise_free: bool = False
+
+    def words(self, placement: str) -> str:
+        """Why ``placement`` was used where the data decided (the report's words)."""
+        if self.noise_free:
+            return "the records are noise-free: no noise placement to choose"
+        if self.reason is not None and self.z is None:
+            if placement == "outside":
+                return f"the modal route: {self.reason}"
+            return f"the digital loop's default ({self.reason})"
+        z = self.z if self.z is not None else math.nan
+        if placement == "in-loop" and z > self.threshold:
+            return f"chosen by the data: z = {z:.3g} > {self.threshold:g}"
+        if placement == "in-loop":
+            return (f"the digital loop's default: the data do not say outside "
+                    f"(z = {z:.3g} ≥ −{self.threshold:g})")
+        if z < -self.threshold:
+            return f"chosen by the data: z = {z:.3g} < −{self.threshold:g}"
+        # a route that keeps the modal one unless z > 3 (the friction fit's)
+        return f"chosen by the data: z = {z:.3g} ≤ {self.threshold:g}"
 
     def to_dict(self) -> dict[str, Any]:
         """The ``noise_placement_test`` object of ``--json`` (non-finite numbers as null)."""
@@ -166,8 +211,8 @@ def _release_index(t: np.ndarray, x: np.ndarray, fit: Any) -> int:
 
 def inloop_windows(data: Sequence[tuple[np.ndarray, np.ndarray]], P: np.ndarray,
                    D: np.ndarray, digital: Any, *, names: Sequence[str],
-                   added_mass: np.ndarray, fits: Sequence[Any] = ()
-                   ) -> tuple[list[RunWindow], list[str]]:
+                   added_mass: np.ndarray, fits: Sequence[Any] = (),
+                   aside: Any = ()) -> tuple[list[RunWindow], list[str]]:
     """Each run's window of the in-loop fit (:mod:`phoid.methods.inloop_model`), and why the
     others have none (``"<run>: not in the in-loop fit: <reason>"``).
 
@@ -185,11 +230,16 @@ def inloop_windows(data: Sequence[tuple[np.ndarray, np.ndarray]], P: np.ndarray,
         Each run's known added mass, kg.
     fits : sequence of DecayFit or None
         The modal route's decay fits (their releases), where made.
+    aside : collection of int
+        The runs the modal route set aside (a glitch, a non-physical record): no window (its
+        warning says why).
     """
     windows: list[RunWindow] = []
     notes: list[str] = []
     T = digital.sample_time
     for i, (t, x) in enumerate(data):
+        if i in aside:
+            continue
         lay = record_layout(t, T)
         if not isinstance(lay, Layout):
             notes.append(f"{names[i]}: not in the in-loop fit: {lay}")
@@ -217,32 +267,70 @@ def inloop_windows(data: Sequence[tuple[np.ndarray, np.ndarray]], P: np.ndarray,
     return windows, notes
 
 
-def _fit(windows: list[RunWindow], start: np.ndarray | None) -> InLoopFit:
-    """The in-loop fit from the modal estimate, and from the equation error's starts where
-    that does not reach the records' noise."""
+def _same_gains(P: np.ndarray, D: np.ndarray) -> bool:
+    """True when every run has the same gains (P, D), to 1e-9 relative."""
+    return bool(P.size and np.all(np.abs(P - P[0]) <= 1e-9 * max(abs(P[0]), 1e-300))
+                and np.all(np.abs(D - D[0]) <= 1e-9 * max(abs(D[0]), 1e-300)))
+
+
+def _family(starts: Sequence[np.ndarray], P: float, D: float) -> list[np.ndarray]:
+    """The closed-loop family through each start: (λm, λ(c + D) − D, λ(k + P) − P) for λ on
+    :data:`_LAMBDAS` — the loops with the same closed-loop modes (m x'' + (c + D) x' + (k + P) x
+    scaled), which the ringing alone cannot tell apart and on which the equation error's starts
+    lie (its force is nearly the gains' law on the smoothed record)."""
+    out = []
+    for th in starts:
+        for lam in _LAMBDAS:
+            out.append(np.array([lam * th[0], lam * (th[1] + D) - D, lam * (th[2] + P) - P]))
+    return out
+
+
+def _noise_ratio(fit: InLoopFit) -> float:
+    """The noise check's statistic of a fit: the worst window's residual RMS over its records'
+    model-free noise (third differences); nan where no window has a noise level."""
+    ratios = [r for r in fit.noise_ratios(max(fit.runs, default=-1) + 1) if r is not None]
+    return max(ratios) if ratios else math.nan
+
+
+def _fit(windows: list[RunWindow], start: np.ndarray | None, P: np.ndarray,
+         D: np.ndarray, enough: Callable[[InLoopFit], bool] | None = None) -> InLoopFit:
+    """The in-loop fit from the modal estimate, from the equation error's starts where that
+    does not reach the records' noise, and from the closed-loop family through them where
+    none does; the one of lowest RSS. ``enough``: a fit that settles the question asked
+    (the data's test already says outside), after which no other start is tried."""
     noise = [s for s in (difference_noise(w.y) for w in windows) if s > 0]
     good = _GOOD * float(np.median(noise)) if noise else None
-    fit = None
-    if start is not None:
+    runs = [w.run for w in windows]
+    best: InLoopFit | None = None
+
+    def attempt(starts: Sequence[np.ndarray], tries: int) -> bool:
+        nonlocal best
         try:
-            fit = fit_inloop(windows, [start], tries=1, good_sigma=good)
-        except IdentificationError:
-            fit = None
-        if fit is not None and (good is None or fit.sigma <= good):
-            return fit
+            with np.errstate(all="ignore"):
+                f = fit_inloop(windows, starts, tries=tries, good_sigma=good)
+        except (IdentificationError, np.linalg.LinAlgError):
+            return False
+        if best is None or f.rss < best.rss:
+            best = f
+        return (good is not None and best.sigma <= good) or (enough is not None
+                                                             and enough(best))
+
+    if start is not None and attempt([start], 1):
+        return best  # type: ignore[return-value]
     others = equation_error_starts(windows)
-    if not others:
-        if fit is not None:
-            return fit
+    if others and attempt(others, 3):
+        return best  # type: ignore[return-value]
+    bases = ([] if start is None else [start]) + others
+    if best is not None:
+        bases.append(best.theta)
+    Pm, Dm = float(np.mean(P[runs])), float(np.mean(D[runs]))
+    family = [th for th in _family(bases, Pm, Dm) if th[0] > 0]
+    if family:
+        attempt(family, 3)
+    if best is None:
         raise IdentificationError("the in-loop fit found no starting point (the equation "
                                   "error gives no positive mass)")
-    try:
-        alt = fit_inloop(windows, others, tries=3, good_sigma=good)
-    except IdentificationError:
-        if fit is None:
-            raise
-        return fit
-    return alt if fit is None or alt.rss < fit.rss else fit
+    return best
 
 
 # --------------------------------------------------------------------------------------------
@@ -399,10 +487,7 @@ def identify_digital(modal: Callable[[], Identification], data: Sequence[tuple[A
         placement, how = stated, "manifest"
     else:
         placement, how = None, "data"
-    if placement == "outside":
-        res = modal()
-        return replace(res, noise_placement="outside", noise_placement_source=how,
-                       warnings=(*res.warnings, *notes))
+    named = "--noise / noise_placement" if how == "option" else "[loop] noise"
     res: Identification | None
     try:
         res = modal()
@@ -410,27 +495,53 @@ def identify_digital(modal: Callable[[], Identification], data: Sequence[tuple[A
                   for t, x in res.data]
     except IdentificationError:
         cleaned = _clean(data)
-        if placement is None or estimator != "gls" or cleaned is None:
+        if placement == "outside" or estimator != "gls" or cleaned is None:
             raise
         res, arrays = None, cleaned
+    if placement == "outside":
+        assert res is not None
+        extra = _contradiction(res, how, named, data=arrays, P=P, D=D, digital=digital,
+                               names=names, added_mass=added_mass)
+        return replace(res, noise_placement="outside", noise_placement_source=how,
+                       warnings=(*res.warnings, *notes, *extra))
     n = len(arrays)
     dm = np.zeros(n) if added_mass is None else np.asarray(added_mass, dtype=float)
     P = np.asarray(P, dtype=float)
     D = np.asarray(D, dtype=float)
     fits = [] if res is None else [r.fit if r.used else None for r in res.runs]
+    aside = set() if res is None else {i for i, r in enumerate(res.runs) if not r.used}
     windows, skipped = inloop_windows(arrays, P, D, digital, names=names, added_mass=dm,
-                                      fits=fits)
+                                      fits=fits, aside=aside)
+    if aside and res is not None:
+        skipped = [w for w in res.warnings if any(w.startswith(f"{names[i]}: set aside")
+                                                  for i in aside)] + skipped
     start = None if res is None else np.array([res.m.value, res.c.value, res.k.value])
     fit = None
     reason = None
     if not windows:
         reason = "no run has a window for it" + (f" ({skipped[0]})" if skipped else "")
+    elif _same_gains(P[[w.run for w in windows]], D[[w.run for w in windows]]):
+        reason = _SAME_GAINS
     else:
+        says_outside = None
+        if placement is None and res is not None:
+            modal_res = res
+
+            def says_outside(f: InLoopFit) -> bool:
+                z = placement_test(modal_res, f, windows).z
+                return z is not None and z < -Z_THRESHOLD
         try:
             fit = _fit(windows, start if start is not None and np.all(np.isfinite(start))
-                       else None)
+                       else None, P, D, says_outside)
         except (IdentificationError, np.linalg.LinAlgError) as exc:
             reason = str(exc)
+        if fit is not None and says_outside is not None and says_outside(fit):
+            pass  # the data say outside: the test below chooses the modal route
+        elif fit is not None and _noise_ratio(fit) > FAR:
+            reason = (f"its best residual is {_noise_ratio(fit):.3g}× the records' own noise "
+                      f"(more than {FAR:g}×: no m, c, k found that explain the records; check "
+                      "the runs' gains (units, sign) and the loop's delay_samples and velocity)")
+            fit = None
     if fit is None:
         if placement == "in-loop" and (how == "option" or res is None):
             raise IdentificationError(f"{where}the in-loop fit cannot be made: {reason}")
@@ -439,18 +550,122 @@ def identify_digital(modal: Callable[[], Identification], data: Sequence[tuple[A
         extra = () if placement is None else (
             f"[loop] noise = 'in-loop', but the in-loop fit cannot be made ({reason}): m, c, "
             "k come from the runs' modes, whose stderr assume the noise outside the loop",)
+        if placement is None:
+            extra = (f"the in-loop fit cannot be made ({reason}): m, c, k come from the runs' "
+                     "modes, whose stderr assume the noise outside the loop (a digital "
+                     "loop's controller that reads the recorded sensor puts its noise in the "
+                     "loop)",)
         return replace(res, noise_placement="outside", noise_placement_source=how,
                        placement_test=test, warnings=(*res.warnings, *notes, *extra))
-    test = placement_test(res, fit, windows) if res is not None else PlacementTest(
-        None, sigma=fit.sigma, reason="the modal route failed")
-    if placement is None and not (test.z is not None and test.z > Z_THRESHOLD):
+    if _noise_free(fit, windows):
+        test = PlacementTest(None, sigma=fit.sigma, noise_free=True,
+                             reason="the records are noise-free: no noise placement to choose")
+    elif res is not None:
+        test = placement_test(res, fit, windows)
+    else:
+        test = PlacementTest(None, sigma=fit.sigma, reason="the modal route failed")
+    if placement is None and test.z is not None and test.z < -Z_THRESHOLD:
         assert res is not None
         return replace(res, noise_placement="outside", noise_placement_source="data",
                        placement_test=test)
+    contra: list[str] = []
+    if how != "data" and test.z is not None and test.z < -Z_THRESHOLD:
+        contra.append(
+            f"the data contradict {named} = 'in-loop': the runs' modes explain the records "
+            f"better than the in-loop model by more than their noise (z = {test.z:.3g} < "
+            f"−{Z_THRESHOLD:g}), as when the controller acts on the true position (noise "
+            "outside the loop); m, c, k come from the in-loop route as stated")
     base = res if res is not None else _skeleton(arrays, P, D, digital, names, files, dm,
                                                  source)
     out = _in_loop_result(base, fit, windows, names, [*notes, *skipped], x_unit)
-    return replace(out, noise_placement_source=how, placement_test=test)
+    checked = _delay_check(out, fit, arrays, P, D, digital, names, dm, fits, aside)
+    # a wrong delay misfits the in-loop model too: then its warning says why, not the placement
+    if checked is out:
+        checked = replace(out, warnings=(*contra, *out.warnings))
+    return replace(checked, noise_placement_source=how, placement_test=test)
+
+
+def _noise_free(fit: InLoopFit, windows: Sequence[RunWindow]) -> bool:
+    """True when every window's residual is rounding (below 1e-5 of its motion's RMS): the
+    records are noise-free (:mod:`phoid.methods.inloop_adequacy`'s test)."""
+    for w, e in zip(windows, fit.residuals, strict=True):
+        mot = w.y - e - fit.offset
+        if not float(np.sqrt(np.mean(e * e))) <= _EXACT * float(np.sqrt(np.mean(mot * mot))):
+            return False
+    return True
+
+
+def _contradiction(res: Identification, how: str, named: str, **kw: Any) -> tuple[str, ...]:
+    """A stated ``"outside"`` the data contradict (z > 3), tested only where the modal
+    route's adequacy fails (the in-loop fit costs a second route)."""
+    ad = getattr(res, "adequacy", None)
+    failed = ad is not None and any(c.passed is False for c in ad.checks)
+    if not failed:
+        return ()
+    data, P, D = kw["data"], np.asarray(kw["P"], dtype=float), np.asarray(kw["D"], dtype=float)
+    n = len(data)
+    dm = np.zeros(n) if kw["added_mass"] is None else np.asarray(kw["added_mass"], dtype=float)
+    fits = [r.fit if r.used else None for r in res.runs]
+    aside = {i for i, r in enumerate(res.runs) if not r.used}
+    try:
+        windows, _ = inloop_windows(data, P, D, kw["digital"], names=kw["names"],
+                                    added_mass=dm, fits=fits, aside=aside)
+        start = np.array([res.m.value, res.c.value, res.k.value])
+        fit = _fit(windows, start if np.all(np.isfinite(start)) else None, P, D)
+    except (IdentificationError, np.linalg.LinAlgError, ValueError, ZeroDivisionError):
+        return ()
+    if _noise_ratio(fit) > FAR or _noise_free(fit, windows):
+        return ()
+    test = placement_test(res, fit, windows)
+    if test.z is None or not test.z > Z_THRESHOLD:
+        return ()
+    return (f"the data contradict {named} = 'outside': the in-loop model explains the "
+            f"records better than the runs' modes by more than their noise (z = {test.z:.3g} "
+            f"> {Z_THRESHOLD:g}), as when the controller reads the recorded sensor (noise in "
+            "the loop; `--noise in-loop` fits it); m, c, k come from the runs' modes as "
+            "stated",)
+
+
+def _delay_check(out: Identification, fit: InLoopFit, arrays, P, D, digital, names, dm, fits,
+                 aside) -> Identification:
+    """Where the in-loop fit's noise or whiteness check fails, the fit at delay_samples ± 1:
+    a warning naming ``[loop] delay_samples`` where one fits markedly better (its RSS, over
+    as many samples, lower by more than the noise explains: √ΔRSS/(2σ̂) > 3, the placement
+    test's margin). The result stays at the stated delay."""
+    ad = out.adequacy
+    if ad is None or not any(c.name in ("noise", "whiteness") and c.passed is False
+                             for c in ad.checks):
+        return out
+    d0 = int(digital.delay_samples)
+    best: tuple[float, int] | None = None
+    for d in (d0 - 1, d0 + 1):
+        if d < 0:
+            continue
+        try:
+            alt_digital = replace(digital, delay_samples=d)
+            windows, _ = inloop_windows(arrays, P, D, alt_digital, names=names,
+                                        added_mass=dm, fits=fits, aside=aside)
+            if not windows:
+                continue
+            alt = _fit(windows, fit.theta, P, D)
+        except (IdentificationError, np.linalg.LinAlgError, ValueError, TypeError):
+            continue
+        dof0 = fit.samples - fit.parameters
+        dof1 = alt.samples - alt.parameters
+        if dof0 <= 0 or dof1 <= 0 or not alt.sigma > 0:
+            continue
+        drop = (fit.sigma ** 2 - alt.sigma ** 2) * dof1
+        z = math.sqrt(drop) / (2.0 * alt.sigma) if drop > 0 else 0.0
+        if z > Z_THRESHOLD and (best is None or z > best[0]):
+            best = (z, d)
+    if best is None:
+        return out
+    z, d = best
+    key = "delay_samples"
+    return replace(out, warnings=(*out.warnings, (
+        f"[loop] {key} = {d0} does not fit the records as well as {d}: the in-loop fit at "
+        f"{key} = {d} lowers the residual by more than the noise explains (z = {z:.3g} > "
+        f"{Z_THRESHOLD:g}); check the loop's delay (m, c, k are at the stated {d0})")))
 
 
 def _clean(data: Sequence[tuple[Any, Any]]) -> list[tuple[np.ndarray, np.ndarray]] | None:

@@ -274,11 +274,11 @@ def _noise_line(result: Any) -> list[str]:
     why = {"manifest": "stated by [loop] noise", "option": "as asked"}.get(source, "")
     if source == "data":
         why = "chosen by the data"
-        if test is not None and test.z is not None:
-            why += (f": z = {test.z:.3g} {'>' if test.z > test.threshold else '≤'} "
-                    f"{test.threshold:g}")
-        elif test is not None and test.reason:
-            why += f" ({safe_text(test.reason)})"
+        if test is not None and callable(getattr(test, "words", None)):
+            why = safe_text(test.words(result.noise_placement))
+    if source == "data" and getattr(test, "noise_free", False):
+        return ["  noise-free records (no noise placement to choose): m, c, k from the output "
+                "error of the plant driven by the applied force"]
     if result.noise_placement == "in-loop":
         return [f"  noise in the loop ({why}): m, c, k from the output error of the plant "
                 "driven by the applied force"]
