@@ -45,6 +45,11 @@ def _phoid(*args, cwd: Path, timeout: float = 300.0) -> subprocess.CompletedProc
                           timeout=timeout)
 
 
+def _cli(*args):
+    """The command line in this process (typer's runner: the options parsed as by `phoid`)."""
+    return runner.invoke(app, [str(a) for a in args])
+
+
 def _chi_d(m, c, k, P, D, T, d):
     """χ(z) of the sampled PD loop with the backward difference and d samples of delay, from
     first principles: ZOH plant G(z) = N(z)/Δ(z) from Φ = e^{AT}, Γ = ∫e^{Aτ}dτ b (the
@@ -158,12 +163,11 @@ def test_design_cli_prints_the_loop_and_the_inloop_prediction(tmp_path):
     assert "sampled loop: sample_time 0.001 s, delay_samples 1" in out
     assert "noise in the loop" in out and "in-loop Cramér–Rao bound" in out
     assert "dm(smp)" in out and "Sampled loop modes" in out
-    # --json (a smaller design: 4 runs of 3 s): the new keys, and the prediction is the
-    # in-loop bound of the printed gains, evaluated afresh
-    r = _phoid("design", "--m", 0.5, "--c", 40, "--k", 20, "--sample-time", 0.001,
-               "--delay-samples", 1, "--noise", 1e-6, "--runs", 4, "--duration", 3, "--json",
-               cwd=tmp_path)
-    assert r.returncode == 0, r.stderr
+    # --json (in this process; a smaller design: 4 runs of 3 s): the new keys, and the
+    # prediction is the in-loop bound of the printed gains, evaluated afresh
+    r = _cli("design", "--m", 0.5, "--c", 40, "--k", 20, "--sample-time", 0.001,
+             "--delay-samples", 1, "--noise", 1e-6, "--runs", 4, "--duration", 3, "--json")
+    assert r.exit_code == 0, r.output
     js = json.loads(r.stdout)
     assert js["loop"]["kind"] == "sampled"
     assert (js["loop"]["sample_time"], js["loop"]["delay_samples"]) == (0.001, 1)
@@ -185,16 +189,16 @@ def test_design_cli_prints_the_loop_and_the_inloop_prediction(tmp_path):
 
 def test_check_accepts_a_digital_set(tmp_path):
     # a digital set as `phoid simulate` writes it: [loop] sample_time, delay_samples, noise
-    r = _phoid("simulate", tmp_path / "set", "--m", 0.5, "--c", 40, "--k", 20,
-               "--P", "330,1110,3070", "--D", "-35,-33,-28.6", "--sample-time", 0.001,
-               "--delay-samples", 1, "--noise", 1e-6, "--duration", 2, "--hold", 0.01,
-               "--seed", 3, cwd=tmp_path)
-    assert r.returncode == 0, r.stderr
+    r = _cli("simulate", tmp_path / "set", "--m", 0.5, "--c", 40, "--k", 20,
+             "--P", "330,1110,3070", "--D", "-35,-33,-28.6", "--sample-time", 0.001,
+             "--delay-samples", 1, "--noise", 1e-6, "--duration", 2, "--hold", 0.01,
+             "--seed", 3)
+    assert r.exit_code == 0, r.output
     manifest = tomllib.loads((tmp_path / "set" / "experiment.toml").read_text())
     assert manifest["loop"]["sample_time"] == 0.001 and "delay" not in manifest["loop"]
-    r = _phoid("design", "--check", tmp_path / "set", "--m", 0.5, "--c", 40, "--k", 20,
-               "--json", cwd=tmp_path)
-    assert r.returncode == 0, r.stderr  # accepted, and every run safe on the prior
+    r = _cli("design", "--check", tmp_path / "set", "--m", 0.5, "--c", 40, "--k", 20,
+             "--json")
+    assert r.exit_code == 0, r.output  # accepted, and every run safe on the prior
     js = json.loads(r.stdout)
     assert js["kind"] == "check" and js["loop"]["kind"] == "sampled"
     assert (js["loop"]["sample_time"], js["loop"]["delay_samples"]) == (0.001, 1)
@@ -247,11 +251,11 @@ def test_python_keywords_are_checked_by_name():
         design(m, c, k)
 
 
-def test_rehearse_a_sampled_design(tmp_path):
-    r = _phoid("design", "--m", 0.5, "--c", 40, "--k", 20, "--sample-time", 0.001,
-               "--delay-samples", 1, "--noise", 1e-6, "--runs", 3, "--duration", 1.5,
-               "--rehearse", 2, "--workers", 0, "--seed", 5, "--json", cwd=tmp_path)
-    assert r.returncode == 0, r.stderr
+def test_rehearse_a_sampled_design():
+    r = _cli("design", "--m", 0.5, "--c", 40, "--k", 20, "--sample-time", 0.001,
+             "--delay-samples", 1, "--noise", 1e-6, "--runs", 3, "--duration", 1.5,
+             "--rehearse", 2, "--workers", 0, "--seed", 5, "--json")
+    assert r.exit_code == 0, r.output
     js = json.loads(r.stdout)
     reh = js["rehearsal"]
     assert reh["replicas"] == 2 and reh["identified"] == 2, reh

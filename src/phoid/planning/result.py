@@ -516,27 +516,22 @@ def _evaluate_continuous(P: np.ndarray, D: np.ndarray, prior: Prior, st: DesignS
 
 
 def _sampled_prediction(P, D, prior: Prior, st: DesignSettings, ev, info):
-    """A sampled loop's prediction for its noise placement (:func:`predicted_covariance`):
-    the covariance and each run's information at the nominal plant (over the runs stable
-    there), the bound's name, and the worst variances over the prior grid.
-
-    The modal bound is evaluated at every plant of the grid. The in-loop bound (about 4 µs
-    per recorded sample) is evaluated at the nominal plant only; its worst over the prior is
-    the modal bound's worst scaled, parameter by parameter, by the in-loop/modal ratio of the
-    variances at the nominal plant (docs/design-notes/planning.md, "Sampled loops").
-    """
-    keep = ev.stable[:, 0]
-    plant = tuple(float(x) for x in prior.plants[0])
-    cov0, run_info, bound = predicted_covariance(plant, P[keep], D[keep], st, info[keep, 0])
-    run0 = np.zeros((P.size, 3, 3))
-    run0[keep] = run_info
-    modal = [safe_inverse(info[ev.stable[:, g], g].sum(axis=0)) for g in range(len(prior.plants))]
-    worst = np.array([max(c[j, j] for c in modal) for j in range(3)])
-    if bound != "modal":
-        with np.errstate(all="ignore"):
-            ratio = np.diag(cov0) / np.diag(modal[0])
-        worst = np.where(np.isfinite(ratio), np.maximum(worst * ratio, np.diag(cov0)),
-                         np.diag(cov0))
+    """A sampled loop's prediction for its noise placement (:func:`predicted_covariance`) at
+    every plant of the prior grid (over the runs stable there): the covariance and each run's
+    information at the nominal plant, the bound's name, and the worst variances."""
+    worst = np.zeros(3)
+    cov0 = run0 = None
+    bound = "modal"
+    for g in range(prior.plants.shape[0]):
+        keep = ev.stable[:, g]
+        plant = tuple(float(x) for x in prior.plants[g])
+        cov, run_info, bound = predicted_covariance(plant, P[keep], D[keep], st,
+                                                    info[keep, g])
+        if g == 0:
+            cov0 = cov
+            run0 = np.zeros((P.size, 3, 3))
+            run0[keep] = run_info
+        worst = np.maximum(worst, np.diag(cov))
     return cov0, run0, bound, worst
 
 
