@@ -177,7 +177,11 @@ def _sampled_loop(manifest: Path, loop: Mapping[str, Any], sched: Mapping[str, A
     if delay is not None and not abs(delay - d * T) <= 1e-9 * T:
         raise RigError(f"{manifest}: [loop] delay = {delay:g} s is not delay_samples x "
                        f"sample_time = {d * T:g} s; give one or the other")
-    velocity: dict[str, Any] = {"velocity": VELOCITIES[dig.velocity]}
+    code = VELOCITIES.get(dig.velocity) if isinstance(dig.velocity, str) else None
+    if code is None:
+        raise RigError(f"{manifest}: [loop] velocity = {clip(dig.velocity, 60)}: the rig's "
+                       f"controller runs {', '.join(VELOCITIES)} only")
+    velocity: dict[str, Any] = {"velocity": code}
     if dig.velocity == "filtered":
         velocity["filter_pole"] = float(dig.filter_pole)
     return T, d, velocity
