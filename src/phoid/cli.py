@@ -372,7 +372,11 @@ def _in_option_words(message: str) -> str:
     --sample-time (the keyword arguments it names are the options)."""
     import re
 
+    from phoid.dynamics.velocity import FIR_WORDS
+
     message = message.replace("noise_in_loop=False", "--noise-outside")
+    # the option takes a preset's name only (no FIR coefficients)
+    message = message.replace(FIR_WORDS, "")
     return re.sub(r"`(\w+)`", lambda mt: _OPTION_OF.get(mt.group(1), mt.group(0)), message)
 
 
@@ -597,8 +601,12 @@ def simulate(
                  **({"u_noise": u_noise} if u_noise else {}), **(loop_table or {})}
         if seed is not None:
             truth["seed"] = seed
-        if loop_table is not None and (noise > 0 or quantum > 0):  # where the noise was
-            loop_table["noise"] = "in-loop" if sim.noise_in_loop else "outside"
+        if noise > 0 or quantum > 0 or offset != 0:  # where the sensor's error was (either
+            # loop: a continuous loop's in-loop placement is stated too, though only the
+            # digital loop has an in-loop identification route)
+            loop_table = {**(loop_table or {}),
+                          "noise": "in-loop" if sim.noise_in_loop else "outside"}
+            truth["noise_in_loop"] = bool(sim.noise_in_loop)
         # the schedule read is an input: not even --overwrite writes the set over it
         inputs = [] if schedule is None else [
             schedule / "experiment.toml" if schedule.is_dir() else schedule]

@@ -47,8 +47,11 @@ from phoid import _validate as v
 __all__ = [
     "FILTER_DC_RTOL",
     "FIRST_ORDER_PRESETS",
+    "FIR_WORDS",
+    "MAGNITUDE",
     "VELOCITY_PRESETS",
     "VelocityFilter",
+    "check_cutoff",
     "estimator_taps",
     "fir_problem",
 ]
@@ -62,18 +65,40 @@ FILTER_DC_RTOL = 1e-6
 pole a = e^{−ω_c T} is rounded to a float, which misstates 1 − a (the filter's cut-off, and the
 DC gain of c_f = (1 − e^{−ω_c T})/T) by about ε/(ω_c T); below ω_c·T ≈ 1e-10 that is more than
 this, and at ω_c·T < 1.1e-16 the pole is 1 exactly: a pure integrator, no velocity at all."""
+MAGNITUDE = v.MAGNITUDE
+"""The largest magnitude of a cut-off (rad/s) and of an estimator's coefficient (1/s), and the
+inverse of the smallest non-zero one: 1e30, as every physical number phoid takes (nothing on a
+rig differentiates at 1e30 1/s, and within it the sums and products of the coefficients with
+gains and positions stay inside the floating-point range)."""
+FIR_WORDS = " or a sequence of FIR coefficients (1/s)"
+"""The part of the unknown-name message that offers FIR coefficients (a command line that
+takes only a name drops it)."""
+
+
+def check_cutoff(value: object) -> float:
+    """ω_c (rad/s) as a float, or a one-line ValueError naming `cutoff`: a real number (not a
+    bool, not a string) > 0 of magnitude 1e-30 … 1e30 (:data:`MAGNITUDE`)."""
+    if isinstance(value, bool | np.bool_) or not isinstance(value, numbers.Real):
+        raise ValueError(f"`cutoff` must be a finite number > 0 of magnitude 1e-30 … 1e30 "
+                         f"rad/s; got {value!r} ({type(value).__name__})")
+    return v.physical("`cutoff`", value, "rad/s")
 
 
 def fir_problem(coefficients: Sequence[float]) -> str | None:
     """Why finite FIR coefficients b_j (1/s) are no velocity estimator, or None.
 
-    At least two coefficients, not all zero, summing to zero within 1e-9 of Σ|b_j| (a constant
-    position must read as zero velocity). The reason is the rest of a sentence whose subject is
-    the estimator (``"needs at least 2 …"``).
+    At least two coefficients, each 0 or of magnitude 1e-30 … 1e30 (:data:`MAGNITUDE`), not
+    all zero, summing to zero within 1e-9 of Σ|b_j| (a constant position must read as zero
+    velocity). The reason is the rest of a sentence whose subject is the estimator (``"needs
+    at least 2 …"``).
     """
     n = len(coefficients)
     if n < 2:
         return f"needs at least 2 FIR coefficients (1/s); got {n}"
+    for i, c in enumerate(coefficients):
+        if c != 0.0 and not 1.0 / MAGNITUDE <= abs(c) <= MAGNITUDE:
+            return (f"has FIR coefficient {i} = {c:g} 1/s: each must be 0 or of magnitude "
+                    "1e-30 … 1e30 1/s")
     total = math.fsum(coefficients)
     scale = math.fsum(abs(c) for c in coefficients)
     if scale == 0.0:
@@ -102,8 +127,8 @@ def _spec(velocity: object) -> str | tuple[float, ...]:
     if isinstance(velocity, str):
         if velocity not in VELOCITY_PRESETS:
             raise ValueError(
-                f"`velocity` must be one of {', '.join(map(repr, VELOCITY_PRESETS))} or a "
-                f"sequence of FIR coefficients (1/s); got {velocity!r}")
+                f"`velocity` must be one of {', '.join(map(repr, VELOCITY_PRESETS))}"
+                f"{FIR_WORDS}; got {velocity!r}")
         return velocity
     if isinstance(velocity, Sequence | np.ndarray) and not isinstance(velocity, bytes):
         if isinstance(velocity, np.ndarray) and velocity.ndim != 1:
@@ -183,8 +208,8 @@ class VelocityFilter:
         set_(self, "velocity", spec)
         if spec == "filtered":
             if self.cutoff is None:
-                raise ValueError("`cutoff` (rad/s) is required with velocity='filtered'; got None")
-            wc = v.positive("cutoff", self.cutoff, "rad/s")
+                raise ValueError("`cutoff` (rad/s) is required with the 'filtered' `velocity`")
+            wc = check_cutoff(self.cutoff)
             set_(self, "cutoff", wc)
             wT = wc * T
             pole = math.exp(-wT)
@@ -200,8 +225,8 @@ class VelocityFilter:
         else:
             if self.cutoff is not None:
                 raise ValueError(
-                    f"`cutoff` applies only to velocity='filtered'; got cutoff={self.cutoff!r} "
-                    f"with velocity={self.velocity!r}")
+                    f"`cutoff` applies only to the 'filtered' `velocity`; got `cutoff` "
+                    f"{self.cutoff!r} with `velocity` {self.velocity!r}")
             if spec == "backward-difference":
                 name, b, a = spec, (1.0 / T, -1.0 / T), (1.0,)
             elif spec == "central-difference":
@@ -209,9 +234,9 @@ class VelocityFilter:
                 name, b, a = spec, (h, 0.0, -h), (1.0,)
             else:
                 name, b, a = "fir", tuple(spec), (1.0,)
-        if not all(math.isfinite(c) for c in b):
+        if not all(math.isfinite(c) and abs(c) <= MAGNITUDE for c in b):
             raise ValueError(f"`sample_time` = {T:g} s is too short for the velocity estimator: "
-                             "its coefficients (1/s) overflow")
+                             "its coefficients (1/s) would exceed 1e30")
         set_(self, "name", name)
         set_(self, "b", b)
         set_(self, "a", a)

@@ -18,10 +18,17 @@ from __future__ import annotations
 
 import math
 import numbers
+import re
 from collections.abc import Mapping
 from typing import Any
 
-from phoid.dynamics.velocity import VELOCITY_PRESETS, estimator_taps, fir_problem
+from phoid.dynamics.velocity import (
+    VELOCITY_PRESETS,
+    VelocityFilter,
+    check_cutoff,
+    estimator_taps,
+    fir_problem,
+)
 from phoid.io._format import case_clash, checked_number, fail, kind_of, show, unknown_hint
 
 __all__ = [
@@ -109,14 +116,18 @@ def check_fixed(where: str, table: Any) -> dict[str, float]:
     return out
 
 
-def velocity_taps(where: str, velocity: Any, cutoff: Any = None) -> int:
+def velocity_taps(where: str, velocity: Any, cutoff: Any = None,
+                  sample_time: float | None = None) -> int:
     """Check ``[loop] velocity`` and ``cutoff``; return the estimator's taps.
 
     ``velocity`` is a name of :data:`VELOCITY_PRESETS` (None: ``"backward-difference"``) or an
     array of finite FIR coefficients b_j (1/s), v̂_n = Σ_j b_j x_{n−j}: at least two, not all
     zero, summing to zero (:func:`phoid.dynamics.velocity.fir_problem`), whose taps are its
-    length − 1 (:func:`phoid.dynamics.velocity.estimator_taps`). ``cutoff`` (rad/s, > 0) is
-    required with ``"filtered"`` and refused otherwise.
+    length − 1 (:func:`phoid.dynamics.velocity.estimator_taps`). ``cutoff`` (rad/s, > 0, of
+    magnitude 1e-30 … 1e30: :func:`phoid.dynamics.velocity.check_cutoff`) is required with
+    ``"filtered"`` and refused otherwise; with the ``sample_time`` (s) of ``[loop]``, the
+    estimator is built (:class:`phoid.dynamics.velocity.VelocityFilter`, the one validator)
+    and a cut-off too low for the period is refused here, naming the key.
     """
     lwhere = f"{where}: [loop]"
     if velocity is None:
@@ -146,7 +157,12 @@ def velocity_taps(where: str, velocity: Any, cutoff: Any = None) -> int:
     if velocity == "filtered":
         if cutoff is None:
             fail(lwhere, "key 'cutoff' (rad/s) is required with velocity = 'filtered'")
-        checked_number(lwhere, "cutoff", cutoff, minimum=0.0, strict=True)
+        try:
+            check_cutoff(cutoff)
+            if sample_time is not None:
+                VelocityFilter(velocity, sample_time, cutoff)
+        except ValueError as exc:
+            fail(lwhere, re.sub(r"`(\w+)`", r"key '\1'", str(exc)))
     elif cutoff is not None:
         fail(lwhere, "key 'cutoff' applies only to velocity = 'filtered'")
     return taps
@@ -196,7 +212,8 @@ def check_tracking_loop(where: str, loop: Mapping[str, Any]) -> tuple[int, dict[
         if loop.get("u_contains_w") is False:
             fail(lwhere, "key 'w_in_u_gain' is the gain with which u contains w, but "
                           "u_contains_w = false; remove one of them")
-    taps = velocity_taps(where, loop.get("velocity"), loop.get("cutoff"))
+    taps = velocity_taps(where, loop.get("velocity"), loop.get("cutoff"),
+                         float(loop["sample_time"]) if "sample_time" in loop else None)
     gains = {k: _gain(lwhere, k, loop[k]) for k in RUN_GAINS if k in loop}
     return taps, gains
 

@@ -16,7 +16,14 @@ A smooth motion of amplitude A and angular frequency ω sampled every Δt adds a
 A·(2 sin(ωΔt/2))³ ≤ A(ωΔt)³ to a third difference: 2.5·10⁻⁴ A at 100 samples per period
 (ωΔt = 2π/100), 3·10⁻⁵ A at 200, far below any usable noise. The
 median makes a few steps or spikes harmless. A record so finely quantised that most third
-differences are exactly 0 (MAD = 0) falls back to the RMS of Δ³x over √20.
+differences are 0 (MAD = 0) falls back to the RMS of Δ³x over √20. "0" is up to rounding: a
+quantised record holds the floats nearest k·q, not k·q, so a third difference that is 0 in
+counts comes out as a few units in the last place of the largest |x| (|Δ³x| ≤ 8 · ε/2 ·
+max|x| ≈ 9·10⁻¹⁶ max|x|, ε = 2.2·10⁻¹⁶), and their MAD (~10⁻¹⁹ m for a µm encoder) would pass
+for a noise level. Third differences below :data:`ROUNDING_RTOL` · max|x| (10⁻⁹: a million
+times that rounding, and a noise 10⁻⁹ of the record's largest value is below any sensor's
+resolution, 30 bits) count as 0; when over half do, the RMS fallback (of the
+third differences so counted) gives the noise.
 
 The ratio
 ---------
@@ -39,9 +46,17 @@ import numpy as np
 from phoid.methods.chi2 import chi2_sf
 from phoid.reports.statistics import correlation_json, covariance_json, statistics_json
 
-__all__ = ["difference_noise", "fit_blocks", "residual_noise_ratio", "window_noise"]
+__all__ = [
+    "ROUNDING_RTOL",
+    "difference_noise",
+    "fit_blocks",
+    "residual_noise_ratio",
+    "window_noise",
+]
 
 _SQRT20 = math.sqrt(20.0)
+ROUNDING_RTOL = 1e-9
+"""Third differences below this × max|x| are rounding, not noise (module docstring)."""
 _MAD_TO_SD = 1.482602218505602  # 1 / Φ⁻¹(3/4)
 
 
@@ -57,16 +72,19 @@ def difference_noise(x: Any) -> float:
     -------
     float
         ŝ = 1.4826·MAD(Δ³x)/√20; the RMS of Δ³x over √20 when the MAD is 0 (a quantised or
-        noise-free record); nan for fewer than 4 samples.
+        noise-free record), third differences below :data:`ROUNDING_RTOL` · max|x| counting
+        as 0 (rounding); nan for fewer than 4 samples.
     """
     x = np.asarray(x, dtype=float).ravel()
     if x.size < 4:
         return math.nan
     d3 = x[3:] - 3.0 * x[2:-1] + 3.0 * x[1:-2] - x[:-3]
-    mad = float(np.median(np.abs(d3 - np.median(d3))))
+    tol = ROUNDING_RTOL * float(np.max(np.abs(x)))
+    d3_counted = np.where(np.abs(d3) < tol, 0.0, d3)
+    mad = float(np.median(np.abs(d3_counted - np.median(d3_counted))))
     if mad > 0:
         return _MAD_TO_SD * mad / _SQRT20
-    return float(np.sqrt(np.mean(d3 * d3))) / _SQRT20
+    return float(np.sqrt(np.mean(d3_counted * d3_counted))) / _SQRT20
 
 
 def window_noise(t: Any, x: Any, t_start: float, t_end: float) -> float:

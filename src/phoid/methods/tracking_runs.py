@@ -145,7 +145,10 @@ def run_controller(experiment: Any, run: Any, *, delay: float | None = None) -> 
             delay=0.0 if tau is None else tau, saturation=loop.get("saturation"),
         )
     except ValueError as exc:
-        raise IdentificationError(f"{where}: {exc}") from None
+        # the estimator's keys are [loop]'s (the period T is this run's, from its t)
+        msg = str(exc).replace("`cutoff`", "[loop] key 'cutoff'").replace(
+            "`velocity`", "[loop] key 'velocity'")
+        raise IdentificationError(f"{where}: {msg}") from None
 
 
 def run_semantics(experiment: Any, run: Any, ctrl: SampledController) -> CommandInput | None:

@@ -120,6 +120,15 @@ MAX_TOTAL_SAMPLES = 50_000_000
 MAX_LOOP_ORDER = 400
 """Highest degree d + r + 2 of a run's characteristic polynomial (its roots, for the stability
 check and the dominant mode, cost ∝ degree³: about 1 s per run at 300)."""
+_MARGINAL = 1e-12
+"""A sampled loop whose largest |z| is within this of 1 neither decays nor grows to the
+floating point's accuracy over a period: no bound (its modes are rounding)."""
+_SLOW = 1e-8
+"""Below this, c·T/m, k·T²/m and the gains' P·T²/m, D·T/m leave a sampled loop's poles
+within rounding of 1 (its characteristic polynomial's coefficients differ by less than
+about √ε): the mass, not the gains, is then why the loop is not stable."""
+_MIN_WINDOW = 3
+"""Fewest fitted samples of a run: its start state (x, ẋ) and one more."""
 _MAX_GROWTH = math.log(1e8)  # an unstable plant's e^{p·duration}: rounding grows by as much
 _CHUNK = 4_000_000  # floats per batch of responses taken through the window model at once
 
@@ -190,6 +199,16 @@ def _bounded(name: str, a: np.ndarray, unit: str) -> np.ndarray:
         raise ValueError(f"`{name}` must be of magnitude at most {v.MAGNITUDE:.0e} {unit} (SI "
                          f"units); got {a[big].flat[0]:g}")
     return a
+
+
+def _not_bool(name: str, value) -> None:
+    """A one-line refusal of a boolean (or boolean array) given for a number: True is not 1 m."""
+    if isinstance(value, bool | np.bool_) or (
+            isinstance(value, np.ndarray | list | tuple)
+            and np.asarray(value, dtype=object).size
+            and any(isinstance(e, bool | np.bool_)
+                    for e in np.asarray(value, dtype=object).ravel())):
+        raise ValueError(f"`{name}` must be a number, not a boolean; got {value!r}")
 
 
 def _scalar(name: str, value, unit: str) -> float:
@@ -458,6 +477,7 @@ def inloop_cramer_rao(
     v0: np.ndarray | float = 0.0,
     hold: float | None = None,
     noise_in_loop: bool | None = True,
+    window_start: int = 0,
 ) -> InLoopBound:
     """Cramér–Rao bound of (m, c, k) for a digital PHO set (module docstring: the models).
 
@@ -488,6 +508,12 @@ def inloop_cramer_rao(
         makes the first command applied after the release computable from the record, so
         that the window starts at the release. Shorter holds start the window later; longer
         ones change nothing (the samples of the hold are not fitted).
+    window_start : int, default 0
+        In-loop: the fit window's first sample, in controller periods after the release (at
+        least the first whose applied command the record shows). 0: the whole response,
+        as the likelihood allows; ``phoid identify``'s in-loop route starts its windows
+        :data:`phoid.methods.inloop_route.MARGIN` (3) samples after a release it locates
+        to the sample, 32 after one it detects from the data only, and this matches it.
     noise_in_loop : bool or None, default True
         True (and None, the default for a digital loop): the controller reads the noisy
         record; the output-error bound. False: the noise outside the loop; the dominant-mode
@@ -507,9 +533,13 @@ def inloop_cramer_rao(
         :data:`MAX_LOOP_ORDER`; fs not a whole multiple of 1/T; a non-positive duration or
         more than :data:`MAX_SAMPLES` (:data:`MAX_TOTAL_SAMPLES`) samples; negative noise or
         quantum, both 0, or σ outside 1e-30 … 1e30 m; a hold that is not a time ≥ 0 of whole
-        periods, or so short that no sample is left to fit; a run whose sampled loop is not
-        stable; a plant unstable enough to grow by more than 1e8 over the record (the OE
-        sensitivities would be rounding); an information that overflows.
+        periods, or so short that no sample is left to fit; a record too short for the
+        output-error fit (a run's window under 3 samples, or fewer than 4 + 2·runs samples in
+        all); a boolean given for a number; a run whose sampled loop is not stable (the
+        message names the cause: a mass too large for the loop's modes, negative damping, or
+        gains that do not stabilise the plant); a plant unstable enough to grow by more than
+        1e8 over the record (the OE sensitivities would be rounding); an information that
+        overflows.
 
     Examples
     --------
@@ -529,6 +559,10 @@ def inloop_cramer_rao(
     >>> [f"{s:.2g}" for s in o.stderr]
     ['2.1e-06', '3.3e-05', '0.002']
     """
+    for name, value in (("m", m), ("c", c), ("k", k), ("P", P), ("D", D), ("fs", fs),
+                        ("duration", duration), ("noise", noise), ("quantum", quantum),
+                        ("x0", x0), ("v0", v0)):
+        _not_bool(name, value)
     m = v.physical("`m`", m, "kg")
     c = _scalar("c", c, "N·s/m")
     k = _scalar("k", k, "N/m")
@@ -596,12 +630,9 @@ def inloop_cramer_rao(
     with np.errstate(all="ignore"):
         rts = digital_roots(m, c, k, P, D, loop)
         zmax = np.max(np.abs(rts.z), axis=1)
-    bad = np.flatnonzero(~(zmax < 1.0))
+    bad = np.flatnonzero(~(zmax < 1.0 - _MARGINAL))
     if bad.size:
-        i = int(bad[0])
-        raise ValueError(f"`P`, `D` of run {i} (P = {P[i]:g} N/m, D = {D[i]:g} N·s/m): the "
-                         f"sampled loop is not stable (largest |z| = {zmax[i]:.6g}); no bound "
-                         "for a diverging run")
+        raise ValueError(_unstable_cause(m, c, k, P, D, int(bad[0]), float(zmax[bad[0]]), T))
     modes = rts.dominant
     if not noise_in_loop:
         with np.errstate(all="ignore"):
@@ -609,8 +640,20 @@ def inloop_cramer_rao(
                            hold=n_r * T)
         _finite(out.run_information, m, c, k, sig)
         return out
-    n0 = max(0, d + taps - n_r)  # the window's first instant, from the release
+    if isinstance(window_start, bool | np.bool_) or not isinstance(
+            window_start, numbers.Integral) or not 0 <= int(window_start) <= MAX_SAMPLES:
+        raise ValueError(f"`window_start` must be a whole number of controller periods 0 … "
+                         f"{MAX_SAMPLES}; got {window_start!r}")
+    # the window's first instant, from the release
+    n0 = max(0, d + taps - n_r, int(window_start))
     nw = N - n0 * M
+    short = np.flatnonzero((nw >= 1) & (nw < _MIN_WINDOW))
+    if short.size or (np.all(nw >= 1) and int(np.sum(nw)) < 4 + 2 * nr):
+        i = int(short[0]) if short.size else int(np.argmin(nw))
+        raise ValueError(f"`duration` = {dur[i]:g} s: run {i}'s record is too short for the "
+                         f"bound: {int(nw[i])} sample(s) fitted (at least {_MIN_WINDOW} a run, "
+                         f"its start state and one more, and {4 + 2 * nr} in all: m, c, k, the "
+                         "offset and each run's start state); record longer")
     if not np.all(nw >= 1):
         i = int(np.flatnonzero(nw < 1)[0])
         raise ValueError(f"`hold` = {n_r * T:g} s: the first command computable from the "
@@ -657,6 +700,26 @@ def inloop_cramer_rao(
         hold=n_r * T,
         modes=modes,
     )
+
+
+def _unstable_cause(m: float, c: float, k: float, P: np.ndarray, D: np.ndarray, i: int,
+                    zmax: float, T: float) -> str:
+    """Why run ``i``'s sampled loop is not stable, worded by its cause: a mass so large that
+    the loop's slowest mode cannot decay within a period's rounding, a plant that feeds
+    energy in (c < 0), or gains that do not stabilise the plant."""
+    head = (f"run {i}'s sampled loop is not stable (largest |z| = {zmax:.6g}; `m`, `c`, `k` "
+            f"= {m:g}, {c:g}, {k:g}, `P`, `D` = {P[i]:g}, {D[i]:g})")
+    # what the damping, stiffness and gains change in a period, relative to the mass
+    per_period = max(abs(c) * T, abs(k) * T * T, abs(float(P[i])) * T * T,
+                     abs(float(D[i])) * T) / m
+    if per_period < _SLOW:
+        return (f"{head}: `m` = {m:g} kg is so large that `c`, `k` and the gains move it by "
+                f"{per_period:.2g} of itself a period ({T:g} s), below the floating point's "
+                "accuracy for the loop's modes; give m, c, k in SI units")
+    if c < 0:
+        return (f"{head}: the plant's damping `c` = {c:g} N·s/m is negative (it feeds energy "
+                f"in), and run {i}'s `P`, `D` do not remove it")
+    return f"{head}: the gains `P`, `D` of run {i} do not stabilise the plant"
 
 
 def _finite(a: np.ndarray, m: float, c: float, k: float, sig: float) -> None:
