@@ -444,10 +444,12 @@ def test_pho_loop_refuses_other_keys_and_estimators(tmp_path):
                                                   r"sample_time, delay_samples, velocity, "
                                                   r"cutoff, noise\)"):
         read_digital_loop(exp)
+    # every preset is a PHO loop's estimator (the one list); another name is refused
     exp = read_experiment(_pho_set(tmp_path / "b", {"sample_time": 0.001,
-                                                    "velocity": "central-difference"}))
+                                                    "velocity": "kalman"}))
     with pytest.raises(IdentificationError, match=r"\[loop\] velocity must be one of "
-                                                  r"'backward-difference', 'filtered'"):
+                                                  r"'backward-difference', "
+                                                  r"'central-difference', 'filtered'"):
         read_digital_loop(exp)
 
 
