@@ -220,9 +220,10 @@ def test_check_accepts_a_digital_set(tmp_path):
     (["--sample-time", "0.001", "--fs", "500"], "whole multiple"),
     (["--sample-time", "0.001", "--delay-samples", "-1"], "--delay-samples"),
     (["--sample-time", "0.001", "--delay-samples", "1001"], "--delay-samples"),
+    (["--sample-time", "1e-4", "--delay-samples", "500"], "degree 503"),
     (["--sample-time", "0", "--delay-samples", "1"], "--sample-time"),
     (["--sample-time", "nan"], "--sample-time"),
-    (["--sample-time", "0.001", "--velocity", "central-difference"], "--velocity"),
+    (["--sample-time", "0.001", "--velocity", "fir"], "--velocity"),
     (["--sample-time", "0.001", "--velocity", "filtered"], "--cutoff"),
     (["--sample-time", "0.001", "--cutoff", "300"], "--cutoff"),
     (["--sample-time", "20"], "--sample-time"),  # longer than the 10 s record

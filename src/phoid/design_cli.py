@@ -89,8 +89,8 @@ def design(
     delay_samples: Annotated[int | None, typer.Option(
         "--delay-samples", help="Sampled loop: command delay, whole periods [0].")] = None,
     velocity: Annotated[str | None, typer.Option(
-        help="Sampled loop: velocity estimator, 'backward-difference' or 'filtered' (with "
-             "--cutoff) [backward-difference].")] = None,
+        help="Sampled loop: velocity estimator, 'backward-difference', 'central-difference' "
+             "or 'filtered' (with --cutoff) [backward-difference].")] = None,
     cutoff: Annotated[float | None, typer.Option(
         help="Sampled loop: cut-off of the filtered velocity, rad/s.")] = None,
     noise_in_loop: Annotated[bool | None, typer.Option(

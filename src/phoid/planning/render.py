@@ -115,9 +115,10 @@ def _modes_text(roots: Any, shown: int = 4) -> str:
         elif r.imag > 0 and i + 1 < len(rts) and abs(rts[i + 1] - r.conjugate()) <= 1e-9 * abs(r):
             parts.append(f"{r.real:.4g} ± {r.imag:.4g}i")
             i += 2
-        else:
-            parts.append(f"{r.real:.4g}" + (f" {'+' if r.imag >= 0 else '-'} "
-                                            f"{abs(r.imag):.4g}i" if r.imag else ""))
+        else:  # a real root (s real for z > 0; Im s = ±π/T for z < 0)
+            real = abs(r.imag) <= 1e-9 * abs(r)
+            parts.append(f"{r.real:.4g}" + ("" if real else f" {'+' if r.imag >= 0 else '-'} "
+                                                            f"{abs(r.imag):.4g}i"))
             i += 1
         used = i
     rest = len(rts) - used

@@ -389,13 +389,18 @@ def assemble(P: np.ndarray, D: np.ndarray, prior: Prior, st: DesignSettings, kin
         rw: list[tuple[str, float, str]] = []
         sig_i, wd_i = -si.real, si.imag
         rings = bool(np.isfinite(si) and wd_i > 0)
-        if rings:
-            Ii = mode_information(si, ev.w[i, 0], fs=st.fs, duration=st.duration,
-                                  noise=st.noise)[0]
-            mc = np.linalg.inv(Ii)
-            sse, wse = math.sqrt(mc[0, 0]), math.sqrt(mc[1, 1])
-        else:
-            sse = wse = math.inf
+        sse = wse = math.inf
+        if rings:  # a growing mode's sums overflow: no stderr for it
+            with np.errstate(all="ignore"):
+                Ii = mode_information(si, ev.w[i, 0], fs=st.fs, duration=st.duration,
+                                      noise=st.noise)[0]
+            if np.all(np.isfinite(Ii)):
+                try:
+                    mc = np.linalg.inv(Ii)
+                except np.linalg.LinAlgError:
+                    mc = None
+                if mc is not None and mc[0, 0] >= 0 and mc[1, 1] >= 0:
+                    sse, wse = math.sqrt(mc[0, 0]), math.sqrt(mc[1, 1])
         margin_all = -np.where(np.isfinite(ev.s[i]), ev.s[i].real, np.nan)
         margin_all = np.where(ev.stable[i], margin_all, np.minimum(margin_all, 0.0))
         ringing = ev.dominant[i] & np.isfinite(ev.s[i]) & (ev.s[i].imag > 0)

@@ -185,11 +185,12 @@ def design(
     # target grid: natural frequency of the dominant mode at the nominal plant × damping
     w_lo = 2.0 * math.pi * st.min_cycles / st.duration
     w_hi = st.omega_max / math.sqrt(1.0 - zlo * zlo)
+    rate = "--fs" if st.sample_time is None else "shorten --sample-time"
     if not w_hi > w_lo * 1.001:
         raise DesignError(
             f"no room for ringing runs: {st.min_cycles:g} cycles in {st.duration:g} s need "
             f"omega_d ≥ {w_lo:.4g} rad/s, but the bandwidth limit is {st.omega_max:.4g} rad/s "
-            "(raise --max-freq or --fs, or record longer)"
+            f"(raise --max-freq or {rate}, or record longer)"
         )
     W = np.geomspace(w_lo, w_hi, _N_OMEGA)
     Zs = np.unique(np.concatenate([np.geomspace(zlo, zhi, _N_ZETA),
@@ -415,6 +416,7 @@ def _why_infeasible(st: DesignSettings, prior: Prior, ok_lim: np.ndarray, ev: Ev
                 f"|P| <= {st.pmax:g} N/m, |D| <= {st.dmax:g} N s/m: raise --pmax/--dmax")
     span = (f"omega_d {w_lo:.4g}-{st.omega_max:.4g} rad/s ({st.min_cycles:g} cycles in "
             f"{st.duration:g} s up to the bandwidth limit)")
+    rate = "--fs" if st.sample_time is None else "shorten --sample-time"
     loop = (f"a delay of {st.delay:g} s" if st.sample_time is None else
             f"the sampled loop (sample_time {st.sample_time:g} s, delay_samples "
             f"{st.delay_samples}: about {st.model_delay:.3g} s of lag)")
@@ -442,7 +444,7 @@ def _why_infeasible(st: DesignSettings, prior: Prior, ok_lim: np.ndarray, ev: Ev
     keep &= np.all(ev.ok_freq, axis=1)
     if not np.any(keep):
         return (f"every safe run rings above the bandwidth limit {st.omega_max:.4g} rad/s for "
-                "some plant of the prior: raise --max-freq or --fs")
+                f"some plant of the prior: raise --max-freq or {rate}")
     keep &= ev.separated[:, 0]
     if not np.any(keep):
         return (f"in every safe run another loop mode decays less than {st.separation:g}x "

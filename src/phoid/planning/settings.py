@@ -21,7 +21,8 @@ import numpy as np
 import phoid._validate as v
 from phoid.errors import PhoidError
 from phoid.io.limits import MAX_LINES
-from phoid.io.loop import DIGITAL_VELOCITIES, MAX_DELAY_SAMPLES
+from phoid.io.loop import MAX_DELAY_SAMPLES, PHO_VELOCITIES
+from phoid.planning.inloop_bound import MAX_LOOP_ORDER
 
 __all__ = ["UNITS", "DesignError", "DesignSettings", "Prior", "equivalent_delay", "fmt_range",
            "make_prior", "whole_number"]
@@ -144,9 +145,9 @@ class DesignSettings:
     delay_samples : int or None
         Command delay d of a sampled loop, whole periods (default 0).
     velocity : str or None
-        A sampled loop's velocity estimator, one of :data:`phoid.io.loop.DIGITAL_VELOCITIES`
-        (the estimators a PHO set's ``[loop]`` takes): ``"backward-difference"`` (default) or
-        ``"filtered"`` (with ``cutoff``, rad/s).
+        A sampled loop's velocity estimator, one of :data:`phoid.io.loop.PHO_VELOCITIES`
+        (the estimators a PHO set's ``[loop]`` takes): ``"backward-difference"`` (default),
+        ``"central-difference"`` or ``"filtered"`` (with ``cutoff``, rad/s).
     cutoff : float or None
         The filtered velocity's cut-off, rad/s.
     noise_in_loop : bool
@@ -297,13 +298,18 @@ class DesignSettings:
         d = whole_number("delay_samples", 0 if self.delay_samples is None
                          else self.delay_samples, 0, MAX_DELAY_SAMPLES)
         velocity = "backward-difference" if self.velocity is None else self.velocity
-        if not isinstance(velocity, str) or velocity not in DIGITAL_VELOCITIES:
+        if not isinstance(velocity, str) or velocity not in PHO_VELOCITIES:
             raise ValueError(f"`velocity` must be one of "
-                             f"{', '.join(map(repr, DIGITAL_VELOCITIES))} (the estimators a "
+                             f"{', '.join(map(repr, PHO_VELOCITIES))} (the estimators a "
                              f"PHO set's [loop] takes); got {velocity!r}")
         # the loop's own checks (cut-off), with its messages
-        DigitalPD(P=0.0, D=0.0, sample_time=T, delay_samples=d, velocity=velocity,
-                  cutoff=self.cutoff)
+        loop = DigitalPD(P=0.0, D=0.0, sample_time=T, delay_samples=d, velocity=velocity,
+                         cutoff=self.cutoff)
+        if loop.order > MAX_LOOP_ORDER:
+            raise ValueError(f"`delay_samples` = {d}: the sampled loop's polynomial would have "
+                             f"degree {loop.order} (delay_samples + the estimator's order + 2); "
+                             f"the design takes at most {MAX_LOOP_ORDER} (all its roots over the "
+                             "prior grid, and the in-loop bound's limit, cost its cube)")
         fs = 1.0 / T if self.fs is None else v.positive("fs", self.fs, "Hz")
         M = fs * T
         if not (M >= 1.0 - 1e-9 and abs(M - round(M)) <= 1e-9 * max(1.0, M)):
