@@ -45,6 +45,56 @@ _REFIT_TOL = 1e-2
 _MAX_REL = 0.2
 #: a residual below this fraction of the motion's RMS is rounding (noise-free records)
 _EXACT = 1e-5
+#: the encoder's count q is coarse when its uniform variance q²/12 exceeds this share of the
+#: residual's variance: its error then follows the position instead of dithering into noise
+_COARSE = 0.25
+
+
+def encoder_count(windows: Sequence[RunWindow]) -> float | None:
+    """The encoder's count q (x's unit) when every recorded position is a whole number of counts
+    from the lowest one (to 1e-3 of a count), else None.
+
+    q is the smallest step between distinct recorded values above rounding (1e-9 of max |x|).
+    """
+    y = np.concatenate([np.asarray(w.y, dtype=float) for w in windows]) if windows else None
+    if y is None or y.size < 4 or not np.all(np.isfinite(y)):
+        return None
+    u = np.unique(y)
+    steps = np.diff(u)
+    steps = steps[steps > 1e-9 * float(np.max(np.abs(u)))]
+    if steps.size == 0:
+        return None
+    q = float(np.min(steps))
+    r = (u - u[0]) / q
+    if not np.all(np.abs(r - np.round(r)) < 1e-3):
+        return None
+    return q
+
+
+def _quantised(fit: InLoopFit, noise_c: aq.Check, white_c: aq.Check, q: float,
+               units: Sequence[str], x_unit: str) -> aq.Adequacy:
+    """A record whose encoder count is coarse against its noise: the quantiser's error is a
+    function of the position (a mass resting within one count reads one value), neither white
+    nor independent of the motion, so the residual's own variance understates the error the
+    estimates carry and the whiteness and part-agreement checks (built on white noise) do not
+    apply. The covariance takes the error's variance as σ̂² + q²/12 (the residual's plus the
+    uniform quantiser's: the bound's σ² = noise² + q²/12 when σ̂ is the noise), and says so."""
+    s2 = fit.sigma ** 2
+    scale = (s2 + q * q / 12.0) / s2 if s2 > 0 else 1.0
+    white = np.asarray(fit.cov, dtype=float) * scale
+    whit = aq.Check("whiteness", white_c.statistic, white_c.threshold, None,
+                    f"not used: the record is quantised ({white_c.detail})")
+    causes, warns = (list(v) for v in aq.residual_warnings(noise_c, whit, (), None))
+    warns.append(
+        f"the position is quantised in counts of {q:.3g} {x_unit}, coarse against the residual "
+        f"noise ({fit.sigma:.3g} {x_unit}): the quantiser's error follows the position rather "
+        "than dithering into white noise, so the stderr take its variance q²/12 on top of the "
+        "residual's and the whiteness, runs and halves checks are not used")
+    failed = noise_c.passed is False
+    sand = aq.sandwich(list(fit.jacobians), [np.asarray(e, dtype=float) for e in fit.residuals]
+                       ) * scale if failed else white
+    return aq.assess([noise_c, whit], names=("m", "c", "k"), units=units, white_cov=white,
+                     sandwich_cov=sand, causes=causes, warnings=warns)
 
 
 def _part_fit(windows: Sequence[RunWindow], theta: np.ndarray
@@ -120,11 +170,17 @@ def assess_inloop(fit: InLoopFit, windows: Sequence[RunWindow], labels: Sequence
                          sandwich_cov=white)
     noise_c = aq.noise_check(resid, noise, labels, x_unit=x_unit)
     white_c = aq.whiteness_check(resid, motion_rms=motion)
+    q = encoder_count(windows)
+    if q is not None and q * q / 12.0 > _COARSE * fit.sigma ** 2:
+        return _quantised(fit, noise_c, white_c, q, units, x_unit)
     theta = fit.theta
     agreements = []
-    if len(windows) >= 2:
-        agreements.append(_agreement("runs", [_part_fit([w], theta) for w in windows],
-                                     labels, units, of_mean=True))
+    if len(windows) >= 4:  # two interleaved groups, each with several gain pairs
+        groups = [list(range(0, len(windows), 2)), list(range(1, len(windows), 2))]
+        names = [f"runs {', '.join(labels[i] for i in g[:3])}{', …' if len(g) > 3 else ''}"
+                 for g in groups]
+        agreements.append(_agreement("runs", [_part_fit([windows[i] for i in g], theta)
+                                              for g in groups], names, units, of_mean=False))
     halves = [w.size // 2 for w in windows]
     if all(hh >= 16 for hh in halves):
         first = _part_fit([w.part(0, hh) for w, hh in zip(windows, halves, strict=True)],
