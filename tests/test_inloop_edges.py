@@ -262,3 +262,21 @@ def test_coarse_encoder_stderr_meet_the_bound_without_false_misfits(tmp_path):
     assert np.all((se / bound.stderr > 0.7) & (se / bound.stderr < 1.4)), se / bound.stderr
     z = (np.array([res.m.value, res.c.value, res.k.value]) - [0.5, 40.0, 20.0]) / se
     assert np.all(np.abs(z) < 4.5), z  # a fault-free set: |z| < 4.5 fails ~1e-5 of the time
+
+
+def test_simulate_schedule_of_a_sampled_plan_runs_its_loop(tmp_path):
+    """`phoid simulate --schedule PLAN` of a sampled loop's plan simulates that loop (its
+    sample time, delay in samples, estimator, noise placement), not a continuous loop with the
+    delay d·T: the written [loop] is the plan's (read back from the plan file itself)."""
+    import phoid
+    d = phoid.design(0.5, 40.0, 20.0, sample_time=1e-3, delay_samples=1, noise=1e-6,
+                     runs=3, duration=1.0)
+    d.write(tmp_path / "plan")
+    plan = tomllib.loads((tmp_path / "plan" / "experiment.toml").read_text())["loop"]
+    r = _phoid("simulate", str(tmp_path / "sim"), "--m", "0.5", "--c", "40", "--k", "20",
+               "--schedule", str(tmp_path / "plan"), "--seed", "1")
+    assert r.returncode == 0, r.stderr
+    loop = tomllib.loads((tmp_path / "sim" / "experiment.toml").read_text())["loop"]
+    assert "delay" not in loop
+    for key in ("sample_time", "delay_samples", "velocity", "noise"):
+        assert loop[key] == plan[key], key

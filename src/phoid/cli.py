@@ -551,6 +551,12 @@ def simulate(
             duration = sched.get("duration", duration) if "duration" not in given else duration
             noise = sched.get("noise", noise) if "noise" not in given else noise
             x0 = sched.get("amplitude", x0) if "x0" not in given else x0
+            if sched.get("sample_time") is not None and sample_time is None:
+                # a sampled loop's plan: its loop, not a continuous one with delay d·T
+                sample_time, delay_samples = sched["sample_time"], sched["delay_samples"]
+                velocity, cutoff = sched.get("velocity") or velocity, sched.get("cutoff")
+                if placement is None and sched.get("noise_placement") is not None:
+                    placement = sched["noise_placement"] == "in-loop"
         Ps = _numbers("--P", P, "N/m")
         Ds = _numbers("--D", D, "N s/m")
         if len(Ds) == 1:
