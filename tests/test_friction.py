@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 
 import numpy as np
 import pytest
@@ -402,7 +403,10 @@ def test_cli_identify_friction(tmp_path):
         assert r.exit_code == 2 and "--friction" in r.stderr and "pho sets" in r.stderr, r.stderr
         assert len(r.stderr.strip().splitlines()) == 1
     manifest = out / "experiment.toml"
-    manifest.write_text(manifest.read_text().replace("[loop]\ndelay = 0.02\n", ""))
+    text = manifest.read_text()
+    loop = re.search(r"(?ms)^\[loop\]\n.*?\n\n", text)  # the whole table (delay, noise)
+    assert loop is not None and "delay = 0.02" in loop.group(0)
+    manifest.write_text(text.replace(loop.group(0), ""))
     r = runner.invoke(app, ["identify", str(out), "--friction"])
     assert r.exit_code == 2 and "needs the loop" in r.stderr and len(r.stderr.splitlines()) == 1
 

@@ -132,7 +132,7 @@ def _edited(small: Path, tmp_path: Path, old: str, new: str) -> Path:
     return folder
 
 
-_LOOP = "[loop]\ndelay = 0.1\n"
+_LOOP = "[loop]\nnoise = \"outside\"\ndelay = 0.1\n"  # as `phoid simulate --noise` writes it
 
 
 @pytest.mark.parametrize(("loop", "words"), [

@@ -185,7 +185,8 @@ UNITS = {"m": "kg", "c": "N s/m", "k": "N/m"}
 # top-level keys beyond the spec's that summary() writes today (zeta/omega0: the spec's optional
 # {value, stderr, unit}; covariance/correlation/statistics: the fit statistics of
 # docs/format-extensions.md) — a new key must be added knowingly
-EXTRA_KEYS = {"zeta", "omega0", "covariance", "correlation", "statistics", "adequacy", "x_unit"}
+EXTRA_KEYS = {"zeta", "omega0", "covariance", "correlation", "statistics", "adequacy", "x_unit",
+              "noise_placement", "noise_placement_source", "noise_placement_test"}
 
 
 def assert_spec_json(res, n_runs: int, set_aside: tuple[int, ...] = ()) -> dict:

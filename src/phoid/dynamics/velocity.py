@@ -235,8 +235,9 @@ class VelocityFilter:
             else:
                 name, b, a = "fir", tuple(spec), (1.0,)
         if not all(math.isfinite(c) and abs(c) <= MAGNITUDE for c in b):
-            raise ValueError(f"`sample_time` = {T:g} s is too short for the velocity estimator: "
-                             "its coefficients (1/s) would exceed 1e30")
+            raise ValueError(f"`sample_time` is too short for the velocity estimator: "
+                             f"sample_time = {T:g} s makes its coefficients (1/s) exceed 1e30 "
+                             "(is it in seconds?)")
         set_(self, "name", name)
         set_(self, "b", b)
         set_(self, "a", a)

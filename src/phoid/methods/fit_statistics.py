@@ -22,8 +22,10 @@ counts comes out as a few units in the last place of the largest |x| (|Δ³x| �
 max|x| ≈ 9·10⁻¹⁶ max|x|, ε = 2.2·10⁻¹⁶), and their MAD (~10⁻¹⁹ m for a µm encoder) would pass
 for a noise level. Third differences below :data:`ROUNDING_RTOL` · max|x| (10⁻⁹: a million
 times that rounding, and a noise 10⁻⁹ of the record's largest value is below any sensor's
-resolution, 30 bits) count as 0; when over half do, the RMS fallback (of the
-third differences so counted) gives the noise.
+resolution, 30 bits) count as 0 with ``rounding=True`` (the in-loop routes, whose residual is
+the sensor's error itself); when over half do, the RMS fallback (of the third differences so
+counted) gives the noise. The other routes keep the exact comparison: their adequacy checks were
+calibrated on it (a real pendulum's quantised half record is flagged through it).
 
 The ratio
 ---------
@@ -60,7 +62,7 @@ ROUNDING_RTOL = 1e-9
 _MAD_TO_SD = 1.482602218505602  # 1 / Φ⁻¹(3/4)
 
 
-def difference_noise(x: Any) -> float:
+def difference_noise(x: Any, rounding: bool = False) -> float:
     """White-noise sd of a record from the MAD of its third differences, m (module docstring).
 
     Parameters
@@ -73,13 +75,13 @@ def difference_noise(x: Any) -> float:
     float
         ŝ = 1.4826·MAD(Δ³x)/√20; the RMS of Δ³x over √20 when the MAD is 0 (a quantised or
         noise-free record), third differences below :data:`ROUNDING_RTOL` · max|x| counting
-        as 0 (rounding); nan for fewer than 4 samples.
+        as 0 (rounding) with ``rounding``; nan for fewer than 4 samples.
     """
     x = np.asarray(x, dtype=float).ravel()
     if x.size < 4:
         return math.nan
     d3 = x[3:] - 3.0 * x[2:-1] + 3.0 * x[1:-2] - x[:-3]
-    tol = ROUNDING_RTOL * float(np.max(np.abs(x)))
+    tol = ROUNDING_RTOL * float(np.max(np.abs(x))) if rounding else 0.0
     d3_counted = np.where(np.abs(d3) < tol, 0.0, d3)
     mad = float(np.median(np.abs(d3_counted - np.median(d3_counted))))
     if mad > 0:

@@ -408,7 +408,7 @@ def fit_inloop(windows: Sequence[RunWindow], starts: Sequence[np.ndarray | None]
     cov = s2 * 0.5 * (inv + inv.T)
     res = tuple(ev.resid[i, : w.size].copy() for i, w in enumerate(windows))
     jac = tuple(ev.jac[i, : w.size].copy() for i, w in enumerate(windows))
-    noise = tuple(difference_noise(w.y) for w in windows)
+    noise = tuple(difference_noise(w.y, rounding=True) for w in windows)
     return InLoopFit(float(theta[0]), float(theta[1]), float(theta[2]), cov, info,
                      math.sqrt(s2), ev.rss, prob.n, p, ev.offset,
                      tuple(w.run for w in windows), tuple(w.start for w in windows), res, jac,

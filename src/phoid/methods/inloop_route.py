@@ -89,6 +89,11 @@ _GOOD = 1.25
 #: delay's warning); a start stuck on the closed-loop family, or gains in other units, leave
 #: 3.6e2–1e21× (measured on the prober's sets)
 FAR = 100.0
+#: where the modal route cannot be made, the in-loop fit stands alone: a residual this many
+#: times the records' noise is a loop the records contradict (a delay off by hundreds of
+#: samples: 47×), not a misfit to report with widened stderr (a delay off by one at 1 µm: 10.7×
+#: — reported, with the modes beside it, under FAR)
+FAR_ALONE = 20.0
 #: a residual below this fraction of the motion's RMS is rounding (noise-free records)
 _EXACT = 1e-5
 #: why a set whose runs all have one gain pair has no in-loop fit (measured: docs/design-notes/
@@ -298,7 +303,7 @@ def _fit(windows: list[RunWindow], start: np.ndarray | None, P: np.ndarray,
     does not reach the records' noise, and from the closed-loop family through them where
     none does; the one of lowest RSS. ``enough``: a fit that settles the question asked
     (the data's test already says outside), after which no other start is tried."""
-    noise = [s for s in (difference_noise(w.y) for w in windows) if s > 0]
+    noise = [s for s in (difference_noise(w.y, rounding=True) for w in windows) if s > 0]
     good = _GOOD * float(np.median(noise)) if noise else None
     runs = [w.run for w in windows]
     best: InLoopFit | None = None
@@ -493,11 +498,11 @@ def identify_digital(modal: Callable[[], Identification], data: Sequence[tuple[A
         res = modal()
         arrays = [(np.asarray(t, dtype=float), np.asarray(x, dtype=float))
                   for t, x in res.data]
-    except IdentificationError:
+    except IdentificationError as exc:
         cleaned = _clean(data)
         if placement == "outside" or estimator != "gls" or cleaned is None:
             raise
-        res, arrays = None, cleaned
+        res, arrays, modal_error = None, cleaned, exc
     if placement == "outside":
         assert res is not None
         extra = _contradiction(res, how, named, data=arrays, P=P, D=D, digital=digital,
@@ -537,6 +542,11 @@ def identify_digital(modal: Callable[[], Identification], data: Sequence[tuple[A
             reason = str(exc)
         if fit is not None and says_outside is not None and says_outside(fit):
             pass  # the data say outside: the test below chooses the modal route
+        elif fit is not None and res is None and _noise_ratio(fit) > FAR_ALONE:
+            reason = (f"its best residual is {_noise_ratio(fit):.3g}× the records' own noise, "
+                      f"and the modes cannot be fitted either: no m, c, k found that explain "
+                      "the records; check the loop's delay_samples, velocity and the gains")
+            fit = None
         elif fit is not None and _noise_ratio(fit) > FAR:
             reason = (f"its best residual is {_noise_ratio(fit):.3g}× the records' own noise "
                       f"(more than {FAR:g}×: no m, c, k found that explain the records; check "
@@ -545,7 +555,9 @@ def identify_digital(modal: Callable[[], Identification], data: Sequence[tuple[A
     if fit is None:
         if placement == "in-loop" and (how == "option" or res is None):
             raise IdentificationError(f"{where}the in-loop fit cannot be made: {reason}")
-        assert res is not None
+        if res is None:  # neither route: the modes' own reason, which names the set's fault
+            raise IdentificationError(f"{modal_error} (nor can the in-loop fit be made: "
+                                      f"{reason})") from None
         test = PlacementTest(None, reason=f"the in-loop fit cannot be made: {reason}")
         extra = () if placement is None else (
             f"[loop] noise = 'in-loop', but the in-loop fit cannot be made ({reason}): m, c, "

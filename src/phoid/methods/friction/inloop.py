@@ -486,7 +486,7 @@ def _inloop_result(base: FrictionFit, fit: FrictionInLoopFit, windows: Sequence[
     warnings = [w for w in base.warnings if w not in route_words
                 and not w.startswith("chi2/dof = ") and ": misfit: " not in w]
     warnings += list(notes)
-    noise = [s for s in (difference_noise(w.y) for w in windows) if s > 0]
+    noise = [s for s in (difference_noise(w.y, rounding=True) for w in windows) if s > 0]
     if noise and fit.sigma > 1.5 * float(np.median(noise)):
         warnings.append(
             f"misfit: the in-loop friction fit's residual sd {fit.sigma:.3g} is "
