@@ -61,7 +61,7 @@ from phoid.methods.pho_result import Identification, RunMode
 
 __all__ = ["MARGIN", "MARGIN_DETECTED", "MAX_SAMPLES", "MIN_WINDOW", "PLACEMENTS",
            "Z_THRESHOLD", "PlacementTest", "check_placement", "identify_digital",
-           "inloop_windows", "placement_test", "read_stated_placement"]
+           "inloop_windows", "placement_source", "placement_test", "read_stated_placement"]
 
 #: the values of the option (``noise_placement``, ``--noise``)
 PLACEMENTS = ("auto", "in-loop", "outside")
@@ -425,6 +425,20 @@ def _in_loop_result(base: Identification, fit: InLoopFit, windows: list[RunWindo
                    inloop=fit, noise_placement="in-loop")
 
 
+
+def placement_source(requested: str | None, stated: str | None
+                     ) -> tuple[str | None, str, list[str]]:
+    """(placement, source, notes): the option wins, then the manifest's ``[loop] noise``, else
+    the data decide (placement None); an option that contradicts the manifest is noted."""
+    if requested is not None:
+        notes = [] if stated is None or stated == requested else [
+            f"the noise placement {requested!r} asked for contradicts the manifest's [loop] "
+            f"noise = {stated!r}; {requested!r} is used"]
+        return requested, "option", notes
+    if stated is not None:
+        return stated, "manifest", []
+    return None, "data", []
+
 def identify_digital(modal: Callable[[], Identification], data: Sequence[tuple[Any, Any]],
                      P: Any, D: Any, digital: Any, *, option: Any = None,
                      stated: str | None = None, names: Sequence[str], files: Sequence[str],
@@ -482,16 +496,7 @@ def identify_digital(modal: Callable[[], Identification], data: Sequence[tuple[A
             "modes, whose stderr assume the noise outside the loop",)
         return replace(res, noise_placement="outside", noise_placement_source="continuous loop",
                        warnings=(*res.warnings, *extra))
-    notes: list[str] = []
-    if requested is not None:
-        placement, how = requested, "option"
-        if stated is not None and stated != requested:
-            notes.append(f"the noise placement {requested!r} asked for contradicts the "
-                         f"manifest's [loop] noise = {stated!r}; {requested!r} is used")
-    elif stated is not None:
-        placement, how = stated, "manifest"
-    else:
-        placement, how = None, "data"
+    placement, how, notes = placement_source(requested, stated)
     named = "--noise / noise_placement" if how == "option" else "[loop] noise"
     res: Identification | None
     try:

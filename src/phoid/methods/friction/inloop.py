@@ -550,7 +550,12 @@ def apply_placement(base: FrictionFit, P: np.ndarray, D: np.ndarray, digital: An
     """
     from dataclasses import replace
 
-    from phoid.methods.inloop_route import Z_THRESHOLD, PlacementTest, check_placement
+    from phoid.methods.inloop_route import (
+        Z_THRESHOLD,
+        PlacementTest,
+        check_placement,
+        placement_source,
+    )
 
     requested = check_placement(option)
     if digital is None:
@@ -565,16 +570,7 @@ def apply_placement(base: FrictionFit, P: np.ndarray, D: np.ndarray, digital: An
         return replace(base, noise_placement="outside",
                        noise_placement_source="continuous loop",
                        warnings=(*base.warnings, *extra))
-    notes: list[str] = []
-    if requested is not None:
-        placement, how = requested, "option"
-        if stated is not None and stated != requested:
-            notes.append(f"the noise placement {requested!r} asked for contradicts the "
-                         f"manifest's [loop] noise = {stated!r}; {requested!r} is used")
-    elif stated is not None:
-        placement, how = stated, "manifest"
-    else:
-        placement, how = None, "data"
+    placement, how, notes = placement_source(requested, stated)
     if placement == "outside":
         return replace(base, noise_placement="outside", noise_placement_source=how,
                        warnings=(*base.warnings, *notes))
