@@ -50,6 +50,7 @@ from typing import Any  # noqa: E402
 import numpy as np  # noqa: E402
 from scipy.integrate import solve_ivp  # noqa: E402
 from scipy.linalg import cho_factor, cho_solve  # noqa: E402
+from sections import splice_section  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
@@ -633,21 +634,6 @@ def section(res: dict[str, Any]) -> list[str]:
     return lines
 
 
-def splice(text: str, part: list[str]) -> str:
-    """BENCHMARKS.md with this study's section replaced (or put before the profiling notes)."""
-    block = "\n".join(part) + "\n"
-    lines = text.split("\n")
-    if TITLE in lines:
-        i = lines.index(TITLE)
-        j = next((k for k in range(i + 1, len(lines)) if lines[k].startswith("## ")),
-                 len(lines))
-        return "\n".join(lines[:i]) + "\n" + block + "\n" + "\n".join(lines[j:])
-    anchor = next((k for k, ln in enumerate(lines)
-                   if ln.startswith("## What changed after profiling")), None)
-    if anchor is None:
-        return text.rstrip("\n") + "\n\n" + block
-    return "\n".join(lines[:anchor]) + "\n" + block + "\n" + "\n".join(lines[anchor:])
-
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__,
@@ -696,7 +682,7 @@ def main() -> int:
         args.json.write_text(json.dumps(res, indent=1, default=float))
     if args.write:
         md = ROOT / "BENCHMARKS.md"
-        md.write_text(splice(md.read_text(), part))
+        md.write_text(splice_section(md.read_text(), TITLE, part))
         rj = HERE / "results.json"
         allres = json.loads(rj.read_text()) if rj.is_file() else {}
         allres["adequacy"] = res

@@ -69,6 +69,7 @@ from pathlib import Path  # noqa: E402
 from typing import Any  # noqa: E402
 
 import numpy as np  # noqa: E402
+from sections import splice_section  # noqa: E402
 
 import phoid  # noqa: E402
 from phoid.dynamics.digital import DigitalPD, digital_roots  # noqa: E402
@@ -621,21 +622,6 @@ def section(res: dict[str, Any] | None, monte_carlo: dict | None = None) -> list
     return lines
 
 
-def splice(text: str, part: list[str]) -> str:
-    """BENCHMARKS.md with this study's section replaced (or put before the profiling notes)."""
-    block = "\n".join(part).rstrip("\n") + "\n"
-    lines = text.split("\n")
-    if TITLE in lines:
-        i = lines.index(TITLE)
-        j = next((k for k in range(i + 1, len(lines))
-                  if lines[k].startswith("## ")), len(lines))
-        return "\n".join(lines[:i]) + "\n" + block + "\n" + "\n".join(lines[j:])
-    anchor = next((k for k, ln in enumerate(lines)
-                   if ln.startswith("## What changed after profiling")), None)
-    if anchor is None:
-        return text.rstrip("\n") + "\n\n" + block
-    return "\n".join(lines[:anchor]) + "\n" + block + "\n" + "\n".join(lines[anchor:])
-
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__,
@@ -688,7 +674,7 @@ def main() -> int:
     full = res["setup"]["replicas"] >= FULL_REPLICAS and len(res["cases"]) == len(names)
     if (args.write or full) and not args.no_write:
         md = ROOT / "BENCHMARKS.md"
-        md.write_text(splice(md.read_text() if md.is_file() else "", part))
+        md.write_text(splice_section(md.read_text() if md.is_file() else "", TITLE, part))
         allres["inloop"] = res
         rj.write_text(json.dumps(allres, indent=1, default=float))
         print(f"wrote {md.name} (section \"{TITLE[3:]}\") and bench/results.json (\"inloop\")",
