@@ -5,48 +5,82 @@
  * (phoid.simulation.tracking.simulate_tracking) operation by operation, so that a plant
  * simulated exactly and driven by this step gives phoid's records to rounding:
  *   vhat = b0*x_n + b1*x_{n-1} (+ b2*x_{n-2}) - a1*vhat_{n-1},   u = K*(P*(r - x) - D*vhat).
+ *
+ * For microcontrollers: every real is phoid_real and every constant PHOID_R(...), so a float
+ * build does no double arithmetic; no division and no % on the step path (power-of-two rings,
+ * unsigned masks); no 0/0 (the NaN is a bit pattern); finiteness is read from the bits (it
+ * holds under -ffast-math); state transitions are O(1) (the delay ring is never wiped: the
+ * slots not written since the last clear read as 0).
  */
 #include "phoid_ctrl.h"
 
-#define PHOID_NO_LIMIT 1e300
+#include <stdint.h>
 
-/* finite: false for NaN and +/-inf (x - x is NaN for both); needs IEEE arithmetic, so do not
- * compile with -ffast-math. */
-static int finite_(double x) { return (x - x) == 0.0; }
+#define ZERO PHOID_R(0.0)
+#define ONE PHOID_R(1.0)
+#define RING_MASK ((unsigned)PHOID_RING_SIZE - 1u)
+#define LOG_MASK ((unsigned)PHOID_EVENT_LOG - 1u)
 
-/* a quiet NaN without libm (volatile: not folded at compile time) */
-static double nan_(void)
+/* unsigned indices: the masks need the sizes to fit an unsigned int (16 bits at least) */
+#if PHOID_RING_SIZE > 32768 || PHOID_EVENT_LOG > 32768
+#error "PHOID_RING_SIZE and PHOID_EVENT_LOG must be at most 32768"
+#endif
+
+/* the IEEE layout of phoid_real: binary32 (float; AVR's double) or binary64 */
+#if PHOID_REAL_MAX_EXP == 128
+typedef uint32_t real_bits_t;
+#define EXP_BITS ((real_bits_t)0x7f800000UL)
+#define QNAN_BITS ((real_bits_t)0x7fc00000UL)
+#elif PHOID_REAL_MAX_EXP == 1024
+typedef uint64_t real_bits_t;
+#define EXP_BITS ((real_bits_t)0x7ff0000000000000ULL)
+#define QNAN_BITS ((real_bits_t)0x7ff8000000000000ULL)
+#else
+#error "phoid_real must be an IEEE binary32 or binary64 type"
+#endif
+
+/* the bits and the real share their storage (C99 TC3 6.5.2.3: reading the other member
+ * reinterprets the bytes) */
+typedef union real_bits {
+    real_bits_t b;
+    phoid_real r;
+} real_bits;
+
+typedef char phoid_check_real_bits_[sizeof(real_bits_t) == sizeof(phoid_real) ? 1 : -1];
+
+/* a quiet NaN from its bits (no 0/0, nothing computed) */
+static const real_bits nan_bits = {QNAN_BITS};
+
+/* finite: false for NaN and +/-inf (the exponent bits all ones). An integer test on the bits,
+ * so -ffast-math (-ffinite-math-only) cannot fold it away. */
+static int finite_(phoid_real x)
 {
-    volatile double z = 0.0;
-    return z / z;
+    real_bits v;
+    v.r = x;
+    return (v.b & EXP_BITS) != EXP_BITS;
 }
 
-static double absd(double x) { return x < 0.0 ? -x : x; }
+static phoid_real absr(phoid_real x) { return x < ZERO ? -x : x; }
 
-static void push_event(phoid_ctrl *c, unsigned long index, int code, double value)
+static void push_event(phoid_ctrl *c, unsigned long long index, int code, phoid_real value)
 {
-    int slot;
-    if (c->log_count == PHOID_EVENT_LOG) { /* full: drop the oldest */
-        c->log_head = (c->log_head + 1) % PHOID_EVENT_LOG;
+    phoid_event *e;
+    if (c->log_count == (unsigned)PHOID_EVENT_LOG) { /* full: drop the oldest */
+        c->log_head = (c->log_head + 1u) & LOG_MASK;
         c->log_count--;
         c->events_lost++;
     }
-    slot = (c->log_head + c->log_count) % PHOID_EVENT_LOG;
-    c->log[slot].index = index;
-    c->log[slot].code = code;
-    c->log[slot].value = value;
+    e = &c->log[(c->log_head + c->log_count) & LOG_MASK];
+    e->index = index;
+    e->code = code;
+    e->value = value;
     c->log_count++;
 }
 
-static void clear_ring(phoid_ctrl *c)
-{
-    int i;
-    for (i = 0; i <= PHOID_MAX_DELAY; i++) {
-        c->ring[i] = 0.0;
-    }
-}
+/* the delay ring holds no command from now on (O(1): see phoid_ctrl.filled) */
+static void clear_ring(phoid_ctrl *c) { c->filled = 0u; }
 
-static void fault(phoid_ctrl *c, int code, double value)
+static void fault(phoid_ctrl *c, int code, phoid_real value)
 {
     c->state = PHOID_FAULT;
     c->release_pending = 0;
@@ -60,25 +94,25 @@ void phoid_config_default(phoid_config *cfg)
     if (!cfg) {
         return;
     }
-    cfg->sample_time = 1e-3;
-    cfg->P = 0.0;
-    cfg->D = 0.0;
-    cfg->gain = 1.0;
-    cfg->command_gain = 1.0;
+    cfg->sample_time = PHOID_R(1e-3);
+    cfg->P = ZERO;
+    cfg->D = ZERO;
+    cfg->gain = ONE;
+    cfg->command_gain = ONE;
     cfg->velocity = PHOID_VEL_BACKWARD;
-    cfg->filter_pole = 0.0;
+    cfg->filter_pole = ZERO;
     cfg->delay_samples = 0;
-    cfg->hold_P = 0.0;
-    cfg->hold_D = 0.0;
-    cfg->x_start = 0.0;
+    cfg->hold_P = ZERO;
+    cfg->hold_D = ZERO;
+    cfg->x_start = ZERO;
     cfg->hold_samples = 0;
     cfg->run_samples = 1;
     cfg->x_min = -PHOID_NO_LIMIT;
     cfg->x_max = PHOID_NO_LIMIT;
     cfg->u_max = PHOID_NO_LIMIT;
-    cfg->growth_limit = 0.0;
+    cfg->growth_limit = ZERO;
     cfg->stall_samples = 0;
-    cfg->stall_epsilon = 0.0;
+    cfg->stall_epsilon = ZERO;
     cfg->has_force = 0;
 }
 
@@ -89,6 +123,9 @@ static int count_ok(long n)
     return n >= 0 && (unsigned long)n <= (unsigned long)PHOID_MAX_COUNT;
 }
 
+/* x is +0 or -0 (false for NaN), without == on reals (-Wfloat-equal) */
+static int is_zero(phoid_real x) { return x >= ZERO && x <= ZERO; }
+
 static int check_config(const phoid_config *g)
 {
     if (!finite_(g->sample_time) || !(g->sample_time >= PHOID_MIN_SAMPLE_TIME)) {
@@ -98,7 +135,7 @@ static int check_config(const phoid_config *g)
         && g->velocity != PHOID_VEL_FILTERED) {
         return PHOID_E_VELOCITY;
     }
-    if (g->velocity == PHOID_VEL_FILTERED && !(g->filter_pole >= 0.0 && g->filter_pole < 1.0)) {
+    if (g->velocity == PHOID_VEL_FILTERED && !(g->filter_pole >= ZERO && g->filter_pole < ONE)) {
         return PHOID_E_FILTER_POLE;
     }
     if (g->delay_samples < 0 || g->delay_samples > PHOID_MAX_DELAY) {
@@ -108,7 +145,7 @@ static int check_config(const phoid_config *g)
         || !finite_(g->hold_D)) {
         return PHOID_E_GAIN;
     }
-    if (!finite_(g->command_gain) || !(g->command_gain > 0.0)) {
+    if (!finite_(g->command_gain) || !(g->command_gain > ZERO)) {
         return PHOID_E_COMMAND_GAIN;
     }
     if (!(g->x_min < g->x_max)) {
@@ -117,14 +154,14 @@ static int check_config(const phoid_config *g)
     if (!finite_(g->x_start) || !(g->x_start >= g->x_min && g->x_start <= g->x_max)) {
         return PHOID_E_START;
     }
-    if (!(g->u_max > 0.0)) {
+    if (!(g->u_max > ZERO)) {
         return PHOID_E_COMMAND_LIMIT;
     }
-    if (!(g->growth_limit == 0.0 || (finite_(g->growth_limit) && g->growth_limit >= 1.0))) {
+    if (!(is_zero(g->growth_limit) || (finite_(g->growth_limit) && g->growth_limit >= ONE))) {
         return PHOID_E_GROWTH;
     }
     if (!count_ok(g->stall_samples) || !finite_(g->stall_epsilon)
-        || !(g->stall_epsilon >= 0.0)) {
+        || !(g->stall_epsilon >= ZERO)) {
         return PHOID_E_STALL;
     }
     if (!count_ok(g->hold_samples) || !count_ok(g->run_samples) || g->run_samples < 1) {
@@ -139,7 +176,7 @@ static int check_config(const phoid_config *g)
 int phoid_init(phoid_ctrl *c, const phoid_config *cfg)
 {
     int err;
-    double T;
+    phoid_real T;
     if (!c || !cfg) {
         return PHOID_E_NULL;
     }
@@ -151,43 +188,45 @@ int phoid_init(phoid_ctrl *c, const phoid_config *cfg)
     T = cfg->sample_time;
     /* the coefficients as phoid.dynamics.velocity.VelocityFilter defines them */
     if (cfg->velocity == PHOID_VEL_BACKWARD) {
-        c->c0 = 1.0 / T;
-        c->c1 = 0.0;
+        c->c0 = ONE / T;
+        c->c1 = ZERO;
     } else if (cfg->velocity == PHOID_VEL_CENTRAL) {
-        c->c0 = 1.0 / (2.0 * T);
-        c->c1 = 0.0;
+        c->c0 = ONE / (PHOID_R(2.0) * T);
+        c->c1 = ZERO;
     } else {
-        c->c0 = (1.0 - cfg->filter_pole) / T;
+        c->c0 = (ONE - cfg->filter_pole) / T;
         c->c1 = cfg->filter_pole;
     }
     c->state = PHOID_IDLE;
-    c->n = 0;
-    c->x1 = c->x2 = 0.0;
-    c->vhat = 0.0;
+    c->n = 0u;
+    c->x1 = c->x2 = ZERO;
+    c->vhat = ZERO;
     c->history = 0;
+    c->head = 0u;
     clear_ring(c);
-    c->head = 0;
     c->held = c->ran = c->still = 0;
     c->release_pending = 0;
-    c->amplitude = 0.0;
+    c->amplitude = ZERO;
+    c->growth_bound = ZERO;
     c->clipping = 0;
-    c->clips = 0;
-    c->force = nan_();
-    c->log_head = c->log_count = 0;
-    c->events_lost = 0;
+    c->clips = 0u;
+    c->force = nan_bits.r;
+    c->log_head = c->log_count = 0u;
+    c->events_lost = 0u;
     return PHOID_OK;
 }
 
-/* vhat_n from x_n and the history, in simulate_tracking's order of operations */
-static double estimate(phoid_ctrl *c, double x)
+/* vhat_n from x_n and the history, in simulate_tracking's order of operations (do not
+ * simplify: the host double build is bit-identical to phoid's model) */
+static phoid_real estimate(phoid_ctrl *c, phoid_real x)
 {
-    double acc;
+    phoid_real acc;
     if (c->history == 0) { /* the first sample: at rest before it, x_{-1} = x_{-2} = x_0 */
         c->x1 = c->x2 = x;
     }
     if (c->cfg.velocity == PHOID_VEL_CENTRAL) {
         acc = c->c0 * x;
-        acc += 0.0 * c->x1;
+        acc += ZERO * c->x1;
         acc += (-c->c0) * c->x2;
     } else {
         acc = c->c0 * x;
@@ -203,113 +242,133 @@ static double estimate(phoid_ctrl *c, double x)
     return acc;
 }
 
-static void enter_run(phoid_ctrl *c, double x, double r)
+static void enter_run(phoid_ctrl *c, phoid_real x, phoid_real r)
 {
-    double a = absd(c->cfg.x_start - r);
-    double b = absd(x - r);
+    phoid_real a = absr(c->cfg.x_start - r);
+    phoid_real b = absr(x - r);
     c->state = PHOID_RUN;
     c->release_pending = 0;
     c->ran = 0;
     c->still = 0;
     c->amplitude = a > b ? a : b;
+    c->growth_bound = c->cfg.growth_limit * c->amplitude;
     push_event(c, c->n, PHOID_EV_RELEASE, x);
 }
 
-double phoid_step(phoid_ctrl *c, double x, double r)
+/* RUN's growth and stall checks (x within the limits): 1 when one faulted */
+static int run_checks(phoid_ctrl *c, const phoid_config *g, phoid_real x, phoid_real r)
 {
-    return phoid_step_force(c, x, r, nan_());
+    if (g->growth_limit > ZERO) {
+        phoid_real dev = absr(x - r);
+        if (dev > c->growth_bound) {
+            fault(c, PHOID_EV_FAULT_GROWTH, dev);
+            return 1;
+        }
+    }
+    if (g->stall_samples > 0) {
+        phoid_real step = absr(x - c->x2); /* x2 is x_{n-1} after estimate() */
+        c->still = step < g->stall_epsilon ? c->still + 1 : 0;
+        if (c->still >= g->stall_samples) {
+            fault(c, PHOID_EV_FAULT_STALL, step);
+            return 1;
+        }
+    }
+    return 0;
 }
 
-double phoid_step_force(phoid_ctrl *c, double x, double r, double force)
+phoid_real phoid_step(phoid_ctrl *c, phoid_real x, phoid_real r)
+{
+    return phoid_step_force(c, x, r, nan_bits.r);
+}
+
+phoid_real phoid_step_force(phoid_ctrl *c, phoid_real x, phoid_real r, phoid_real force)
 {
     const phoid_config *g;
-    double vhat, u, out;
-    int d, clipped, bad_x, bad_f;
+    phoid_real vhat, u, out;
+    unsigned d;
+    int state, clipped;
     if (!c) {
-        return 0.0;
+        return ZERO;
     }
     g = &c->cfg;
     c->force = force;
-    bad_x = !finite_(x) || !finite_(r);
-    bad_f = g->has_force && !finite_(force);
-    if (bad_x || bad_f) {
+    if (!finite_(x) || !finite_(r) || (g->has_force && !finite_(force))) {
         if (c->state != PHOID_FAULT) {
-            fault(c, PHOID_EV_FAULT_INPUT, bad_x ? 0.0 : 1.0);
+            fault(c, PHOID_EV_FAULT_INPUT, (finite_(x) && finite_(r)) ? ONE : ZERO);
         }
         c->n++;
-        return 0.0;
+        return ZERO;
     }
     vhat = estimate(c, x);
 
-    if (c->state == PHOID_HOLD
+    state = c->state;
+    if (state == PHOID_HOLD
         && (c->release_pending || (g->hold_samples > 0 && c->held >= g->hold_samples))) {
         enter_run(c, x, r);
+        state = PHOID_RUN;
     }
 
-    /* safety */
-    if (c->state == PHOID_HOLD || c->state == PHOID_RUN) {
+    /* safety, then the command (0 outside HOLD and RUN, and from a fault on) */
+    u = ZERO;
+    clipped = 0;
+    if (state == PHOID_HOLD || state == PHOID_RUN) {
         if (x < g->x_min || x > g->x_max) {
             fault(c, PHOID_EV_FAULT_POSITION, x);
-        }
-    }
-    if (c->state == PHOID_RUN) {
-        double dev = absd(x - r);
-        double step = absd(x - c->x2); /* x2 is x_{n-1} after estimate() */
-        if (g->growth_limit > 0.0 && dev > g->growth_limit * c->amplitude) {
-            fault(c, PHOID_EV_FAULT_GROWTH, dev);
-        } else if (g->stall_samples > 0) {
-            c->still = step < g->stall_epsilon ? c->still + 1 : 0;
-            if (c->still >= g->stall_samples) {
-                fault(c, PHOID_EV_FAULT_STALL, step);
+        } else if (state == PHOID_HOLD || !run_checks(c, g, x, r)) {
+            phoid_real kp, kd, e;
+            if (state == PHOID_RUN) {
+                kp = g->P;
+                kd = g->D;
+                e = r - x;
+            } else {
+                kp = g->hold_P;
+                kd = g->hold_D;
+                e = g->x_start - x;
+            }
+            u = g->gain * (kp * e - kd * vhat);
+            if (!finite_(u)) { /* overflow (inf) or inf - inf (NaN): never send it on */
+                fault(c, PHOID_EV_FAULT_COMMAND, x);
+                u = ZERO;
+            } else if (u > g->u_max) {
+                clipped = 1;
+            } else if (u < -g->u_max) {
+                clipped = -1;
+            }
+            if (clipped) {
+                c->clips++;
+                if (!c->clipping) {
+                    push_event(c, c->n, PHOID_EV_CLIP, u);
+                }
+                u = clipped > 0 ? g->u_max : -g->u_max;
             }
         }
     }
+    c->clipping = clipped;
 
-    /* the command */
-    if (c->state == PHOID_HOLD) {
-        u = g->gain * (g->hold_P * (g->x_start - x) - g->hold_D * vhat);
-    } else if (c->state == PHOID_RUN) {
-        u = g->gain * (g->P * (r - x) - g->D * vhat);
-    } else {
-        u = 0.0;
-    }
-    if (!finite_(u)) { /* overflow (inf) or inf - inf (NaN): never send it on */
-        fault(c, PHOID_EV_FAULT_COMMAND, x);
-        u = 0.0;
-    }
-    clipped = 0;
-    if (u > g->u_max) {
-        clipped = 1;
-    } else if (u < -g->u_max) {
-        clipped = -1;
-    }
-    if (clipped) {
-        c->clips++;
-        if (!c->clipping) {
-            push_event(c, c->n, PHOID_EV_CLIP, u);
-        }
-        u = clipped > 0 ? g->u_max : -g->u_max;
-    }
-    c->clipping = clipped != 0;
-
-    /* the delay ring: store u_n, return u_{n-d} */
-    d = g->delay_samples;
+    /* the delay ring: store u_n, return u_{n-d} (0 while that slot is not written since the
+     * last clear) */
+    d = (unsigned)g->delay_samples;
     c->ring[c->head] = u;
-    out = c->ring[(c->head + PHOID_MAX_DELAY + 1 - d) % (PHOID_MAX_DELAY + 1)];
-    c->head = (c->head + 1) % (PHOID_MAX_DELAY + 1);
-    if (c->state == PHOID_FAULT || c->state == PHOID_DONE) {
-        out = 0.0;
+    if (c->filled < d) {
+        c->filled++;
+        out = ZERO;
+    } else {
+        out = c->ring[(c->head - d) & RING_MASK];
     }
+    c->head = (c->head + 1u) & RING_MASK;
 
-    if (c->state == PHOID_HOLD) {
+    state = c->state;
+    if (state == PHOID_HOLD) {
         c->held++;
-    } else if (c->state == PHOID_RUN) {
+    } else if (state == PHOID_RUN) {
         c->ran++;
         if (c->ran >= g->run_samples) {
             c->state = PHOID_DONE;
             clear_ring(c);
-            push_event(c, c->n + 1, PHOID_EV_DONE, (double)c->ran);
-        }
+            push_event(c, c->n + 1u, PHOID_EV_DONE, (phoid_real)c->ran);
+        } /* (the last RUN sample's delayed command still goes out) */
+    } else if (state != PHOID_IDLE) { /* DONE, FAULT (this sample's included): 0 */
+        out = ZERO;
     }
     c->n++;
     return out;
@@ -343,7 +402,7 @@ int phoid_release(phoid_ctrl *c)
     return PHOID_OK;
 }
 
-void phoid_abort(phoid_ctrl *c, double reason)
+void phoid_abort(phoid_ctrl *c, phoid_real reason)
 {
     if (c && c->state != PHOID_FAULT) {
         fault(c, PHOID_EV_FAULT_HOST, reason);
@@ -355,21 +414,33 @@ void phoid_clear_fault(phoid_ctrl *c)
     if (c && c->state == PHOID_FAULT) {
         if (!finite_(c->vhat)) { /* an overflowed estimate: start again at rest */
             c->history = 0;
-            c->vhat = 0.0;
+            c->vhat = ZERO;
         }
         c->state = PHOID_IDLE;
         c->held = c->ran = c->still = 0;
-        push_event(c, c->n, PHOID_EV_CLEAR, 0.0);
+        push_event(c, c->n, PHOID_EV_CLEAR, ZERO);
     }
 }
 
 int phoid_state(const phoid_ctrl *c) { return c ? c->state : PHOID_FAULT; }
 
-unsigned long phoid_sample_index(const phoid_ctrl *c) { return c ? c->n : 0UL; }
+unsigned long long phoid_sample_index(const phoid_ctrl *c) { return c ? c->n : 0u; }
 
-double phoid_velocity(const phoid_ctrl *c) { return c ? c->vhat : 0.0; }
+int phoid_set_sample_index(phoid_ctrl *c, unsigned long long n)
+{
+    if (!c) {
+        return PHOID_E_NULL;
+    }
+    if (c->state != PHOID_IDLE) {
+        return PHOID_E_STATE;
+    }
+    c->n = n;
+    return PHOID_OK;
+}
 
-double phoid_force(const phoid_ctrl *c) { return c ? c->force : nan_(); }
+phoid_real phoid_velocity(const phoid_ctrl *c) { return c ? c->vhat : ZERO; }
+
+phoid_real phoid_force(const phoid_ctrl *c) { return c ? c->force : nan_bits.r; }
 
 unsigned long phoid_clips(const phoid_ctrl *c) { return c ? c->clips : 0UL; }
 
@@ -377,11 +448,11 @@ unsigned long phoid_events_lost(const phoid_ctrl *c) { return c ? c->events_lost
 
 int phoid_pop_event(phoid_ctrl *c, phoid_event *e)
 {
-    if (!c || !e || c->log_count == 0) {
+    if (!c || !e || c->log_count == 0u) {
         return 0;
     }
     *e = c->log[c->log_head];
-    c->log_head = (c->log_head + 1) % PHOID_EVENT_LOG;
+    c->log_head = (c->log_head + 1u) & LOG_MASK;
     c->log_count--;
     return 1;
 }
@@ -410,3 +481,5 @@ const char *phoid_state_name(int state)
 unsigned long phoid_config_size(void) { return (unsigned long)sizeof(phoid_config); }
 
 unsigned long phoid_ctrl_size(void) { return (unsigned long)sizeof(phoid_ctrl); }
+
+int phoid_real_size(void) { return (int)sizeof(phoid_real); }

@@ -28,22 +28,92 @@
  * Every state change and fault is pushed into a fixed-size event log with its sample index.
  * A command that is not finite (gains so large that the product overflows) faults the
  * controller (PHOID_EV_FAULT_COMMAND) instead of reaching the amplifier.
+ *
+ * The real type: phoid_real is PHOID_REAL, `double` by default; build with -DPHOID_REAL=float
+ * for a single-precision FPU (Cortex-M4F). Every real of the API and of the structs has this
+ * type; every constant of the step is of this type too, so a float build does no double
+ * arithmetic. Bit-identity with phoid's model (and between targets) needs -std=c99
+ * -ffp-contract=off (no fused multiply-adds); the finiteness checks read the bits, so they also
+ * hold under -ffast-math (bit-identity then does not).
  */
 #ifndef PHOID_CTRL_H
 #define PHOID_CTRL_H
+
+#include <float.h>
 
 #ifdef __cplusplus
 extern "C" {
 #endif
 
-/** Largest command delay, in samples (the delay ring has PHOID_MAX_DELAY + 1 entries). */
+/* ---- the real type ---------------------------------------------------------------------- */
+
+/** The controller's real type: `double` (default) or `float` (-DPHOID_REAL=float). */
+#ifndef PHOID_REAL
+#define PHOID_REAL double
+#endif
+
+/* PHOID_REAL_IS_FLOAT: 1 for float, 0 for double, found by pasting the type's name onto a
+ * prefix (PHOID_REAL_KIND_float / PHOID_REAL_KIND_double); any other type is an error. */
+#define PHOID_PASTE2_(a, b) a##b
+#define PHOID_PASTE_(a, b) PHOID_PASTE2_(a, b)
+#define PHOID_REAL_KIND_float 1
+#define PHOID_REAL_KIND_double 2
+#if PHOID_PASTE_(PHOID_REAL_KIND_, PHOID_REAL) == 1
+#define PHOID_REAL_IS_FLOAT 1
+#define PHOID_REAL_MAX FLT_MAX            /**< the largest finite phoid_real */
+#define PHOID_REAL_MAX_EXP FLT_MAX_EXP    /**< 128: binary32; 1024: binary64 */
+#define PHOID_REAL_MAX_10_EXP FLT_MAX_10_EXP
+#elif PHOID_PASTE_(PHOID_REAL_KIND_, PHOID_REAL) == 2
+#define PHOID_REAL_IS_FLOAT 0
+#define PHOID_REAL_MAX DBL_MAX
+#define PHOID_REAL_MAX_EXP DBL_MAX_EXP    /* 128 where a double has 32 bits (AVR) */
+#define PHOID_REAL_MAX_10_EXP DBL_MAX_10_EXP
+#else
+#error "PHOID_REAL must be float or double"
+#endif
+
+typedef PHOID_REAL phoid_real;
+
+/** A constant of the real type (a cast of a literal: folded at compile time). */
+#define PHOID_R(v) ((phoid_real)(v))
+
+/** The "no limit" of the defaults (x_min = -PHOID_NO_LIMIT, x_max = u_max = PHOID_NO_LIMIT):
+ * 1e300 where phoid_real holds it (a 64-bit double: as before), else the largest finite
+ * phoid_real (float; AVR's 32-bit double). Every finite position and command is inside. */
+#if PHOID_REAL_MAX_10_EXP >= 300
+#define PHOID_NO_LIMIT PHOID_R(1e300)
+#else
+#define PHOID_NO_LIMIT PHOID_R(PHOID_REAL_MAX)
+#endif
+
+/* ---- sizes ------------------------------------------------------------------------------ */
+
+/** Largest command delay, in samples (at most PHOID_RING_SIZE - 1). */
 #ifndef PHOID_MAX_DELAY
 #define PHOID_MAX_DELAY 64
 #endif
 
-/** Entries of the event log ring (the oldest is overwritten when it is full). */
+/** Entries of the delay ring: a power of two > PHOID_MAX_DELAY (indices are masked). */
+#ifndef PHOID_RING_SIZE
+#define PHOID_RING_SIZE 128
+#endif
+
+/** Entries of the event log ring, a power of two (the oldest is overwritten when full). */
 #ifndef PHOID_EVENT_LOG
 #define PHOID_EVENT_LOG 32
+#endif
+
+#if PHOID_MAX_DELAY < 0
+#error "PHOID_MAX_DELAY must be >= 0"
+#endif
+#if PHOID_RING_SIZE < 1 || (PHOID_RING_SIZE & (PHOID_RING_SIZE - 1)) != 0
+#error "PHOID_RING_SIZE must be a power of two"
+#endif
+#if PHOID_RING_SIZE <= PHOID_MAX_DELAY
+#error "PHOID_RING_SIZE must be > PHOID_MAX_DELAY"
+#endif
+#if PHOID_EVENT_LOG < 1 || (PHOID_EVENT_LOG & (PHOID_EVENT_LOG - 1)) != 0
+#error "PHOID_EVENT_LOG must be a power of two"
 #endif
 
 /** Largest sample count (hold_samples, run_samples, stall_samples): 2^31 - 1, what a 32-bit
@@ -51,7 +121,7 @@ extern "C" {
 #define PHOID_MAX_COUNT 2147483647L
 
 /** Shortest sample time, s (1 ns): 1/sample_time must be a finite, sensible rate. */
-#define PHOID_MIN_SAMPLE_TIME 1e-9
+#define PHOID_MIN_SAMPLE_TIME PHOID_R(1e-9)
 
 /** Velocity estimators (phoid's presets "backward-difference", "central-difference",
  * "filtered"). */
@@ -84,7 +154,7 @@ enum phoid_event_code {
     PHOID_EV_FAULT_HOST = 9,      /**< phoid_abort; value: the host's reason */
     PHOID_EV_CLEAR = 10,          /**< FAULT -> IDLE (phoid_clear_fault); value: 0 */
     PHOID_EV_FAULT_COMMAND = 11   /**< the command computed is not finite (the gains times the
-                                       state overflow a double); value: x (m) */
+                                       state overflow phoid_real); value: x (m) */
 };
 
 /** Error codes of phoid_init (0 is success); each names the field that is wrong. */
@@ -111,31 +181,31 @@ enum phoid_error {
 
 /** The configuration of one run. Units: SI (m, s) and the command's own units. */
 typedef struct phoid_config {
-    double sample_time;    /**< T, s (>= PHOID_MIN_SAMPLE_TIME, finite): the period at which
+    phoid_real sample_time;    /**< T, s (>= PHOID_MIN_SAMPLE_TIME, finite): the period at which
                                 phoid_step is called */
-    double P;              /**< run proportional gain, command units per m (any sign) */
-    double D;              /**< run derivative gain, command units per m/s (any sign) */
-    double gain;           /**< K, dimensionless (finite; 1 for phoid's release loop) */
-    double command_gain;   /**< G, N per command unit (> 0): the force is G*u. Not used by the
+    phoid_real P;              /**< run proportional gain, command units per m (any sign) */
+    phoid_real D;              /**< run derivative gain, command units per m/s (any sign) */
+    phoid_real gain;           /**< K, dimensionless (finite; 1 for phoid's release loop) */
+    phoid_real command_gain;   /**< G, N per command unit (> 0): the force is G*u. Not used by the
                                 step; kept so that one configuration describes the loop. */
     int velocity;          /**< enum phoid_velocity */
-    double filter_pole;    /**< a = exp(-w_c*T) of PHOID_VEL_FILTERED, in [0, 1) */
+    phoid_real filter_pole;    /**< a = exp(-w_c*T) of PHOID_VEL_FILTERED, in [0, 1) */
     int delay_samples;     /**< d: the command computed at n is returned at n + d (0..max) */
-    double hold_P;         /**< hold loop proportional gain, command units per m */
-    double hold_D;         /**< hold loop derivative gain, command units per m/s */
-    double x_start;        /**< hold position, m */
+    phoid_real hold_P;         /**< hold loop proportional gain, command units per m */
+    phoid_real hold_D;         /**< hold loop derivative gain, command units per m/s */
+    phoid_real x_start;        /**< hold position, m */
     long hold_samples;     /**< samples held before the release (0: until phoid_release;
                                 at most PHOID_MAX_COUNT) */
     long run_samples;      /**< samples run from the release on (1..PHOID_MAX_COUNT), then
                                 DONE */
-    double x_min;          /**< lowest allowed position in HOLD and RUN, m */
-    double x_max;          /**< highest allowed position in HOLD and RUN, m */
-    double u_max;          /**< command limit, command units (> 0): commands are clipped */
-    double growth_limit;   /**< RUN aborts when |x - r| > growth_limit*A (0: off; else >= 1) */
+    phoid_real x_min;          /**< lowest allowed position in HOLD and RUN, m */
+    phoid_real x_max;          /**< highest allowed position in HOLD and RUN, m */
+    phoid_real u_max;          /**< command limit, command units (> 0): commands are clipped */
+    phoid_real growth_limit;   /**< RUN aborts when |x - r| > growth_limit*A (0: off; else >= 1) */
     long stall_samples;    /**< RUN aborts after this many samples in a row with
                                 |x_n - x_{n-1}| < stall_epsilon (0: off; at most
                                 PHOID_MAX_COUNT) */
-    double stall_epsilon;  /**< m (>= 0) */
+    phoid_real stall_epsilon;  /**< m (>= 0) */
     int has_force;         /**< 1: a force sensor is declared, so every sample must bring a
                                 finite measured force (phoid_step_force), else FAULT_INPUT;
                                 0 (default): no sensor, a force given is stored unchecked */
@@ -143,40 +213,43 @@ typedef struct phoid_config {
 
 /** One entry of the event log. */
 typedef struct phoid_event {
-    unsigned long index;  /**< sample index at which it took effect */
-    int code;             /**< enum phoid_event_code */
-    double value;         /**< the code's value (see enum phoid_event_code) */
+    unsigned long long index; /**< sample index at which it took effect (64-bit: no wrap) */
+    int code;                 /**< enum phoid_event_code */
+    phoid_real value;         /**< the code's value (see enum phoid_event_code) */
 } phoid_event;
 
 /** The controller's whole state. Treat as opaque; read it through the functions below. */
 typedef struct phoid_ctrl {
     phoid_config cfg;
     int state;
-    unsigned long n;           /* index of the next sample */
+    unsigned long long n;      /* index of the next sample (64-bit: 5.8e8 years at 1 kHz) */
     /* estimator */
-    double x1, x2;             /* x_{n-1}, x_{n-2} */
-    double vhat;               /* vhat of the last sample */
+    phoid_real x1, x2;         /* x_{n-1}, x_{n-2} */
+    phoid_real vhat;           /* vhat of the last sample */
     int history;               /* 0 before the first sample, then 1 */
-    double c0, c1;             /* estimator coefficients */
-    /* delay ring: the last delay_samples + 1 commands */
-    double ring[PHOID_MAX_DELAY + 1];
-    int head;
+    phoid_real c0, c1;         /* estimator coefficients */
+    /* delay ring: u_n at ring[head]; u_{n-d} at ring[(head - d) & (PHOID_RING_SIZE - 1)] */
+    phoid_real ring[PHOID_RING_SIZE];
+    unsigned head;
+    unsigned filled;           /* entries written since the last clear, counted up to d: the
+                                  delayed slots not yet written read as 0 (O(1) clear) */
     /* run bookkeeping */
     long held, ran, still;
     int release_pending;
-    double amplitude;          /* A of the growth bound, m */
+    phoid_real amplitude;      /* A of the growth bound, m */
+    phoid_real growth_bound;   /* growth_limit*A, set at the release */
     int clipping;              /* the last command was clipped */
     unsigned long clips;       /* commands clipped since phoid_init */
-    double force;              /* the measured force of the last sample, N (NaN: none) */
+    phoid_real force;          /* the measured force of the last sample, N (NaN: none) */
     /* event log */
     phoid_event log[PHOID_EVENT_LOG];
-    int log_head, log_count;
+    unsigned log_head, log_count;
     unsigned long events_lost;
 } phoid_ctrl;
 
 /** Fill *cfg with defaults: K = G = 1, backward difference, no delay, zero gains, no limits
- * in effect (x_min = -1e300, x_max = 1e300, u_max = 1e300), growth and stall checks off,
- * hold_samples = 0 (hold until phoid_release), run_samples = 1, no force sensor
+ * in effect (x_min = -PHOID_NO_LIMIT, x_max = u_max = PHOID_NO_LIMIT), growth and stall
+ * checks off, hold_samples = 0 (hold until phoid_release), run_samples = 1, no force sensor
  * (has_force = 0). */
 void phoid_config_default(phoid_config *cfg);
 
@@ -189,7 +262,7 @@ int phoid_init(phoid_ctrl *c, const phoid_config *cfg);
  * command to apply now (command units; already delayed by delay_samples, already clipped).
  * Call exactly once per sample period. Returns 0 in IDLE, DONE and FAULT (and while the
  * delay still brings out the zeros issued in IDLE). */
-double phoid_step(phoid_ctrl *c, double x, double r);
+phoid_real phoid_step(phoid_ctrl *c, phoid_real x, phoid_real r);
 
 /** One sample with a measured force: as phoid_step, and `force` (N, the force applied to the
  * plant as the rig's force sensor reads it; NaN: no reading) is stored for phoid_force. The
@@ -197,11 +270,11 @@ double phoid_step(phoid_ctrl *c, double x, double r);
  * faults the controller (PHOID_EV_FAULT_INPUT, value 1), exactly as a non-finite x does;
  * phoid_step(c, x, r) is phoid_step_force(c, x, r, NaN), so a controller configured with
  * has_force = 1 must be stepped with phoid_step_force. */
-double phoid_step_force(phoid_ctrl *c, double x, double r, double force);
+phoid_real phoid_step_force(phoid_ctrl *c, phoid_real x, phoid_real r, phoid_real force);
 
 /** The measured force given with the last sample, N; NaN when none was given (phoid_step,
  * or before the first sample). */
-double phoid_force(const phoid_ctrl *c);
+phoid_real phoid_force(const phoid_ctrl *c);
 
 /** IDLE or DONE -> HOLD from the next sample on. PHOID_OK or PHOID_E_STATE. */
 int phoid_start(phoid_ctrl *c);
@@ -211,7 +284,7 @@ int phoid_start(phoid_ctrl *c);
 int phoid_release(phoid_ctrl *c);
 
 /** Abort from the host: FAULT (PHOID_EV_FAULT_HOST with value `reason`) unless already. */
-void phoid_abort(phoid_ctrl *c, double reason);
+void phoid_abort(phoid_ctrl *c, phoid_real reason);
 
 /** FAULT -> IDLE (other states: no effect). */
 void phoid_clear_fault(phoid_ctrl *c);
@@ -220,10 +293,15 @@ void phoid_clear_fault(phoid_ctrl *c);
 int phoid_state(const phoid_ctrl *c);
 
 /** The index of the next sample (= samples stepped since phoid_init). */
-unsigned long phoid_sample_index(const phoid_ctrl *c);
+unsigned long long phoid_sample_index(const phoid_ctrl *c);
+
+/** Set the index of the next sample (IDLE only: PHOID_OK, else PHOID_E_STATE): for a firmware
+ * that numbers samples from an outside clock, and for tests of the 64-bit counter (reaching
+ * 2^32 by stepping takes 2^32 calls). Nothing else changes. */
+int phoid_set_sample_index(phoid_ctrl *c, unsigned long long n);
 
 /** The velocity estimate vhat of the last sample, m/s. */
-double phoid_velocity(const phoid_ctrl *c);
+phoid_real phoid_velocity(const phoid_ctrl *c);
 
 /** Commands clipped to +/-u_max since phoid_init. */
 unsigned long phoid_clips(const phoid_ctrl *c);
@@ -243,6 +321,9 @@ const char *phoid_state_name(int state);
 /** sizeof(phoid_config) and sizeof(phoid_ctrl), for bindings that allocate them. */
 unsigned long phoid_config_size(void);
 unsigned long phoid_ctrl_size(void);
+
+/** sizeof(phoid_real): 8 (double) or 4 (float, and AVR's double), for bindings. */
+int phoid_real_size(void);
 
 #ifdef __cplusplus
 }
