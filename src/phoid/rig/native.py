@@ -8,14 +8,21 @@ own temporary files too), loads it with :mod:`ctypes` and wraps it thinly: :clas
 steps one sample at a time, exactly as a microcontroller would.
 
 The compiler is ``$CC`` when set, else the first of ``cc``, ``gcc``, ``clang`` on the PATH;
-flags ``-std=c99 -O2 -fPIC -shared -Wall -Wextra -Werror``. Without one,
-:class:`CompilerNotFoundError` says so in one line; nothing else in phoid needs a compiler.
+flags ``-std=c99 -ffp-contract=off -O2 -fPIC -shared -Wall -Wextra -Werror`` (``-std=c99
+-ffp-contract=off``: no fused multiply-adds, so the double build is bit-identical to phoid's
+model). Without one, :class:`CompilerNotFoundError` says so in one line; nothing else in phoid
+needs a compiler.
+
+The controller's real type is chosen at compile time (``PHOID_REAL``): ``real="double"`` (the
+default, phoid's arithmetic) or ``real="float"`` (``-DPHOID_REAL=float``, what a microcontroller
+with a single-precision FPU runs), so that a test can step the float build on the host.
 """
 
 from __future__ import annotations
 
 import ctypes
 import hashlib
+import math
 import os
 import shlex
 import shutil
@@ -43,7 +50,14 @@ __all__ = [
 
 C_DIR = Path(__file__).parent / "c"
 SOURCES = (C_DIR / "phoid_ctrl.h", C_DIR / "phoid_ctrl.c")
-CFLAGS = ("-std=c99", "-O2", "-fPIC", "-shared", "-Wall", "-Wextra", "-Werror")
+CFLAGS = ("-std=c99", "-ffp-contract=off", "-O2", "-fPIC", "-shared", "-Wall", "-Wextra",
+          "-Werror")
+# the controller's real types (PHOID_REAL): the ctypes type, the extra compiler flags, the
+# largest finite value (a value beyond it is refused rather than rounded to inf)
+REALS: dict[str, tuple[type, tuple[str, ...], float]] = {
+    "double": (ctypes.c_double, (), 1.7976931348623157e308),
+    "float": (ctypes.c_float, ("-DPHOID_REAL=float",), 3.4028234663852886e38),
+}
 
 STATES = ("idle", "hold", "run", "done", "fault")
 # the C enum phoid_velocity (phoid_ctrl.h) of each of phoid's presets: the controller computes
@@ -76,35 +90,68 @@ class CompilerNotFoundError(PhoidError):
     """No C compiler: the rig's controller cannot be built (the rest of phoid works)."""
 
 
-class _Config(ctypes.Structure):
-    """ctypes mirror of ``phoid_config`` (checked against ``phoid_config_size()``)."""
-
-    _fields_ = [
-        ("sample_time", ctypes.c_double),
-        ("P", ctypes.c_double),
-        ("D", ctypes.c_double),
-        ("gain", ctypes.c_double),
-        ("command_gain", ctypes.c_double),
+def _config_fields(real: type) -> list[tuple[str, type]]:
+    """The fields of ``phoid_config`` with ``phoid_real`` = ``real``."""
+    return [
+        ("sample_time", real),
+        ("P", real),
+        ("D", real),
+        ("gain", real),
+        ("command_gain", real),
         ("velocity", ctypes.c_int),
-        ("filter_pole", ctypes.c_double),
+        ("filter_pole", real),
         ("delay_samples", ctypes.c_int),
-        ("hold_P", ctypes.c_double),
-        ("hold_D", ctypes.c_double),
-        ("x_start", ctypes.c_double),
+        ("hold_P", real),
+        ("hold_D", real),
+        ("x_start", real),
         ("hold_samples", ctypes.c_long),
         ("run_samples", ctypes.c_long),
-        ("x_min", ctypes.c_double),
-        ("x_max", ctypes.c_double),
-        ("u_max", ctypes.c_double),
-        ("growth_limit", ctypes.c_double),
+        ("x_min", real),
+        ("x_max", real),
+        ("u_max", real),
+        ("growth_limit", real),
         ("stall_samples", ctypes.c_long),
-        ("stall_epsilon", ctypes.c_double),
+        ("stall_epsilon", real),
         ("has_force", ctypes.c_int),
     ]
 
 
+class _Config(ctypes.Structure):
+    """ctypes mirror of ``phoid_config``, double build (checked against ``phoid_config_size()``)."""
+
+    _fields_ = _config_fields(ctypes.c_double)
+
+
+class _ConfigFloat(ctypes.Structure):
+    """ctypes mirror of ``phoid_config``, float build."""
+
+    _fields_ = _config_fields(ctypes.c_float)
+
+
 class _Event(ctypes.Structure):
-    _fields_ = [("index", ctypes.c_ulong), ("code", ctypes.c_int), ("value", ctypes.c_double)]
+    """ctypes mirror of ``phoid_event``, double build."""
+
+    _fields_ = [("index", ctypes.c_ulonglong), ("code", ctypes.c_int),
+                ("value", ctypes.c_double)]
+
+
+class _EventFloat(ctypes.Structure):
+    """ctypes mirror of ``phoid_event``, float build."""
+
+    _fields_ = [("index", ctypes.c_ulonglong), ("code", ctypes.c_int),
+                ("value", ctypes.c_float)]
+
+
+_STRUCTS: dict[str, tuple[type[ctypes.Structure], type[ctypes.Structure]]] = {
+    "double": (_Config, _Event), "float": (_ConfigFloat, _EventFloat)}
+
+
+def _real(real: object) -> str:
+    """``real`` checked: ``"double"`` or ``"float"`` (ValueError naming the option)."""
+    if not isinstance(real, str) or real not in REALS:
+        raise ValueError(f"`real` must be one of {', '.join(REALS)} (the controller's "
+                         f"PHOID_REAL); got {real!r}")
+    return real
 
 
 _INT_FIELDS = {"velocity", "delay_samples", "hold_samples", "run_samples", "stall_samples",
@@ -162,21 +209,25 @@ def _suffix() -> str:
     return ".dll" if os.name == "nt" else ".so"
 
 
-def build_library(folder: str | Path) -> Path:
+def build_library(folder: str | Path, real: str = "double") -> Path:
     """Compile the controller into a shared library inside ``folder``; its path.
 
-    The file is named after a hash of the sources, the compiler command and the flags, so an
-    existing library of the same build is reused. The compiler writes only inside ``folder``
-    (its temporary files go to a temporary subfolder there, ``TMPDIR``), and the library is
-    put in place atomically (:class:`phoid._output.OutputFolder`).
+    ``real`` is the controller's real type, ``"double"`` (default) or ``"float"``
+    (``-DPHOID_REAL=float``). The file is named after a hash of the sources, the compiler
+    command and the flags, so an existing library of the same build is reused. The compiler
+    writes only inside ``folder`` (its temporary files go to a temporary subfolder there,
+    ``TMPDIR``), and the library is put in place atomically (:class:`phoid._output.OutputFolder`).
 
     Raises
     ------
+    ValueError
+        When ``real`` is neither ``"double"`` nor ``"float"``.
     CompilerNotFoundError
         When no C compiler is found.
     PhoidError
         When the compiler fails (its first error line), or the folder is not writable.
     """
+    flags = (*CFLAGS, *REALS[_real(real)][1])
     cc = find_compiler()
     if cc is None:
         raise CompilerNotFoundError(
@@ -184,11 +235,12 @@ def build_library(folder: str | Path) -> Path:
             "the rest of phoid works without one"
         )
     key = hashlib.sha256()
-    for part in (*cc, *CFLAGS):
+    for part in (*cc, *flags):
         key.update(part.encode() + b"\0")
     for src in SOURCES:
         key.update(src.read_bytes())
-    name = f"phoid_ctrl-{key.hexdigest()[:16]}{_suffix()}"
+    tag = "" if real == "double" else f"{real}-"
+    name = f"phoid_ctrl-{tag}{key.hexdigest()[:16]}{_suffix()}"
     out = OutputFolder(folder, overwrite=True)
     target = out.path(name)
     if target.is_file() and not target.is_symlink():
@@ -197,7 +249,7 @@ def build_library(folder: str | Path) -> Path:
     os.makedirs(out.folder, exist_ok=True)
     with tempfile.TemporaryDirectory(dir=out.folder, prefix=".phoid-cc-") as tmp:
         lib = Path(tmp) / f"lib{_suffix()}"
-        cmd = [*cc, *CFLAGS, "-o", str(lib), str(SOURCES[1])]
+        cmd = [*cc, *flags, "-o", str(lib), str(SOURCES[1])]
         env = {**os.environ, "TMPDIR": tmp, "TMP": tmp, "TEMP": tmp}
         proc = subprocess.run(cmd, capture_output=True, text=True, env=env, check=False)
         if proc.returncode != 0 or not lib.is_file():
@@ -210,42 +262,52 @@ def build_library(folder: str | Path) -> Path:
 _LIBRARIES: dict[str, ctypes.CDLL] = {}
 
 
-def load_library(folder: str | Path) -> ctypes.CDLL:
-    """Build (when needed) and load the controller library in ``folder``, with its signatures."""
-    path = build_library(folder)
+def load_library(folder: str | Path, real: str = "double") -> ctypes.CDLL:
+    """Build (when needed) and load the controller library in ``folder``, with its signatures.
+
+    ``real``: the controller's real type, ``"double"`` (default) or ``"float"``; the library's
+    ``phoid_real_size()`` and ``phoid_config_size()`` are checked against the binding's.
+    """
+    path = build_library(folder, real)
     key = os.path.realpath(path)
     if key in _LIBRARIES:
         return _LIBRARIES[key]
     lib = ctypes.CDLL(key)
     P = ctypes.c_void_p
+    R = REALS[real][0]
+    config, event = _STRUCTS[real]
     sig = {
-        "phoid_config_default": (None, [ctypes.POINTER(_Config)]),
-        "phoid_init": (ctypes.c_int, [P, ctypes.POINTER(_Config)]),
-        "phoid_step": (ctypes.c_double, [P, ctypes.c_double, ctypes.c_double]),
-        "phoid_step_force": (ctypes.c_double,
-                             [P, ctypes.c_double, ctypes.c_double, ctypes.c_double]),
-        "phoid_force": (ctypes.c_double, [P]),
+        "phoid_config_default": (None, [ctypes.POINTER(config)]),
+        "phoid_init": (ctypes.c_int, [P, ctypes.POINTER(config)]),
+        "phoid_step": (R, [P, R, R]),
+        "phoid_step_force": (R, [P, R, R, R]),
+        "phoid_force": (R, [P]),
         "phoid_start": (ctypes.c_int, [P]),
         "phoid_release": (ctypes.c_int, [P]),
-        "phoid_abort": (None, [P, ctypes.c_double]),
+        "phoid_abort": (None, [P, R]),
         "phoid_clear_fault": (None, [P]),
         "phoid_state": (ctypes.c_int, [P]),
-        "phoid_sample_index": (ctypes.c_ulong, [P]),
-        "phoid_velocity": (ctypes.c_double, [P]),
+        "phoid_sample_index": (ctypes.c_ulonglong, [P]),
+        "phoid_set_sample_index": (ctypes.c_int, [P, ctypes.c_ulonglong]),
+        "phoid_velocity": (R, [P]),
         "phoid_clips": (ctypes.c_ulong, [P]),
         "phoid_events_lost": (ctypes.c_ulong, [P]),
-        "phoid_pop_event": (ctypes.c_int, [P, ctypes.POINTER(_Event)]),
+        "phoid_pop_event": (ctypes.c_int, [P, ctypes.POINTER(event)]),
         "phoid_event_name": (ctypes.c_char_p, [ctypes.c_int]),
         "phoid_config_size": (ctypes.c_ulong, []),
         "phoid_ctrl_size": (ctypes.c_ulong, []),
+        "phoid_real_size": (ctypes.c_int, []),
     }
     for fname, (res, args) in sig.items():
         fn = getattr(lib, fname)
         fn.restype = res
         fn.argtypes = args
-    if lib.phoid_config_size() != ctypes.sizeof(_Config):
+    if lib.phoid_real_size() != ctypes.sizeof(R):
+        raise PhoidError(f"{path}: phoid_real has {lib.phoid_real_size()} bytes, the "
+                         f"binding expects {ctypes.sizeof(R)} ({real}); rebuild the library")
+    if lib.phoid_config_size() != ctypes.sizeof(config):
         raise PhoidError(f"{path}: phoid_config has {lib.phoid_config_size()} bytes, the "
-                         f"binding expects {ctypes.sizeof(_Config)}; rebuild the library")
+                         f"binding expects {ctypes.sizeof(config)}; rebuild the library")
     _LIBRARIES[key] = lib
     return lib
 
@@ -268,19 +330,29 @@ class Controller:
         :meth:`step` must bring a finite ``force``).
     folder : str or Path
         Where the library is built (or found, when built before).
+    real : {"double", "float"}
+        The controller's real type (``PHOID_REAL``): ``"double"`` (default) or ``"float"``,
+        the build a microcontroller with a single-precision FPU runs. In the float build the
+        real fields, x, r and the force are rounded to float on their way in; a finite value
+        beyond float's range is refused.
 
     Raises
     ------
     ValueError
-        For an unknown field or a value of the wrong type, or when ``phoid_init`` refuses the
-        configuration (the message names the field).
+        For an unknown field or a value of the wrong type (or, float build, beyond float's
+        range), an unknown ``real``, or when ``phoid_init`` refuses the configuration (the
+        message names the field).
     CompilerNotFoundError
         When no C compiler is found.
     """
 
-    def __init__(self, config: Mapping[str, object], folder: str | Path) -> None:
-        self._lib = load_library(folder)
-        cfg = _Config()
+    def __init__(self, config: Mapping[str, object], folder: str | Path,
+                 real: str = "double") -> None:
+        self.real = _real(real)
+        self._lib = load_library(folder, real)
+        self._event = _STRUCTS[real][1]
+        largest = REALS[real][2]
+        cfg = _STRUCTS[real][0]()
         self._lib.phoid_config_default(ctypes.byref(cfg))
         names = {f[0] for f in _Config._fields_}
         items = dict(config)
@@ -315,6 +387,9 @@ class Controller:
                 if not lo <= value <= hi:  # ctypes would wrap it silently (2**64 → 0)
                     raise ValueError(f"controller field `{key}` must be a whole number from "
                                      f"{lo} to {hi} (its C type); got {value!r}")
+            elif math.isfinite(value) and abs(value) > largest:  # ctypes would make it inf
+                raise ValueError(f"controller field `{key}` must be within ±{largest!r} (the "
+                                 f"{real} build's largest finite value); got {value!r}")
             setattr(cfg, key, value)
         self.config = cfg
         self._buf = ctypes.create_string_buffer(int(self._lib.phoid_ctrl_size()))
@@ -389,7 +464,7 @@ class Controller:
     def events(self) -> list[Event]:
         """Pop the logged events, oldest first."""
         out = []
-        ev = _Event()
+        ev = self._event()
         while self._lib.phoid_pop_event(self._ptr, ctypes.byref(ev)):
             out.append(Event(int(ev.index), int(ev.code),
                              self._lib.phoid_event_name(ev.code).decode(), float(ev.value)))
