@@ -1,0 +1,57 @@
+"""The rig controller's cost per microcontroller target (issue 29): the table of
+src/phoid/rig/c/README.md "Cost per target".
+
+For each target of tests/mcu_tools.py (Cortex-M0, M3, M4F float and double, M7, AVR
+atmega2560), built at -O2 with the strict flags: the instructions (Cortex-M, counted in a
+QEMU trace) or cycles (AVR, simavr's Timer1) of the dearest RUN step and of the dearest
+transition of tests/mcu/cost_main.c, with the transition named, and the flash and RAM of that
+firmware (the controller, the tests' start-up and the libgcc routines it pulls in).
+
+    python bench/bench_mcu.py            # a Markdown table on stdout (about 10 s)
+
+Needs Debian's gcc-arm-none-eabi, qemu-system-arm, gcc-avr, avr-libc and simavr; a target
+whose tools are missing is listed as skipped, with the reason.
+"""
+
+from __future__ import annotations
+
+import sys
+import tempfile
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "tests"))
+
+import pytest  # noqa: E402  (mcu_tools skips through pytest's exceptions)
+from mcu_tools import TARGETS, build_cost_firmware, elf_sizes, measure_cost  # noqa: E402
+
+
+def main() -> int:
+    """Print the table; 0, or 1 when a target failed to build or run."""
+    status = 0
+    print("| target | RUN step | dearest transition | flash (B) | RAM (B) |")
+    print("|---|---|---|---|---|")
+    with tempfile.TemporaryDirectory() as tmp:
+        for name, target in TARGETS.items():
+            unit = "cycles" if target.arch == "avr" else "instructions"
+            try:
+                costs = measure_cost(target, Path(tmp) / name)
+                flash, ram = elf_sizes(target, build_cost_firmware(target, Path(tmp) / name))
+            except pytest.skip.Exception as exc:
+                print(f"| {name} | skipped: {exc} | | | |")
+                continue
+            except pytest.fail.Exception as exc:
+                print(f"| {name} | failed: {str(exc).splitlines()[0]} | | | |")
+                status = 1
+                continue
+            run = max(n for kind, n in costs if kind == "run")
+            kind, worst = max(
+                ((k, n) for k, n in costs if k not in ("idle", "hold", "run")),
+                key=lambda kn: kn[1],
+            )
+            print(f"| {name} | {run} {unit} | {worst} ({kind}) | {flash} | {ram} |")
+    return status
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,420 @@
+"""Shared helpers of the microcontroller tests (tests/test_mcu_*.py).
+
+The tests build phoid's rig controller (src/phoid/rig/c) for real microcontrollers with
+Debian's cross toolchains and run it in emulators. Each tool is found on PATH; a test that
+needs a missing one is skipped with a reason naming the Debian package that provides it, so
+a clone without them still passes.
+
+Targets (``TARGETS``): Cortex-M0, M3, M4F (single-precision FPU; a ``float`` and a ``double``
+build), M7 (double-precision FPU) and AVR atmega2560 (whose ``double`` has 32 bits). Every
+build uses ``STRICT_FLAGS`` and ``OPT`` (-O2: a control loop on an MCU is built for speed;
+the build gate also compiles at -Os for the warnings that depend on the optimiser).
+"""
+
+from __future__ import annotations
+
+import re
+import shutil
+import subprocess
+from dataclasses import dataclass
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+CONTROLLER_DIR = ROOT / "src" / "phoid" / "rig" / "c"
+FIRMWARE_DIR = CONTROLLER_DIR / "firmware"
+MCU_DIR = Path(__file__).resolve().parent / "mcu"
+
+STRICT_FLAGS = (
+    "-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic", "-Wfloat-equal",
+    "-ffp-contract=off",
+)
+OPT = "-O2"
+ALLOWED_LIBC = frozenset({"memcpy", "memset"})
+TOOL_TIMEOUT = 120  # s: one compile, link or emulator run (each takes well under 2 s here)
+
+ARM_PACKAGE = "gcc-arm-none-eabi"
+AVR_PACKAGE = "gcc-avr"
+PACKAGES = {
+    "arm-none-eabi-gcc": ARM_PACKAGE,
+    "arm-none-eabi-nm": "binutils-arm-none-eabi (with gcc-arm-none-eabi)",
+    "arm-none-eabi-size": "binutils-arm-none-eabi (with gcc-arm-none-eabi)",
+    "arm-none-eabi-objdump": "binutils-arm-none-eabi (with gcc-arm-none-eabi)",
+    "qemu-system-arm": "qemu-system-arm",
+    "avr-gcc": AVR_PACKAGE,
+    "avr-nm": "binutils-avr (with gcc-avr)",
+    "avr-size": "binutils-avr (with gcc-avr)",
+    "simavr": "simavr",
+}
+
+
+@dataclass(frozen=True)
+class Target:
+    """One microcontroller build.
+
+    Attributes
+    ----------
+    name : str
+        The target's name in test ids and tables ("m4f-float").
+    arch : str
+        "arm" or "avr": the tool prefix (arm-none-eabi-, avr-).
+    flags : tuple of str
+        The CPU flags.
+    real : str
+        "double" or "float": ``PHOID_REAL`` of the build.
+    machine : str or None
+        The QEMU board that runs it (None: no QEMU board).
+    """
+
+    name: str
+    arch: str
+    flags: tuple[str, ...]
+    real: str
+    machine: str | None
+
+    @property
+    def prefix(self) -> str:
+        """The binutils prefix ("arm-none-eabi-", "avr-")."""
+        return "arm-none-eabi-" if self.arch == "arm" else "avr-"
+
+    @property
+    def defines(self) -> tuple[str, ...]:
+        """The -D flags of the real type (none for the default double)."""
+        return ("-DPHOID_REAL=float",) if self.real == "float" else ()
+
+
+_M4F = ("-mcpu=cortex-m4", "-mthumb", "-mfpu=fpv4-sp-d16", "-mfloat-abi=hard")
+TARGETS = {
+    t.name: t
+    for t in (
+        Target("m0", "arm", ("-mcpu=cortex-m0", "-mthumb"), "double", "microbit"),
+        Target("m3", "arm", ("-mcpu=cortex-m3", "-mthumb"), "double", "mps2-an385"),
+        Target("m4f-float", "arm", _M4F, "float", "mps2-an386"),
+        Target("m4f-double", "arm", _M4F, "double", "mps2-an386"),
+        Target(
+            "m7", "arm",
+            ("-mcpu=cortex-m7", "-mthumb", "-mfpu=fpv5-d16", "-mfloat-abi=hard"),
+            "double", "mps2-an500",
+        ),
+        Target("avr", "avr", ("-mmcu=atmega2560",), "double", None),
+    )
+}
+
+
+def tool(name: str) -> str:
+    """The path of a tool on PATH, or skip the test naming the Debian package to install.
+
+    Parameters
+    ----------
+    name : str
+        The program ("arm-none-eabi-gcc", "qemu-system-arm", "simavr", ...).
+
+    Returns
+    -------
+    str
+        Its absolute path.
+    """
+    path = shutil.which(name)
+    if path is None:
+        package = PACKAGES.get(name, name)
+        pytest.skip(f"{name} not found on PATH: install Debian's {package}")
+    return path
+
+
+def need_toolchain(target: Target) -> None:
+    """Skip unless the target's compiler and binutils are installed."""
+    for name in ("gcc", "nm", "size"):
+        tool(target.prefix + name)
+
+
+def controller_has_real_type() -> bool:
+    """Whether the controller's header has the compile-time real type (``phoid_real``)."""
+    return "phoid_real" in (CONTROLLER_DIR / "phoid_ctrl.h").read_text(encoding="utf-8")
+
+
+def need_real(target: Target) -> None:
+    """Skip a float build of a controller that has no ``PHOID_REAL`` yet."""
+    if target.real == "float" and not controller_has_real_type():
+        pytest.skip("the controller has no compile-time real type (PHOID_REAL) to build float")
+
+
+def run_tool(
+    args: list[str], what: str, timeout: float = TOOL_TIMEOUT, *, stderr: bool = False
+) -> str:
+    """Run a tool, returning its stdout; fail the test with its stderr when it fails.
+
+    Parameters
+    ----------
+    args : list of str
+        The command line.
+    what : str
+        What it does, for the failure message.
+    timeout : float
+        Seconds before it is killed (then the test fails).
+    stderr : bool
+        True: return the standard error after the standard output (simavr writes the
+        firmware's USART there).
+
+    Returns
+    -------
+    str
+        The tool's standard output.
+    """
+    proc = subprocess.run(args, capture_output=True, text=True, timeout=timeout, check=False)
+    if proc.returncode != 0:
+        pytest.fail(
+            f"{what} failed (exit {proc.returncode}): {' '.join(args)}\n{proc.stdout}{proc.stderr}",
+            pytrace=False,
+        )
+    return proc.stdout + proc.stderr if stderr else proc.stdout
+
+
+def compile_sources(
+    target: Target,
+    sources: list[Path],
+    out_dir: Path,
+    *,
+    opt: str = OPT,
+    strict: bool = True,
+    extra: tuple[str, ...] = (),
+) -> list[Path]:
+    """Compile sources for a target into objects in out_dir (one object per source).
+
+    Parameters
+    ----------
+    target : Target
+        The build.
+    sources : list of Path
+        The C files.
+    out_dir : Path
+        Where the objects go (created).
+    opt : str
+        The optimisation flag.
+    strict : bool
+        True: ``STRICT_FLAGS`` (warnings are errors); False: only -std=c99 and
+        -ffp-contract=off (for the tests' own start-up files, which take liberties).
+    extra : tuple of str
+        More flags (-I, -D).
+
+    Returns
+    -------
+    list of Path
+        The objects, in the order of the sources.
+    """
+    need_toolchain(target)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    flags = STRICT_FLAGS if strict else ("-std=c99", "-ffp-contract=off")
+    objects = []
+    for src in sources:
+        obj = out_dir / (src.stem + ".o")
+        run_tool(
+            [
+                target.prefix + "gcc", *target.flags, *flags, opt, *target.defines,
+                f"-I{CONTROLLER_DIR}", f"-I{MCU_DIR}", *extra, "-c", str(src), "-o", str(obj),
+            ],
+            f"compiling {src.name} for {target.name}",
+        )
+        objects.append(obj)
+    return objects
+
+
+def runtime_libraries(target: Target) -> list[str]:
+    """The compiler runtime a target links with: libgcc; on AVR also avr-libc's libm.a,
+    where avr-gcc keeps its floating-point routines (__addsf3, __mulsf3, ...)."""
+    libs = [run_tool([target.prefix + "gcc", *target.flags, "-print-libgcc-file-name"],
+                     "finding libgcc").strip()]
+    if target.arch == "avr":
+        libm = run_tool([target.prefix + "gcc", *target.flags, "-print-file-name=libm.a"],
+                        "finding avr-libc's libm.a").strip()
+        libs.append(libm)
+    return libs
+
+
+def runtime_symbols(target: Target) -> frozenset[str]:
+    """The symbols the compiler runtime defines (libgcc; on AVR also libm's ``__`` routines,
+    its floating-point support, and none of its math functions)."""
+    names: set[str] = set()
+    for i, lib in enumerate(runtime_libraries(target)):
+        out = run_tool([target.prefix + "nm", "--defined-only", "-g", lib], f"listing {lib}")
+        for line in out.splitlines():
+            parts = line.split()
+            if len(parts) == 3 and (i == 0 or parts[2].startswith("__")):
+                names.add(parts[2])
+    return frozenset(names)
+
+
+def undefined_symbols(target: Target, objects: list[Path]) -> set[str]:
+    """The symbols the objects use and do not define among themselves (``nm -u``)."""
+    used: set[str] = set()
+    defined: set[str] = set()
+    for obj in objects:
+        for line in run_tool([target.prefix + "nm", "-u", str(obj)], "nm -u").splitlines():
+            if line.strip():
+                used.add(line.split()[-1])
+        out = run_tool([target.prefix + "nm", "--defined-only", "-g", str(obj)], "nm")
+        defined.update(line.split()[-1] for line in out.splitlines() if line.strip())
+    return used - defined
+
+
+def link(target: Target, objects: list[Path], elf: Path) -> Path:
+    """Link objects with nothing but the compiler runtime (``-nostdlib -nostartfiles``; the
+    start-up file provides memcpy and memset). ARM uses tests/mcu/cortexm.ld."""
+    need_toolchain(target)
+    args = [target.prefix + "gcc", *target.flags, "-nostdlib", "-nostartfiles"]
+    if target.arch == "arm":
+        args += ["-T", str(MCU_DIR / "cortexm.ld")]
+    args += ["-o", str(elf), *map(str, objects)]
+    args += ["-lgcc"] if target.arch == "arm" else ["-Wl,--start-group", "-lgcc", "-lm",
+                                                      "-Wl,--end-group"]
+    run_tool(args, f"linking {elf.name} for {target.name}")
+    return elf
+
+
+def elf_sizes(target: Target, elf: Path) -> tuple[int, int]:
+    """(flash, ram) of a linked ELF in bytes: flash = text + data (the code, constants and
+    the initial values of data), RAM = data + bss (the stack not counted)."""
+    out = run_tool([target.prefix + "size", "-B", str(elf)], "size")
+    text, data, bss = (int(v) for v in out.splitlines()[1].split()[:3])
+    return text + data, data + bss
+
+
+def symbol_address(target: Target, elf: Path, name: str) -> int:
+    """The address of a symbol in an ELF (the Thumb bit cleared)."""
+    for line in run_tool([target.prefix + "nm", str(elf)], "nm").splitlines():
+        parts = line.split()
+        if len(parts) == 3 and parts[2] == name:
+            return int(parts[0], 16) & ~1
+    pytest.fail(f"{name} not in {elf.name}", pytrace=False)
+
+
+def firmware_sources(name: str) -> list[Path]:
+    """tests/mcu/<name>.c with its target-independent parts (the controller)."""
+    return [MCU_DIR / f"{name}.c", CONTROLLER_DIR / "phoid_ctrl.c"]
+
+
+def start_file(target: Target) -> Path:
+    """The tests' start-up file of a target (vectors, .data/.bss, memcpy/memset, markers)."""
+    return MCU_DIR / ("cortexm_start.c" if target.arch == "arm" else "avr_start.c")
+
+
+_TRACE = re.compile(r"^Trace \d+: \S+ \[[0-9a-f]+/([0-9a-f]+)/")
+
+
+def qemu_trace(target: Target, elf: Path, log: Path, timeout: float = 60.0) -> None:
+    """Run an ELF on the target's QEMU board, one instruction per translation block, logging
+    every block executed (``-singlestep -d exec,nochain``: one log line per instruction). The
+    firmware leaves through semihosting; a non-zero exit fails the test with its console."""
+    qemu = tool("qemu-system-arm")
+    assert target.machine is not None
+    run_tool(
+        [
+            qemu, "-M", target.machine, "-nographic", "-monitor", "none", "-serial", "none",
+            "-semihosting-config", "enable=on,target=native", "-singlestep",
+            "-d", "exec,nochain", "-D", str(log), "-kernel", str(elf),
+        ],
+        f"running {elf.name} on QEMU {target.machine}",
+        timeout=timeout,
+    )
+
+
+def marked_counts(begin: int, end: int, log: Path) -> list[int]:
+    """The instructions executed from each entry of the begin marker up to the next entry of
+    the end marker (the begin marker's own instructions included), in order."""
+    counts: list[int] = []
+    current: int | None = None
+    with log.open(encoding="utf-8", errors="replace") as fh:
+        for line in fh:
+            m = _TRACE.match(line)
+            if m is None:
+                continue
+            pc = int(m.group(1), 16)
+            if pc == begin:
+                current = 0
+            elif pc == end and current is not None:
+                counts.append(current)
+                current = None
+            if current is not None:
+                current += 1
+    return counts
+
+
+# --- the cost measurement (tests/test_mcu_cost.py, bench/bench_mcu.py) ---
+
+#: The calls tests/mcu/cost_main.c measures, in its order (keep both in step). Steps: "idle",
+#: "hold", "run"; the rest are transitions and calls: "start" (phoid_start, IDLE or DONE ->
+#: HOLD), "release" (the step that enters RUN: hold_samples reached, or after phoid_release),
+#: "clip" (a RUN step that starts a clipping episode: an event), "done" (the step that ends the
+#: run), "release-call" (phoid_release), "fault" (a step that trips fault-position), "clear"
+#: (phoid_clear_fault), "abort" (phoid_abort in HOLD).
+COST_SEQUENCE = (
+    "idle", "start", "hold", "hold", "hold", "release", "run", "clip", "run", "run", "done",
+    "start", "hold", "release-call", "release", "run", "fault", "clear", "abort",
+)
+STEP_KINDS = frozenset({"idle", "hold", "run"})
+AVR_CLOCK_HZ = 16_000_000  # an Arduino Mega 2560's crystal
+
+
+def build_cost_firmware(target: Target, out_dir: Path) -> Path:
+    """Compile and link tests/mcu/cost_main.c with the controller for a target (-O2, the
+    strict flags for the firmware's own files), returning the ELF."""
+    need_real(target)
+    start = compile_sources(target, [start_file(target)], out_dir, strict=False)
+    rest = compile_sources(target, firmware_sources("cost_main"), out_dir)
+    return link(target, [*start, *rest], out_dir / "cost.elf")
+
+
+def _avr_cycles(elf: Path) -> list[int]:
+    """Run the AVR cost firmware on simavr, returning the Timer1 counts it printed."""
+    simavr = tool("simavr")
+    out = run_tool(
+        [simavr, "-m", "atmega2560", "-f", str(AVR_CLOCK_HZ), str(elf)],
+        f"running {elf.name} on simavr", timeout=60, stderr=True,
+    )
+    if "exit 0" not in out:
+        pytest.fail(f"the AVR cost firmware did not finish: {out[-2000:]}", pytrace=False)
+    if "overflow" in out:
+        pytest.fail("a measured call took 65536 cycles or more (Timer1 overflowed)",
+                    pytrace=False)
+    return [int(v) for v in re.findall(r"cycles (\d+)", out)]
+
+
+def measure_cost(target: Target, out_dir: Path) -> list[tuple[str, int]]:
+    """The cost of each call of ``COST_SEQUENCE`` on a target: instructions executed on its
+    QEMU board (Cortex-M), CPU cycles on simavr (AVR); the markers' own cost (an empty pair)
+    subtracted.
+
+    Parameters
+    ----------
+    target : Target
+        The build.
+    out_dir : Path
+        A folder for the objects, the firmware and the trace.
+
+    Returns
+    -------
+    list of (str, int)
+        (kind, count) in the order of ``COST_SEQUENCE``.
+    """
+    if target.arch == "avr":
+        tool("simavr")
+    else:
+        tool("qemu-system-arm")
+    elf = build_cost_firmware(target, out_dir)
+    if target.arch == "avr":
+        counts = _avr_cycles(elf)
+    else:
+        log = out_dir / "trace.log"
+        qemu_trace(target, elf, log)
+        counts = marked_counts(
+            symbol_address(target, elf, "mcu_mark_begin"),
+            symbol_address(target, elf, "mcu_mark_end"), log,
+        )
+        log.unlink()  # megabytes: not kept
+    if len(counts) != len(COST_SEQUENCE) + 1:
+        pytest.fail(
+            f"{target.name}: {len(counts)} marked calls, expected {len(COST_SEQUENCE) + 1}",
+            pytrace=False,
+        )
+    empty = counts[0]
+    return [(kind, n - empty) for kind, n in zip(COST_SEQUENCE, counts[1:], strict=True)]

@@ -1,0 +1,159 @@
+"""The build gate of the rig controller on microcontrollers (issue 29).
+
+phoid's rig controller (src/phoid/rig/c/phoid_ctrl.c) and, where it exists, the firmware's
+link core (src/phoid/rig/c/firmware/phoid_fw.c) must build for Cortex-M0, M3, M4F (a float
+and a double build), M7 and AVR atmega2560 with the strict flags (tests/mcu_tools.py
+STRICT_FLAGS: -std=c99 -Wall -Wextra -Werror -pedantic -Wfloat-equal -ffp-contract=off) at
+-O2 and at -Os, use nothing but the compiler runtime (libgcc; on AVR avr-libc's
+floating-point routines, where avr-gcc keeps them) and memcpy/memset, link into a firmware
+(-nostdlib -nostartfiles, the tests' own start-up) and stay under stated flash and RAM
+ceilings. Each test is skipped, naming the Debian package, where its toolchain is missing.
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import pytest
+from mcu_tools import (
+    ALLOWED_LIBC,
+    CONTROLLER_DIR,
+    FIRMWARE_DIR,
+    MCU_DIR,
+    TARGETS,
+    Target,
+    compile_sources,
+    elf_sizes,
+    link,
+    need_real,
+    need_toolchain,
+    runtime_symbols,
+    start_file,
+    undefined_symbols,
+)
+
+# Flash and RAM ceilings (bytes) of the gate firmware: tests/mcu/cost_main.c (it drives every
+# state transition) + the controller + the tests' start-up + the libgcc routines they pull in,
+# built at -O2. Flash = text + data, RAM = data + bss (one phoid_ctrl and one phoid_config
+# with the default sizes, the stack not counted). Measured at commit 1166e2f (the controller
+# with PHOID_REAL, the 128-entry ring) on arm-none-eabi-gcc 12.2 and avr-gcc 5.4, then 25 %
+# added and rounded up to 100 bytes, so that a change that grows the firmware by a quarter
+# fails here and has to restate its numbers (src/phoid/rig/c/README.md "Cost per target").
+#   target: (flash measured, RAM measured)
+#   m0 (13400, 2376); m3 (7912, 2376); m4f-float (4332, 1368); m4f-double (7912, 2376);
+#   m7 (4716, 2376); avr (9628, 1794: avr-gcc keeps string constants in RAM)
+# (bench/bench_mcu.py prints these numbers.)
+SIZE_CEILINGS = {
+    "m0": (16800, 3000),
+    "m3": (9900, 3000),
+    "m4f-float": (5500, 1800),
+    "m4f-double": (9900, 3000),
+    "m7": (5900, 3000),
+    "avr": (12100, 2300),
+}
+
+GATE_TARGETS = sorted(TARGETS)
+
+# libgcc's software floating point on ARM: __aeabi_d* / __aeabi_f* (arithmetic, comparisons,
+# conversions from d and f), __aeabi_i2d, __aeabi_ul2f, ... (from integers), and the GNU names
+# (__adddf3, __mulsf3, ...); not the integer helpers (__aeabi_idiv, __aeabi_uldivmod)
+SOFT_FLOAT = re.compile(r"^__aeabi_(d|f|[iul]+2[df])|^__\w+[sd]f\d$")
+
+
+@pytest.fixture(scope="module")
+def runtime() -> dict[str, frozenset[str]]:
+    """Per target name, the symbols of its compiler runtime (listed once per module)."""
+    return {}
+
+
+@pytest.fixture(scope="module")
+def build_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """One folder for every object and firmware of this module."""
+    return tmp_path_factory.mktemp("mcu_build")
+
+
+def _controller_objects(target: Target, build_dir: Path, opt: str) -> list[Path]:
+    """The strictly compiled controller (and, on Cortex-M, the firmware's link core) objects of
+    a target, compiled once per module and optimisation level. (The link core decodes the
+    protocol's f8 fields into a 64-bit double, which AVR does not have: on AVR the gate builds
+    the controller alone.)"""
+    out = build_dir / f"{target.name}{opt}"
+    objects = [out / "phoid_ctrl.o"]
+    sources = [CONTROLLER_DIR / "phoid_ctrl.c"]
+    if target.arch == "arm" and (FIRMWARE_DIR / "phoid_fw.c").exists():
+        sources.append(FIRMWARE_DIR / "phoid_fw.c")
+        objects.append(out / "phoid_fw.o")
+    if all(o.exists() for o in objects):
+        return objects
+    return compile_sources(target, sources, out, opt=opt, extra=(f"-I{FIRMWARE_DIR}",))
+
+
+def _board_functions() -> set[str]:
+    """The functions firmware/board.h declares: the user's board code, which the firmware's
+    link core may call (empty where there is no board.h yet)."""
+    header = FIRMWARE_DIR / "board.h"
+    if not header.exists():
+        return set()
+    return set(re.findall(r"\b(board_\w+)\s*\(", header.read_text(encoding="utf-8")))
+
+
+@pytest.mark.parametrize("opt", ["-O2", "-Os"])
+@pytest.mark.parametrize("name", GATE_TARGETS)
+def test_strict_build(name: str, opt: str, build_dir: Path) -> None:
+    """The controller (and the firmware core) compile with the strict flags, warnings as
+    errors, at both optimisation levels (some warnings depend on the optimiser)."""
+    target = TARGETS[name]
+    need_real(target)
+    objects = _controller_objects(target, build_dir, opt)
+    assert all(o.stat().st_size > 0 for o in objects)
+
+
+@pytest.mark.parametrize("name", GATE_TARGETS)
+def test_only_the_compiler_runtime(
+    name: str, build_dir: Path, runtime: dict[str, frozenset[str]]
+) -> None:
+    """Every symbol the objects need and do not define is the compiler runtime's, memcpy or
+    memset (or a board function of firmware/board.h, the user's to write)."""
+    target = TARGETS[name]
+    need_real(target)
+    objects = _controller_objects(target, build_dir, "-O2")
+    if name not in runtime:
+        runtime[name] = runtime_symbols(target)
+    # an empty runtime list would let nothing through and fail below: guard the listing itself
+    assert "__aeabi_dmul" in runtime[name] or "__mulsf3" in runtime[name]
+    needed = undefined_symbols(target, objects)
+    foreign = needed - runtime[name] - ALLOWED_LIBC - _board_functions()
+    assert not foreign, f"{name}: symbols from outside the compiler runtime: {sorted(foreign)}"
+
+
+@pytest.mark.parametrize("name", GATE_TARGETS)
+def test_links_bare_and_fits(name: str, build_dir: Path) -> None:
+    """The controller links into a firmware with -nostdlib -nostartfiles and the runtime only,
+    within the target's flash and RAM ceilings (SIZE_CEILINGS, with where they come from)."""
+    target = TARGETS[name]
+    need_toolchain(target)
+    need_real(target)
+    ctrl = _controller_objects(target, build_dir, "-O2")[0]
+    out = build_dir / f"{name}-gate"
+    own = compile_sources(target, [start_file(target)], out, strict=False)
+    main = compile_sources(target, [MCU_DIR / "cost_main.c"], out)
+    elf = link(target, [*own, *main, ctrl], out / "gate.elf")
+    flash, ram = elf_sizes(target, elf)
+    flash_max, ram_max = SIZE_CEILINGS[name]
+    assert flash <= flash_max, f"{name}: flash {flash} B above its ceiling {flash_max} B"
+    assert ram <= ram_max, f"{name}: RAM {ram} B above its ceiling {ram_max} B"
+
+
+def test_float_m4f_controller_runs_on_the_fpu(build_dir: Path) -> None:
+    """The float build on the M4F (a single-precision FPU) calls no software floating-point
+    routine: its step is the FPU's (the double build calls libgcc's __aeabi_d* for every
+    operation, issue 29's 80 calls per step)."""
+    target = TARGETS["m4f-float"]
+    need_real(target)
+    ctrl = _controller_objects(target, build_dir, "-O2")[0]
+    soft = {s for s in undefined_symbols(target, [ctrl]) if SOFT_FLOAT.match(s)}
+    # the double build of the same object is the counter-example this test must tell apart
+    double = _controller_objects(TARGETS["m4f-double"], build_dir, "-O2")[0]
+    assert "__aeabi_dmul" in undefined_symbols(TARGETS["m4f-double"], [double])
+    assert not soft, f"the float M4F controller calls software floating point: {sorted(soft)}"
