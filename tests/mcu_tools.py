@@ -46,6 +46,7 @@ PACKAGES = {
     "avr-nm": "binutils-avr (with gcc-avr)",
     "avr-size": "binutils-avr (with gcc-avr)",
     "simavr": "simavr",
+    "make": "make",
 }
 
 

@@ -28,8 +28,10 @@ from mcu_tools import (
     link,
     need_real,
     need_toolchain,
+    run_tool,
     runtime_symbols,
     start_file,
+    tool,
     undefined_symbols,
 )
 
@@ -54,6 +56,18 @@ SIZE_CEILINGS = {
 }
 
 GATE_TARGETS = sorted(TARGETS)
+
+# The same for the firmware template of src/phoid/rig/c/firmware (its Makefile, its MPS2 HIL
+# board: the controller, the link core, the board's UART code, start-up, memcpy/memset; linked
+# with --gc-sections), which runs on the MPS2 boards only (M3, M4F, M7). Measured at commit
+# 56072b9 (the firmware's first commit), flash / RAM: m3 10340 / 4416, m4f-float 10356 / 2960,
+# m4f-double 10368 / 4416, m7 7764 / 4416; plus 25 %, rounded up to 100.
+FIRMWARE_CEILINGS = {
+    "m3": (13000, 5600),
+    "m4f-float": (13000, 3700),
+    "m4f-double": (13000, 5600),
+    "m7": (9800, 5600),
+}
 
 # libgcc's software floating point on ARM: __aeabi_d* / __aeabi_f* (arithmetic, comparisons,
 # conversions from d and f), __aeabi_i2d, __aeabi_ul2f, ... (from integers), and the GNU names
@@ -157,3 +171,25 @@ def test_float_m4f_controller_runs_on_the_fpu(build_dir: Path) -> None:
     double = _controller_objects(TARGETS["m4f-double"], build_dir, "-O2")[0]
     assert "__aeabi_dmul" in undefined_symbols(TARGETS["m4f-double"], [double])
     assert not soft, f"the float M4F controller calls software floating point: {sorted(soft)}"
+
+
+@pytest.mark.parametrize("name", sorted(FIRMWARE_CEILINGS))
+def test_firmware_template_builds_and_fits(name: str, build_dir: Path) -> None:
+    """The firmware's own Makefile (its strict flags, -nostdlib, libgcc) builds the MPS2 HIL
+    firmware for the target, within its flash and RAM ceilings (FIRMWARE_CEILINGS)."""
+    target = TARGETS[name]
+    need_toolchain(target)
+    need_real(target)
+    if not (FIRMWARE_DIR / "Makefile").exists():
+        pytest.skip("no firmware template (src/phoid/rig/c/firmware/Makefile) yet")
+    make = tool("make")
+    out = build_dir / f"{name}-firmware"
+    run_tool(
+        [make, "-s", "-C", str(FIRMWARE_DIR), f"TARGET={name.split('-')[0]}",
+         f"REAL={target.real}", "BOARD=mps2_hil", f"OUT={out}"],
+        f"building the firmware template for {name}",
+    )
+    flash, ram = elf_sizes(target, out / "phoid_fw.elf")
+    flash_max, ram_max = FIRMWARE_CEILINGS[name]
+    assert flash <= flash_max, f"{name}: firmware flash {flash} B above its ceiling {flash_max} B"
+    assert ram <= ram_max, f"{name}: firmware RAM {ram} B above its ceiling {ram_max} B"
