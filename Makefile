@@ -4,7 +4,7 @@ PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 LINTED := src tests bench examples .ci
 
-.PHONY: demo test lint readme wheel min-versions bench fuzz clean
+.PHONY: demo test lint readme wheel min-versions bench mcu fuzz clean
 
 $(STAMP): pyproject.toml
 	python3 -m venv $(VENV)
@@ -39,6 +39,12 @@ min-versions:
 ## benchmarks (not part of the tests): writes BENCHMARKS.md and bench/results.json
 bench: $(STAMP)
 	$(PY) bench/run.py
+
+## the microcontroller tests alone (tests/test_mcu_*.py; skipped without Debian's cross
+## toolchains, QEMU and simavr: .ci/run installs them), then the per-target cost table
+mcu: $(STAMP)
+	$(PY) -m pytest -q $(wildcard tests/test_mcu_*.py)
+	$(PY) bench/bench_mcu.py
 
 ## fuzz the readers for FUZZ_SECONDS (default 600; docs/fuzzing.md); findings: fuzz/crash-*
 FUZZ_SECONDS ?= 600

@@ -4,8 +4,9 @@ src/phoid/rig/c/README.md "Cost per target".
 For each target of tests/mcu_tools.py (Cortex-M0, M3, M4F float and double, M7, AVR
 atmega2560), built at -O2 with the strict flags: the instructions (Cortex-M, counted in a
 QEMU trace) or cycles (AVR, simavr's Timer1) of the dearest RUN step and of the dearest
-transition of tests/mcu/cost_main.c, with the transition named, and the flash and RAM of that
-firmware (the controller, the tests' start-up and the libgcc routines it pulls in).
+transition of tests/mcu/cost_main.c, with the transition named, the flash and RAM of that
+firmware (the controller, the tests' start-up and the libgcc routines it pulls in), and the
+controller's own code (text + data of phoid_ctrl.o, without the libgcc routines).
 
     python bench/bench_mcu.py            # a Markdown table on stdout (about 10 s)
 
@@ -29,8 +30,8 @@ from mcu_tools import TARGETS, build_cost_firmware, elf_sizes, measure_cost  # n
 def main() -> int:
     """Print the table; 0, or 1 when a target failed to build or run."""
     status = 0
-    print("| target | RUN step | dearest transition | flash (B) | RAM (B) |")
-    print("|---|---|---|---|---|")
+    print("| target | RUN step | dearest transition | flash (B) | RAM (B) | phoid_ctrl.o (B) |")
+    print("|---|---|---|---|---|---|")
     with tempfile.TemporaryDirectory() as tmp:
         for name, target in TARGETS.items():
             unit = "cycles" if target.arch == "avr" else "instructions"
@@ -38,10 +39,10 @@ def main() -> int:
                 costs = measure_cost(target, Path(tmp) / name)
                 flash, ram = elf_sizes(target, build_cost_firmware(target, Path(tmp) / name))
             except pytest.skip.Exception as exc:
-                print(f"| {name} | skipped: {exc} | | | |")
+                print(f"| {name} | skipped: {exc} | | | | |")
                 continue
             except pytest.fail.Exception as exc:
-                print(f"| {name} | failed: {str(exc).splitlines()[0]} | | | |")
+                print(f"| {name} | failed: {str(exc).splitlines()[0]} | | | | |")
                 status = 1
                 continue
             run = max(n for kind, n in costs if kind == "run")
@@ -49,7 +50,8 @@ def main() -> int:
                 ((k, n) for k, n in costs if k not in ("idle", "hold", "run")),
                 key=lambda kn: kn[1],
             )
-            print(f"| {name} | {run} {unit} | {worst} ({kind}) | {flash} | {ram} |")
+            own, _ = elf_sizes(target, Path(tmp) / name / "phoid_ctrl.o")
+            print(f"| {name} | {run} {unit} | {worst} ({kind}) | {flash} | {ram} | {own} |")
     return status
 
 
