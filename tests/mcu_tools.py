@@ -16,6 +16,7 @@ from __future__ import annotations
 import re
 import shutil
 import subprocess
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -162,7 +163,10 @@ def run_tool(
     str
         The tool's standard output.
     """
-    proc = subprocess.run(args, capture_output=True, text=True, timeout=timeout, check=False)
+    try:
+        proc = subprocess.run(args, capture_output=True, text=True, timeout=timeout, check=False)
+    except subprocess.TimeoutExpired:
+        pytest.fail(f"{what}: no exit after {timeout:.0f} s: {' '.join(args)}", pytrace=False)
     if proc.returncode != 0:
         pytest.fail(
             f"{what} failed (exit {proc.returncode}): {' '.join(args)}\n{proc.stdout}{proc.stderr}",
@@ -302,21 +306,43 @@ def start_file(target: Target) -> Path:
 _TRACE = re.compile(r"^Trace \d+: \S+ \[[0-9a-f]+/([0-9a-f]+)/")
 
 
-def qemu_trace(target: Target, elf: Path, log: Path, timeout: float = 60.0) -> None:
+TRACE_MAX_BYTES = 200_000_000  # a cost run logs ~3 MB; a firmware that hangs, ~80 MB/s
+
+
+def qemu_trace(target: Target, elf: Path, log: Path, timeout: float = 30.0) -> None:
     """Run an ELF on the target's QEMU board, one instruction per translation block, logging
     every block executed (``-singlestep -d exec,nochain``: one log line per instruction). The
-    firmware leaves through semihosting; a non-zero exit fails the test with its console."""
+    firmware leaves through semihosting; a non-zero exit fails the test with its console, and
+    so does a run past ``timeout`` seconds or a log past ``TRACE_MAX_BYTES`` (a firmware that
+    does not finish: QEMU is killed before the log fills the disk)."""
     qemu = tool("qemu-system-arm")
     assert target.machine is not None
-    run_tool(
-        [
-            qemu, "-M", target.machine, "-nographic", "-monitor", "none", "-serial", "none",
-            "-semihosting-config", "enable=on,target=native", "-singlestep",
-            "-d", "exec,nochain", "-D", str(log), "-kernel", str(elf),
-        ],
-        f"running {elf.name} on QEMU {target.machine}",
-        timeout=timeout,
-    )
+    args = [
+        qemu, "-M", target.machine, "-nographic", "-monitor", "none", "-serial", "none",
+        "-semihosting-config", "enable=on,target=native", "-singlestep",
+        "-d", "exec,nochain", "-D", str(log), "-kernel", str(elf),
+    ]
+    what = f"running {elf.name} on QEMU {target.machine}"
+    with subprocess.Popen(
+        args, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL
+    ) as proc:
+        start = time.monotonic()
+        while proc.poll() is None:
+            big = log.exists() and log.stat().st_size > TRACE_MAX_BYTES
+            if big or time.monotonic() - start > timeout:
+                proc.kill()
+                proc.wait()
+                log.unlink(missing_ok=True)
+                pytest.fail(
+                    f"{what}: no exit after {time.monotonic() - start:.0f} s"
+                    f"{' and a trace over ' + str(TRACE_MAX_BYTES) + ' bytes' if big else ''}",
+                    pytrace=False,
+                )
+            time.sleep(0.02)
+        console = proc.stdout.read().decode(errors="replace") if proc.stdout else ""
+    if proc.returncode != 0:
+        pytest.fail(f"{what} failed (exit {proc.returncode}): {console[-2000:]}",
+                    pytrace=False)
 
 
 def marked_counts(begin: int, end: int, log: Path) -> list[int]:
