@@ -184,6 +184,7 @@ def test_firmware_template_builds_and_fits(name: str, build_dir: Path) -> None:
         pytest.skip("no firmware template (src/phoid/rig/c/firmware/Makefile) yet")
     make = tool("make")
     out = build_dir / f"{name}-firmware"
+    out.mkdir(parents=True, exist_ok=True)
     run_tool(
         [make, "-s", "-C", str(FIRMWARE_DIR), f"TARGET={name.split('-')[0]}",
          f"REAL={target.real}", "BOARD=mps2_hil", f"OUT={out}"],
