@@ -382,12 +382,13 @@ STEP_KINDS = frozenset({"idle", "hold", "run"})
 AVR_CLOCK_HZ = 16_000_000  # an Arduino Mega 2560's crystal
 
 
-def build_cost_firmware(target: Target, out_dir: Path) -> Path:
+def build_cost_firmware(target: Target, out_dir: Path, defines: tuple[str, ...] = ()) -> Path:
     """Compile and link tests/mcu/cost_main.c with the controller for a target (-O2, the
-    strict flags for the firmware's own files), returning the ELF."""
+    strict flags for the firmware's own files; ``defines``: more -D flags, e.g. the
+    controller's sizes), returning the ELF."""
     need_real(target)
     start = compile_sources(target, [start_file(target)], out_dir, strict=False)
-    rest = compile_sources(target, firmware_sources("cost_main"), out_dir)
+    rest = compile_sources(target, firmware_sources("cost_main"), out_dir, extra=defines)
     return link(target, [*start, *rest], out_dir / "cost.elf")
 
 
@@ -406,7 +407,9 @@ def _avr_cycles(elf: Path) -> list[int]:
     return [int(v) for v in re.findall(r"cycles (\d+)", out)]
 
 
-def measure_cost(target: Target, out_dir: Path) -> list[tuple[str, int]]:
+def measure_cost(
+    target: Target, out_dir: Path, defines: tuple[str, ...] = ()
+) -> list[tuple[str, int]]:
     """The cost of each call of ``COST_SEQUENCE`` on a target: instructions executed on its
     QEMU board (Cortex-M), CPU cycles on simavr (AVR); the markers' own cost (an empty pair)
     subtracted.
@@ -417,6 +420,8 @@ def measure_cost(target: Target, out_dir: Path) -> list[tuple[str, int]]:
         The build.
     out_dir : Path
         A folder for the objects, the firmware and the trace.
+    defines : tuple of str
+        More -D flags for the firmware and the controller.
 
     Returns
     -------
@@ -427,7 +432,7 @@ def measure_cost(target: Target, out_dir: Path) -> list[tuple[str, int]]:
         tool("simavr")
     else:
         tool("qemu-system-arm")
-    elf = build_cost_firmware(target, out_dir)
+    elf = build_cost_firmware(target, out_dir, defines)
     if target.arch == "avr":
         counts = _avr_cycles(elf)
     else:

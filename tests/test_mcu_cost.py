@@ -64,3 +64,18 @@ def test_step_and_transition_budget(name: str, cost_dir: Path) -> None:
     # a count of 0 would mean the markers missed the call (the ceilings would pass vacuously):
     # every step runs the estimator and the checks, tens of instructions at the least
     assert min(n for kind, n in costs if kind in STEP_KINDS) >= 20, costs
+
+
+def test_transitions_do_not_grow_with_the_ring(cost_dir: Path) -> None:
+    """O(1) transitions on the MCU: with a delay ring and an event log 8x the default sizes
+    (PHOID_RING_SIZE 1024, PHOID_EVENT_LOG 256: 8 kB, what the tests' 16 kB of RAM holds),
+    every measured call costs what it costs at the defaults, to a few instructions (a wider
+    index mask may take one more instruction to load). A transition that wiped the ring or
+    the log would cost at least one instruction per entry: >= 256 more."""
+    target = TARGETS["m4f-float"]
+    default = measure_cost(target, cost_dir / "ring-default")
+    big = measure_cost(
+        target, cost_dir / "ring-1024", ("-DPHOID_RING_SIZE=1024", "-DPHOID_EVENT_LOG=256")
+    )
+    grown = [(kind, a, b) for (kind, a), (_, b) in zip(default, big, strict=True) if b - a > 8]
+    assert not grown, f"calls dearer with the bigger ring and log (kind, default, big): {grown}"
