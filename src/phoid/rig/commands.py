@@ -115,7 +115,8 @@ def virtual_rig(
 ) -> None:
     """Serve a simulated rig: the compiled C controller against phoid's exact plant.
 
-    Speaks the rig protocol PHOID-RIG 1 (docs/rig-protocol.md) on --listen, one host at a time
+    Speaks the rig protocol PHOID-RIG 1 (docs/rig-protocol.md; its binary framing too, when
+    the host offers FRAMING cobs) on --listen, one host at a time
     (another is refused at once: ERROR busy), until interrupted (Ctrl-C or SIGTERM: it then
     stops serving and removes its temporary build folder). A host silent for --idle-timeout s
     or a session older than --max-session s is closed with an ERROR. Needs a C compiler.
@@ -182,6 +183,11 @@ def run(
     timeout: Annotated[float, typer.Option(
         help="Seconds to wait for the rig (connection, each line, each send; at most a day); "
              "each run also ends within --timeout + (its samples)·(2T + 0.1 ms).")] = 10.0,
+    framing: Annotated[str, typer.Option(
+        help="How the samples travel: 'text' (PHOID-RIG 1 lines, every rig), 'auto' (offer "
+             "the binary COBS frames a microcontroller rig speaks, keep text when the rig "
+             "refuses) or 'binary' (insist: a rig that refuses is an error). "
+             "docs/rig-protocol.md.")] = "text",
 ) -> None:
     """Run a designed plan on a rig and write the phoid/1 set as the samples arrive.
 
@@ -217,8 +223,9 @@ def run(
                 advance(0, description=f"run {i}: samples", completed=n, total=total)
 
             result = run_plan(plan, port, out_path, resume=resume, timeout=timeout,
-                              progress=progress, pmax=pmax, dmax=dmax, hold_p=hold_p,
-                              hold_d=hold_d, hold=hold, x_limit=x_limit, u_max=u_max)
+                              progress=progress, framing=framing, pmax=pmax, dmax=dmax,
+                              hold_p=hold_p, hold_d=hold_d, hold=hold, x_limit=x_limit,
+                              u_max=u_max)
     except (RigError, ValueError, OSError) as exc:
         _fail(str(exc))
     except KeyboardInterrupt as exc:  # Ctrl-C (130) or SIGTERM (143): one line, both

@@ -42,8 +42,23 @@ except ImportError:  # not POSIX: no lock
 
 from phoid._output import OutputFolder
 from phoid.rig.checks import MANIFEST, MAX_TIMEOUT, RigError, clip, option, plan_configs, variant
+from phoid.rig.frames import (
+    abort_frame,
+    config_frame,
+    decode_frame,
+    message_frame,
+    parse_rig_frame,
+)
 from phoid.rig.link import Link, LinkClosed, connect, open_serial
-from phoid.rig.protocol import ProtocolError, check_hello, encode, encode_config, hello, parse
+from phoid.rig.protocol import (
+    Message,
+    ProtocolError,
+    check_hello,
+    encode,
+    encode_config,
+    hello,
+    parse,
+)
 from phoid.rig.runfiles import (
     DIGEST,
     EVENT_CHARS,
@@ -57,12 +72,14 @@ from phoid.rig.runfiles import (
     write_manifest,
 )
 
-__all__ = ["RigError", "RunPlanResult", "open_port", "parse_port", "plan_configs", "run_plan"]
+__all__ = ["FRAMINGS", "RigError", "RunPlanResult", "open_port", "parse_port", "plan_configs",
+           "run_plan"]
 
 MAX_DAMAGED = 100  # damaged lines (checksum, syntax, too long) in a run before the link is given up
 EXTRA_EVENTS = 64  # EVENT lines a run may bring beyond one per sample
 LINE_BYTES = 160  # bytes per line in a run's deadline on a serial line
 LINE_TIME = 1e-4  # s per sample in a run's deadline for the host's and a fast rig's own work
+FRAMINGS = ("auto", "text", "binary")  # --framing: offer the binary one, never, or insist
 _DIGITS = re.compile(r"[0-9]{1,9}")
 
 
@@ -133,7 +150,7 @@ def open_port(port: str, timeout: float) -> Link:
 
 def run_plan(plan: str | Path, port: str, out: str | Path, *, resume: bool = False,
              timeout: float = 10.0, progress: Callable[[int, int, int], None] | None = None,
-             **limits: Any) -> RunPlanResult:
+             framing: str = "text", **limits: Any) -> RunPlanResult:
     """Run every run of a plan on the rig at ``port`` and write the set into ``out``.
 
     Parameters
@@ -153,6 +170,11 @@ def run_plan(plan: str | Path, port: str, out: str | Path, *, resume: bool = Fal
         send; each run ends within a deadline from it and the run's samples.
     progress : callable, optional
         Called as ``progress(run, samples, total)`` while samples arrive.
+    framing : {"text", "auto", "binary"}
+        How the samples travel (docs/rig-protocol.md, "Binary framing"): ``"text"`` lines only
+        (the default: every ``PHOID-RIG 1`` rig); ``"auto"`` offers ``FRAMING cobs`` after
+        the hello and keeps the text lines when the rig answers ERROR; ``"binary"`` insists
+        (a rig that answers ERROR is one RigError).
     **limits
         ``pmax``, ``dmax``, ``hold_p``, ``hold_d``, ``hold``, ``x_limit``, ``u_max``,
         ``growth_limit`` of :func:`plan_configs`.
@@ -165,6 +187,9 @@ def run_plan(plan: str | Path, port: str, out: str | Path, *, resume: bool = Fal
     """
     if not str(out).strip():
         raise RigError("--out must name a folder; got an empty name; nothing was sent")
+    if framing not in FRAMINGS:
+        raise RigError(f"--framing must be {', '.join(FRAMINGS[:-1])} or {FRAMINGS[-1]}; got "
+                       f"{clip(repr(framing), 80)}")
     timeout = option("--timeout", timeout, lambda v: 0 < v <= MAX_TIMEOUT,
                      f"a finite number of seconds > 0 and at most {MAX_TIMEOUT:g}")
     sched, configs = plan_configs(plan, **limits)
@@ -192,7 +217,7 @@ def run_plan(plan: str | Path, port: str, out: str | Path, *, resume: bool = Fal
             signals = _Interrupts()
             with signals.installed():
                 messages = _session(link, port, timeout, folder, sched, configs, attempts,
-                                    status, digests, progress, signals)
+                                    status, digests, progress, signals, framing)
         except LinkClosed as exc:
             raise RigError(clip(exc, REASON_CHARS)) from None
         finally:
@@ -240,9 +265,10 @@ def _lock(folder: OutputFolder) -> tuple[int, bool]:
 def _session(link: Link, port: str, timeout: float, folder: OutputFolder,
              sched: Mapping[str, Any], configs: list[dict[str, Any]],
              attempts: list[dict[str, Any]], status: list[str], digests: dict[bytes, str],
-             progress: Callable | None, signals: _Interrupts) -> list[str]:
-    """The session on the rig: hello, then each pending run; the messages of runs that did
-    not complete."""
+             progress: Callable | None, signals: _Interrupts, framing: str = "text"
+             ) -> list[str]:
+    """The session on the rig: hello, the framing, then each pending run; the messages of runs
+    that did not complete."""
     files = sched["files"]
     messages: list[str] = []
     link.send(hello())
@@ -250,6 +276,7 @@ def _session(link: Link, port: str, timeout: float, folder: OutputFolder,
         check_hello(_reply(link, timeout, "hello"), f"the rig at {port}")
     except ProtocolError as exc:
         raise RigError(clip(exc, REASON_CHARS)) from None
+    wire = _negotiate(link, port, timeout, framing)
     for i, cfg in enumerate(configs):
         if status[i] != "pending":
             continue
@@ -265,15 +292,17 @@ def _session(link: Link, port: str, timeout: float, folder: OutputFolder,
         reason, end, stop = "", "", None
         try:
             signals.release()  # one held back raises here
-            link.send(encode_config(cfg))
-            reply = _reply(link, timeout, "the reply to CONFIG", f"run {i + 1}: ")
+            link.send(wire.config(cfg))
+            reply = _reply(link, timeout, "the reply to CONFIG", f"run {i + 1}: ", wire)
             if reply.kind == "ERROR":
-                raise RigError(f"the rig refused {where}: "
-                               f"{clip(reply.fields['message'], REASON_CHARS)}")
+                why = str(reply.fields["message"])
+                hint = ("; it asks for the binary framing: pass --framing auto" if
+                        not wire.binary and "FRAMING" in why else "")
+                raise RigError(f"the rig refused {where}: {clip(why, REASON_CHARS)}{hint}")
             if reply.kind != "OK":
                 raise RigError(f"the rig answered CONFIG of run {i + 1} with {reply.kind}, "
                                "not OK")
-            reason, end, stop = _stream(link, run, i, timeout, progress)
+            reason, end, stop = _stream(link, run, i, timeout, progress, wire)
             signals.hold()
         except KeyboardInterrupt as exc:  # before START, or just after the stream: recorded
             if not signals.held:
@@ -288,7 +317,8 @@ def _session(link: Link, port: str, timeout: float, folder: OutputFolder,
             signals.release()
             raise
         try:
-            attempt, msg = _record(run, i, cfg, reason, end, stop, progress, digests)
+            attempt, msg = _record(run, i, cfg, reason, end, stop, progress, digests,
+                                   wire.name)
             attempts.append(attempt)
             status[i] = attempt["status"]
             try:
@@ -310,13 +340,13 @@ def _session(link: Link, port: str, timeout: float, folder: OutputFolder,
         if reason:
             break  # the link failed: stop; --resume runs the rest
         if run.faulted or end.startswith("fault"):
-            link.send(encode("CLEAR"))  # latched: clear it
-            reply = _reply(link, timeout, "the reply to CLEAR", f"after run {i + 1}: ")
+            link.send(wire.message("CLEAR"))  # latched: clear it
+            reply = _reply(link, timeout, "the reply to CLEAR", f"after run {i + 1}: ", wire)
             if reply.kind != "OK":
                 raise RigError(f"the rig did not clear its fault after run {i + 1}: "
                                f"{clip(reply.fields.get('message', reply.kind), 200)}")
     with contextlib.suppress(LinkClosed):  # the link may be gone after a failed run
-        link.send(encode("BYE"))
+        link.send(wire.message("BYE"))
     return messages
 
 
@@ -375,20 +405,72 @@ def _interrupted(exc: BaseException) -> str:
     return f"interrupted on the host ({why})"
 
 
-def _reply(link: Link, timeout: float, what: str, where: str = "") -> Any:
-    """The rig's next line, parsed: within ``timeout`` s and one line, else one RigError."""
-    line = link.readline(timeout)
+class _Wire:
+    """The session's framing: text lines, or binary frames once the rig took ``FRAMING cobs``
+    (:mod:`phoid.rig.frames`); what the host sends and how it reads the rig's messages."""
+
+    def __init__(self, binary: bool) -> None:
+        self.binary = binary
+        self.name = "cobs" if binary else "text"  # the attempt's `framing`
+        self.unit = "frame" if binary else "line"
+
+    def config(self, cfg: Mapping[str, Any]) -> bytes:
+        return config_frame(cfg) if self.binary else encode_config(cfg)
+
+    def message(self, kind: str) -> bytes:
+        """START, CLEAR or BYE."""
+        return message_frame(kind) if self.binary else encode(kind)
+
+    def abort(self, reason: float) -> bytes:
+        return abort_frame(reason) if self.binary else encode("ABORT", reason)
+
+    def read(self, link: Link, timeout: float) -> bytes | None:
+        return link.read_frame(timeout) if self.binary else link.readline(timeout)
+
+    def parse(self, raw: bytes, sample_time: float | None = None) -> Message:
+        """A line or frame, checked and parsed (a SAMPLE frame's t = index·sample_time)."""
+        if self.binary:
+            return parse_rig_frame(decode_frame(raw), sample_time)
+        return parse(raw)
+
+
+_TEXT = _Wire(False)
+
+
+def _negotiate(link: Link, port: str, timeout: float, framing: str) -> _Wire:
+    """Offer ``FRAMING cobs`` (unless ``framing`` is text): the binary wire when the rig
+    answers OK; the text one when it answers ERROR (an old rig), unless ``framing`` is binary."""
+    if framing == "text":
+        return _TEXT
+    link.send(encode("FRAMING", "cobs"))
+    reply = _reply(link, timeout, "the reply to FRAMING cobs")
+    if reply.kind == "OK":
+        return _Wire(True)
+    if reply.kind != "ERROR":
+        raise RigError(f"the rig at {port} answered FRAMING cobs with {reply.kind}, not OK or "
+                       "ERROR")
+    if framing == "binary":
+        raise RigError(f"the rig at {port} does not speak the binary framing (--framing "
+                       f"binary): it answered FRAMING cobs with ERROR "
+                       f"{clip(reply.fields['message'], 200)}; nothing was run")
+    return _TEXT
+
+
+def _reply(link: Link, timeout: float, what: str, where: str = "", wire: _Wire = _TEXT) -> Any:
+    """The rig's next line (or frame), parsed: within ``timeout`` s and one line, else one
+    RigError."""
+    line = wire.read(link, timeout)
     if line is None:
         raise RigError(f"{where}the rig sent nothing for {timeout:g} s (waiting for {what})")
     try:
-        return parse(line)
+        return wire.parse(line)
     except ProtocolError as exc:
-        raise RigError(f"{where}the rig's line is damaged (waiting for {what}): "
+        raise RigError(f"{where}the rig's {wire.unit} is damaged (waiting for {what}): "
                        f"{clip(exc, REASON_CHARS)}") from None
 
 
-def _stream(link: Link, run: RunFile, i: int, timeout: float, progress: Callable | None
-            ) -> tuple[str, str, BaseException | None]:
+def _stream(link: Link, run: RunFile, i: int, timeout: float, progress: Callable | None,
+            wire: _Wire = _TEXT) -> tuple[str, str, BaseException | None]:
     """START one run and stream it into ``run``: why the link failed ("" when it still works:
     not after a drop, a timeout, an ERROR, the deadline, a cap or a file that cannot be
     written; the host then sends ABORT), the END reason, and an interruption (Ctrl-C,
@@ -401,26 +483,26 @@ def _stream(link: Link, run: RunFile, i: int, timeout: float, progress: Callable
     reason, end = "", ""
     stop: BaseException | None = None
     try:
-        link.send(encode("START"))
+        link.send(wire.message("START"))
         while True:
             left = deadline - time.monotonic()
             if left <= 0:
                 reason = (f"the run did not end within {budget:.4g} s (its {total} samples at "
                           f"T = {T:g} s, and --timeout {timeout:g} s)")
                 break
-            line = link.readline(min(wait, left))
+            line = wire.read(link, min(wait, left))
             if line is None:
                 if left > wait:
                     reason = f"the rig sent nothing for {wait:g} s"
                     break
                 continue  # the deadline: said at the top
             try:
-                msg = parse(line)
+                msg = wire.parse(line, T)
             except ProtocolError as exc:  # keep reading: every later sample is kept
                 run.damaged_lines += 1
                 run.damage(f"{exc} (after sample {run.last_index})")
                 if run.damaged_lines > MAX_DAMAGED:
-                    reason = f"more than {MAX_DAMAGED} damaged lines in one run"
+                    reason = f"more than {MAX_DAMAGED} damaged {wire.unit}s in one run"
                     break
                 continue
             if msg.kind == "SAMPLE":
@@ -436,7 +518,7 @@ def _stream(link: Link, run: RunFile, i: int, timeout: float, progress: Callable
                     progress(i + 1, run.count, total)
             elif msg.kind == "EVENT":
                 if run.event_lines >= total + EXTRA_EVENTS:
-                    reason = (f"the rig sent more than {total + EXTRA_EVENTS} EVENT lines "
+                    reason = (f"the rig sent more than {total + EXTRA_EVENTS} EVENT {wire.unit}s "
                               f"(one per sample and {EXTRA_EVENTS})")
                     break
                 run.event(msg.fields)
@@ -455,13 +537,13 @@ def _stream(link: Link, run: RunFile, i: int, timeout: float, progress: Callable
         reason, stop = _interrupted(exc), exc
     if reason:  # ask the rig to stop, keep what arrived
         with contextlib.suppress(LinkClosed):
-            link.send(encode("ABORT", 1.0))
+            link.send(wire.abort(1.0))
     return reason, end, stop
 
 
 def _record(run: RunFile, i: int, cfg: Mapping[str, Any], reason: str, end: str,
-            stop: BaseException | None, progress: Callable | None, digests: dict[bytes, str]
-            ) -> tuple[dict[str, Any], str]:
+            stop: BaseException | None, progress: Callable | None, digests: dict[bytes, str],
+            framing: str = "text") -> tuple[dict[str, Any], str]:
     """Close the run's file, judge the run (complete, aborted, incomplete), move the file to
     its name and make the attempt's record; and the message when it did not complete or its
     clock was off."""
@@ -498,7 +580,7 @@ def _record(run: RunFile, i: int, cfg: Mapping[str, Any], reason: str, end: str,
         digests[run.digest.digest()] = f"run {i + 1} ({written})"
     attempt = {"run": i + 1, "file": written, "P": cfg["P"], "D": cfg["D"], "status": status,
                "samples": run.samples, "received": run.count,
-               "u_source": run.u_source or "command",
+               "u_source": run.u_source or "command", "framing": framing,
                "events": run.events, "time": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
                **run.timing()}
     if status == "complete":

@@ -1,12 +1,15 @@
-"""A line link over a socket: whole lines in, bytes out, with timeouts (both rig sides use it).
+"""A line link over a socket: whole lines (or binary frames) in, bytes out, with timeouts (both
+rig sides use it).
 
 :class:`Link` buffers what the socket delivers and hands out one line (LF included) at a time,
 so a caller can poll for a line without blocking (the virtual rig looks for ``ABORT`` between
 samples) or wait for one with a bounded timeout (the host). Nothing it does is unbounded: a
-line is at most :data:`~phoid.rig.protocol.MAX_LINE` bytes (a longer one is handed out in
-pieces the parser refuses), a wait for a line ends at its timeout however many bytes arrive
-meanwhile, and the host's links (:func:`connect`, :func:`open_serial`) give up sending after
-their timeout when the other side does not take the bytes.
+line is at most :data:`~phoid.rig.protocol.MAX_LINE` bytes, and a binary frame
+(:meth:`Link.read_frame`, after ``FRAMING cobs``) at most :data:`~phoid.rig.frames.MAX_FRAME`
+(a longer one is handed out in pieces the parser refuses), a wait for a line ends at its
+timeout however many bytes arrive meanwhile, and the host's links (:func:`connect`,
+:func:`open_serial`) give up sending after their timeout when the other side does not take
+the bytes.
 """
 
 from __future__ import annotations
@@ -17,6 +20,7 @@ import socket
 import sys
 import time
 
+from phoid.rig.frames import MAX_FRAME
 from phoid.rig.protocol import MAX_LINE, ProtocolError
 
 __all__ = ["FdStream", "Link", "LinkClosed", "connect", "open_serial"]
@@ -75,9 +79,29 @@ class Link:
         most that many bytes. At the end of the stream a last partial line is returned as it is
         (without LF: the parser calls it truncated); after that :class:`LinkClosed` is raised.
         """
+        return self._read(b"\n", MAX_LINE, timeout)
+
+    def read_frame(self, timeout: float | None) -> bytes | None:
+        """The next binary frame (with its 0x00 delimiter), or None when none came within
+        ``timeout`` s: :meth:`readline`'s rules with 0x00 for the LF and ``MAX_FRAME`` (the
+        longest encoded frame, :mod:`phoid.rig.frames`) for ``MAX_LINE``.
+
+        0x00 bytes between frames (empty frames, a sender's resynchronisation) are skipped. A
+        frame longer than ``MAX_FRAME`` is handed out as its first ``MAX_FRAME + 1`` bytes
+        (the decoder refuses it) and its rest, up to the next 0x00, dropped; at the end of the
+        stream a last partial frame is returned without its 0x00 (the decoder refuses it when
+        it does not check out).
+        """
+        return self._read(b"\0", MAX_FRAME, timeout)
+
+    def _read(self, delim: bytes, limit: int, timeout: float | None) -> bytes | None:
         deadline = None if timeout is None else time.monotonic() + timeout
         while True:
-            i = self._buf.find(b"\n", 0, MAX_LINE + 1)
+            if delim == b"\0" and not self._skip:  # empty frames between frames: skipped
+                start = len(self._buf) - len(self._buf.lstrip(b"\0"))
+                if start:
+                    del self._buf[:start]
+            i = self._buf.find(delim, 0, limit + 1)
             if self._skip and i >= 0:  # the end of an over-long line: drop its rest
                 del self._buf[:i + 1]
                 self._skip = False
@@ -86,9 +110,9 @@ class Link:
                 line = bytes(self._buf[:i + 1])
                 del self._buf[:i + 1]
                 return line
-            if len(self._buf) > MAX_LINE:
-                line = bytes(self._buf[:MAX_LINE + 1])
-                del self._buf[:MAX_LINE + 1]
+            if len(self._buf) > limit:
+                line = bytes(self._buf[:limit + 1])
+                del self._buf[:limit + 1]
                 self._skip = True
                 return line  # too long: the parser refuses it
             if self._eof:
@@ -101,8 +125,8 @@ class Link:
             if left <= 0 and timeout != 0:
                 return None
             self._fill(max(left, 0.0) if deadline is not None else 1.0)
-            if timeout == 0 and b"\n" not in self._buf and not self._eof \
-                    and len(self._buf) <= MAX_LINE:
+            if timeout == 0 and delim not in self._buf and not self._eof \
+                    and len(self._buf) <= limit:
                 return None
 
     def close(self) -> None:

@@ -9,7 +9,8 @@ hex digits, so a corrupted or truncated line is detected. The payload is words s
 single spaces; numbers are written in the shortest form that reads back to the same double
 (``repr``). docs/rig-protocol.md is the contract; this module implements it.
 
-Messages (host → rig): ``PHOID-RIG 1`` (hello), ``CONFIG key=value …``, ``START``,
+Messages (host → rig): ``PHOID-RIG 1`` (hello), ``FRAMING cobs`` (binary frames from then on,
+when the rig answers ``OK``: :mod:`phoid.rig.frames`), ``CONFIG key=value …``, ``START``,
 ``ABORT reason``, ``CLEAR``, ``BYE``. (rig → host): ``PHOID-RIG 1`` (hello), ``OK``,
 ``SAMPLE index t x u state [force]``, ``EVENT index name value``, ``END reason``, ``ERROR message``.
 """
@@ -64,6 +65,7 @@ _FLOAT = re.compile(r"[+-]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]+)?")
 _KINDS: dict[str, tuple[tuple[str, str], ...]] = {
     "OK": (),
     "START": (),
+    "FRAMING": (("name", "w"),),
     "CLEAR": (),
     "BYE": (),
     "ABORT": (("reason", "f"),),
@@ -88,13 +90,14 @@ class Message:
     Attributes
     ----------
     kind : str
-        ``"HELLO"``, ``"CONFIG"``, ``"OK"``, ``"START"``, ``"ABORT"``, ``"CLEAR"``, ``"BYE"``,
-        ``"SAMPLE"``, ``"EVENT"``, ``"END"`` or ``"ERROR"``.
+        ``"HELLO"``, ``"CONFIG"``, ``"FRAMING"``, ``"OK"``, ``"START"``, ``"ABORT"``,
+        ``"CLEAR"``, ``"BYE"``, ``"SAMPLE"``, ``"EVENT"``, ``"END"`` or ``"ERROR"``.
     fields : dict
         The fields by name (SAMPLE: ``index`` int, ``t`` s, ``x`` m, ``u`` command units,
         ``state``, and ``force`` N only when the line carries the measured force; EVENT:
         ``index``, ``name``, ``value``; END: ``reason``; ERROR: ``message``;
-        ABORT: ``reason``; HELLO: ``version``; CONFIG: the configuration's fields).
+        ABORT: ``reason``; FRAMING: ``name``; HELLO: ``version``; CONFIG: the
+        configuration's fields).
     """
 
     kind: str

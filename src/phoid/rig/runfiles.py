@@ -522,7 +522,8 @@ def check_size(folder: OutputFolder, sched: Mapping[str, Any], configs: list[dic
             worst.append({
                 "run": i + 1, "file": '"' * (len(name.encode()) + 20), "P": big, "D": big,
                 "status": "complete", "samples": MAX_COUNT, "received": MAX_COUNT,
-                "u_source": "measured", "events": [], "events_dropped": MAX_COUNT,
+                "u_source": "measured", "framing": "text", "events": [],
+                "events_dropped": MAX_COUNT,
                 "time": "2000-01-01T00:00:00Z", "sample_time_mean": big,
                 "sample_time_min": big, "sample_time_max": big,
                 "digest": f"{DIGEST}:{'0' * 64}", "reason": '"' * (REASON_CHARS + 8)})

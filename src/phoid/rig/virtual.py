@@ -19,7 +19,10 @@ measured force f̃ₙ = G·uₙ + ηₙ (N: the force applied to the plant over 
 Gaussian of standard deviation ``force_noise``) as the line's ``force`` field, and steps the
 controller with the force measured at the previous sample (what a load cell reads at nT; 0 at
 the first sample) through ``phoid_step_force``. At the end come the controller's events and
-``END``. It runs as fast as it can, or paced to the wall clock with ``realtime``.
+``END``. It runs as fast as it can, or paced to the wall clock with ``realtime``. A host that
+sends ``FRAMING cobs`` after the hello is answered ``OK`` and served binary frames from then on
+(:mod:`phoid.rig.frames`: the same messages, the values f8, so the records are the text
+session's, byte for byte).
 
 The rig trusts nothing the host sends. Every ``CONFIG`` is checked against what the C
 controller holds (``phoid_init``'s checks and the C types' ranges) and what this rig can run
@@ -56,9 +59,28 @@ from pathlib import Path
 
 import numpy as np
 
+from phoid.rig.frames import (
+    MAX_FRAME,
+    NO_LIMIT,
+    decode_frame,
+    end_frame,
+    error_frame,
+    event_frame,
+    message_frame,
+    parse_host_frame,
+    sample_frame,
+)
 from phoid.rig.link import Link, LinkClosed
 from phoid.rig.native import Controller, build_library
-from phoid.rig.protocol import MAX_LINE, ProtocolError, check_hello, encode, hello, parse
+from phoid.rig.protocol import (
+    MAX_LINE,
+    Message,
+    ProtocolError,
+    check_hello,
+    encode,
+    hello,
+    parse,
+)
 from phoid.simulation.tracking import MAX_SUBSTEPS, ExactPlant
 
 __all__ = ["VirtualRig"]
@@ -98,6 +120,17 @@ class _Lines:
         self.link, self.closing, self.max_session = link, closing, max_session
         self.deadline = time.monotonic() + max_session
         self.skipping = False
+        self.binary = False  # binary frames (after FRAMING cobs), both ways
+
+    def parse(self, raw: bytes) -> Message:
+        """A host's line or frame, checked and parsed."""
+        return parse_host_frame(decode_frame(raw)) if self.binary else parse(raw)
+
+    def ok(self) -> bytes:
+        return message_frame("OK") if self.binary else encode("OK")
+
+    def error(self, message: str) -> bytes:
+        return error_frame(message) if self.binary else encode("ERROR", message)
 
     def check(self) -> None:
         if self.closing.is_set():
@@ -107,21 +140,26 @@ class _Lines:
                                "its limit (the rig's --max-session): closing it")
 
     def read(self, timeout: float) -> bytes | None:
-        """The next line (with its LF) within ``timeout`` s (0: poll); None when none came."""
+        """The next line (with its LF), or frame, within ``timeout`` s (0: poll); None when
+        none came."""
         end = time.monotonic() + timeout
+        if self.binary:
+            read, limit, delim, what = self.link.read_frame, MAX_FRAME, b"\0", "frame"
+        else:
+            read, limit, delim, what = self.link.readline, MAX_LINE, b"\n", "line"
         while True:
             self.check()
             left = end - time.monotonic()
-            line = self.link.readline(min(left, 0.5) if timeout > 0 and left > 0 else 0)
+            line = read(min(left, 0.5) if timeout > 0 and left > 0 else 0)
             if line is None:
                 if timeout <= 0 or time.monotonic() >= end:
                     return None
                 continue
-            if len(line) > MAX_LINE and not line.endswith(b"\n"):  # a piece of a long line
+            if len(line) > limit and not line.endswith(delim):  # a piece of a long line
                 if self.skipping:
                     continue
                 self.skipping = True
-                raise ProtocolError(f"a line longer than {MAX_LINE} bytes (refused; the rig "
+                raise ProtocolError(f"a {what} longer than {limit} bytes (refused; the rig "
                                     "skips it to its end): "
                                     f"{line[:40].decode('latin-1')!a}...")
             self.skipping = False
@@ -374,11 +412,12 @@ class VirtualRig:
                 self._socks.discard(sock)
 
     @staticmethod
-    def _last_word(link: Link, message: str) -> None:
-        """Send ``ERROR message``, stop sending, and read (at most LINGER s) until the host
-        closes: closing at once could reset the connection before the host reads the line."""
+    def _last_word(link: Link, message: str, binary: bool = False) -> None:
+        """Send ``ERROR message`` (a line, or a frame in a binary session), stop sending, and
+        read (at most LINGER s) until the host closes: closing at once could reset the
+        connection before the host reads the line."""
         with contextlib.suppress(OSError):  # LinkClosed too
-            link.send(encode("ERROR", message))
+            link.send(error_frame(message) if binary else encode("ERROR", message))
             link.sock.shutdown(socket.SHUT_WR)
             end = time.monotonic() + LINGER
             while (left := end - time.monotonic()) > 0:
@@ -400,10 +439,10 @@ class VirtualRig:
         except LinkClosed:
             pass
         except _SessionOver as end:
-            self._last_word(link, str(end))
+            self._last_word(link, str(end), lines.binary)
         except Exception as exc:  # a failure of the rig itself: the host hears of it
             self._last_word(link, f"the rig failed ({type(exc).__name__}: {exc}); closing "
-                                  "the session")
+                                  "the session", lines.binary)
         finally:
             link.close()
 
@@ -426,24 +465,38 @@ class VirtualRig:
                 if line is None:
                     raise _SessionOver(f"no line from the host for {self.idle_timeout:g} s "
                                        "(the rig's --idle-timeout): closing the session")
-                msg = parse(line)
+                msg = lines.parse(line)
             except LinkClosed:
                 raise
             except ProtocolError as exc:
                 # a line refused whole may have been a CONFIG (a damaged checksum, a bad
                 # field): no configuration survives it (docs/rig-protocol.md)
                 config = None
-                link.send(encode("ERROR", str(exc)))
+                link.send(lines.error(str(exc)))
                 continue
             if msg.kind == "BYE":
                 return
-            if msg.kind == "CONFIG":
-                err = self._check_config(msg.fields)
-                config = None if err else dict(msg.fields)
-                link.send(encode("ERROR", err) if err else encode("OK"))
+            if msg.kind == "FRAMING":  # only as a text line: binary frames from the OK on
+                config = None
+                if msg.fields["name"] != "cobs":
+                    link.send(encode("ERROR", f"unknown framing {msg.fields['name']!r}; this "
+                                              "rig speaks cobs (and text)"))
+                    continue
+                link.send(encode("OK"))
+                lines.binary = True
+            elif msg.kind == "CONFIG":
+                fields = dict(msg.fields)
+                if lines.binary:  # every field is sent: NO_LIMIT is the controller's "none"
+                    for key, none in (("x_min", -NO_LIMIT), ("x_max", NO_LIMIT),
+                                      ("u_max", NO_LIMIT)):
+                        if fields[key] == none:
+                            del fields[key]
+                err = self._check_config(fields)
+                config = None if err else fields
+                link.send(lines.error(err) if err else lines.ok())
             elif msg.kind == "START":
                 if config is None:
-                    link.send(encode("ERROR", "START without an accepted CONFIG"))
+                    link.send(lines.error("START without an accepted CONFIG"))
                     continue
                 ran = self._run(link, lines, config)
                 if ran is None:
@@ -451,10 +504,10 @@ class VirtualRig:
                 if not ran:
                     config = None  # the host sent a line the rig refused during the run
             elif msg.kind in ("CLEAR", "ABORT"):
-                link.send(encode("OK"))  # no run in progress: nothing to clear or abort
+                link.send(lines.ok())  # no run in progress: nothing to clear or abort
             else:
                 config = None  # every line the rig refuses clears the configuration
-                link.send(encode("ERROR", f"the rig does not take {msg.kind}"))
+                link.send(lines.error(f"the rig does not take {msg.kind}"))
 
     def _check_config(self, cfg: Mapping[str, object]) -> str:
         """Why the rig refuses a configuration (naming the field), or ""."""
@@ -528,20 +581,23 @@ class VirtualRig:
             if before == "run" and state == "done":
                 state = "run"  # the last run sample (the controller is done after it)
             if self.force_noise is None:
-                line = encode("SAMPLE", n, n * T, x, u, state)
+                line = (sample_frame(n, state, x, u) if lines.binary
+                        else encode("SAMPLE", n, n * T, x, u, state))
             else:
                 sensed = G * u + self.force_noise * float(self.force_rng.standard_normal())
                 if not math.isfinite(sensed):  # the force sensor failed: fault-input
                     ctrl.step(x if ctrl.config.has_force else math.nan, 0.0, math.nan)
                     break
-                line = encode("SAMPLE", n, n * T, x, u, state, sensed)
+                line = (sample_frame(n, state, x, u, sensed) if lines.binary
+                        else encode("SAMPLE", n, n * T, x, u, state, sensed))
             if fault.get("drop") == n:
                 link.send(bytes(out))
                 with contextlib.suppress(OSError):
                     link.sock.shutdown(socket.SHUT_RDWR)
                 return None
             if fault.get("corrupt") == n:
-                line = line.replace(b"SAMPLE", b"SAMPLF", 1)
+                line = (_corrupt(line) if lines.binary
+                        else line.replace(b"SAMPLE", b"SAMPLF", 1))
             if fault.get("gap") != n:
                 out += line
             if ctrl.state in ("done", "fault") and state != "run":
@@ -561,10 +617,11 @@ class VirtualRig:
                     time.sleep(max(0.0, min(T, t0 + n * T - time.monotonic())))
         events = ctrl.events()
         for ev in events:
-            out += encode("EVENT", ev.index, ev.name, ev.value)
+            out += (event_frame(ev.index, ev.code, ev.value) if lines.binary
+                    else encode("EVENT", ev.index, ev.name, ev.value))
         faults = [ev.name for ev in events if ev.name.startswith("fault-")]
         end = "done" if ctrl.state == "done" else (faults[-1] if faults else "fault")
-        out += encode("END", end)
+        out += end_frame(end) if lines.binary else encode("END", end)
         link.send(bytes(out))
         return not refused
 
@@ -586,14 +643,22 @@ class VirtualRig:
             line = lines.read(0)
             if line is None:
                 return False
-            msg = parse(line)
+            msg = lines.parse(line)
         except LinkClosed:
             raise
         except ProtocolError as exc:
-            link.send(encode("ERROR", str(exc)))
+            link.send(lines.error(str(exc)))
             return True
         if msg.kind == "ABORT":
             ctrl.abort(float(msg.fields["reason"]))  # type: ignore[arg-type]
             return False
-        link.send(encode("ERROR", f"{msg.kind} during a run: abort it first"))
+        link.send(lines.error(f"{msg.kind} during a run: abort it first"))
         return True
+
+
+def _corrupt(frame: bytes) -> bytes:
+    """A frame with one byte changed in its middle (never to 0x00): its CRC no longer holds."""
+    data = bytearray(frame)
+    i = len(data) // 2
+    data[i] ^= 0x40 if data[i] == 0x80 else 0x80
+    return bytes(data)
