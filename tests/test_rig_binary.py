@@ -158,11 +158,13 @@ HEAD = struct.Struct("<cIBB")
 
 
 @pytest.mark.parametrize("wire, why", [
-    (b"\x05\x11\x22\x00\x33", "0x00"),  # a zero inside a frame
-    (b"\x09\x11\x22", "runs past"),  # a block longer than the frame
-    (b"\x02\x11", "too short"),
+    (b"\x05\x11\x22\x00\x33\x00", "0x00"),  # a zero inside a frame
+    (b"\x09\x11\x22\x00", "runs past"),  # a block longer than the frame
+    (b"\x02\x11\x00", "too short"),
     (b"\x01" * 300, "longer than 255"),
-    (_cobs(b"X" + bytes(22) + struct.pack("<I", zlib.crc32(b"X" + bytes(22)) ^ 1)),
+    (b"\x01" * 256 + b"\x00", "longer than 255"),
+    (_frame(b"K")[:-1], "truncated frame (no 0x00 at its end)"),
+    (_cobs(b"X" + bytes(22) + struct.pack("<I", zlib.crc32(b"X" + bytes(22)) ^ 1)) + b"\0",
      "CRC mismatch"),
     (_frame(HEAD.pack(b"X", 1, 2, 0) + NAN + bytes(8)), "`x` must be finite"),
     (_frame(HEAD.pack(b"X", 1, 2, 0) + bytes(8) + INF), "`u` must be finite"),
@@ -215,8 +217,11 @@ def test_values_the_frames_cannot_carry_are_refused():
                  lambda: frames.encode_frame(bytes(251))):
         with pytest.raises(ProtocolError):
             call()
-    # the longest error text is cut to fit one frame
-    assert len(frames.error_frame("x" * 1000)) <= frames.MAX_FRAME + 1
+    # the longest error text is cut to fit one frame (250 bytes of payload: 256 on the wire)
+    longest = frames.error_frame("x" * 1000)
+    assert len(longest) == 256
+    assert frames.parse_rig_frame(frames.decode_frame(longest)).fields["message"] == \
+        "x" * 246 + "..."
 
 
 # ------------------------------------------------------------------------------ the link
@@ -230,8 +235,10 @@ def test_the_link_reads_frames_beside_lines_bounded():
         b.sendall(b"OK *xxxxxxxx\n" + good[:5])
         assert link.readline(1.0) == b"OK *xxxxxxxx\n"
         assert link.read_frame(0) is None  # a poll: the frame is not whole yet
-        b.sendall(good[5:] + b"\0\0\0" + b"\x01" * 600 + b"\0" + good)
+        longest = frames.encode_frame(b"E" + b"y" * 249)  # 256 bytes with its 0x00
+        b.sendall(good[5:] + b"\0\0\0" + longest + b"\x01" * 600 + b"\0" + good)
         assert link.read_frame(1.0) == good
+        assert link.read_frame(1.0) == longest
         long = link.read_frame(1.0)
         assert len(long) == frames.MAX_FRAME + 1 and not long.endswith(b"\0")
         with pytest.raises(ProtocolError, match="longer than"):
@@ -244,6 +251,8 @@ def test_the_link_reads_frames_beside_lines_bounded():
         b.sendall(good[:7])
         b.close()
         assert link.read_frame(1.0) == good[:7]  # the end: a partial frame, refused whole
+        with pytest.raises(ProtocolError, match="truncated frame"):
+            frames.decode_frame(good[:7])
     finally:
         link.close()
 
@@ -279,6 +288,8 @@ class BinaryRig:
         first = parse(link.readline(5))
         if first.kind == "FRAMING":
             self.framing = first.fields["name"]
+            if self.speaks == "hangup":  # a rig that breaks on a line it does not know
+                return
             if self.speaks != "cobs":
                 link.send(encode("ERROR", "unknown message 'FRAMING'"))
                 first = None
@@ -369,6 +380,9 @@ def test_auto_keeps_the_text_lines_with_an_old_rig_and_binary_refuses_it(tmp_pat
     fw = rigs(_good, speaks="binary-only")
     line = _fail_line(_run(plan, fw, tmp_path / "fw"))
     assert fw.framing is None and "pass --framing auto" in line
+    line = _fail_line(_run(plan, rigs(_good, speaks="hangup"), tmp_path / "hup", "--framing",
+                           "auto"))
+    assert "closed by the other side" in line and "runs with --framing text" in line
     line = _fail_line(_run(plan, old, tmp_path / "x", "--framing", "cobs"))
     assert "--framing must be auto, text or binary; got 'cobs'" in line
 

@@ -149,19 +149,21 @@ def encode_frame(payload: bytes) -> bytes:
 
 
 def decode_frame(frame: bytes) -> bytes:
-    """The payload of one frame (the bytes before its 0x00; a trailing 0x00 is allowed).
+    """The payload of one frame: its bytes up to and with its 0x00 delimiter.
 
     Raises
     ------
     ProtocolError
-        One line: a frame longer than :data:`MAX_FRAME` bytes, bad COBS, too short for a type
-        and its CRC, or a CRC mismatch (a corrupted frame).
+        One line: a frame longer than :data:`MAX_FRAME` bytes, one without its 0x00
+        (truncated: the stream ended inside it), bad COBS, too short for a type and its CRC,
+        or a CRC mismatch (a corrupted frame).
     """
     frame = bytes(frame)
-    if frame.endswith(b"\0"):
-        frame = frame[:-1]
-    if len(frame) > MAX_FRAME:
+    if len(frame) > MAX_FRAME + (frame[-1:] == b"\0"):
         raise ProtocolError(f"frame longer than {MAX_FRAME} bytes: {_shown(frame)}")
+    if not frame.endswith(b"\0"):
+        raise ProtocolError(f"truncated frame (no 0x00 at its end): {_shown(frame)}")
+    frame = frame[:-1]
     try:
         raw = cobs_decode(frame)
     except ProtocolError as exc:

@@ -443,7 +443,11 @@ def _negotiate(link: Link, port: str, timeout: float, framing: str) -> _Wire:
     if framing == "text":
         return _TEXT
     link.send(encode("FRAMING", "cobs"))
-    reply = _reply(link, timeout, "the reply to FRAMING cobs")
+    try:
+        reply = _reply(link, timeout, "the reply to FRAMING cobs")
+    except (RigError, LinkClosed) as exc:  # a rig that breaks on a line it does not know
+        raise RigError(f"{clip(exc, REASON_CHARS)}; a rig that does not take FRAMING cobs "
+                       "runs with --framing text") from None
     if reply.kind == "OK":
         return _Wire(True)
     if reply.kind != "ERROR":

@@ -97,10 +97,9 @@ class Link:
     def _read(self, delim: bytes, limit: int, timeout: float | None) -> bytes | None:
         deadline = None if timeout is None else time.monotonic() + timeout
         while True:
-            if delim == b"\0" and not self._skip:  # empty frames between frames: skipped
-                start = len(self._buf) - len(self._buf.lstrip(b"\0"))
-                if start:
-                    del self._buf[:start]
+            if delim == b"\0" and not self._skip and self._buf[:1] == b"\0":
+                start = len(self._buf) - len(self._buf.lstrip(b"\0"))  # empty frames: skipped
+                del self._buf[:start]
             i = self._buf.find(delim, 0, limit + 1)
             if self._skip and i >= 0:  # the end of an over-long line: drop its rest
                 del self._buf[:i + 1]
