@@ -709,11 +709,13 @@ from phoid import design_cli as _design_cli  # noqa: E402  (typer functions, laz
 from phoid.batch import commands as _batch_commands  # noqa: E402  (typer function, lazy inside)
 from phoid.batch import trend_commands as _trend_commands  # noqa: E402
 from phoid.rig import commands as _rig_commands  # noqa: E402  (typer functions, lazy inside)
+from phoid.rig import plant_cli as _plant_cli  # noqa: E402  (typer function, lazy inside)
 
 app.command(name="design")(_design_cli.design)
 app.command(name="trend")(_trend_commands.trend)
 
 app.command(name="virtual-rig")(_rig_commands.virtual_rig)
+app.command(name="virtual-plant")(_plant_cli.virtual_plant)
 app.command(name="run")(_rig_commands.run)
 app.command(name="batch")(_batch_commands.batch)
 

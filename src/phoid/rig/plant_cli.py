@@ -1,0 +1,108 @@
+"""``phoid virtual-plant``: the exact plant for a firmware in the loop (registered in cli.py).
+
+Errors a user can cause print one line ``phoid: error: …`` and exit with status 2.
+"""
+
+from __future__ import annotations
+
+import re
+import sys
+import threading
+import time
+from typing import Annotated
+
+import typer
+
+__all__ = ["virtual_plant"]
+
+# the names PlantModel's and Plant's messages use, and the options they come from
+_OPTIONS = {"`m`": "--m", "`c`": "--c", "`k`": "--k", "`fc`": "--fc",
+            "`offset`": "--offset-force", "noise": "--noise", "quantum": "--quantum",
+            "seed": "--seed"}
+
+
+def _fail(message: str) -> None:
+    typer.echo(f"phoid: error: {' '.join(message.split())}", err=True)
+    raise typer.Exit(2)
+
+
+def _in_option_words(message: str) -> str:
+    """A PlantModel or Plant message with its parameter names as the options (``--m``)."""
+    for name, flag in _OPTIONS.items():
+        message = re.sub(rf"(?<![\w`-]){re.escape(name)}(?![\w`-])", flag, message)
+    return message
+
+
+def _listen(listen: str) -> tuple[str, int]:
+    """--listen's ``HOST:PORT`` (or ``tcp://HOST:PORT``; port 0: a free one) → (host, port).
+
+    Raises
+    ------
+    ValueError
+        One line naming --listen.
+    """
+    from phoid.rig.host import parse_port
+
+    text = listen[6:] if listen.startswith("tcp://") else listen
+    host, sep, num = text.rpartition(":")
+    if (not sep or not host or "://" in text or not re.fullmatch(r"[0-9]{1,5}", num)
+            or int(num) > 65535):
+        shown = listen if len(listen) <= 200 else listen[:200] + "..."
+        raise ValueError(f"--listen must be HOST:PORT (port 1 to 65535, or 0 for a free one); "
+                         f"got {shown!r}")
+    try:
+        host, _ = parse_port(f"{host}:1")  # the host's checks (a name or an IP address)
+    except ValueError as exc:
+        raise ValueError(re.sub(r"^--port\b", "--listen", str(exc))) from None
+    return host, int(num)
+
+
+def virtual_plant(
+    m: Annotated[float, typer.Option("--m", help="Mass, kg.")],
+    c: Annotated[float, typer.Option("--c", help="Viscous damping, N s/m.")],
+    k: Annotated[float, typer.Option("--k", help="Stiffness, N/m.")],
+    fc: Annotated[float, typer.Option("--fc", help="Coulomb friction force, N.")] = 0.0,
+    offset_force: Annotated[float, typer.Option(
+        "--offset-force", help="Constant offset force, N.")] = 0.0,
+    noise: Annotated[float, typer.Option(help="Position sensor noise sd, m.")] = 0.0,
+    quantum: Annotated[float, typer.Option(
+        help="The encoder's count, m: the position read is rounded to a multiple of it "
+             "(0: none).")] = 0.0,
+    seed: Annotated[int | None, typer.Option(help="Seed of the noise.")] = None,
+    listen: Annotated[str, typer.Option(
+        help="Address to serve the MCU's plant link on, HOST:PORT (0: a free port).")
+    ] = "127.0.0.1:8766",
+) -> None:
+    """Serve phoid's exact plant to a firmware in the loop (QEMU's second serial line).
+
+    The firmware (src/phoid/rig/c/firmware, board mps2_hil) reads one position per sample
+    from this plant and sends back the command it applies; the plant moves one sample period
+    under it exactly (zero-order hold) and sends the next position, in lockstep. Start it
+    first, then QEMU with -serial tcp:HOST:PORT for the board's UART1, then `phoid run
+    --port` on UART0. Runs until interrupted (Ctrl-C or SIGTERM).
+    """
+    import signal
+
+    from phoid.dynamics.plant import Plant
+    from phoid.rig.plant import PlantModel, VirtualPlant
+
+    try:
+        host, port = _listen(listen)
+        model = PlantModel(Plant(m=m, c=c, k=k, fc=fc), offset_force=offset_force,
+                           noise=noise, quantum=quantum, seed=seed)
+        server = VirtualPlant(model)
+    except (ValueError, OSError) as exc:
+        _fail(_in_option_words(str(exc)))
+    try:
+        try:
+            host, port = server.listen(host, port)
+        except ValueError as exc:
+            _fail(str(exc))
+        if threading.current_thread() is threading.main_thread():
+            signal.signal(signal.SIGTERM, lambda *_: sys.exit(0))  # runs the `finally` below
+        typer.echo(f"virtual plant (m={m:g} kg, c={c:g} N s/m, k={k:g} N/m, fc={fc:g} N) "
+                   f"listening on tcp://{host}:{port}; Ctrl-C stops it", err=True)
+        while True:
+            time.sleep(3600)
+    finally:
+        server.close()
