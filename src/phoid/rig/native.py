@@ -446,6 +446,24 @@ class Controller:
         """The index of the next sample (samples stepped since the start)."""
         return int(self._lib.phoid_sample_index(self._ptr))
 
+    def set_index(self, n: int) -> None:
+        """Set the index of the next sample (``phoid_set_sample_index``; IDLE only).
+
+        For a controller that numbers its samples from an outside clock, and for tests of the
+        64-bit counter (reaching 2³² by stepping would take 2³² calls).
+
+        Raises
+        ------
+        ValueError
+            When ``n`` is not a whole number from 0 to 2⁶⁴ − 1, or the state is not IDLE.
+        """
+        if isinstance(n, bool) or not isinstance(n, int) or not 0 <= n < 1 << 64:
+            raise ValueError(f"the sample index must be a whole number from 0 to 2**64 - 1; "
+                             f"got {n!r}")
+        if self._lib.phoid_set_sample_index(self._ptr, n) != 0:
+            raise ValueError(f"the controller's sample index can be set in state 'idle' only; "
+                             f"it is {self.state!r}")
+
     @property
     def velocity(self) -> float:
         """The velocity estimate v̂ of the last sample, m/s."""

@@ -30,10 +30,12 @@
 #if PHOID_REAL_MAX_EXP == 128
 typedef uint32_t real_bits_t;
 #define EXP_BITS ((real_bits_t)0x7f800000UL)
+#define ABS_BITS ((real_bits_t)0x7fffffffUL)
 #define QNAN_BITS ((real_bits_t)0x7fc00000UL)
 #elif PHOID_REAL_MAX_EXP == 1024
 typedef uint64_t real_bits_t;
 #define EXP_BITS ((real_bits_t)0x7ff0000000000000ULL)
+#define ABS_BITS ((real_bits_t)0x7fffffffffffffffULL)
 #define QNAN_BITS ((real_bits_t)0x7ff8000000000000ULL)
 #else
 #error "phoid_real must be an IEEE binary32 or binary64 type"
@@ -58,6 +60,16 @@ static int finite_(phoid_real x)
     real_bits v;
     v.r = x;
     return (v.b & EXP_BITS) != EXP_BITS;
+}
+
+/* NaN: the exponent bits all ones and a fraction (a test on the bits, as finite_). The
+ * configuration's checks call it wherever a comparison alone would let a NaN through: under
+ * -ffast-math the compiler may rewrite !(a > b) as a <= b, which a NaN passes. */
+static int nan_(phoid_real x)
+{
+    real_bits v;
+    v.r = x;
+    return (v.b & ABS_BITS) > EXP_BITS;
 }
 
 static phoid_real absr(phoid_real x) { return x < ZERO ? -x : x; }
@@ -135,7 +147,8 @@ static int check_config(const phoid_config *g)
         && g->velocity != PHOID_VEL_FILTERED) {
         return PHOID_E_VELOCITY;
     }
-    if (g->velocity == PHOID_VEL_FILTERED && !(g->filter_pole >= ZERO && g->filter_pole < ONE)) {
+    if (g->velocity == PHOID_VEL_FILTERED
+        && (nan_(g->filter_pole) || !(g->filter_pole >= ZERO && g->filter_pole < ONE))) {
         return PHOID_E_FILTER_POLE;
     }
     if (g->delay_samples < 0 || g->delay_samples > PHOID_MAX_DELAY) {
@@ -148,16 +161,16 @@ static int check_config(const phoid_config *g)
     if (!finite_(g->command_gain) || !(g->command_gain > ZERO)) {
         return PHOID_E_COMMAND_GAIN;
     }
-    if (!(g->x_min < g->x_max)) {
+    if (nan_(g->x_min) || nan_(g->x_max) || !(g->x_min < g->x_max)) {
         return PHOID_E_LIMITS;
     }
     if (!finite_(g->x_start) || !(g->x_start >= g->x_min && g->x_start <= g->x_max)) {
         return PHOID_E_START;
     }
-    if (!(g->u_max > ZERO)) {
+    if (nan_(g->u_max) || !(g->u_max > ZERO)) {
         return PHOID_E_COMMAND_LIMIT;
     }
-    if (!(is_zero(g->growth_limit) || (finite_(g->growth_limit) && g->growth_limit >= ONE))) {
+    if (!finite_(g->growth_limit) || !(is_zero(g->growth_limit) || g->growth_limit >= ONE)) {
         return PHOID_E_GROWTH;
     }
     if (!count_ok(g->stall_samples) || !finite_(g->stall_epsilon)
