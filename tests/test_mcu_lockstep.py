@@ -404,3 +404,16 @@ def test_the_link_refuses_what_it_cannot_use(fw_root):
         rec = board.run(dict(RUN, hold_samples=5, run_samples=10))
         assert rec.end == "done" and len(rec.samples) == 16
         assert not math.isnan(rec.samples[-1][2])
+
+
+@pytest.mark.parametrize(("target", "real"), [("m4f", "float"), ("m3", "double")])
+def test_the_board_template_builds(target, real, tmp_path, tools):
+    # the real-board template (SysTick, the user's functions left empty) builds with the
+    # same strict flags and links with nothing but libgcc and fw_libc.c
+    out = tmp_path / "template"
+    proc = subprocess.run(["make", "-s", "-C", str(FIRMWARE_DIR), f"TARGET={target}",
+                           f"REAL={real}", "BOARD=template", f"OUT={out}"],
+                          capture_output=True, text=True, timeout=120, check=False)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert (out / "phoid_fw.elf").stat().st_size > 0
+    assert sorted(p.name for p in FIRMWARE_DIR.iterdir() if p.suffix == ".o") == []
