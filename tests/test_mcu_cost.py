@@ -27,8 +27,9 @@ from mcu_tools import STEP_KINDS, TARGETS, measure_cost
 # IDLE, HOLD or RUN step (the RUN step is the dearest: the filtered estimator, a delay of two
 # samples, the growth and stall checks on); a "transition" is every other call of
 # mcu_tools.COST_SEQUENCE (start, the release steps, done, fault, clear, abort, and the clip
-# step, which pushes an event). Measured at commit 1166e2f (arm-none-eabi-gcc 12.2 -O2,
-# QEMU 7.2; avr-gcc 5.4 -O2, simavr 1.6), dearest step / dearest transition:
+# step, which pushes an event). Measured at commits 1166e2f and 9e5610f, the same counts
+# (arm-none-eabi-gcc 12.2 -O2, QEMU 7.2; avr-gcc 5.4 -O2, simavr 1.6), dearest step /
+# dearest transition:
 #   m0 3450 / 3935 (release), m3 1249 / 1308 (release), m4f-double 1241 / 1300 (release),
 #   m4f-float 144 / 191 (release), m7 145 / 199 (release), avr 3095 / 3761 cycles (release)
 # (bench/bench_mcu.py prints them) and given 25 % (rounded up to 100) for another compiler
