@@ -24,6 +24,7 @@ import time
 import tomllib
 from pathlib import Path
 
+import numpy as np
 import pytest
 from mcu_tools import FIRMWARE_DIR, tool
 from typer.testing import CliRunner
@@ -135,6 +136,9 @@ def test_run_on_the_emulated_firmware_then_identify(real, tmp_path):
     assert [a["status"] for a in attempts] == ["complete"] * 3
     assert {a["framing"] for a in attempts} == {"cobs"}
     assert all(a["samples"] == round(PAPER["duration"] * PAPER["fs"]) for a in attempts)
+    # the float firmware's positions travel as f4: every x recorded is a float32's value
+    x = np.loadtxt(tmp_path / "set" / "run01.csv", delimiter=",", skiprows=1, usecols=1)
+    assert np.array_equal(x.astype(np.float32).astype(float), x) == (real == "float")
     r = _cli("identify", tmp_path / "set", "--json")
     assert r.exit_code == 0, r.output
     fit = json.loads(r.stdout)

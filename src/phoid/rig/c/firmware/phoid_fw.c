@@ -506,7 +506,11 @@ static void take_frame(phoid_fw *fw, unsigned char *p, unsigned int n)
 {
     if (fw->running || fw->finished) {
         if (p[0] == 'A' && n == 9u) {
-            fw->abort_reason = phoid_fw_real(phoid_fw_get_f8(p + 1));
+            /* abort whatever the reason says (safety first); one that is not a finite real
+             * is reported as 0 (the EVENT carries finite numbers only) */
+            phoid_real reason = phoid_fw_real(phoid_fw_get_f8(p + 1));
+            fw->abort_reason = reason >= -PHOID_REAL_MAX && reason <= PHOID_REAL_MAX
+                                   ? reason : PHOID_R(0);
             fw->abort_pending = 1;
         } else {
             send_error(fw, "only ABORT is taken during a run: abort it first");
