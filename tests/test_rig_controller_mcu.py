@@ -186,8 +186,9 @@ def test_sample_counter_and_event_indices_pass_2_to_the_32(lib_dir):
             ("start", base), ("release", base + 2), ("done", base + 6)]
     with pytest.raises(ValueError, match="whole number from 0 to 2"):
         ctrl.set_index(2**64)
-    with pytest.raises(ValueError, match="whole number from 0 to 2"):
-        ctrl.set_index(-1)
+    for bad in (-1, 3.0, "3", True):
+        with pytest.raises(ValueError, match="whole number from 0 to 2"):
+            ctrl.set_index(bad)
 
 
 # --- the C driver: -ffast-math, the ring's memory ------------------------------------------

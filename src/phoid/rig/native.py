@@ -23,6 +23,7 @@ from __future__ import annotations
 import ctypes
 import hashlib
 import math
+import operator
 import os
 import shlex
 import shutil
@@ -457,10 +458,16 @@ class Controller:
         ValueError
             When ``n`` is not a whole number from 0 to 2⁶⁴ − 1, or the state is not IDLE.
         """
-        if isinstance(n, bool) or not isinstance(n, int) or not 0 <= n < 1 << 64:
+        try:
+            if isinstance(n, bool):
+                raise TypeError
+            index = operator.index(n)  # int and integer types (numpy's), not 3.0 or "3"
+        except TypeError:
+            index = -1
+        if not 0 <= index < 1 << 64:
             raise ValueError(f"the sample index must be a whole number from 0 to 2**64 - 1; "
                              f"got {n!r}")
-        if self._lib.phoid_set_sample_index(self._ptr, n) != 0:
+        if self._lib.phoid_set_sample_index(self._ptr, index) != 0:
             raise ValueError(f"the controller's sample index can be set in state 'idle' only; "
                              f"it is {self.state!r}")
 

@@ -181,34 +181,38 @@ enum phoid_error {
 
 /** The configuration of one run. Units: SI (m, s) and the command's own units. */
 typedef struct phoid_config {
-    phoid_real sample_time;    /**< T, s (>= PHOID_MIN_SAMPLE_TIME, finite): the period at which
-                                phoid_step is called */
-    phoid_real P;              /**< run proportional gain, command units per m (any sign) */
-    phoid_real D;              /**< run derivative gain, command units per m/s (any sign) */
-    phoid_real gain;           /**< K, dimensionless (finite; 1 for phoid's release loop) */
-    phoid_real command_gain;   /**< G, N per command unit (> 0): the force is G*u. Not used by the
-                                step; kept so that one configuration describes the loop. */
-    int velocity;          /**< enum phoid_velocity */
-    phoid_real filter_pole;    /**< a = exp(-w_c*T) of PHOID_VEL_FILTERED, in [0, 1) */
-    int delay_samples;     /**< d: the command computed at n is returned at n + d (0..max) */
-    phoid_real hold_P;         /**< hold loop proportional gain, command units per m */
-    phoid_real hold_D;         /**< hold loop derivative gain, command units per m/s */
-    phoid_real x_start;        /**< hold position, m */
-    long hold_samples;     /**< samples held before the release (0: until phoid_release;
-                                at most PHOID_MAX_COUNT) */
-    long run_samples;      /**< samples run from the release on (1..PHOID_MAX_COUNT), then
-                                DONE */
-    phoid_real x_min;          /**< lowest allowed position in HOLD and RUN, m */
-    phoid_real x_max;          /**< highest allowed position in HOLD and RUN, m */
-    phoid_real u_max;          /**< command limit, command units (> 0): commands are clipped */
-    phoid_real growth_limit;   /**< RUN aborts when |x - r| > growth_limit*A (0: off; else >= 1) */
-    long stall_samples;    /**< RUN aborts after this many samples in a row with
-                                |x_n - x_{n-1}| < stall_epsilon (0: off; at most
-                                PHOID_MAX_COUNT) */
-    phoid_real stall_epsilon;  /**< m (>= 0) */
-    int has_force;         /**< 1: a force sensor is declared, so every sample must bring a
-                                finite measured force (phoid_step_force), else FAULT_INPUT;
-                                0 (default): no sensor, a force given is stored unchecked */
+    phoid_real sample_time;   /**< T, s (>= PHOID_MIN_SAMPLE_TIME, finite): the period at which
+                                   phoid_step is called */
+    phoid_real P;             /**< run proportional gain, command units per m (any sign) */
+    phoid_real D;             /**< run derivative gain, command units per m/s (any sign) */
+    phoid_real gain;          /**< K, dimensionless (finite; 1 for phoid's release loop) */
+    phoid_real command_gain;  /**< G, N per command unit (> 0): the force is G*u. Not used by
+                                   the step; kept so that one configuration describes the
+                                   loop. */
+    int velocity;             /**< enum phoid_velocity */
+    phoid_real filter_pole;   /**< a = exp(-w_c*T) of PHOID_VEL_FILTERED, in [0, 1) */
+    int delay_samples;        /**< d: the command computed at n is returned at n + d
+                                   (0..PHOID_MAX_DELAY) */
+    phoid_real hold_P;        /**< hold loop proportional gain, command units per m */
+    phoid_real hold_D;        /**< hold loop derivative gain, command units per m/s */
+    phoid_real x_start;       /**< hold position, m */
+    long hold_samples;        /**< samples held before the release (0: until phoid_release;
+                                   at most PHOID_MAX_COUNT) */
+    long run_samples;         /**< samples run from the release on (1..PHOID_MAX_COUNT), then
+                                   DONE */
+    phoid_real x_min;         /**< lowest allowed position in HOLD and RUN, m */
+    phoid_real x_max;         /**< highest allowed position in HOLD and RUN, m */
+    phoid_real u_max;         /**< command limit, command units (> 0): commands are clipped */
+    phoid_real growth_limit;  /**< RUN aborts when |x - r| > growth_limit*A (0: off;
+                                   else >= 1) */
+    long stall_samples;       /**< RUN aborts after this many samples in a row with
+                                   |x_n - x_{n-1}| < stall_epsilon (0: off; at most
+                                   PHOID_MAX_COUNT) */
+    phoid_real stall_epsilon; /**< m (>= 0) */
+    int has_force;            /**< 1: a force sensor is declared, so every sample must bring a
+                                   finite measured force (phoid_step_force), else FAULT_INPUT;
+                                   0 (default): no sensor, a force given is stored
+                                   unchecked */
 } phoid_config;
 
 /** One entry of the event log. */
