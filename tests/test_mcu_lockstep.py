@@ -417,3 +417,61 @@ def test_the_board_template_builds(target, real, tmp_path, tools):
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert (out / "phoid_fw.elf").stat().st_size > 0
     assert sorted(p.name for p in FIRMWARE_DIR.iterdir() if p.suffix == ".o") == []
+
+
+_STUB_BOARD = """
+#include "board.h"
+int board_link_getc(void) { return -1; }
+void board_link_putc(unsigned char byte) { (void)byte; }
+const char *board_configure(const phoid_config *cfg, const unsigned char t[8],
+                            const unsigned char g[8]) { (void)cfg; (void)t; (void)g; return 0; }
+void board_run_start(void) {}
+"""
+
+
+def test_f8_to_f4_by_the_bits_rounds_as_numpy(tmp_path):
+    # where a double has 32 bits (AVR), the link converts the host's f8 fields by their bits:
+    # built here on the host, it must give what numpy's (the FPU's) binary64 → binary32
+    # conversion gives — round to nearest even, ±inf beyond the range, subnormals, signed
+    # zeros, NaN — and the way back must be exact
+    import ctypes
+
+    cc = find_compiler()
+    if cc is None:
+        pytest.skip("no C compiler (CC, cc, gcc, clang)")
+    (tmp_path / "board_stub.c").write_text(_STUB_BOARD)
+    lib = tmp_path / "fwconv.so"
+    ctrl = FIRMWARE_DIR.parent
+    proc = subprocess.run([*cc, "-std=c99", "-O2", "-fPIC", "-shared", "-Wall", "-Wextra",
+                           "-Werror", "-pedantic", "-Wfloat-equal", "-ffp-contract=off",
+                           f"-I{ctrl}", f"-I{FIRMWARE_DIR}", "-o", str(lib),
+                           str(FIRMWARE_DIR / "phoid_fw.c"), str(ctrl / "phoid_ctrl.c"),
+                           str(tmp_path / "board_stub.c")],
+                          capture_output=True, text=True, timeout=120, check=False)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    fw = ctypes.CDLL(str(lib))
+    rng = np.random.default_rng(29)
+    # random bit patterns over every exponent, and the edges: float's largest, the rounding
+    # ties at its top, its smallest normal and subnormal and half of it, zeros, inf, NaN
+    f32 = np.finfo(np.float32)
+    edges = [0.0, -0.0, math.inf, -math.inf, float(f32.max), -float(f32.max),
+             float(f32.max) * (1 + 2**-25), float(f32.max) * (1 + 2**-24),
+             float(f32.tiny), float(f32.smallest_subnormal), float(f32.smallest_subnormal) / 2,
+             float(f32.smallest_subnormal) * 0.75, float(f32.smallest_subnormal) * 1.5,
+             1.0 + 2**-24, 1.0 + 3 * 2**-24, 1e-300, 5e-324, 1e300]
+    inside = rng.standard_normal(5000) * 10.0 ** rng.uniform(-46, 39, 5000)  # float's range
+    values = np.concatenate([rng.integers(0, 2**64, 20000, dtype=np.uint64).view(np.float64),
+                             inside, np.array(edges)])
+    out = ctypes.create_string_buffer(4)
+    back = ctypes.create_string_buffer(8)
+    for v in values:
+        fw.phoid_fw_f8_to_f4(struct.pack("<d", v), out)
+        with np.errstate(over="ignore", invalid="ignore"):  # inf and NaN: as they are
+            want = np.float64(v).astype(np.float32)
+        got = np.frombuffer(out.raw, dtype="<f4")[0]
+        if np.isnan(want):
+            assert np.isnan(got), v
+            continue
+        assert got.tobytes() == want.tobytes(), (v, got, want)
+        fw.phoid_fw_f4_to_f8(out.raw, back)
+        assert back.raw == struct.pack("<d", float(want)), (v, back.raw)

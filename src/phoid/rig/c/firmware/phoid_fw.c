@@ -7,8 +7,8 @@
 #include "phoid_fw.h"
 #include "board.h"
 
-#if DBL_MANT_DIG != 53
-#error "phoid_fw.c reads f8 fields into a 64-bit double; this target's double is not one"
+#if DBL_MANT_DIG != 53 && DBL_MANT_DIG != 24
+#error "phoid_fw.c needs an IEEE double of 64 bits, or of 32 bits (AVR)"
 #endif
 
 /* the handshake's lines, whole (payload, " *", its CRC-32 in hex, LF) */
@@ -50,6 +50,21 @@ static void send_text(const char *s)
     }
 }
 
+static unsigned long get_u4(const unsigned char *p)
+{
+    return (unsigned long)p[0] | ((unsigned long)p[1] << 8) | ((unsigned long)p[2] << 16)
+           | ((unsigned long)p[3] << 24);
+}
+
+static void put_u4(unsigned char *p, unsigned long v)
+{
+    p[0] = (unsigned char)(v & 0xffu);
+    p[1] = (unsigned char)((v >> 8) & 0xffu);
+    p[2] = (unsigned char)((v >> 16) & 0xffu);
+    p[3] = (unsigned char)((v >> 24) & 0xffu);
+}
+
+#if DBL_MANT_DIG == 53
 double phoid_fw_get_f8(const unsigned char *p)
 {
     /* little-endian bytes into the double's own representation (an unsigned char view of an
@@ -71,6 +86,84 @@ void phoid_fw_put_f8(unsigned char *p, double v)
         p[i] = s[i];
     }
 }
+#else
+/* a 32-bit double (AVR): converted by the bits, phoid_fw_f8_to_f4 / phoid_fw_f4_to_f8 */
+double phoid_fw_get_f8(const unsigned char *p)
+{
+    double v = 0.0;
+    phoid_fw_f8_to_f4(p, (unsigned char *)&v);
+    return v;
+}
+
+void phoid_fw_put_f8(unsigned char *p, double v)
+{
+    phoid_fw_f4_to_f8((const unsigned char *)&v, p);
+}
+#endif
+
+void phoid_fw_f8_to_f4(const unsigned char *f8, unsigned char *f4)
+{
+    unsigned long long m = 0;
+    unsigned long sign, bits;
+    long e;
+    unsigned int i;
+    for (i = 0; i < 8u; i++) {
+        m |= (unsigned long long)f8[i] << (8u * i);
+    }
+    sign = (unsigned long)(m >> 63) << 31;
+    e = (long)((m >> 52) & 0x7ffu);
+    m &= 0xfffffffffffffULL; /* the 52 fraction bits */
+    if (e == 0x7ff) {
+        bits = sign | 0x7f800000UL | (m ? 0x400000UL : 0UL);
+    } else if (e == 0) {
+        bits = sign; /* a binary64 subnormal is far below binary32's range */
+    } else {
+        m |= 1ULL << 52; /* the 53-bit significand */
+        e = e - 1023 + 127; /* binary32's biased exponent */
+        if (e >= 255) {
+            bits = sign | 0x7f800000UL;
+        } else if (e < -24) {
+            bits = sign; /* below half the smallest subnormal */
+        } else {
+            unsigned int shift = e >= 1 ? 29u : (unsigned int)(29 + 1 - e);
+            unsigned long long kept = m >> shift;
+            unsigned long long rest = m & ((1ULL << shift) - 1u);
+            unsigned long long half = 1ULL << (shift - 1u);
+            if (rest > half || (rest == half && (kept & 1u))) {
+                kept++; /* a carry runs into the exponent field: the sum below stays right */
+            }
+            bits = sign + (e >= 1 ? ((unsigned long)(e - 1) << 23) : 0UL) + (unsigned long)kept;
+        }
+    }
+    put_u4(f4, bits);
+}
+
+void phoid_fw_f4_to_f8(const unsigned char *f4, unsigned char *f8)
+{
+    unsigned long bits = get_u4(f4);
+    unsigned long long sign = (unsigned long long)(bits >> 31) << 63, out;
+    long e = (long)((bits >> 23) & 0xffu);
+    unsigned long long m = bits & 0x7fffffUL;
+    unsigned int i;
+    if (e == 0xff) {
+        out = sign | (0x7ffULL << 52) | (m << 29);
+    } else if (e == 0 && m == 0) {
+        out = sign;
+    } else {
+        if (e == 0) { /* a binary32 subnormal: normal in binary64 */
+            e = 1;
+            while (!(m & 0x800000UL)) {
+                m <<= 1;
+                e--;
+            }
+            m &= 0x7fffffUL;
+        }
+        out = sign | ((unsigned long long)(e - 127 + 1023) << 52) | (m << 29);
+    }
+    for (i = 0; i < 8u; i++) {
+        f8[i] = (unsigned char)((out >> (8u * i)) & 0xffu);
+    }
+}
 
 #if PHOID_REAL_IS_FLOAT
 static void put_f4(unsigned char *p, float v)
@@ -82,20 +175,6 @@ static void put_f4(unsigned char *p, float v)
     }
 }
 #endif
-
-static unsigned long get_u4(const unsigned char *p)
-{
-    return (unsigned long)p[0] | ((unsigned long)p[1] << 8) | ((unsigned long)p[2] << 16)
-           | ((unsigned long)p[3] << 24);
-}
-
-static void put_u4(unsigned char *p, unsigned long v)
-{
-    p[0] = (unsigned char)(v & 0xffu);
-    p[1] = (unsigned char)((v >> 8) & 0xffu);
-    p[2] = (unsigned char)((v >> 16) & 0xffu);
-    p[3] = (unsigned char)((v >> 24) & 0xffu);
-}
 
 /* a double from the host as the controller's real: a float build maps what a float cannot
  * hold to +/-infinity (a plain conversion would be undefined), so phoid_init refuses it as

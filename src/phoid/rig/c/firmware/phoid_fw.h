@@ -96,6 +96,11 @@ int phoid_fw_unframe(unsigned char *buf, unsigned int n);
 /** f8 little-endian bytes <-> double (memcpy, no type punning). */
 double phoid_fw_get_f8(const unsigned char *p);
 void phoid_fw_put_f8(unsigned char *p, double v);
+/** IEEE binary64 bytes -> binary32 bytes (little-endian), rounded to nearest even as an FPU
+ * converts (+/-infinity beyond the range, NaN stays NaN), and back (exact): by the bits, for
+ * targets whose double has 32 bits (AVR). */
+void phoid_fw_f8_to_f4(const unsigned char *f8, unsigned char *f4);
+void phoid_fw_f4_to_f8(const unsigned char *f4, unsigned char *f8);
 /** A double as the controller's real; a float build maps what a float cannot hold to
  * +/-infinity (a plain conversion of it is undefined behaviour in C99). */
 phoid_real phoid_fw_real(double v);
