@@ -88,14 +88,12 @@ def build_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 def _controller_objects(target: Target, build_dir: Path, opt: str) -> list[Path]:
-    """The strictly compiled controller (and, on Cortex-M, the firmware's link core) objects of
-    a target, compiled once per module and optimisation level. (The link core decodes the
-    protocol's f8 fields into a 64-bit double, which AVR does not have: on AVR the gate builds
-    the controller alone.)"""
+    """The strictly compiled controller and firmware link core (firmware/phoid_fw.c) objects
+    of a target, compiled once per module and optimisation level."""
     out = build_dir / f"{target.name}{opt}"
     objects = [out / "phoid_ctrl.o"]
     sources = [CONTROLLER_DIR / "phoid_ctrl.c"]
-    if target.arch == "arm" and (FIRMWARE_DIR / "phoid_fw.c").exists():
+    if (FIRMWARE_DIR / "phoid_fw.c").exists():
         sources.append(FIRMWARE_DIR / "phoid_fw.c")
         objects.append(out / "phoid_fw.o")
     if all(o.exists() for o in objects):
