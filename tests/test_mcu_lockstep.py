@@ -28,6 +28,7 @@ steps about 1000 lockstep samples per second here), so the file takes a few seco
 from __future__ import annotations
 
 import math
+import shutil
 import socket
 import struct
 import subprocess
@@ -475,3 +476,31 @@ def test_f8_to_f4_by_the_bits_rounds_as_numpy(tmp_path):
         assert got.tobytes() == want.tobytes(), (v, got, want)
         fw.phoid_fw_f4_to_f8(out.raw, back)
         assert back.raw == struct.pack("<d", float(want)), (v, back.raw)
+
+
+def test_the_arduino_sketch_builds(tmp_path):
+    # firmware/arduino/phoid_rig: the sketch (C++, as the Arduino IDE compiles an .ino) with
+    # the link and the controller (C99, strict flags; a double of 32 bits) for the Mega 2560,
+    # linked with a main() that calls setup() and loop() as the Arduino core does
+    tool("avr-gcc")
+    if shutil.which("avr-g++") is None:
+        pytest.skip("avr-g++ not found on PATH: install Debian's gcc-avr")
+    ctrl, sketch = FIRMWARE_DIR.parent, FIRMWARE_DIR / "arduino" / "phoid_rig" / "phoid_rig.ino"
+    mcu, inc = "-mmcu=atmega2560", [f"-I{FIRMWARE_DIR.parent}", f"-I{FIRMWARE_DIR}"]
+    strict = ["-std=c99", "-O2", "-Wall", "-Wextra", "-Werror", "-pedantic", "-Wfloat-equal",
+              "-ffp-contract=off"]
+    (tmp_path / "main.cpp").write_text("void setup(void);\nvoid loop(void);\n"
+                                       "int main(void) { setup(); for (;;) loop(); }\n")
+    steps = [
+        ["avr-gcc", mcu, *strict, *inc, "-c", str(ctrl / "phoid_ctrl.c"), "-o", "ctrl.o"],
+        ["avr-gcc", mcu, *strict, *inc, "-c", str(FIRMWARE_DIR / "phoid_fw.c"), "-o", "fw.o"],
+        ["avr-g++", mcu, "-O2", "-Wall", "-Wextra", "-Werror", *inc, "-x", "c++", "-c",
+         str(sketch), "-o", "sketch.o"],
+        ["avr-g++", mcu, "-O2", "-c", "main.cpp", "-o", "main.o"],
+        ["avr-gcc", mcu, "-o", "sketch.elf", "sketch.o", "main.o", "fw.o", "ctrl.o"],
+    ]
+    for cmd in steps:
+        proc = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, timeout=120,
+                              check=False)
+        assert proc.returncode == 0, (cmd, proc.stderr[-2000:])
+    assert (tmp_path / "sketch.elf").stat().st_size > 0

@@ -9,7 +9,7 @@
  *
  * Sign convention: read_position() returns metres, positive one way along the axis;
  * write_command() must push the mass towards positive x for a positive u. Check it before
- * the first run (README.md, "Before the first run").
+ * the first run (README.md, "Sign convention, and checking it before the first run").
  */
 #include "board.h"
 #include "phoid_fw.h"
