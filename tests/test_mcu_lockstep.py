@@ -504,3 +504,36 @@ def test_the_arduino_sketch_builds(tmp_path):
                               check=False)
         assert proc.returncode == 0, (cmd, proc.stderr[-2000:])
     assert (tmp_path / "sketch.elf").stat().st_size > 0
+
+
+def test_a_frame_refused_during_a_run_leaves_no_configuration(fw_root):
+    # docs/rig-protocol.md: during a run the rig takes ABORT only; a line (frame) it refuses
+    # may have been a CONFIG, so none survives it: the next START is refused
+    elf = firmware("m4f", "float", fw_root)
+    with Board("mps2-an386", elf, model()) as board:
+        board.handshake()
+        board.sock.sendall(frames.config_frame(dict(RUN, hold_samples=20, run_samples=40)))
+        assert board.frame().kind == "OK"
+        board.sock.sendall(frames.message_frame("START") + frames.config_frame(RUN))
+        kinds, errors = [], []
+        while True:
+            msg = board.frame()
+            kinds.append(msg.kind)
+            if msg.kind == "ERROR":
+                errors.append(msg.fields["message"])
+            if msg.kind == "END":
+                break
+        assert errors == ["only ABORT is taken during a run: abort it first"]
+        assert kinds.count("SAMPLE") == 61 and msg.fields["reason"] == "done"
+        board.sock.sendall(frames.message_frame("START"))
+        msg = board.frame()
+        assert msg.kind == "ERROR" and "without an accepted CONFIG" in msg.fields["message"]
+        # a float rig cannot hold a gain beyond float's range (3.4e38): refused, named
+        board.sock.sendall(frames.config_frame(dict(RUN, P=1e39)))
+        msg = board.frame()
+        assert msg.kind == "ERROR" and "`P, D, gain, hold_P, hold_D`" in msg.fields["message"]
+        # nor a force sensor (this firmware reads none), nor a sample time under 1 ns
+        board.sock.sendall(frames.config_frame(dict(RUN, has_force=1)))
+        assert "has_force 1" in board.frame().fields["message"]
+        board.sock.sendall(frames.config_frame(dict(RUN, sample_time=1e-10)))
+        assert "`sample_time`" in board.frame().fields["message"]
