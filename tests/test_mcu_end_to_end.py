@@ -148,3 +148,24 @@ def test_run_on_the_emulated_firmware_then_identify(real, tmp_path):
         print(f"{key} = {est['value']:.6g} ± {est['stderr']:.2g} (true {PAPER[key]}): "
               f"{dev:.2f} stderr")
         assert dev <= 3.0, (key, est)
+
+
+@pytest.mark.parametrize(("args", "named"), [
+    (["--m", "-1"], "--m"),
+    (["--noise", "-1e-6"], "--noise"),
+    (["--noise", "nan"], "--noise"),
+    (["--quantum", "1e-40"], "--quantum"),
+    (["--offset-force", "inf"], "--offset-force"),
+    (["--seed", "-3"], "--seed"),
+    (["--listen", "127.0.0.1:70000"], "--listen"),
+    (["--listen", "nohost"], "--listen"),
+    (["--m", "1e-320", "--k", "1e300"], "--m"),  # its motion over 1 ns overflows a double
+])
+def test_the_virtual_plant_refuses_bad_options_in_one_line(args, named):
+    base = {"--m": "2", "--c": "1", "--k": "64"}
+    for flag, val in zip(args[::2], args[1::2], strict=True):
+        base[flag] = val
+    r = _cli("virtual-plant", *[a for kv in base.items() for a in kv])
+    assert r.exit_code == 2, r.output
+    lines = r.output.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("phoid: error: ") and named in lines[0], lines
