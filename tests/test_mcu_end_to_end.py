@@ -169,3 +169,53 @@ def test_the_virtual_plant_refuses_bad_options_in_one_line(args, named):
     assert r.exit_code == 2, r.output
     lines = r.output.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("phoid: error: ") and named in lines[0], lines
+
+
+def test_the_virtual_plant_steps_in_lockstep_and_refuses_what_it_cannot_use():
+    # the plant link alone (no QEMU): this test is the MCU. The positions are phoid's exact
+    # plant (ExactPlant, the virtual rig's): recomputed here with a second ExactPlant
+    import struct
+
+    from phoid.dynamics.plant import Plant
+    from phoid.rig.frames import decode_frame, encode_frame
+    from phoid.rig.plant import PlantModel, VirtualPlant
+    from phoid.simulation.tracking import ExactPlant
+
+    plant = Plant(m=2.0, c=1.0, k=64.0)
+    complaints: list[str] = []
+    with VirtualPlant(PlantModel(plant), record=True, log=complaints.append) as vp:
+        host, port = vp.listen()
+        with socket.create_connection((host, port), timeout=10) as sock:
+            f = sock.makefile("rb")
+
+            def position() -> float:
+                payload = decode_frame(_read_frame(f))
+                assert payload[:2] == b"P\0" and len(payload) == 10
+                return struct.unpack_from("<d", payload, 2)[0]
+
+            assert position() == 0.0  # at rest at x = 0 when the MCU connects
+            sock.sendall(encode_frame(struct.pack("<BId", ord("U"), 0, 1.0)))  # before R
+            bad = bytearray(encode_frame(b"R" + struct.pack("<dd", 0.01, 2.0)))
+            bad[3] ^= 0x40  # a damaged frame
+            sock.sendall(bytes(bad))
+            sock.sendall(encode_frame(b"R" + struct.pack("<dd", -0.01, 2.0)))  # T < 0
+            sock.sendall(encode_frame(b"R" + struct.pack("<dd", 0.01, 2.0)))  # T, G
+            truth = ExactPlant(plant)
+            for n, u in enumerate([1.0, 0.5, -0.25]):
+                sock.sendall(encode_frame(struct.pack("<BId", ord("U"), n, u)))
+                truth.advance(2.0 * u, 0.01)
+                assert position() == truth.x
+            f.close()
+    assert [s.u for s in vp.steps] == [1.0, 0.5, -0.25]
+    assert len(complaints) == 3, complaints
+    assert "before" in complaints[0] or "without a run" in complaints[0]
+    assert "CRC" in complaints[1] or "COBS" in complaints[1]
+    assert "sample_time" in complaints[2]
+
+
+def _read_frame(f) -> bytes:
+    out = bytearray()
+    while (b := f.read(1)) != b"\0":
+        assert b, "the plant closed the link"
+        out += b
+    return bytes(out) + b"\0"
