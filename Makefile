@@ -16,10 +16,14 @@ $(STAMP): pyproject.toml
 demo: $(STAMP)
 	$(VENV)/bin/phoid paper --overwrite
 
-## install and run the test suite (and the linter)
+## install and run the test suite (and the linter), on TEST_WORKERS processes (pytest-xdist):
+## one per CPU, at most 4 (`make test TEST_WORKERS=0` runs it in one process); each test file
+## runs whole on one worker (--dist loadfile), so a module's fixtures are computed once
+TEST_WORKERS ?= $(shell n=$$(nproc 2>/dev/null || getconf _NPROCESSORS_ONLN 2>/dev/null || echo 2); \
+                  [ "$$n" -gt 4 ] 2>/dev/null && n=4; echo "$$n")
 test: $(STAMP)
 	$(VENV)/bin/ruff check $(LINTED)
-	$(PY) -m pytest -q
+	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadfile
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check $(LINTED)
