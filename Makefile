@@ -44,10 +44,11 @@ min-versions:
 bench: $(STAMP)
 	$(PY) bench/run.py
 
-## the microcontroller tests alone (tests/test_mcu_*.py; skipped without Debian's cross
-## toolchains, QEMU and simavr: .ci/run installs them), then the per-target cost table
+## the microcontroller tests alone (tests/test_mcu_*.py and the controller's host and cross
+## builds, tests/test_rig_controller_mcu.py; skipped without Debian's cross toolchains, QEMU and
+## simavr: .ci/run installs them), then the per-target cost table
 mcu: $(STAMP)
-	$(PY) -m pytest -q $(wildcard tests/test_mcu_*.py)
+	$(PY) -m pytest -q $(wildcard tests/test_mcu_*.py) tests/test_rig_controller_mcu.py
 	$(PY) bench/bench_mcu.py
 
 ## fuzz the readers for FUZZ_SECONDS (default 600; docs/fuzzing.md); findings: fuzz/crash-*
