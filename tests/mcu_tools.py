@@ -46,6 +46,7 @@ PACKAGES = {
     "avr-gcc": AVR_PACKAGE,
     "avr-nm": "binutils-avr (with gcc-avr)",
     "avr-size": "binutils-avr (with gcc-avr)",
+    "avr-objdump": "binutils-avr (with gcc-avr)",
     "simavr": "simavr",
     "make": "make",
 }
@@ -128,6 +129,18 @@ def need_toolchain(target: Target) -> None:
     """Skip unless the target's compiler and binutils are installed."""
     for name in ("gcc", "nm", "size"):
         tool(target.prefix + name)
+
+
+def compiler_version(target: Target) -> str:
+    """The version of a target's compiler: ``gcc -dumpfullversion`` ("12.2.1"), or
+    ``-dumpversion`` from a GCC before 7, which has no -dumpfullversion (avr-gcc "5.4.0")."""
+    need_toolchain(target)
+    gcc = target.prefix + "gcc"
+    proc = subprocess.run([gcc, "-dumpfullversion"], capture_output=True, text=True,
+                          timeout=TOOL_TIMEOUT, check=False)
+    if proc.returncode == 0 and proc.stdout.strip():
+        return proc.stdout.strip()
+    return run_tool([gcc, "-dumpversion"], "asking the compiler's version").strip()
 
 
 def controller_has_real_type() -> bool:
@@ -450,3 +463,109 @@ def measure_cost(
         )
     empty = counts[0]
     return [(kind, n - empty) for kind, n in zip(COST_SEQUENCE, counts[1:], strict=True)]
+
+
+# --- division on the step path (tests/test_mcu_build.py) ---
+
+#: Divide instructions: ARMv7-M's integer sdiv/udiv and the FPU's vdiv.f32/.f64 (AVR has none).
+DIVIDE_INSTRUCTION = re.compile(r"^(sdiv|udiv|vdiv)(\.|$)")
+#: The compiler runtime's division and remainder routines: ARM EABI __aeabi_uidiv(mod),
+#: __aeabi_idiv(mod), __aeabi_(u)ldivmod, __aeabi_ddiv/fdiv/drdiv/frdiv; GNU __divsf3,
+#: __divdf3, __udivsi3, __umodsi3, __divdi3; AVR __udivmodqi4/hi4/si4, __divmodhi4/si4.
+DIVIDE_ROUTINE = re.compile(r"^__\w*(div|mod)\w*$")
+_FUNCTION = re.compile(r"^([0-9a-f]+) <([^>]+)>:$")
+_INSTRUCTION = re.compile(r"^\s*([0-9a-f]+):\t[0-9a-f ]+\t(\S+)\s*(.*)$")
+_RELOCATION = re.compile(r"^\s*([0-9a-f]+): (R_\w+)\s+(\S+)$")
+_BRANCH = re.compile(r"^(b|bl|blx|b\.w|b\.n|cbn?z|call|rcall|jmp|rjmp)$")
+_TARGET = re.compile(r"<([^>+]+)(\+0x[0-9a-f]+)?>")
+_BRANCH_RELOCATION = re.compile(r"^R_(ARM_(THM_)?(CALL|JUMP\d+)|AVR_(CALL|13_PCREL))$")
+
+
+def step_path_divisions(
+    target: Target, obj: Path, roots: tuple[str, ...] = ("phoid_step", "phoid_step_force")
+) -> tuple[set[str], list[str]]:
+    """The divisions on the step path of a compiled controller: the functions of ``obj``
+    reachable from ``roots`` by calls and jumps (``objdump -dr``: the relocations name the
+    runtime routines and, on AVR, the object's own static functions as section + offset),
+    and every divide instruction or division routine they use.
+
+    Parameters
+    ----------
+    target : Target
+        The build (its objdump).
+    obj : Path
+        The compiled object (phoid_ctrl.o).
+    roots : tuple of str
+        The entry points.
+
+    Returns
+    -------
+    set of str
+        The object's functions on the path (the roots included): a guard that the
+        disassembly was read.
+    list of str
+        One "function: instruction or routine" per division found (empty: none).
+    """
+    objdump = tool(target.prefix + "objdump")
+    listing = run_tool([objdump, "-dr", str(obj)], f"disassembling {obj.name}")
+    body: dict[str, list[tuple[str, str]]] = {}  # function -> (mnemonic, operands) lines
+    targets: dict[str, list[str]] = {}  # function -> branch targets (symbol or section+offset)
+    starts: list[tuple[str, int, str]] = []  # (section, address, function)
+    section = current = ""
+    pending: tuple[str, str] | None = None  # the last branch (mnemonic, operands) unrelocated
+    for line in listing.splitlines():
+        if line.startswith("Disassembly of section "):
+            section = line.removeprefix("Disassembly of section ").rstrip(":")
+            continue
+        if m := _FUNCTION.match(line):
+            current = m.group(2)
+            starts.append((section, int(m.group(1), 16), current))
+            body.setdefault(current, [])
+            targets.setdefault(current, [])
+            pending = None
+            continue
+        if not current:
+            continue
+        if m := _RELOCATION.match(line):
+            if _BRANCH_RELOCATION.match(m.group(2)):
+                targets[current].append(m.group(3))
+                pending = None  # the relocation, not objdump's guess, names the target
+            continue
+        if m := _INSTRUCTION.match(line):
+            if pending is not None and (t := _TARGET.search(pending[1])):
+                targets[current].append(t.group(1))
+            mnemonic, operands = m.group(2), m.group(3)
+            body[current].append((mnemonic, operands))
+            pending = (mnemonic, operands) if _BRANCH.match(mnemonic) else None
+    if pending is not None and current and (t := _TARGET.search(pending[1])):
+        targets[current].append(t.group(1))
+
+    def resolve(name: str) -> str:
+        """A function of the object for a section + offset target; else the name itself."""
+        sec, _, off = name.partition("+")
+        candidates = [(a, f) for s, a, f in starts if s == sec]
+        if not candidates:
+            return name
+        at = int(off, 16) if off else 0
+        return max((c for c in candidates if c[0] <= at), default=(0, name))[1]
+
+    missing = [r for r in roots if r not in body]
+    if missing:
+        pytest.fail(f"{obj.name}: no function {', '.join(missing)} in its disassembly",
+                    pytrace=False)
+    seen: set[str] = set()
+    todo = list(roots)
+    found: list[str] = []
+    while todo:
+        fn = todo.pop()
+        if fn in seen:
+            continue
+        seen.add(fn)
+        found += [f"{fn}: {mn} {ops}".rstrip() for mn, ops in body[fn]
+                  if DIVIDE_INSTRUCTION.match(mn)]
+        for name in map(resolve, targets[fn]):
+            if name in body:
+                todo.append(name)
+            elif DIVIDE_ROUTINE.match(name):
+                found.append(f"{fn}: calls {name}")
+    return seen, sorted(set(found))

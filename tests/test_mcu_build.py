@@ -31,6 +31,7 @@ from mcu_tools import (
     run_tool,
     runtime_symbols,
     start_file,
+    step_path_divisions,
     tool,
     undefined_symbols,
 )
@@ -169,6 +170,65 @@ def test_float_m4f_controller_runs_on_the_fpu(build_dir: Path) -> None:
     double = _controller_objects(TARGETS["m4f-double"], build_dir, "-O2")[0]
     assert "__aeabi_dmul" in undefined_symbols(TARGETS["m4f-double"], [double])
     assert not soft, f"the float M4F controller calls software floating point: {sorted(soft)}"
+
+
+@pytest.mark.parametrize("opt", ["-O2", "-Os"])
+@pytest.mark.parametrize("name", GATE_TARGETS)
+def test_no_division_on_the_step_path(name: str, opt: str, build_dir: Path) -> None:
+    """No divide instruction and no division or remainder routine on the step path:
+    phoid_step, phoid_step_force and every function of phoid_ctrl.o they call (issue 29: the
+    ring's ``% 65`` cost two __aeabi_uidivmod calls per step on the M0, the 0/0 NaN a
+    __aeabi_ddiv, or a vdiv on an FPU). Structural, so it holds whatever the compiler version;
+    at -Os GCC divides where -O2 multiplies by a reciprocal (``% 65u`` on the M3: udiv)."""
+    target = TARGETS[name]
+    need_real(target)
+    ctrl = _controller_objects(target, build_dir, opt)[0]
+    path, divisions = step_path_divisions(target, ctrl)
+    # the guard: the step reaches the controller's fault() at least (a disassembly misread
+    # would find nothing and pass)
+    assert {"phoid_step", "phoid_step_force", "fault"} <= path, path
+    assert not divisions, f"{name} {opt}: division on the step path: {'; '.join(divisions)}"
+
+
+# A step path with a division of each kind, for the counter-example below: a remainder in a
+# static function the step calls (a ring index by a size that is not a power of two) and a
+# real 0/0 in phoid_step.
+_DIVIDING_STEP = """
+#ifndef REAL
+#define REAL double
+#endif
+volatile unsigned ring_size = 65u;
+volatile REAL zero = 0;
+static unsigned __attribute__((noinline)) ring_next(unsigned head, unsigned size)
+{
+    return (head + 1u) % size;
+}
+REAL phoid_step_force(REAL x, REAL r)
+{
+    return x + r + (REAL)ring_next((unsigned)x, ring_size);
+}
+REAL phoid_step(REAL x)
+{
+    REAL z = zero;
+    return phoid_step_force(x, z / z);
+}
+"""
+
+
+@pytest.mark.parametrize("name", GATE_TARGETS)
+def test_the_division_check_finds_divisions(name: str, tmp_path: Path) -> None:
+    """The step-path check finds a remainder in a called static function and a real division
+    in phoid_step on every target (the counter-example of test_no_division_on_the_step_path:
+    instruction or runtime routine as the target has them)."""
+    target = TARGETS[name]
+    src = tmp_path / "dividing_step.c"
+    src.write_text(_DIVIDING_STEP, encoding="utf-8")
+    real = ("-DREAL=float",) if target.real == "float" else ()
+    obj = compile_sources(target, [src], tmp_path, strict=False, extra=real)[0]
+    path, divisions = step_path_divisions(target, obj)
+    assert path == {"phoid_step", "phoid_step_force", "ring_next"}, path
+    assert any(d.startswith("ring_next: ") for d in divisions), divisions
+    assert any(d.startswith("phoid_step: ") for d in divisions), divisions
 
 
 @pytest.mark.parametrize("name", sorted(FIRMWARE_CEILINGS))
