@@ -157,6 +157,9 @@ def test_float_build_follows_the_double_build_within_float_rounding(lib_dir):
     assert np.max(np.abs(uf - ud)) < 1e-4 * np.max(np.abs(ud))
 
 
+FLT_MAX = (2.0 - 2.0 ** -23) * 2.0 ** 127  # IEEE binary32's largest finite value
+
+
 def test_float_build_refuses_values_beyond_float_and_reports_its_real(lib_dir):
     with pytest.raises(ValueError, match=r"`P` must be within .*float build"):
         Controller({"P": 1e300}, lib_dir, real="float")
@@ -164,6 +167,63 @@ def test_float_build_refuses_values_beyond_float_and_reports_its_real(lib_dir):
         Controller({}, lib_dir, real="half")
     # the double build takes it (a finite double gain; phoid_init accepts any finite gain)
     assert Controller({"P": 1e300}, lib_dir).real == "double"
+    # a value above FLT_MAX that rounds to it (3.4028235e38 is 3.4e30 above it, a third of
+    # half the gap to the next binary32 step, 2^103 ≈ 1.0e31) is held as FLT_MAX; one past
+    # the half gap (3.41e38) rounds to infinity and is refused, on either side
+    ctrl = Controller({"x_max": 3.4028235e38, "x_min": -3.4028235e38}, lib_dir, real="float")
+    assert (ctrl.config.x_max, ctrl.config.x_min) == (FLT_MAX, -FLT_MAX)
+    for field, value in (("x_max", 3.41e38), ("x_min", -3.41e38), ("stall_epsilon", 1e39)):
+        with pytest.raises(ValueError, match=rf"`{field}` must be within .*float build"):
+            Controller({field: value}, lib_dir, real="float")
+
+
+@pytest.mark.parametrize("field", ["P", "D", "hold_P", "u_max", "stall_epsilon", "x_start"])
+def test_float_build_refuses_a_value_that_rounds_to_zero(lib_dir, field):
+    # 1e-50 is below binary32's smallest subnormal (2^-149 ≈ 1.4e-45): it rounds to 0, which
+    # means "off" or "none" to several fields (stall_epsilon 0: any motion counts), so the
+    # float build refuses it, naming the field; the double build holds it
+    cfg = {field: 1e-50, "stall_samples": 3}
+    assert getattr(Controller(cfg, lib_dir).config, field) == 1e-50
+    with pytest.raises(ValueError, match=rf"^controller field `{field}` is too small for the "
+                                         r"float build \(it rounds to 0 there\)"):
+        Controller(cfg, lib_dir, real="float")
+    # an exact 0 is a value float holds: taken where the field allows 0 (u_max must be > 0)
+    if field != "u_max":
+        assert getattr(Controller({field: 0.0}, lib_dir, real="float").config, field) == 0.0
+
+
+@pytest.mark.parametrize("cfg, field", [
+    # 1 - 1e-9 rounds to 1.0 in float (its step below 1 is 2^-24 ≈ 6e-8), which the float
+    # phoid_init would take; the rule (0 or >= 1) is the double build's too
+    ({"growth_limit": 1 - 1e-9}, "growth_limit"),
+    # 0.99999999e-9 s rounds to float's 1e-9f (9.99999972e-10), PHOID_MIN_SAMPLE_TIME there
+    ({"sample_time": 0.99999999e-9}, "sample_time"),
+])
+def test_float_build_refuses_what_the_double_build_refuses(lib_dir, cfg, field):
+    # the configuration is checked as given by the double build before it is rounded: the
+    # same one-line message from both builds, naming the field and the value given
+    with pytest.raises(ValueError) as double:
+        Controller(cfg, lib_dir)
+    with pytest.raises(ValueError) as single:
+        Controller(cfg, lib_dir, real="float")
+    assert str(single.value) == str(double.value)
+    assert f"`{field}`" in str(double.value) and repr(cfg[field]) in str(double.value)
+
+
+def test_float_build_names_a_refusal_caused_by_rounding(lib_dir):
+    # x_min < x_max and a pole below 1 hold in double and not after rounding to float
+    # (0.1 and 0.1 + 1e-12 are the same float; 0.99999999 rounds to 1.0): the float
+    # phoid_init refuses them, and the message shows the value given and the one held
+    cfg = {"x_min": 0.1, "x_max": 0.1 + 1e-12, "x_start": 0.1}
+    Controller(cfg, lib_dir)
+    with pytest.raises(ValueError, match=r"`x_min, x_max` .*x_min=0\.1 \(the float build "
+                                         r"holds 0\.10000000149011612\)"):
+        Controller(cfg, lib_dir, real="float")
+    pole = {"velocity": "filtered", "filter_pole": 0.99999999}
+    Controller(pole, lib_dir)
+    with pytest.raises(ValueError, match=r"`filter_pole` .*filter_pole=0\.99999999 \(the "
+                                         r"float build holds 1\.0\)"):
+        Controller(pole, lib_dir, real="float")
 
 
 def test_sample_counter_and_event_indices_pass_2_to_the_32(lib_dir):
@@ -482,6 +542,8 @@ CROSS = {
     "cortex-m0": ("arm-none-eabi-gcc", ["-mcpu=cortex-m0", "-mthumb", "-O2"]),
     "avr": ("avr-gcc", ["-mmcu=atmega2560", "-Os"]),
 }
+# the Debian package of each cross compiler, for the skip reason
+CROSS_PACKAGES = {"arm-none-eabi-gcc": "gcc-arm-none-eabi", "avr-gcc": "gcc-avr"}
 # the integer division helpers of the ARM EABI (a % or an integer / where the core has no
 # divide instruction: Cortex-M0)
 INT_DIVISION = ("__aeabi_uidiv", "__aeabi_uidivmod", "__aeabi_idiv", "__aeabi_idivmod",
@@ -495,7 +557,7 @@ def test_cross_compiles_with_strict_flags(tmp_path, target, real):
     # tests/test_mcu_build.py's); AVR's double is 32-bit: no constant may exceed it
     tool, flags = CROSS[target]
     if shutil.which(tool) is None:
-        pytest.skip(f"{tool} not installed (Debian: gcc-arm-none-eabi / gcc-avr)")
+        pytest.skip(f"{tool} not installed (Debian: {CROSS_PACKAGES[tool]})")
     obj = tmp_path / "c.o"
     proc = subprocess.run([tool, *flags, *STRICT, f"-DPHOID_REAL={real}", "-c", "-o", str(obj),
                            str(SOURCES[1])], capture_output=True, text=True, check=False)

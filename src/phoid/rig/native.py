@@ -313,6 +313,81 @@ def load_library(folder: str | Path, real: str = "double") -> ctypes.CDLL:
     return lib
 
 
+def _checked_fields(config: Mapping[str, object], sample_time: float) -> dict[str, float | int]:
+    """The fields of a controller configuration checked and converted: known names, whole
+    numbers within their C type for the count fields, numbers for the real ones, a velocity
+    preset's name as its code, ``cutoff`` (rad/s) as ``filter_pole`` (ValueError naming the
+    field). ``sample_time``: the build's default, for a ``cutoff`` without one."""
+    names = {f[0] for f in _Config._fields_}
+    items = dict(config)
+    if "cutoff" in items:
+        if "filter_pole" in items:
+            raise ValueError("give `cutoff` (rad/s) or `filter_pole`, not both")
+        cutoff = items.pop("cutoff")
+        T = items.get("sample_time", sample_time)
+        items["filter_pole"] = VelocityFilter("filtered", T, cutoff).filter_pole
+    out: dict[str, float | int] = {}
+    for key, value in items.items():
+        if key not in names:
+            raise ValueError(f"unknown controller field `{key}`; the fields are "
+                             f"{', '.join(sorted(names | {'cutoff'}))}")
+        if key == "velocity" and isinstance(value, str):
+            if value not in VELOCITIES:
+                raise ValueError(f"`velocity` must be one of {', '.join(VELOCITIES)}; "
+                                 f"got {value!r}")
+            value = VELOCITIES[value]
+        try:
+            if key in _INT_FIELDS:
+                if isinstance(value, bool) or int(value) != value:
+                    raise TypeError
+                number: float | int = int(value)
+            else:
+                number = float(value)
+        except (TypeError, ValueError, OverflowError):
+            raise ValueError(f"controller field `{key}` must be a "
+                             f"{'whole number' if key in _INT_FIELDS else 'number'}; "
+                             f"got {value!r}") from None
+        if key in _INT_FIELDS:
+            lo, hi = _int_range(key)
+            if not lo <= number <= hi:  # ctypes would wrap it silently (2**64 → 0)
+                raise ValueError(f"controller field `{key}` must be a whole number from "
+                                 f"{lo} to {hi} (its C type); got {value!r}")
+        out[key] = number
+    return out
+
+
+def _init_error(err: int, cfg: ctypes.Structure, given: Mapping[str, float | int],
+                real: str) -> str:
+    """The one-line message of a configuration phoid_init refused with ``err``: the field,
+    its rule and the value given (with the value the build holds when rounding changed it)."""
+    field, what = _ERRORS.get(err, ("config", "is refused"))
+    shown = []
+    for f in (f.strip() for f in field.split(",")):
+        held = getattr(cfg, f, None)
+        value = given.get(f, held)
+        shown.append(f"{f}={value!r}" if held == value or held is None
+                     else f"{f}={value!r} (the {real} build holds {held!r})")
+    return (f"controller config: `{field}` {what}; got {', '.join(shown)} "
+            f"(phoid_init error {err})")
+
+
+def _check_in_double(items: Mapping[str, float | int], defaults: ctypes.Structure,
+                     folder: str | Path) -> None:
+    """Check a configuration with the double build's phoid_init before it is rounded to a
+    narrower real (ValueError as the double build words it): the fields not given take
+    ``defaults`` (the narrower build's own, which a double holds exactly)."""
+    lib = load_library(folder, "double")
+    cfg = _Config()
+    for name, _ in _Config._fields_:
+        setattr(cfg, name, getattr(defaults, name))
+    for key, value in items.items():
+        setattr(cfg, key, value)
+    buf = ctypes.create_string_buffer(int(lib.phoid_ctrl_size()))
+    err = lib.phoid_init(ctypes.cast(buf, ctypes.c_void_p), ctypes.byref(cfg))
+    if err != 0:
+        raise ValueError(_init_error(err, cfg, items, "double"))
+
+
 class Controller:
     """The compiled C controller, one instance (``phoid_ctrl``), stepped from Python.
 
@@ -334,14 +409,18 @@ class Controller:
     real : {"double", "float"}
         The controller's real type (``PHOID_REAL``): ``"double"`` (default) or ``"float"``,
         the build a microcontroller with a single-precision FPU runs. In the float build the
-        real fields, x, r and the force are rounded to float on their way in; a finite value
-        beyond float's range is refused.
+        real fields, x, r and the force are rounded to float on their way in. The
+        configuration is checked as given by the double build's ``phoid_init`` first (the
+        float build refuses what the double build refuses), then rounded: a finite value that
+        rounds to infinity (beyond ±FLT_MAX by more than half a unit) or a non-zero value that
+        rounds to 0 is refused, naming the field, and the float ``phoid_init`` checks the
+        rounded values (``x_min`` < ``x_max`` may not survive the rounding).
 
     Raises
     ------
     ValueError
-        For an unknown field or a value of the wrong type (or, float build, beyond float's
-        range), an unknown ``real``, or when ``phoid_init`` refuses the configuration (the
+        For an unknown field or a value of the wrong type (or, float build, one float cannot
+        hold), an unknown ``real``, or when ``phoid_init`` refuses the configuration (the
         message names the field).
     CompilerNotFoundError
         When no C compiler is found.
@@ -352,56 +431,35 @@ class Controller:
         self.real = _real(real)
         self._lib = load_library(folder, real)
         self._event = _STRUCTS[real][1]
-        largest = REALS[real][2]
         cfg = _STRUCTS[real][0]()
         self._lib.phoid_config_default(ctypes.byref(cfg))
-        names = {f[0] for f in _Config._fields_}
-        items = dict(config)
-        if "cutoff" in items:
-            if "filter_pole" in items:
-                raise ValueError("give `cutoff` (rad/s) or `filter_pole`, not both")
-            cutoff = items.pop("cutoff")
-            T = items.get("sample_time", cfg.sample_time)
-            items["filter_pole"] = VelocityFilter("filtered", T, cutoff).filter_pole
+        items = _checked_fields(config, cfg.sample_time)
+        if real != "double":
+            # The configuration as given is checked by the double build's phoid_init first
+            # (the build's own defaults for the fields not given), then rounded: the float
+            # build refuses what the double build refuses (growth_limit 1 - 1e-9, which
+            # rounds to 1.0), and rounding only adds refusals, each named as such below.
+            _check_in_double(items, cfg, folder)
+        largest = REALS[real][2]
         for key, value in items.items():
-            if key not in names:
-                raise ValueError(f"unknown controller field `{key}`; the fields are "
-                                 f"{', '.join(sorted(names | {'cutoff'}))}")
-            if key == "velocity" and isinstance(value, str):
-                if value not in VELOCITIES:
-                    raise ValueError(f"`velocity` must be one of {', '.join(VELOCITIES)}; "
-                                     f"got {value!r}")
-                value = VELOCITIES[value]
-            try:
-                if key in _INT_FIELDS:
-                    if isinstance(value, bool) or int(value) != value:
-                        raise TypeError
-                    value = int(value)
-                else:
-                    value = float(value)
-            except (TypeError, ValueError, OverflowError):
-                raise ValueError(f"controller field `{key}` must be a "
-                                 f"{'whole number' if key in _INT_FIELDS else 'number'}; "
-                                 f"got {value!r}") from None
             if key in _INT_FIELDS:
-                lo, hi = _int_range(key)
-                if not lo <= value <= hi:  # ctypes would wrap it silently (2**64 → 0)
-                    raise ValueError(f"controller field `{key}` must be a whole number from "
-                                     f"{lo} to {hi} (its C type); got {value!r}")
-            elif math.isfinite(value) and abs(value) > largest:  # ctypes would make it inf
+                setattr(cfg, key, value)
+                continue
+            rounded = REALS[real][0](value).value
+            if math.isfinite(value) and not math.isfinite(rounded):
                 raise ValueError(f"controller field `{key}` must be within ±{largest!r} (the "
-                                 f"{real} build's largest finite value); got {value!r}")
+                                 f"{real} build's largest finite value; it rounds to "
+                                 f"{rounded!r} there); got {value!r}")
+            if value != 0.0 and rounded == 0.0:  # 0 means "none" or "off" to several fields
+                raise ValueError(f"controller field `{key}` is too small for the {real} build "
+                                 f"(it rounds to 0 there); got {value!r}")
             setattr(cfg, key, value)
         self.config = cfg
         self._buf = ctypes.create_string_buffer(int(self._lib.phoid_ctrl_size()))
         self._ptr = ctypes.cast(self._buf, ctypes.c_void_p)
         err = self._lib.phoid_init(self._ptr, ctypes.byref(cfg))
         if err != 0:
-            field, what = _ERRORS.get(err, ("config", "is refused"))
-            shown = ", ".join(f"{f.strip()}={getattr(cfg, f.strip())!r}"
-                              for f in field.split(","))
-            raise ValueError(f"controller config: `{field}` {what}; got {shown} "
-                             f"(phoid_init error {err})")
+            raise ValueError(_init_error(err, cfg, items, real))
 
     def step(self, x: float, r: float = 0.0, force: float | None = None) -> float:
         """One sample: position x (m), reference r (m) → the command to apply now.

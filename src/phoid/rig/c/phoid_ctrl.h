@@ -144,7 +144,10 @@ enum phoid_state {
 enum phoid_event_code {
     PHOID_EV_START = 1,           /**< IDLE/DONE -> HOLD; value: x_start (m) */
     PHOID_EV_RELEASE = 2,         /**< HOLD -> RUN; value: x at the release (m) */
-    PHOID_EV_DONE = 3,            /**< RUN -> DONE; value: samples run */
+    PHOID_EV_DONE = 3,            /**< RUN -> DONE; value: samples run (= run_samples),
+                                       as a phoid_real: exact up to 2^24 = 16777216 in a
+                                       32-bit real (float, AVR's double), rounded beyond;
+                                       the exact count is run_samples */
     PHOID_EV_CLIP = 4,            /**< a clipping episode begins; value: the unclipped command */
     PHOID_EV_FAULT_POSITION = 5,  /**< x outside [x_min, x_max]; value: x (m) */
     PHOID_EV_FAULT_GROWTH = 6,    /**< |x - r| > growth_limit*A; value: |x - r| (m) */
