@@ -7,7 +7,11 @@ STRICT_FLAGS: -std=c99 -Wall -Wextra -Werror -pedantic -Wfloat-equal -ffp-contra
 -O2 and at -Os, use nothing but the compiler runtime (libgcc; on AVR avr-libc's
 floating-point routines, where avr-gcc keeps them) and memcpy/memset, link into a firmware
 (-nostdlib -nostartfiles, the tests' own start-up) and stay under stated flash and RAM
-ceilings. Each test is skipped, naming the Debian package, where its toolchain is missing.
+ceilings. The step path (phoid_step, phoid_step_force and what they call in phoid_ctrl.o)
+has no divide instruction and calls no division routine, on every target at -O2 and -Os
+(a structural check, whatever the compiler's version; tests/test_mcu_cost.py counts the
+instructions). Each test is skipped, naming the Debian package, where its toolchain is
+missing.
 """
 
 from __future__ import annotations
