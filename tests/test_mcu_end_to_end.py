@@ -159,6 +159,7 @@ def test_run_on_the_emulated_firmware_then_identify(real, tmp_path):
     (["--seed", "-3"], "--seed"),
     (["--listen", "127.0.0.1:70000"], "--listen"),
     (["--listen", "nohost"], "--listen"),
+    (["--listen", "bad host!:8080"], "got 'bad host!:8080'"),  # what the user gave, quoted
     (["--m", "1e-320", "--k", "1e300"], "--m"),  # its motion over 1 ns overflows a double
 ])
 def test_the_virtual_plant_refuses_bad_options_in_one_line(args, named):
@@ -211,6 +212,45 @@ def test_the_virtual_plant_steps_in_lockstep_and_refuses_what_it_cannot_use():
     assert "before" in complaints[0] or "without a run" in complaints[0]
     assert "CRC" in complaints[1] or "COBS" in complaints[1]
     assert "sample_time" in complaints[2]
+
+
+def test_the_virtual_plant_bounds_its_periods_its_lines_and_its_clients():
+    # R's period within what a rig accepts (1 ns to 1 s, plant.py FASTEST/SLOWEST), refused
+    # in a short line; a second MCU told it is busy in one line; a silent MCU gives the plant
+    # up to a newcomer after the idle timeout (1 s here, to keep the test short; the busy
+    # case comes well within it: the plant looks for newcomers every 0.2 s)
+    import math
+    import struct
+
+    from phoid.dynamics.plant import Plant
+    from phoid.rig.frames import decode_frame, encode_frame
+    from phoid.rig.plant import PlantModel, VirtualPlant
+
+    complaints: list[str] = []
+    with VirtualPlant(PlantModel(Plant(m=2.0, c=1.0, k=64.0)), log=complaints.append,
+                      idle_timeout=1.0) as vp:
+        host, port = vp.listen()
+        first = socket.create_connection((host, port), timeout=10)
+        f = first.makefile("rb")
+        assert decode_frame(_read_frame(f))[:1] == b"P"
+        for T in (1e-12, 2.0, 1e300, math.nan):
+            first.sendall(encode_frame(b"R" + struct.pack("<dd", T, 1.0)))
+        first.sendall(encode_frame(struct.pack("<BId", ord("U"), 0, 1.0)))  # no run: unanswered
+        deadline = time.monotonic() + 10
+        while len(complaints) < 5 and time.monotonic() < deadline:
+            time.sleep(0.02)
+        assert sum("sample_time must be from 1e-09 to 1 s" in c for c in complaints) == 4
+        assert all(len(c) < 200 for c in complaints), complaints
+        with socket.create_connection((host, port), timeout=10) as second:  # busy
+            lines = second.makefile("rb").read().splitlines()
+        assert len(lines) == 1 and b"busy" in lines[0]
+        time.sleep(1.1)  # the first is silent past the idle timeout: a newcomer takes over
+        with socket.create_connection((host, port), timeout=10) as third:
+            assert decode_frame(_read_frame(third.makefile("rb")))[:1] == b"P"
+        assert first.recv(100) == b""  # the silent one was dropped
+        f.close()
+        first.close()
+    assert any("sent nothing" in c for c in complaints), complaints
 
 
 def _read_frame(f) -> bytes:

@@ -394,8 +394,9 @@ def test_the_link_refuses_what_it_cannot_use(fw_root):
         assert "run_samples" in board.frame().fields["message"]
         board.sock.sendall(frames.config_frame(dict(RUN, hold_samples=0)))
         assert "hold_samples 0" in board.frame().fields["message"]
-        # a host that connects again says hello in text: the rig starts over
-        board.sock.sendall(b"\x05garbage" + hello())
+        # a host that connects again says hello in text: the rig starts over. In binary
+        # mode the hello is the bytes since the last 0x00 or LF (here: the end of noise)
+        board.sock.sendall(b"\x05garbage\n" + hello())
         assert parse(board.line()).kind == "HELLO"
         board.sock.sendall(FRAMING)
         assert parse(board.line()).kind == "OK"
@@ -531,9 +532,90 @@ def test_a_frame_refused_during_a_run_leaves_no_configuration(fw_root):
         # a float rig cannot hold a gain beyond float's range (3.4e38): refused, named
         board.sock.sendall(frames.config_frame(dict(RUN, P=1e39)))
         msg = board.frame()
-        assert msg.kind == "ERROR" and "`P, D, gain, hold_P, hold_D`" in msg.fields["message"]
+        assert msg.kind == "ERROR" and "`P` is beyond this build's 32-bit real" in \
+            msg.fields["message"]
         # nor a force sensor (this firmware reads none), nor a sample time under 1 ns
         board.sock.sendall(frames.config_frame(dict(RUN, has_force=1)))
         assert "has_force 1" in board.frame().fields["message"]
         board.sock.sendall(frames.config_frame(dict(RUN, sample_time=1e-10)))
         assert "`sample_time`" in board.frame().fields["message"]
+
+
+def test_a_hello_after_noise_on_its_line_is_taken_in_text_mode(fw_root):
+    # a host that comes after line noise or a cut-off line: the line that ends with the
+    # hello (its bytes exactly, a CR before the LF allowed) is the hello, whatever came before
+    # it on the line, even more than the rig's line buffer holds; other lines are still refused
+    elf = firmware("m3", "double", fw_root)
+    with Board("mps2-an385", elf, model()) as board:
+        board.sock.sendall(b"\x7f\x03" + hello())
+        assert parse(board.line()).kind == "HELLO"
+        # waiting for FRAMING: noise and the hello again start over
+        board.sock.sendall(b"FRAMING cob" + hello().replace(b"\n", b"\r\n"))
+        assert parse(board.line()).kind == "HELLO"
+        board.sock.sendall(b"x" * 1000 + hello())
+        assert parse(board.line()).kind == "HELLO"
+        board.sock.sendall(b"junk PHOID-RIG 1 *b79b4dcX\n")  # not the hello's bytes
+        assert b"send FRAMING cobs" in board.line()
+        board.handshake()
+        rec = board.run(dict(RUN, hold_samples=5, run_samples=10))
+        assert rec.end == "done" and len(rec.samples) == 16
+
+
+def _spelling_config() -> bytes:
+    """A CONFIG frame whose bytes spell the hello line inside it: P, D and gain's 24 bytes
+    are the hello's 22 and two more (their reals finite, which the double build takes)."""
+    raw = hello() + b"\x01\x3f"
+    cfg = dict(RUN, P=struct.unpack("<d", raw[0:8])[0], D=struct.unpack("<d", raw[8:16])[0],
+               gain=struct.unpack("<d", raw[16:24])[0])
+    wire = frames.config_frame(cfg)
+    assert hello() in wire and all(map(math.isfinite, (cfg["P"], cfg["D"], cfg["gain"])))
+    return wire
+
+
+def test_a_frame_that_spells_the_hello_does_not_reset_the_session(fw_root):
+    # binary mode: the hello is taken only as the whole bytes since the last 0x00 or LF; a
+    # CONFIG whose reals spell it is a CONFIG (answered OK), not a new session
+    elf = firmware("m3", "double", fw_root)
+    with Board("mps2-an385", elf, model()) as board:
+        board.handshake()
+        board.sock.sendall(_spelling_config())
+        assert board.frame().kind == "OK"
+        board.sock.sendall(frames.message_frame("START"))
+        assert board.frame().kind in ("SAMPLE", "EVENT")  # configured: it runs
+        board.sock.sendall(frames.abort_frame(1.0))
+        while board.frame().kind != "END":
+            pass
+        # a hello after noise with no 0x00 or LF before it is part of that noise's frame
+        board.sock.settimeout(1.0)
+        board.sock.sendall(b"\x05garbage" + hello())
+        with pytest.raises(TimeoutError):
+            board.line()
+        board.sock.settimeout(WAIT)
+        board.sock.sendall(hello())  # after the first one's LF: taken
+        assert parse(board.line()).kind == "HELLO"
+
+
+def test_a_float_rig_checks_the_config_as_the_double_build(fw_root):
+    # the float build checks CONFIG's reals as the double build does before it rounds them
+    # (values within a float's rounding of a bound are refused as the double build refuses
+    # them), and refuses a real the float cannot carry, naming the field; "no limit" (1e300)
+    # is still no limit
+    elf = firmware("m4f", "float", fw_root)
+    refused = [
+        ({"growth_limit": 0.99999999}, "`growth_limit`"),  # 1.0f after rounding
+        ({"x_start": math.nextafter(RUN["x_max"], 1.0)}, "`x_start`"),
+        ({"sample_time": 0.999999999e-9}, "`sample_time`"),  # rounds to 1e-9f
+        ({"velocity": 2, "filter_pole": -1e-50}, "`filter_pole`"),  # -0.0f after rounding
+        ({"P": 1e-50}, "`P` is not 0 but rounds to 0"),
+        ({"stall_epsilon": 1e39}, "`stall_epsilon` is beyond"),
+        ({"hold_D": -1e39}, "`hold_D` is beyond"),
+    ]
+    with Board("mps2-an386", elf, model()) as board:
+        board.handshake()
+        for change, why in refused:
+            board.sock.sendall(frames.config_frame(dict(RUN, **change)))
+            msg = board.frame()
+            assert msg.kind == "ERROR" and why in msg.fields["message"], (change, msg)
+        board.sock.sendall(frames.config_frame(dict(RUN, x_min=-1e300, x_max=1e300,
+                                                    u_max=1e300, growth_limit=1.0)))
+        assert board.frame().kind == "OK"

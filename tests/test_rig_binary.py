@@ -265,8 +265,8 @@ class BinaryRig:
     CLEAR, and to the k-th START the bytes ``script(cfg, k)`` gives (``text=True`` in a text
     session)."""
 
-    def __init__(self, script=None, speaks="cobs"):
-        self.script, self.speaks = script, speaks
+    def __init__(self, script=None, speaks="cobs", before=b""):
+        self.script, self.speaks, self.before = script, speaks, before
         self.framing = None
         self.starts = 0
         self.srv = socket.create_server(("127.0.0.1", 0))
@@ -284,7 +284,7 @@ class BinaryRig:
 
     def _session(self, link):
         assert parse(link.readline(5)).kind == "HELLO"
-        link.send(hello())
+        link.send(self.before + hello())  # ``before``: what a cut-off session left in flight
         first = parse(link.readline(5))
         if first.kind == "FRAMING":
             self.framing = first.fields["name"]
@@ -385,6 +385,41 @@ def test_auto_keeps_the_text_lines_with_an_old_rig_and_binary_refuses_it(tmp_pat
     assert "closed by the other side" in line and "runs with --framing text" in line
     line = _fail_line(_run(plan, old, tmp_path / "x", "--framing", "cobs"))
     assert "--framing must be auto, text or binary; got 'cobs'" in line
+
+
+def _rest_of_a_session(cfg=None, k=1, text=False):
+    """What a `phoid run` killed or interrupted mid-run leaves in flight: a run's frames (or
+    text lines) cut off mid-frame, no END; the hello reply follows on the same line."""
+    return _good(cfg, k, text=text)[:-7]
+
+
+@pytest.mark.parametrize("before", [
+    _rest_of_a_session(),
+    _rest_of_a_session(text=True),
+    b"\x04X\xb7\x10 line noise\n" * 3 + b"\x00" * 5 + b"SAMPLE 1 *00000000\n\x7f",
+], ids=["frames", "text-lines", "noise"])
+def test_the_hello_reply_is_found_after_what_a_cut_off_session_left(tmp_path, rigs, before):
+    # a run cut off by Ctrl-C or a kill leaves its samples in flight: the next `phoid run`
+    # reads past them (whole lines and bytes before the reply on its line) to the hello
+    plan = _plan(tmp_path)
+    assert b"\n" in before[:-30] and not before.endswith(b"\n")  # lines, then the reply's
+    r = _run(plan, rigs(_good, before=before), tmp_path / "set", "--framing", "binary")
+    assert r.exit_code == 0, r.output
+    assert [a["status"] for a in _manifest(tmp_path / "set")["rig"]["attempt"]] == [
+        "complete", "complete"]
+
+
+@pytest.mark.parametrize("before, why", [
+    (b"y" * 100 + b"\n" + hello(2), "speaks protocol version 2"),  # a reply, the wrong one
+    (b"not a hello\n" * 6000, "damaged line (waiting for hello)"),  # 72 kB: > 64 KiB
+    (encode("OK") * 6000, "did not say hello ('PHOID-RIG 1'); it sent OK"),
+], ids=["version", "flood", "other-lines"])
+def test_what_is_not_a_hello_reply_is_one_line_and_bounded(tmp_path, rigs, before, why):
+    # skipping is bounded (65536 bytes; the timeout): what came instead is said in one line
+    plan = _plan(tmp_path)
+    line = _fail_line(_run(plan, rigs(_good, before=before), tmp_path / "set"))
+    assert why in line and len(line) < 600
+    assert "version" in why or "no hello reply in the" in line
 
 
 def test_a_binary_run_is_the_text_runs_file(tmp_path, rigs):

@@ -39,6 +39,10 @@ try:
     import fcntl
 except ImportError:  # not POSIX: no lock
     fcntl = None  # type: ignore[assignment]
+try:
+    import termios
+except ImportError:  # not POSIX: no serial ports
+    termios = None  # type: ignore[assignment]
 
 from phoid._output import OutputFolder
 from phoid.rig.checks import MANIFEST, MAX_TIMEOUT, RigError, clip, option, plan_configs, variant
@@ -51,6 +55,8 @@ from phoid.rig.frames import (
 )
 from phoid.rig.link import Link, LinkClosed, connect, open_serial
 from phoid.rig.protocol import (
+    HELLO,
+    VERSION,
     Message,
     ProtocolError,
     check_hello,
@@ -75,6 +81,7 @@ from phoid.rig.runfiles import (
 __all__ = ["FRAMINGS", "RigError", "RunPlanResult", "open_port", "parse_port", "plan_configs",
            "run_plan"]
 
+HELLO_SKIP = 65536  # bytes before the hello reply skipped (a cut-off session's rest) at most
 MAX_DAMAGED = 100  # damaged lines (checksum, syntax, too long) in a run before the link is given up
 EXTRA_EVENTS = 64  # EVENT lines a run may bring beyond one per sample
 LINE_BYTES = 160  # bytes per line in a run's deadline on a serial line
@@ -271,9 +278,10 @@ def _session(link: Link, port: str, timeout: float, folder: OutputFolder,
     that did not complete."""
     files = sched["files"]
     messages: list[str] = []
+    _drop_input(link)
     link.send(hello())
     try:
-        check_hello(_reply(link, timeout, "hello"), f"the rig at {port}")
+        check_hello(_hello_reply(link, timeout, port), f"the rig at {port}")
     except ProtocolError as exc:
         raise RigError(clip(exc, REASON_CHARS)) from None
     wire = _negotiate(link, port, timeout, framing)
@@ -458,6 +466,67 @@ def _negotiate(link: Link, port: str, timeout: float, framing: str) -> _Wire:
                        f"binary): it answered FRAMING cobs with ERROR "
                        f"{clip(reply.fields['message'], 200)}; nothing was run")
     return _TEXT
+
+
+def _drop_input(link: Link) -> None:
+    """On a serial line, drop what the port received before the hello (the rest of a session
+    that was cut off); a socket has no such buffer to drop (:func:`_hello_reply` skips it)."""
+    if not link.byte_time or termios is None:
+        return
+    with contextlib.suppress(OSError, ValueError, AttributeError, termios.error):
+        termios.tcflush(link.sock.fileno(), termios.TCIFLUSH)
+
+
+def _hello_tail(line: bytes) -> Message | None:
+    """The hello reply (``PHOID-RIG …`` or ``ERROR …``, its checksum right) that ends
+    ``line`` after bytes of something else (the end of a frame, line noise); None if none."""
+    for key in (b"PHOID-RIG ", b"ERROR "):
+        j = line.rfind(key)
+        if j > 0:
+            try:
+                msg = parse(line[j:])
+            except ProtocolError:
+                continue
+            if msg.kind in ("HELLO", "ERROR"):
+                return msg
+    return None
+
+
+def _hello_reply(link: Link, timeout: float, port: str) -> Message:
+    """The rig's reply to the hello: the first valid ``PHOID-RIG`` or ``ERROR`` line within
+    ``timeout`` s.
+
+    What comes before it is skipped: the rest of a session that was cut off (samples or
+    frames of a run still in flight when a killed or interrupted ``phoid run`` left) and line
+    noise, including bytes before the reply on its own line. Bounded: ``timeout`` s and
+    ``HELLO_SKIP`` bytes, after which one RigError says what came instead.
+    """
+    deadline = time.monotonic() + timeout
+    skipped = 0
+    instead = ""  # what came instead of the reply: the first of it
+    while True:
+        left = deadline - time.monotonic()
+        line = link.readline(left) if left > 0 else None
+        if line is None:
+            break
+        try:
+            msg = parse(line)
+        except ProtocolError as exc:
+            msg = _hello_tail(line)
+            if msg is None:
+                instead = instead or (f"the rig at {port} sent a damaged line (waiting for hello): "
+                                      f"{clip(exc, REASON_CHARS)}")
+        if msg is not None:
+            if msg.kind in ("HELLO", "ERROR"):
+                return msg
+            instead = instead or (f"the rig at {port} did not say hello ('{HELLO} "
+                                  f"{VERSION}'); it sent {msg.kind}")
+        skipped += len(line)
+        if skipped > HELLO_SKIP:
+            raise RigError(f"{instead}; and no hello reply in the {skipped} bytes after it")
+    if instead:
+        raise RigError(f"{instead}; and no hello reply within {timeout:g} s")
+    raise RigError(f"the rig at {port} sent nothing for {timeout:g} s (waiting for hello)")
 
 
 def _reply(link: Link, timeout: float, what: str, where: str = "", wire: _Wire = _TEXT) -> Any:

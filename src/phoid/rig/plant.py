@@ -24,19 +24,23 @@ leaves the last ``P`` unanswered, so the plant's time stands still between runs.
 starts at rest at x = 0 and keeps its state from run to run (the hold brings it back).
 
 The plant trusts nothing it reads: a frame it cannot use (bad COBS or CRC, an unknown type, a
-``U`` before any ``R``, a period or gain that is not a finite number > 0, a period over which
-the plant's motion cannot be simulated) is named in one line on stderr and left unanswered;
-the MCU then waits, and the host's ``phoid run`` times out on the run.
+``U`` before any ``R``, a period outside 1 ns to 1 s (the virtual rig's range) or a gain that
+is not a finite number > 0, a period over which the plant's motion cannot be simulated) is
+named in one short line on stderr and left unanswered; the MCU then waits, and the host's
+``phoid run`` times out on the run. One MCU at a time: a second one is told it is busy in one
+text line and closed, unless the one served has been silent for the idle timeout.
 """
 
 from __future__ import annotations
 
 import contextlib
 import math
+import select
 import socket
 import struct
 import sys
 import threading
+import time
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -49,10 +53,17 @@ __all__ = ["PlantModel", "Step", "VirtualPlant", "position_frame"]
 
 MAX_QUANTUM_LOW, MAX_QUANTUM_HIGH = 1e-30, 1e30  # m: --quantum other than 0
 FASTEST, SLOWEST = 1e-9, 1.0  # s: the controller's shortest sample time; the virtual rig's longest
+IDLE_TIMEOUT = 30.0  # s: an MCU silent this long gives the plant up to another that connects
 MAX_FRAME_BYTES = 300  # bytes before a 0x00: more is not a frame of this link
 _P = struct.Struct("<BBd")
 _U = struct.Struct("<BId")
 _R = struct.Struct("<Bdd")
+
+
+def _short(exc: BaseException, chars: int = 200) -> str:
+    """An exception's message in at most ``chars`` characters (a log line stays a line)."""
+    text = " ".join(str(exc).split())
+    return text if len(text) <= chars else text[:chars] + "..."
 
 
 def position_frame(x: float) -> bytes:
@@ -144,15 +155,17 @@ class PlantModel:
             T or G not a finite number > 0, or a period over which the motion cannot be
             simulated (it overflows, or the plant rings too fast for it).
         """
-        for name, val in (("sample_time", sample_time), ("command_gain", command_gain)):
-            if not (math.isfinite(val) and val > 0):
-                raise ValueError(f"{name} must be a finite number > 0; got {val!r}")
+        if not FASTEST <= sample_time <= SLOWEST:  # NaN too
+            raise ValueError(f"sample_time must be from {FASTEST:g} to {SLOWEST:g} s; got "
+                             f"{sample_time:.6g}")
+        if not (math.isfinite(command_gain) and command_gain > 0):
+            raise ValueError(f"command_gain must be a finite number > 0; got {command_gain:.6g}")
         try:
             with np.errstate(over="raise", divide="raise", invalid="raise", under="ignore"):
                 mp = self.exact.zoh_map(sample_time)
         except (ArithmeticError, ValueError) as exc:
             raise ValueError(f"sample_time {sample_time:g} s: the plant's motion over one "
-                             f"sample cannot be simulated ({exc})") from None
+                             f"sample cannot be simulated ({_short(exc)})") from None
         if not all(math.isfinite(v) for v in mp[:6]):
             raise ValueError(f"sample_time {sample_time:g} s: the plant's motion over one "
                              "sample overflows a double")
@@ -201,9 +214,19 @@ class VirtualPlant:
         Keep every sample (:attr:`steps`: the position sent, the command received), for tests.
     log : callable, optional
         Where one-line complaints go (default: stderr).
+    idle_timeout : float, default 30
+        Seconds: an MCU that has sent nothing for this long gives the plant up to another
+        that connects (it is dropped, named on the log). Otherwise a second MCU is told in
+        one text line that the plant is busy and closed; an MCU alone keeps the plant however
+        long it is silent (between runs it sends nothing).
     """
 
-    def __init__(self, model: PlantModel, *, record: bool = False, log=None) -> None:
+    def __init__(self, model: PlantModel, *, record: bool = False, log=None,
+                 idle_timeout: float = IDLE_TIMEOUT) -> None:
+        if not (math.isfinite(idle_timeout) and idle_timeout > 0):
+            raise ValueError(f"idle_timeout must be a finite number > 0 s; got {idle_timeout!r}")
+        self.idle_timeout = float(idle_timeout)
+        self._next: socket.socket | None = None  # one that took a silent MCU's place
         self.model = model
         self.record = record
         self.steps: list[Step] = []
@@ -238,6 +261,9 @@ class VirtualPlant:
                     self._conn.shutdown(socket.SHUT_RDWR)
         if self._thread is not None:
             self._thread.join(timeout=5)
+        if self._next is not None:
+            self._next.close()
+            self._next = None
         if self._server is not None:
             self._server.close()
             self._server = None
@@ -251,8 +277,10 @@ class VirtualPlant:
     def _serve(self) -> None:
         assert self._server is not None
         while not self._closing.is_set():
+            sock, self._next = self._next, None
             try:
-                sock, _ = self._server.accept()
+                if sock is None:
+                    sock, _ = self._server.accept()
             except TimeoutError:
                 continue
             except OSError:
@@ -277,13 +305,17 @@ class VirtualPlant:
         sent = self.model.read()
         sock.sendall(position_frame(sent))
         buf = bytearray()
+        heard = time.monotonic()
         while not self._closing.is_set():
+            if self._knocked(heard):
+                return
             try:
                 data = sock.recv(4096)
             except TimeoutError:
                 continue
             if not data:
                 return
+            heard = time.monotonic()
             buf += data
             while True:
                 end = buf.find(b"\0")
@@ -300,6 +332,32 @@ class VirtualPlant:
                 if reply is not None:
                     sent = reply
                     sock.sendall(position_frame(sent))
+
+    def _knocked(self, heard: float) -> bool:
+        """Another MCU connecting while one is served: it takes the plant when the one served
+        has sent nothing for ``idle_timeout`` s (True: end that session), else it is told
+        the plant is busy, in one line, and closed."""
+        if self._server is None:
+            return False
+        try:
+            ready, _, _ = select.select([self._server], [], [], 0)
+            if not ready:
+                return False
+            other, _ = self._server.accept()
+        except (OSError, ValueError):
+            return False
+        silent = time.monotonic() - heard
+        if silent >= self.idle_timeout:
+            self._log(f"the MCU sent nothing for {silent:.0f} s and another connected: the "
+                      "plant is the new one's")
+            self._next = other
+            return True
+        with contextlib.suppress(OSError):
+            other.settimeout(1.0)
+            other.sendall(b"phoid virtual-plant: busy: it serves another MCU (one at a time)\n")
+        other.close()
+        self._log("a second MCU connected while one is served: told busy, closed")
+        return False
 
     def _frame(self, raw: bytes, sent: float) -> float | None:
         """Handle one MCU frame; the next position read when one is to be sent."""

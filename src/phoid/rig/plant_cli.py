@@ -45,15 +45,18 @@ def _listen(listen: str) -> tuple[str, int]:
 
     text = listen[6:] if listen.startswith("tcp://") else listen
     host, sep, num = text.rpartition(":")
+    shown = listen if len(listen) <= 200 else listen[:200] + "..."
     if (not sep or not host or "://" in text or not re.fullmatch(r"[0-9]{1,5}", num)
             or int(num) > 65535):
-        shown = listen if len(listen) <= 200 else listen[:200] + "..."
         raise ValueError(f"--listen must be HOST:PORT (port 1 to 65535, or 0 for a free one); "
                          f"got {shown!r}")
     try:
         host, _ = parse_port(f"{host}:1")  # the host's checks (a name or an IP address)
     except ValueError as exc:
-        raise ValueError(re.sub(r"^--port\b", "--listen", str(exc))) from None
+        # the host's checks name --port and quote the address they were given (HOST:1):
+        # said of --listen, quoting what the user gave
+        why = re.sub(r"; got .*$", "", re.sub(r"^--port\b", "--listen", str(exc)))
+        raise ValueError(f"{why}; got {shown!r}") from None
     return host, int(num)
 
 

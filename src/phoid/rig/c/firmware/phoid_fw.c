@@ -20,7 +20,7 @@ static const char NEED_BINARY[] =
     "ERROR this rig speaks the binary framing: send FRAMING cobs *5555427c\n";
 
 enum { MODE_HELLO = 0, MODE_FRAMING = 1, MODE_BINARY = 2 };
-enum { HELLO_LEN = sizeof(HELLO) - 1 };
+enum { HELLO_LEN = sizeof(HELLO) - 1, HELLO_MISS = sizeof(HELLO) };
 
 /* ---- bytes ------------------------------------------------------------------------------ */
 
@@ -372,6 +372,101 @@ static const char *init_error(int err)
     }
 }
 
+#if PHOID_REAL_IS_FLOAT || DBL_MANT_DIG != 53
+/* The reals of a CONFIG (offset in the payload, name); limit: beyond the real's range it is
+ * "no limit" (the host's default 1e300), as the C controller's defaults say. */
+static const struct {
+    unsigned char at;
+    unsigned char limit;
+    const char *name;
+} CONFIG_REALS[] = {
+    {1, 0, "sample_time"}, {9, 0, "P"}, {17, 0, "D"}, {25, 0, "gain"},
+    {33, 0, "command_gain"}, {42, 0, "filter_pole"}, {52, 0, "hold_P"}, {60, 0, "hold_D"},
+    {68, 0, "x_start"}, {84, 1, "x_min"}, {92, 1, "x_max"}, {100, 1, "u_max"},
+    {108, 0, "growth_limit"}, {120, 0, "stall_epsilon"},
+};
+
+static unsigned int append(char *out, unsigned int n, const char *s)
+{
+    while (*s && n < 95u) {
+        out[n++] = *s++;
+    }
+    out[n] = 0;
+    return n;
+}
+
+/* A real the wire gives as binary64 that the build's real (binary32: a float build, or AVR's
+ * double) cannot carry: a value that is not 0 but rounds to 0, or a finite value beyond the
+ * real's range (but for a limit: "no limit"). Its message, naming the field, in out; 0 if
+ * none. Decided on the f8's bits and the converted value, so it holds on AVR too. */
+static const char *unrepresentable(const unsigned char *p, char *out)
+{
+    unsigned int i, n;
+    for (i = 0; i < sizeof(CONFIG_REALS) / sizeof(CONFIG_REALS[0]); i++) {
+        const unsigned char *b = p + CONFIG_REALS[i].at;
+        unsigned int exponent = ((unsigned int)(b[7] & 0x7fu) << 4) | (unsigned int)(b[6] >> 4);
+        int nonzero = (b[0] | b[1] | b[2] | b[3] | b[4] | b[5] | b[6] | (b[7] & 0x7fu)) != 0;
+        phoid_real r = phoid_fw_real(phoid_fw_get_f8(b));
+        const char *why = 0;
+        if (exponent == 0x7ffu) {
+            continue; /* NaN, infinity: phoid_init says what it takes */
+        }
+        if (nonzero && r >= PHOID_R(0) && r <= PHOID_R(0)) {
+            why = "` is not 0 but rounds to 0 in this build's 32-bit real";
+        } else if (!CONFIG_REALS[i].limit && !(r >= -PHOID_REAL_MAX && r <= PHOID_REAL_MAX)) {
+            why = "` is beyond this build's 32-bit real (3.4e38)";
+        }
+        if (why) {
+            n = append(out, 0u, "controller config: `");
+            n = append(out, n, CONFIG_REALS[i].name);
+            (void)append(out, n, why);
+            return out;
+        }
+    }
+    return 0;
+}
+#endif
+
+#if PHOID_REAL_IS_FLOAT && DBL_MANT_DIG == 53
+/* A float build on a target whose double is binary64: the CONFIG's reals checked as the
+ * double build's phoid_init checks them, in double, before they are rounded to float (so a
+ * value the double build refuses, e.g. growth_limit 0.99999999 or x_start one ulp beyond
+ * x_max, is refused here too). Config time only: the step path stays float. */
+static int check_as_double(const unsigned char *p)
+{
+    double T = phoid_fw_get_f8(p + 1), command_gain = phoid_fw_get_f8(p + 33);
+    double pole = phoid_fw_get_f8(p + 42), x_start = phoid_fw_get_f8(p + 68);
+    double x_min = phoid_fw_get_f8(p + 84), x_max = phoid_fw_get_f8(p + 92);
+    double u_max = phoid_fw_get_f8(p + 100), growth = phoid_fw_get_f8(p + 108);
+    double epsilon = phoid_fw_get_f8(p + 120);
+    if (!(T >= 1e-9 && T <= DBL_MAX)) {
+        return PHOID_E_SAMPLE_TIME;
+    }
+    if (p[41] == (unsigned char)PHOID_VEL_FILTERED && !(pole >= 0.0 && pole < 1.0)) {
+        return PHOID_E_FILTER_POLE;
+    }
+    if (!(command_gain > 0.0 && command_gain <= DBL_MAX)) {
+        return PHOID_E_COMMAND_GAIN;
+    }
+    if (!(x_min < x_max)) {
+        return PHOID_E_LIMITS;
+    }
+    if (!(x_start >= x_min && x_start <= x_max && x_start >= -DBL_MAX && x_start <= DBL_MAX)) {
+        return PHOID_E_START;
+    }
+    if (!(u_max > 0.0)) {
+        return PHOID_E_COMMAND_LIMIT;
+    }
+    if (!((growth >= 0.0 && growth <= 0.0) || (growth >= 1.0 && growth <= DBL_MAX))) {
+        return PHOID_E_GROWTH;
+    }
+    if (!(epsilon >= 0.0 && epsilon <= DBL_MAX)) {
+        return PHOID_E_STALL;
+    }
+    return PHOID_OK;
+}
+#endif
+
 static void take_config(phoid_fw *fw, const unsigned char *p, unsigned int n)
 {
     phoid_config cfg;
@@ -379,6 +474,9 @@ static void take_config(phoid_fw *fw, const unsigned char *p, unsigned int n)
     unsigned int delay;
     const char *why;
     int err;
+#if PHOID_REAL_IS_FLOAT || DBL_MANT_DIG != 53
+    char message[96];
+#endif
     if (n != PHOID_FW_CONFIG_BYTES) {
         send_error(fw, "a CONFIG frame must have 129 bytes of payload");
         return;
@@ -417,6 +515,20 @@ static void take_config(phoid_fw *fw, const unsigned char *p, unsigned int n)
         send_error(fw, init_error(PHOID_E_STALL));
         return;
     }
+#if PHOID_REAL_IS_FLOAT && DBL_MANT_DIG == 53
+    err = check_as_double(p);
+    if (err != PHOID_OK) {
+        send_error(fw, init_error(err));
+        return;
+    }
+#endif
+#if PHOID_REAL_IS_FLOAT || DBL_MANT_DIG != 53
+    why = unrepresentable(p, message);
+    if (why) {
+        send_error(fw, why);
+        return;
+    }
+#endif
     cfg.delay_samples = (int)delay;
     cfg.hold_samples = (long)hold;
     cfg.run_samples = (long)run;
@@ -464,6 +576,7 @@ static void start_run(phoid_fw *fw)
     fw->abort_pending = 0;
     fw->finished = 0;
     fw->refused_in_run = 0;
+    PHOID_FW_BARRIER(); /* the controller and the queue are whole before the tick sees them */
     fw->running = 1;
     board_run_start();
 }
@@ -590,6 +703,10 @@ static void take_frame(phoid_fw *fw, unsigned char *p, unsigned int n)
             phoid_real reason = phoid_fw_real(phoid_fw_get_f8(p + 1));
             fw->abort_reason = reason >= -PHOID_REAL_MAX && reason <= PHOID_REAL_MAX
                                    ? reason : PHOID_R(0);
+            /* the reason is written before the flag the tick reads it by. The abort acts at
+             * the next tick: a rig whose ticks stopped (a stalled plant in the lockstep
+             * emulation) ends the run when they resume; the host gives up after --timeout */
+            PHOID_FW_BARRIER();
             fw->abort_pending = 1;
         } else {
             send_error(fw, "only ABORT is taken during a run: abort it first");
@@ -632,6 +749,17 @@ static void take_frame(phoid_fw *fw, unsigned char *p, unsigned int n)
     }
 }
 
+static void say_hello(phoid_fw *fw)
+{
+    end_session(fw);
+    send_text(HELLO);
+    fw->mode = MODE_FRAMING;
+    fw->rx_len = 0;
+    fw->rx_overflow = 0;
+    fw->hello_match = 0;
+}
+
+/* a text line that is not the hello (found by phoid_fw_rx): FRAMING, or an ERROR */
 static void take_line(phoid_fw *fw)
 {
     unsigned int n = fw->rx_len;
@@ -640,12 +768,8 @@ static void take_line(phoid_fw *fw)
         fw->rx[n - 2u] = '\n';
         n--;
     }
-    if (!fw->rx_overflow && n == HELLO_LEN && same_text(fw->rx, HELLO, n)) {
-        end_session(fw);
-        send_text(HELLO);
-        fw->mode = MODE_FRAMING;
-    } else if (!fw->rx_overflow && fw->mode == MODE_FRAMING && n == sizeof(FRAMING) - 1u
-               && same_text(fw->rx, FRAMING, n)) {
+    if (!fw->rx_overflow && fw->mode == MODE_FRAMING && n == sizeof(FRAMING) - 1u
+        && same_text(fw->rx, FRAMING, n)) {
         send_text(TEXT_OK);
         fw->mode = MODE_BINARY;
         fw->hello_match = 0;
@@ -657,6 +781,19 @@ static void take_line(phoid_fw *fw)
 void phoid_fw_rx(phoid_fw *fw, unsigned char byte)
 {
     if (fw->mode != MODE_BINARY) {
+        /* text: a line that ends with the hello is the hello, whatever came before it on
+         * the line (line noise, the rest of a line cut off, an over-long line). The hello has
+         * one 'P', at its start, so a plain matcher finds its end; a CR before its LF is
+         * ignored, as in every line. */
+        if (byte == (unsigned char)HELLO[fw->hello_match]) {
+            fw->hello_match++;
+        } else if (!(byte == '\r' && HELLO[fw->hello_match] == '\n')) {
+            fw->hello_match = byte == (unsigned char)HELLO[0] ? 1u : 0u;
+        }
+        if (fw->hello_match == HELLO_LEN) {
+            say_hello(fw);
+            return;
+        }
         if (byte == '\n') {
             if (fw->rx_len < sizeof(fw->rx)) {
                 fw->rx[fw->rx_len++] = byte;
@@ -666,6 +803,7 @@ void phoid_fw_rx(phoid_fw *fw, unsigned char byte)
             take_line(fw);
             fw->rx_len = 0;
             fw->rx_overflow = 0;
+            fw->hello_match = 0;
         } else if (fw->rx_len < sizeof(fw->rx) - 1u) {
             fw->rx[fw->rx_len++] = byte;
         } else {
@@ -697,21 +835,18 @@ void phoid_fw_rx(phoid_fw *fw, unsigned char byte)
     } else {
         fw->rx_overflow = 1;
     }
-    /* a host that connects again says hello in text: found at the end of whatever came
-     * before it (a frame cut off, a flood), so a rig left in binary mode always answers it.
-     * No frame holds it: read as COBS, its payload's type would be 'H', which is none. The
-     * hello has one 'P', at its start, so a plain matcher finds it. */
-    if (byte == (unsigned char)HELLO[fw->hello_match]) {
+    /* a host that connects again says hello in text. In binary mode it is the hello only
+     * when it is exactly the bytes since the last 0x00 or LF (a frame's delimiter, the end of
+     * a text line): the bytes of a frame may spell the hello (a CONFIG's reals can), and
+     * those do not end the session. HELLO_MISS: this segment is not the hello. */
+    if (fw->hello_match < HELLO_LEN && byte == (unsigned char)HELLO[fw->hello_match]) {
         fw->hello_match++;
     } else {
-        fw->hello_match = byte == (unsigned char)HELLO[0] ? 1u : 0u;
+        fw->hello_match = HELLO_MISS;
     }
     if (fw->hello_match == HELLO_LEN) {
-        end_session(fw);
-        send_text(HELLO);
-        fw->mode = MODE_FRAMING;
-        fw->rx_len = 0;
-        fw->rx_overflow = 0;
+        say_hello(fw);
+    } else if (byte == '\n') {
         fw->hello_match = 0;
     }
 }

@@ -37,6 +37,18 @@ extern "C" {
 /** Bytes of a CONFIG payload: type 1 + 14 f8 + u1 + u2 + 3 u4 + u1. */
 #define PHOID_FW_CONFIG_BYTES 129u
 
+/** A compiler memory barrier: the link (main loop) publishes a run or an abort to the tick
+ * (an interrupt on the same core) by a volatile flag written after the data it guards; the
+ * barrier keeps the compiler from moving those writes after the flag's (a single-core MCU
+ * needs no more). Define PHOID_FW_BARRIER() yourself for a compiler other than GCC/Clang. */
+#ifndef PHOID_FW_BARRIER
+#if defined(__GNUC__)
+#define PHOID_FW_BARRIER() __asm__ __volatile__("" ::: "memory")
+#else
+#error "define PHOID_FW_BARRIER() as your compiler's memory barrier"
+#endif
+#endif
+
 /** One queued sample. */
 typedef struct phoid_fw_sample {
     unsigned long index; /* from the run's start (the low 32 bits go on the wire) */
@@ -66,7 +78,7 @@ typedef struct phoid_fw {
     unsigned char rx[PHOID_FW_MAX_FRAME + 1];
     unsigned int rx_len;
     int rx_overflow;
-    unsigned int hello_match; /* bytes of the hello line seen last, in binary mode */
+    unsigned int hello_match; /* bytes of the hello line matched so far */
 } phoid_fw;
 
 /** Reset the link (waiting for the hello) and the controller. */
