@@ -599,14 +599,11 @@ def test_phoid_virtual_rig_serves_the_binary_framing(build, tmp_path):
     _same_sets(tmp_path / "text", tmp_path / "auto", ["run01.csv", "run02.csv"])
 
 
-@pytest.mark.skipif(not hasattr(os, "openpty"), reason="no pseudo-terminals")
-def test_a_binary_session_over_a_serial_line(build, tmp_path):
-    # a pseudo-terminal bridged to the virtual rig: the raw tty passes every byte (0x00, LF)
+def _bridge(master, port):
+    """Forward a pseudo-terminal's master to the virtual rig at ``port`` (tcp://HOST:NUM)
+    until either side is quiet for 5 s or closes: a thread, started."""
     import select
 
-    plan = _plan(tmp_path)
-    rig, port = _virtual(build)
-    master, slave = os.openpty()
     host, num = port[6:].split(":")
 
     def bridge():
@@ -629,6 +626,16 @@ def test_a_binary_session_over_a_serial_line(build, tmp_path):
 
     th = threading.Thread(target=bridge, daemon=True)
     th.start()
+    return th
+
+
+@pytest.mark.skipif(not hasattr(os, "openpty"), reason="no pseudo-terminals")
+def test_a_binary_session_over_a_serial_line(build, tmp_path):
+    # a pseudo-terminal bridged to the virtual rig: the raw tty passes every byte (0x00, LF)
+    plan = _plan(tmp_path)
+    rig, port = _virtual(build)
+    master, slave = os.openpty()
+    th = _bridge(master, port)
     try:
         with rig:
             r = _cli("run", plan, "--port", f"serial://{os.ttyname(slave)}?baud=115200",
@@ -644,6 +651,31 @@ def test_a_binary_session_over_a_serial_line(build, tmp_path):
     assert r.exit_code == 0, r.output
     assert (tmp_path / "serial" / "run01.csv").read_bytes() == \
         (tmp_path / "tcp" / "run01.csv").read_bytes()
+
+
+@pytest.mark.skipif(not hasattr(os, "openpty"), reason="no pseudo-terminals")
+def test_a_serial_port_drops_what_it_received_before_the_hello(build, tmp_path):
+    # a line a cut-off session left in the port's input buffer, here an ERROR (which the host
+    # would otherwise take as the hello's reply: a refusal) is dropped: link.open_serial's
+    # raw mode is set with TCSAFLUSH, and host.py flushes the input again before the hello
+    # (either one passes this test; without both it fails)
+    import tty
+
+    plan = _plan(tmp_path)
+    rig, port = _virtual(build)
+    master, slave = os.openpty()
+    tty.setraw(slave)  # no echo of the stale line back into the bridge
+    os.write(master, encode("ERROR", "the last session's reply") + b"\x04X\xb7")
+    th = _bridge(master, port)
+    try:
+        with rig:
+            r = _cli("run", plan, "--port", f"serial://{os.ttyname(slave)}?baud=115200",
+                     "--out", tmp_path / "serial", "--framing", "binary")
+            th.join(timeout=10)
+    finally:
+        os.close(slave)
+        os.close(master)
+    assert r.exit_code == 0, r.output
 
 
 def test_the_virtual_rig_refuses_bad_frames_and_goes_on(build):

@@ -470,7 +470,8 @@ def _negotiate(link: Link, port: str, timeout: float, framing: str) -> _Wire:
 
 def _drop_input(link: Link) -> None:
     """On a serial line, drop what the port received before the hello (the rest of a session
-    that was cut off); a socket has no such buffer to drop (:func:`_hello_reply` skips it)."""
+    that was cut off, arrived since the port was opened raw with TCSAFLUSH); a socket has no
+    such buffer to drop (:func:`_hello_reply` skips what comes)."""
     if not link.byte_time or termios is None:
         return
     with contextlib.suppress(OSError, ValueError, AttributeError, termios.error):
