@@ -16,7 +16,7 @@ import typer
 
 from phoid._progress import task
 
-__all__ = ["run", "virtual_rig"]
+__all__ = ["parse_listen", "run", "virtual_rig"]
 
 
 def _fail(message: str) -> None:
@@ -53,7 +53,7 @@ def _name_options(message: str) -> str:
     return message
 
 
-def _parse_listen(listen: str) -> tuple[str, int]:
+def parse_listen(listen: str) -> tuple[str, int]:
     """--listen's ``HOST:PORT`` (or ``tcp://HOST:PORT``; port 0: a free one) → (host, port).
 
     Raises
@@ -65,15 +65,18 @@ def _parse_listen(listen: str) -> tuple[str, int]:
 
     text = listen[6:] if listen.startswith("tcp://") else listen
     host, sep, num = text.rpartition(":")
+    shown = listen if len(listen) <= 200 else listen[:200] + "..."
     if (not sep or not host or "://" in text or not re.fullmatch(r"[0-9]{1,5}", num)
             or int(num) > 65535):
-        shown = listen if len(listen) <= 200 else listen[:200] + "..."
         raise ValueError(f"--listen must be HOST:PORT (port 1 to 65535, or 0 for a free one); "
                          f"got {shown!r}")
     try:
         host, _ = parse_port(f"{host}:1")  # the host's checks (a name or an IP address)
     except ValueError as exc:
-        raise ValueError(re.sub(r"^--port\b", "--listen", str(exc))) from None
+        # the host's checks name --port and quote the address they were given (HOST:1):
+        # said of --listen, quoting what the user gave
+        why = re.sub(r"; got .*$", "", re.sub(r"^--port\b", "--listen", str(exc)))
+        raise ValueError(f"{why}; got {shown!r}") from None
     return host, int(num)
 
 
@@ -127,7 +130,7 @@ def virtual_rig(
     from phoid.rig.virtual import VirtualRig
 
     try:
-        host, port = _parse_listen(listen)
+        host, port = parse_listen(listen)
         rig = VirtualRig(Plant(m=m, c=c, k=k, fc=fc), offset_force=offset_force, noise=noise,
                          quantum=quantum, seed=seed, realtime=realtime, build=build,
                          max_rate=max_rate,

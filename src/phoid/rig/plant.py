@@ -47,6 +47,7 @@ import numpy as np
 
 from phoid.rig.frames import decode_frame, encode_frame
 from phoid.rig.protocol import ProtocolError
+from phoid.rig.virtual import encoder_reading
 from phoid.simulation.tracking import ExactPlant
 
 __all__ = ["PlantModel", "Step", "VirtualPlant", "position_frame"]
@@ -173,14 +174,7 @@ class PlantModel:
 
     def read(self) -> float:
         """The encoder's reading of the position now: x + ε, rounded to the quantum."""
-        x = self.exact.x
-        if self.noise:
-            x += self.noise * float(self.rng.standard_normal())
-        if self.quantum:
-            counts = x / self.quantum
-            if math.isfinite(counts):  # to the nearest count, ties to even (as phoid simulate)
-                x = self.quantum * round(counts)
-        return x
+        return encoder_reading(self.exact.x, self.noise, self.quantum, self.rng)
 
     def apply(self, u: float) -> None:
         """Hold the command u (command units) for one period: the force G·u, exactly.

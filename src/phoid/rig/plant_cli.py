@@ -13,6 +13,8 @@ from typing import Annotated
 
 import typer
 
+from phoid.rig.commands import parse_listen
+
 __all__ = ["virtual_plant"]
 
 # the names PlantModel's and Plant's messages use, and the options they come from
@@ -31,33 +33,6 @@ def _in_option_words(message: str) -> str:
     for name, flag in _OPTIONS.items():
         message = re.sub(rf"(?<![\w`-]){re.escape(name)}(?![\w`-])", flag, message)
     return message
-
-
-def _listen(listen: str) -> tuple[str, int]:
-    """--listen's ``HOST:PORT`` (or ``tcp://HOST:PORT``; port 0: a free one) → (host, port).
-
-    Raises
-    ------
-    ValueError
-        One line naming --listen.
-    """
-    from phoid.rig.host import parse_port
-
-    text = listen[6:] if listen.startswith("tcp://") else listen
-    host, sep, num = text.rpartition(":")
-    shown = listen if len(listen) <= 200 else listen[:200] + "..."
-    if (not sep or not host or "://" in text or not re.fullmatch(r"[0-9]{1,5}", num)
-            or int(num) > 65535):
-        raise ValueError(f"--listen must be HOST:PORT (port 1 to 65535, or 0 for a free one); "
-                         f"got {shown!r}")
-    try:
-        host, _ = parse_port(f"{host}:1")  # the host's checks (a name or an IP address)
-    except ValueError as exc:
-        # the host's checks name --port and quote the address they were given (HOST:1):
-        # said of --listen, quoting what the user gave
-        why = re.sub(r"; got .*$", "", re.sub(r"^--port\b", "--listen", str(exc)))
-        raise ValueError(f"{why}; got {shown!r}") from None
-    return host, int(num)
 
 
 def virtual_plant(
@@ -90,7 +65,7 @@ def virtual_plant(
     from phoid.rig.plant import PlantModel, VirtualPlant
 
     try:
-        host, port = _listen(listen)
+        host, port = parse_listen(listen)
         model = PlantModel(Plant(m=m, c=c, k=k, fc=fc), offset_force=offset_force,
                            noise=noise, quantum=quantum, seed=seed)
         server = VirtualPlant(model)

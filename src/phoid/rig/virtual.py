@@ -83,7 +83,7 @@ from phoid.rig.protocol import (
 )
 from phoid.simulation.tracking import MAX_SUBSTEPS, ExactPlant
 
-__all__ = ["VirtualRig"]
+__all__ = ["VirtualRig", "encoder_reading"]
 
 IDLE_TIMEOUT = 30.0  # s without a line from the host before the rig ends the session
 HELLO_TIMEOUT = 10.0  # s for the host's hello (at most the idle timeout)
@@ -101,6 +101,36 @@ FLUSH = 512  # samples per send when not in real time
 MAX_REFUSING = 16  # busy answers closed gracefully at once; more are answered and cut off
 BUSY = "busy: another host is connected to this rig; try again when it is done"
 
+
+
+def encoder_reading(x: float, noise: float, quantum: float, rng: np.random.Generator) -> float:
+    """What a rig's encoder reads of the position ``x`` (m): x + ε, rounded to the quantum.
+
+    Parameters
+    ----------
+    x : float
+        The exact position, m.
+    noise : float
+        The standard deviation of ε, m (0: none; one draw from ``rng`` otherwise).
+    quantum : float
+        The encoder's count, m (0: none): the reading is rounded to the nearest multiple of
+        it, ties to even, as ``phoid simulate`` rounds (a reading too large to count is left
+        unrounded).
+    rng : numpy.random.Generator
+        The noise's generator.
+
+    Returns
+    -------
+    float
+        The reading, m. The virtual rig and the virtual plant (phoid.rig.plant) read alike.
+    """
+    if noise:
+        x += noise * float(rng.standard_normal())
+    if quantum:
+        counts = x / quantum
+        if math.isfinite(counts):
+            x = quantum * round(counts)
+    return x
 
 class _SessionOver(Exception):
     """The rig ends the session; the message goes to the host as its last ``ERROR``."""
@@ -627,13 +657,7 @@ class VirtualRig:
 
     def _read(self, x: float) -> float:
         """The encoder's reading of the position ``x``: x + ε, rounded to the quantum."""
-        if self.noise:
-            x += self.noise * float(self.rng.standard_normal())
-        if self.quantum:
-            counts = x / self.quantum
-            if math.isfinite(counts):  # to the nearest count, ties to even (as phoid simulate)
-                x = self.quantum * round(counts)
-        return x
+        return encoder_reading(x, self.noise, self.quantum, self.rng)
 
     @staticmethod
     def _poll(link: Link, lines: _Lines, ctrl: Controller) -> bool:
