@@ -16,7 +16,7 @@ import typer
 
 from phoid._progress import task
 
-__all__ = ["parse_listen", "run", "virtual_rig"]
+__all__ = ["parse_listen", "run", "serve_until_stopped", "virtual_rig"]
 
 
 def _fail(message: str) -> None:
@@ -124,7 +124,6 @@ def virtual_rig(
     stops serving and removes its temporary build folder). A host silent for --idle-timeout s
     or a session older than --max-session s is closed with an ERROR. Needs a C compiler.
     """
-    import signal
 
     from phoid.dynamics.plant import Plant
     from phoid.rig.virtual import VirtualRig
@@ -139,19 +138,37 @@ def virtual_rig(
                          max_samples=max_samples)
     except (ValueError, OSError) as exc:
         _fail(_name_options(str(exc)))
+    serve_until_stopped(rig, host, port, f"virtual rig (m={m:g} kg, c={c:g} N s/m, "
+                                         f"k={k:g} N/m, fc={fc:g} N)")
+
+
+def serve_until_stopped(server, host: str, port: int, what: str) -> None:
+    """Listen on ``host:port``, say so in one line, and serve until Ctrl-C or SIGTERM.
+
+    Parameters
+    ----------
+    server : VirtualRig or VirtualPlant
+        What serves: its ``listen(host, port)`` gives the address bound (a ValueError: one
+        line, exit status 2) and its ``close()`` runs however the command ends.
+    host, port : str, int
+        The address (port 0: a free one).
+    what : str
+        What is listening, for the line.
+    """
+    import signal
+
     try:
         try:
-            host, port = rig.listen(host, port)
+            host, port = server.listen(host, port)
         except ValueError as exc:
             _fail(str(exc))
         if threading.current_thread() is threading.main_thread():
             signal.signal(signal.SIGTERM, lambda *_: sys.exit(0))  # runs the `finally` below
-        typer.echo(f"virtual rig (m={m:g} kg, c={c:g} N s/m, k={k:g} N/m, fc={fc:g} N) "
-                   f"listening on tcp://{host}:{port}; Ctrl-C stops it", err=True)
+        typer.echo(f"{what} listening on tcp://{host}:{port}; Ctrl-C stops it", err=True)
         while True:
             time.sleep(3600)
     finally:
-        rig.close()
+        server.close()
 
 
 class _Terminated(KeyboardInterrupt):

@@ -6,14 +6,11 @@ Errors a user can cause print one line ``phoid: error: …`` and exit with statu
 from __future__ import annotations
 
 import re
-import sys
-import threading
-import time
 from typing import Annotated
 
 import typer
 
-from phoid.rig.commands import parse_listen
+from phoid.rig.commands import parse_listen, serve_until_stopped
 
 __all__ = ["virtual_plant"]
 
@@ -59,8 +56,6 @@ def virtual_plant(
     first, then QEMU with -serial tcp:HOST:PORT for the board's UART1, then `phoid run
     --port` on UART0. Runs until interrupted (Ctrl-C or SIGTERM).
     """
-    import signal
-
     from phoid.dynamics.plant import Plant
     from phoid.rig.plant import PlantModel, VirtualPlant
 
@@ -71,16 +66,5 @@ def virtual_plant(
         server = VirtualPlant(model)
     except (ValueError, OSError) as exc:
         _fail(_in_option_words(str(exc)))
-    try:
-        try:
-            host, port = server.listen(host, port)
-        except ValueError as exc:
-            _fail(str(exc))
-        if threading.current_thread() is threading.main_thread():
-            signal.signal(signal.SIGTERM, lambda *_: sys.exit(0))  # runs the `finally` below
-        typer.echo(f"virtual plant (m={m:g} kg, c={c:g} N s/m, k={k:g} N/m, fc={fc:g} N) "
-                   f"listening on tcp://{host}:{port}; Ctrl-C stops it", err=True)
-        while True:
-            time.sleep(3600)
-    finally:
-        server.close()
+    serve_until_stopped(server, host, port, f"virtual plant (m={m:g} kg, c={c:g} N s/m, "
+                                            f"k={k:g} N/m, fc={fc:g} N)")
