@@ -26,6 +26,11 @@ app = typer.Typer(
         "honest uncertainties."
     ),
     add_completion=False,
+    # click's plain help, not typer's rich panels: the panels print every option's type,
+    # flags too (`--json <bool>`), and keep the docstrings' line breaks inside their boxes;
+    # the plain help names a flag bare, a value's type once (`--delay <float>`), and rewraps
+    # the text to the terminal
+    rich_markup_mode=None,
     no_args_is_help=True,
     pretty_exceptions_enable=False,
     context_settings={"help_option_names": ["-h", "--help"]},
@@ -735,7 +740,10 @@ def main() -> None:
         # user: an error is one line, and what the data deserve is in the result's warnings
         warnings.simplefilter("ignore")
     if not sys.argv[1:]:
-        app()  # no arguments: the help, as the root's no_args_is_help prints it
+        # no arguments: the help on standard output and status 2 (click's plain help would
+        # print it on standard error, as a usage error)
+        app(args=["--help"], standalone_mode=False)
+        sys.exit(2)
     if sys.stdout.isatty() and sys.stderr.isatty() and "--json" not in sys.argv[1:]:
         from phoid._progress import progress
 

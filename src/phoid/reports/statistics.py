@@ -135,11 +135,15 @@ def statistics_json(chi2: float | None, dof: int | None, *, of: str, weighted: b
 
 
 def _fmt(x: float | None, spec: str = ".6g") -> str:
-    return "null" if x is None else format(x, spec)
+    """A number of the block; a missing one (null in the JSON) in words."""
+    return "not computed" if x is None else format(x, spec)
 
 
 def statistics_lines(stats: Mapping[str, Any]) -> list[str]:
     """The ``[[Fit statistics]]`` block of a report from a summary's ``"statistics"``.
+
+    A fit with no χ² (``chi2`` null, as the paper's OLS lines) gets one line saying so and
+    why (its ``of``), not rows of nulls; a single missing number reads "not computed".
 
     Parameters
     ----------
@@ -152,8 +156,15 @@ def statistics_lines(stats: Mapping[str, Any]) -> list[str]:
     """
     import textwrap
 
-    of = textwrap.wrap(str(stats["of"]), 80) or [""]
-    lines = ["[[Fit statistics]]", f"    χ² of          {of[0]}", *(f"{'':<19}{w}" for w in of[1:])]
+    of = str(stats["of"])
+    if stats.get("chi2") is None and stats.get("dof") is None:
+        why = of.removeprefix("not computed:").strip()
+        text = textwrap.wrap(f"not computed ({why})" if why else "not computed", 76) or [""]
+        return ["[[Fit statistics]]", f"    χ²             {text[0]}",
+                *(f"{'':<19}{w}" for w in text[1:])]
+    wrapped = textwrap.wrap(of, 76) or [""]
+    lines = ["[[Fit statistics]]", f"    χ² of          {wrapped[0]}",
+             *(f"{'':<19}{w}" for w in wrapped[1:])]
     if stats.get("weighted", True):
         lines.append(f"    χ²             {_fmt(stats['chi2'])}")
         lines.append(f"    dof            {_fmt(stats['dof'], 'd')}")
