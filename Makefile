@@ -1,35 +1,58 @@
 # phoid — one-command set-up on a fresh machine (Python 3.11 + pip).
 VENV   ?= .venv
 PY     := $(VENV)/bin/python
-STAMP  := $(VENV)/.installed
 LINTED := src tests bench examples .ci
+# what is installed in $(VENV), each stamp newer than pyproject.toml once it is: phoid with its
+# own dependencies alone (what `phoid paper` and the CLI need: `make demo`); with the test
+# extras (`make test`, the linter, the README check); with the test and bench extras (`make
+# bench`). A wider install touches the narrower stamps too, and pip never downgrades what a
+# wider one installed, so `make demo` after `make test` installs nothing.
+STAMP       := $(VENV)/.installed
+TEST_STAMP  := $(VENV)/.installed-test
+BENCH_STAMP := $(VENV)/.installed-bench
 
 .PHONY: demo test lint readme wheel min-versions bench mcu fuzz clean
 
-$(STAMP): pyproject.toml
-	python3 -m venv $(VENV)
-	$(PY) -m pip install -q --upgrade pip
-	$(PY) -m pip install -q -e '.[test,bench]'
-	touch $(STAMP)
+# $(call install,EXTRAS): phoid, editable, with EXTRAS (e.g. [test]) into $(VENV), made if absent
+# (a comma in EXTRAS is written $(comma))
+comma := ,
+define install
+	test -x $(PY) || python3 -m venv $(VENV)
+	$(PY) -m pip install -q --disable-pip-version-check --upgrade pip
+	$(PY) -m pip install -q --disable-pip-version-check -e '.$(1)'
+endef
 
-## install and run the main job: the seed paper's Table 1 and Figure 1
+$(STAMP): pyproject.toml
+	$(call install,)
+	touch $@
+
+$(TEST_STAMP): pyproject.toml
+	$(call install,[test])
+	touch $(STAMP) $@
+
+$(BENCH_STAMP): pyproject.toml
+	$(call install,[test$(comma)bench])
+	touch $(STAMP) $(TEST_STAMP) $@
+
+## install phoid alone (no extras) and run the main job: the seed paper's Table 1 and Figure 1
 demo: $(STAMP)
 	$(VENV)/bin/phoid paper --overwrite
 
-## install and run the test suite (and the linter), on TEST_WORKERS processes (pytest-xdist):
-## one per CPU, at most 4 (`make test TEST_WORKERS=0` runs it in one process); each test file
-## runs whole on one worker (--dist loadfile), so a module's fixtures are computed once
+## install phoid with the test extras and run the linter and the test suite, on TEST_WORKERS
+## processes (pytest-xdist): one per CPU, at most 4 (`make test TEST_WORKERS=0` runs it in one
+## process); each test file runs whole on one worker (--dist loadfile), so a module's fixtures are
+## computed once
 TEST_WORKERS ?= $(shell n=$$(nproc 2>/dev/null || getconf _NPROCESSORS_ONLN 2>/dev/null || echo 2); \
                   [ "$$n" -gt 4 ] 2>/dev/null && n=4; echo "$$n")
-test: $(STAMP)
+test: $(TEST_STAMP)
 	$(VENV)/bin/ruff check $(LINTED)
 	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadfile
 
-lint: $(STAMP)
+lint: $(TEST_STAMP)
 	$(VENV)/bin/ruff check $(LINTED)
 
 ## run every sh and python block of README.md as written, in a temporary copy of the checkout
-readme: $(STAMP)
+readme: $(TEST_STAMP)
 	$(PY) .ci/readme_check.py --venv $(VENV)
 
 ## build the wheel, install it into a clean venv and run `phoid paper` there
@@ -41,13 +64,13 @@ min-versions:
 	.ci/min_versions_check.sh
 
 ## benchmarks (not part of the tests): writes BENCHMARKS.md and bench/results.json
-bench: $(STAMP)
+bench: $(BENCH_STAMP)
 	$(PY) bench/run.py
 
 ## the microcontroller tests alone (tests/test_mcu_*.py and the controller's host and cross
 ## builds, tests/test_rig_controller_mcu.py; skipped without Debian's cross toolchains, QEMU and
 ## simavr: .ci/run installs them), then the per-target cost table
-mcu: $(STAMP)
+mcu: $(TEST_STAMP)
 	$(PY) -m pytest -q $(wildcard tests/test_mcu_*.py) tests/test_rig_controller_mcu.py
 	$(PY) bench/bench_mcu.py
 

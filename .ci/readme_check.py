@@ -97,7 +97,8 @@ def main(argv: list[str] | None = None) -> int:
     venv = args.venv.resolve()
     py = venv / "bin" / "python"
     if not (venv / "bin" / "phoid").is_file():
-        print(f"readme-check: no phoid in {venv}/bin (run `make .venv/.installed` first)",
+        print(f"readme-check: no phoid in {venv}/bin (run `make .venv/.installed-test` first: "
+              "the README's examples use the extras it installs)",
               file=sys.stderr)
         return 2
     env = dict(os.environ, VIRTUAL_ENV=str(venv),
