@@ -81,5 +81,18 @@ fuzz: $(STAMP)
 	mkdir -p $${TMPDIR:-/tmp}/phoid-fuzz-corpus
 	$(PY) fuzz/fuzz_readers.py $${TMPDIR:-/tmp}/phoid-fuzz-corpus fuzz/seeds -dict=fuzz/readers.dict -max_len=8192 -timeout=30 -rss_limit_mb=2048 -artifact_prefix=fuzz/ -max_total_time=$(FUZZ_SECONDS)
 
+## the documentation site (docs/, docs/about.md) into docs/_build/html with warnings as errors
+## (-W --keep-going), offline: installs the docs extra once, then builds, executing the
+## tutorials and the commands shown with their output (tests/test_docs_site.py checks the
+## reference's names in `make test`; PHOID_DOCS_BUILD=1 makes it build the site too)
+DOCS_STAMP := $(VENV)/.installed-docs
+.PHONY: docs
+$(DOCS_STAMP): pyproject.toml $(STAMP)
+	$(PY) -m pip install -q -e '.[docs]'
+	touch $@
+
+docs: $(DOCS_STAMP)
+	$(PY) -m sphinx -b html -W --keep-going -q docs docs/_build/html
+
 clean:
 	rm -rf $(VENV) phoid-out build dist *.egg-info
