@@ -27,6 +27,7 @@ extensions = [
     "sphinx.ext.autodoc",
     "sphinx.ext.autosummary",
     "sphinx.ext.mathjax",
+    "sphinx-mathjax-offline",  # MathJax 3 copied into the site: maths render offline
     "numpydoc",
     "myst_nb",  # MyST Markdown (myst-parser) and executed notebooks
     "phoid_command",

@@ -135,3 +135,10 @@ def test_site_builds_with_warnings_as_errors(tmp_path: Path) -> None:
     tutorial = (tmp_path / "html" / "tutorials" / "pho-example-set.html").read_text(
         encoding="utf-8")
     assert "m = " in tutorial
+    # offline: MathJax is part of the site, and no page loads a script or a style sheet
+    # from elsewhere
+    assert (tmp_path / "html" / "_static" / "mathjax" / "tex-chtml.js").is_file()
+    for page in (tmp_path / "html").rglob("*.html"):
+        text = page.read_text(encoding="utf-8")
+        remote = re.findall(r'<(?:script|link)[^>]+(?:src|href)="(?:https?:)?//[^"]+"', text)
+        assert not remote, f"{page.name} loads {remote[0]}"
