@@ -315,7 +315,7 @@ def test_cli_identify_json_text_plots(cli_set, tmp_path):
     for q, want in (("m", 2.0), ("c", 1.0), ("k", 64.0)):
         assert abs(s[q]["value"] - want) < 3 * s[q]["stderr"]
     r = runner.invoke(app, ["identify", str(cli_set), "--plots", str(tmp_path / "p")])
-    assert r.exit_code == 0 and "m = " in r.stdout and "ρ rad" in r.stdout
+    assert r.exit_code == 0 and "m = " in r.stdout and "ρ ± stderr" in r.stdout
     names = sorted(p.name for p in (tmp_path / "p").glob("*.png"))
     assert {"lines.png", "mk-ellipse.png"} <= set(names)
     assert len(names) == 8  # 6 runs (<stem>.png) + the eq. (20) lines + the (m, k) ellipse

@@ -115,7 +115,15 @@ def test_a_pho_set_in_degrees_reports_j_and_rotational_units(deg_set):
     assert s["covariance"]["units"][:3] == ["kg m^2", "N m s/rad", "N m/rad"]
     text = _cli("identify", deg_set)
     assert "kg m^2" in text and "N m s/rad" in text and "N m/rad" in text
-    assert "P N m/rad" in text and "resid rad" in text
+    # the runs table: names in a header row, units in the row below (P in N m/rad, resid rad)
+    lines = text.splitlines()
+    head = next(i for i, x in enumerate(lines) if x.split()[:2] == ["run", "P"])
+    names, units = lines[head], lines[head + 1]
+    p_at = names.index(" P ") + 2
+    assert units[:p_at + 1].rstrip().endswith("N m/rad")
+    resid = next(i for i, x in enumerate(lines) if "resid" in x.split() and x.split()[0] == "run")
+    r_at = lines[resid].index("resid") + len("resid")
+    assert lines[resid + 1][:r_at].rstrip().endswith("rad")
     assert " kg\n" not in text and "N s/m" not in text.replace("N m s/rad", "")
 
 

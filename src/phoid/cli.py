@@ -217,7 +217,9 @@ def _print_result(result, as_json: bool, written, plots, html=None) -> None:
         for w in result.warnings:
             typer.echo(f"phoid: warning: {safe_text(w)}", err=True)
     else:  # the report's own fields are escaped; this catches any other control character
-        typer.echo(safe_text(result.report(), newlines=True))
+        from phoid.reports.text import fit_width
+
+        typer.echo(fit_width(safe_text(result.report(), newlines=True)))
     if written:
         typer.echo(f"{len(written)} figure{'s' * (len(written) != 1)} written to {plots}",
                    err=as_json)

@@ -36,7 +36,7 @@ from typing import Any
 
 from phoid._output import OutputFolder
 from phoid.errors import OutputError
-from phoid.reports.text import format_estimate
+from phoid.reports.text import format_estimate, format_gain
 
 __all__ = ["check_report_target", "environment", "estimates_of", "file_checksums",
            "report_html", "result_figures", "result_html", "short_repr", "summary_of",
@@ -52,6 +52,8 @@ _RUN_UNITS = {
     "viscous_residual_rms": "m", "stop_time": "s", "C": "m",
 }
 _MAIN = ("m", "c", "k", "fc")
+# the per-run values a user gives (gains, bias): shown exactly as given, never rounded
+_GAINS = ("P", "D", "bias", "hold_P", "hold_D")
 _STYLE = """
 .phoid-result{font-family:system-ui,sans-serif;font-size:13px;color:#111;max-width:100%}
 .phoid-result h3{margin:.2em 0;font-size:15px}
@@ -284,6 +286,8 @@ def _runs_table(runs: list[Any], label: Any = None) -> str:
             v, se = r.get(k), r.get(f"{k}_stderr")
             if isinstance(v, (int, float)) and not isinstance(v, bool) and se is not None:
                 row.append(_e(format_estimate(float(v), float(se))))
+            elif k in _GAINS and isinstance(v, (int, float)) and not isinstance(v, bool):
+                row.append(_e(format_gain(v)))  # a gain as given: 12.625, never 12.62
             else:
                 row.append(_e(v))
         if warned:

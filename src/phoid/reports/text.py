@@ -15,14 +15,20 @@ from phoid.reports.statistics import correlation_lines, ratio_text, statistics_l
 __all__ = [
     "adequacy_lines",
     "fit_statistics_lines",
+    "fit_width",
     "forced_text",
     "format_estimate",
+    "format_gain",
     "format_number",
     "format_ratio",
     "free_text",
     "friction_text",
     "identification_text",
+    "text_table",
 ]
+
+#: The widest line a text report prints (a terminal's 100 columns).
+WIDTH = 100
 
 
 # fixed-point notation is used between these magnitudes; beyond them exponent notation
@@ -56,6 +62,129 @@ def format_number(value: float, decimals: int = 4) -> str:
     if not math.isfinite(value) or value == 0 or _FIXED_MIN <= abs(value) < _FIXED_MAX:
         return f"{value:.{decimals}f}"
     return f"{value:.{decimals}e}"
+
+
+def fit_width(text: str, width: int = WIDTH) -> str:
+    """``text`` with every line wider than ``width`` wrapped at spaces: the continuation
+    indented two more than the line (a ``- `` item's under its text). A word longer than the
+    width (a path) is kept whole, never cut.
+
+    Parameters
+    ----------
+    text : str
+    width : int
+
+    Returns
+    -------
+    str
+    """
+    import textwrap
+
+    out: list[str] = []
+    for line in text.split("\n"):
+        if len(line) <= width:
+            out.append(line)
+            continue
+        body = line.lstrip(" ")
+        indent = " " * (len(line) - len(body))
+        more = indent + "  "
+        out.extend(textwrap.wrap(body, width, initial_indent=indent, subsequent_indent=more,
+                                 break_long_words=False, break_on_hyphens=False)
+                   or [line])
+    return "\n".join(out)
+
+
+def text_table(columns: list[tuple[str, str]], rows: list[list[str]], *, width: int = WIDTH,
+               indent: int = 2, label_width: int = 20) -> list[str]:
+    """A table of text cells no wider than ``width``: names in a header row, units in a row
+    below, the first column (the row's label) left-aligned and the others right-aligned.
+
+    Columns that do not fit beside the label are wrapped into a further block below (the
+    label repeated), and a label longer than ``label_width`` gets a line of its own, the
+    row's cells on the next line: no line is wider than ``width`` unless a single cell is.
+
+    Parameters
+    ----------
+    columns : list of (name, unit)
+        The header; ``unit`` "" for none (the units row is left out when no column has one).
+    rows : list of list of str
+        The cells, already formatted, one per column; a row may have one more, a note printed
+        after the last block's cells (e.g. "set aside").
+    width, indent, label_width : int
+
+    Returns
+    -------
+    list of str
+    """
+    if not columns:
+        return []
+    n = len(columns)
+    gap = "  "
+    cells = [[str(c) for c in r[:n]] + [""] * (n - len(r[:n])) for r in rows]
+    notes = [str(r[n]) if len(r) > n else "" for r in rows]
+    widths = [max([len(columns[j][0]), len(columns[j][1]), *(len(r[j]) for r in cells)])
+              for j in range(n)]
+    lab = min(widths[0], label_width)
+    # greedy blocks of the other columns, each fitting beside the label
+    blocks: list[list[int]] = []
+    room = width - indent - lab
+    for j in range(1, n):
+        need = len(gap) + widths[j]
+        if blocks and sum(len(gap) + widths[i] for i in blocks[-1]) + need <= room:
+            blocks[-1].append(j)
+        else:
+            blocks.append([j])
+    blocks = blocks or [[]]
+    has_units = any(u for _, u in columns)
+    pad = " " * indent
+    out: list[str] = []
+    for b, block in enumerate(blocks):
+        if b:
+            out.append("")
+        last = b == len(blocks) - 1
+
+        def line(label: str, row: list[str], block: list[int] = block) -> str:
+            return (pad + f"{label:<{lab}}" + "".join(gap + f"{row[j]:>{widths[j]}}"
+                                                        for j in block)).rstrip()
+
+        out.append(line(columns[0][0], [c[0] for c in columns]))
+        if has_units:
+            out.append(line(columns[0][1], [c[1] for c in columns]))
+        for r, note in zip(cells, notes, strict=True):
+            if len(r[0]) > lab:
+                out.append((pad + r[0]).rstrip())
+            out.append(line("" if len(r[0]) > lab else r[0], r))
+            if note and last:  # after the row, or below it where it would not fit
+                if len(out[-1]) + 2 + len(note) <= width:
+                    out[-1] += f"  {note}"
+                else:
+                    out.append(f"{pad}{'':<{lab}}  {note}")
+    return out
+
+
+def format_gain(value: float) -> str:
+    """A gain (P, D, a bias) exactly as given: the shortest decimal that reads back as the same
+    float (Python's ``repr``, as the rig protocol sends it), without a trailing ``.0``.
+
+    Parameters
+    ----------
+    value : float
+
+    Returns
+    -------
+    str
+
+    Examples
+    --------
+    >>> format_gain(12.625)
+    '12.625'
+    >>> format_gain(3.0)
+    '3'
+    >>> format_gain(0.1 + 0.2)
+    '0.30000000000000004'
+    """
+    text = repr(float(value))
+    return text[:-2] if text.endswith(".0") else text
 
 
 def format_ratio(numerator: float, denominator: float, digits: int = 3) -> str:
@@ -170,21 +299,16 @@ def identification_text(ident: Any) -> str:
     zeta = format_estimate(z.value, z.stderr) if math.isfinite(z.value) else "inf (k = 0)"
     lines.append(f"  open-loop ω₀ = {format_estimate(w0.value, w0.stderr)} rad/s,  ζ = {zeta}")
     lines.append("")
-    # a space before each wide column: a long value (σ ± stderr) never runs into the one before
     k_u, c_u, x_u = _unit(ident, "N/m"), _unit(ident, "N s/m"), _unit(ident, "m")
-    head = (f"  {'run':<16}{'P ' + k_u:>10}{'D ' + c_u:>10} {'σ 1/s':>19} {'ω_d rad/s':>19}"
-            f"{'c′ ' + c_u:>11}{'k′ ' + k_u:>11}{'cycles':>8}{'resid ' + x_u:>10}"
-            f"{'resid/noise':>12}")
-    lines.append(head)
-    for r, q in zip(ident.runs, ident.residual_noise_ratios(), strict=True):
-        mark = "" if r.used else "  (set aside)"
-        lines.append(
-            f"  {safe_text(r.file):<16}{r.P:>10.4g}{r.D:>10.4g}"
-            f" {format_estimate(r.sigma, r.sigma_stderr):>19}"
-            f" {format_estimate(r.omega_d, r.omega_d_stderr):>19}"
-            f"{r.c_prime:>11.5g}{r.k_prime:>11.5g}"
-            f"{r.cycles:>8.1f}{r.residual_rms:>10.2g}{ratio_text(q):>12}{mark}"
-        )
+    rows = [[safe_text(r.file), format_gain(r.P), format_gain(r.D),
+             format_estimate(r.sigma, r.sigma_stderr),
+             format_estimate(r.omega_d, r.omega_d_stderr), f"{r.c_prime:.5g}",
+             f"{r.k_prime:.5g}", f"{r.cycles:.1f}", f"{r.residual_rms:.2g}", ratio_text(q),
+             *([] if r.used else ["(set aside)"])]
+            for r, q in zip(ident.runs, ident.residual_noise_ratios(), strict=True)]
+    lines.extend(text_table([("run", ""), ("P", k_u), ("D", c_u), ("σ ± stderr", "1/s"),
+                             ("ω_d ± stderr", "rad/s"), ("c′", c_u), ("k′", k_u),
+                             ("cycles", ""), ("resid", x_u), ("resid/noise", "")], rows))
     lines.extend(fit_statistics_lines(ident))
     lines.extend(adequacy_lines(ident))
     if ident.warnings:
@@ -305,21 +429,20 @@ def friction_text(fit: Any) -> str:
     lines.extend(_digital_line(fit))
     if any(getattr(r, "bias", 0.0) for r in fit.runs):
         lines.append("  command bias b·sign(velocity) per run (the seed's DC offset), N: "
-                     + ", ".join(f"{r.bias:g}" for r in fit.runs))
+                     + ", ".join(format_gain(r.bias) for r in fit.runs))
     lines.append("")
     for name, est in (("m", fit.m), ("c", fit.c), ("k", fit.k), ("fc", fit.fc)):
         lines.append(f"  {name} = {format_estimate(est.value, est.stderr)} {est.unit}")
     lines.append("")
     k_u, c_u, x_u = _unit(fit, "N/m"), _unit(fit, "N s/m"), _unit(fit, "m")
-    lines.append(f"  {'run':<16}{'P ' + k_u:>10}{'D ' + c_u:>10}{'σ 1/s':>10}"
-                 f"{'ω_d rad/s':>11}{'x0 ' + x_u:>11}{'sticks at s':>13}{'resid ' + x_u:>10}"
-                 f"{'resid/noise':>12}")
-    for r, q in zip(fit.runs, fit.residual_noise_ratios(), strict=True):
-        stick = f"{r.stick_time:.4g}" if r.stick_time is not None else "-"
-        mark = "" if r.used else "  (set aside)"
-        lines.append(f"  {safe_text(r.name):<16}{r.P:>10.4g}{r.D:>10.4g}{r.sigma:>10.4g}"
-                     f"{r.omega_d:>11.5g}{r.x0:>11.3g}{stick:>13}{r.residual_rms:>10.2g}"
-                     f"{ratio_text(q):>12}{mark}")
+    rows = [[safe_text(r.name), format_gain(r.P), format_gain(r.D), f"{r.sigma:.4g}",
+             f"{r.omega_d:.5g}", f"{r.x0:.3g}",
+             f"{r.stick_time:.4g}" if r.stick_time is not None else "-",
+             f"{r.residual_rms:.2g}", ratio_text(q), *([] if r.used else ["(set aside)"])]
+            for r, q in zip(fit.runs, fit.residual_noise_ratios(), strict=True)]
+    lines.extend(text_table([("run", ""), ("P", k_u), ("D", c_u), ("σ", "1/s"),
+                             ("ω_d", "rad/s"), ("x0", x_u), ("sticks at", "s"),
+                             ("resid", x_u), ("resid/noise", "")], rows))
     lines.extend(fit_statistics_lines(fit))
     lines.extend(adequacy_lines(fit))
     if fit.warnings:
@@ -375,15 +498,13 @@ def free_text(result: Any) -> str:
         lines.append("  (m, c, k are not separately identifiable from a free decay: "
                      "give the mass with --mass to get c and k)")
     lines.append("")
-    wx, wv, wr = max(12, len(xu) + 5), max(12, len(xu) + 7), max(10, len(xu) + 8)
-    lines.append(f"  {'run':<18}{'release s':>11}{'held':>6}{'x0 ' + xu:>{wx}}"
-                 f"{'v0 ' + xu + '/s':>{wv}}{'samples':>9}{'resid ' + xu:>{wr}}"
-                 f"{'resid/noise':>12}")
-    for r, q in zip(result.runs, result.residual_noise_ratios(), strict=True):
-        mark = "" if r.used else "  (set aside)"
-        lines.append(f"  {safe_text(r.file):<18}{r.release:>11.5g}{'yes' if r.held else 'no':>6}"
-                     f"{r.x0:>{wx}.4g}{r.v0:>{wv}.4g}{r.n_samples:>9d}"
-                     f"{r.residual_rms:>{wr}.2g}{ratio_text(q):>12}{mark}")
+    rows = [[safe_text(r.file), f"{r.release:.5g}", "yes" if r.held else "no",
+             f"{r.x0:.4g}", f"{r.v0:.4g}", f"{r.n_samples:d}", f"{r.residual_rms:.2g}",
+             ratio_text(q), *([] if r.used else ["(set aside)"])]
+            for r, q in zip(result.runs, result.residual_noise_ratios(), strict=True)]
+    lines.extend(text_table([("run", ""), ("release", "s"), ("held", ""), ("x0", xu),
+                             ("v0", xu + "/s"), ("samples", ""), ("resid", xu),
+                             ("resid/noise", "")], rows))
     lines.extend(fit_statistics_lines(result))
     lines.extend(adequacy_lines(result))
     if result.warnings:
@@ -417,15 +538,15 @@ def forced_text(result: Any) -> str:
         lines.append(f"  ω₀ = {format_estimate(w0.value, w0.stderr)} rad/s,  "
                      f"ζ = {format_estimate(z.value, z.stderr)}")
     lines.append("")
-    lines.append(f"  {'run':<16}{'ω rad/s':>12}{'B ' + _unit(result, 'N'):>10}"
-                 f"{'C ' + _unit(result, 'm'):>11} {'R ' + _unit(result, 'N/m'):>22} "
-                 f"{'ρ rad':>22}{'settled s':>11}{'resid/noise':>12}")
-    for r, q in zip(result.runs, result.residual_noise_ratios(), strict=True):
-        mark = "" if r.used else "  (set aside)"
-        lines.append(
-            f"  {safe_text(r.file):<16}{r.omega:>12.6g}{r.B:>10.4g}{r.C:>11.4g} "
-            f"{format_estimate(r.R, r.R_stderr):>22} {format_estimate(r.rho, r.rho_stderr):>22}"
-            f"{r.settle_time - r.t_start:>11.3g}{ratio_text(q):>12}{mark}")
+    rows = [[safe_text(r.file), f"{r.omega:.6g}", f"{r.B:.4g}", f"{r.C:.4g}",
+             format_estimate(r.R, r.R_stderr), format_estimate(r.rho, r.rho_stderr),
+             f"{r.settle_time - r.t_start:.3g}", ratio_text(q),
+             *([] if r.used else ["(set aside)"])]
+            for r, q in zip(result.runs, result.residual_noise_ratios(), strict=True)]
+    lines.extend(text_table([("run", ""), ("ω", "rad/s"), ("B", _unit(result, "N")),
+                             ("C", _unit(result, "m")), ("R ± stderr", _unit(result, "N/m")),
+                             ("ρ ± stderr", "rad"), ("settled", "s"), ("resid/noise", "")],
+                            rows))
     lines.extend(fit_statistics_lines(result))
     lines.extend(adequacy_lines(result))
     if result.warnings:

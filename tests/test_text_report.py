@@ -1,0 +1,147 @@
+"""What the text report prints (issue 30): gains exactly as the manifest gives them, no null,
+lines that fit 100 columns, one notation with an ASCII fallback."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import tomllib
+from pathlib import Path
+
+import pytest
+
+from phoid.reports.statistics import statistics_lines
+from phoid.reports.text import format_gain
+
+
+def phoid(*args: str, env: dict[str, str] | None = None,
+          cwd: Path | None = None) -> subprocess.CompletedProcess:
+    """`phoid ARGS` in a real subprocess (UTF-8 stdout unless ``env`` says otherwise)."""
+    full = {**os.environ, "PYTHONIOENCODING": "utf-8", **(env or {})}
+    return subprocess.run([sys.executable, "-m", "phoid.cli", *args], capture_output=True,
+                          text=True, timeout=300, env=full, cwd=cwd,
+                          encoding=None if env and "PYTHONIOENCODING" in env else "utf-8")
+
+
+@pytest.fixture(scope="module")
+def example_text(sample_set_path) -> str:
+    res = phoid("identify", str(sample_set_path))
+    assert res.returncode == 0, res.stderr
+    return res.stdout
+
+
+def test_gains_are_printed_exactly_as_the_manifest_gives_them(sample_set_path, example_text):
+    # expected: the manifest's own numbers (12.625 was printed 12.62 with .4g; a gain of
+    # 0.8999999999999999 is not 0.9)
+    manifest = tomllib.loads((sample_set_path / "experiment.toml").read_text())
+    rows: dict[str, list[str]] = {}  # each run's first row (its gains, σ, …)
+    for line in example_text.splitlines():
+        if line.strip().startswith("run") and ".csv" in line:
+            rows.setdefault(line.split()[0], line.split())
+    assert len(rows) == len(manifest["run"])
+    for run in manifest["run"]:
+        cells = rows[run["file"]]
+        assert float(cells[1]) == run["P"] and float(cells[2]) == run["D"], cells
+        assert cells[1] == format_gain(run["P"])
+    assert "12.625" in example_text and "12.62 " not in example_text
+
+
+def test_format_gain_round_trips():
+    for v in (12.625, 0.1 + 0.2, 3.0, 1e-300, 2.5e17, -7.125):
+        assert float(format_gain(v)) == v
+    assert format_gain(3.0) == "3" and format_gain(12.625) == "12.625"
+
+
+def test_a_fit_without_chi2_says_so_in_words(sample_set_path):
+    res = phoid("identify", str(sample_set_path), "--estimator", "ols")
+    assert res.returncode == 0, res.stderr
+    assert "null" not in res.stdout and "None" not in res.stdout
+    block = res.stdout.split("[[Fit statistics]]")[1].split("[[")[0]
+    assert "not computed" in block and "OLS" in block
+
+
+def test_a_single_missing_statistic_reads_not_computed():
+    # a weighted fit whose dof is known but whose χ²/dof is not (dof = 0)
+    lines = statistics_lines({"chi2": 1.0, "dof": 0, "chi2_dof": None, "p_value": None,
+                              "of": "a fit", "weighted": True})
+    assert not any("null" in x or "None" in x for x in lines)
+    assert any("χ²/dof" in x and "not computed" in x for x in lines)
+
+
+# --- width: every line of `phoid identify` fits 100 columns, on every kind of set ----------
+def _tracking_set(folder: Path) -> Path:
+    """A tracking set of one run (as tests/test_tracking_cli.py builds one): a small axis
+    under a 1 kHz PD loop following a two-sine reference, u recorded."""
+    import numpy as np
+
+    import phoid.io
+    from phoid.dynamics.controller import SampledController
+    from phoid.dynamics.plant import Plant
+    from phoid.simulation.tracking import simulate_tracking
+
+    ctrl = SampledController(sample_time=1e-3, P=4000.0, D=60.0, velocity="central-difference",
+                             saturation=200.0, delay=0.4e-3)
+    t = 1e-3 * np.arange(3000)
+    r = 0.02 * np.sin(2 * np.pi * 0.7 * t) + 0.01 * np.sin(2 * np.pi * 1.9 * t + 0.3)
+    sim = simulate_tracking(Plant(2.0, 15.0, 0.0, 1.5), ctrl, r, offset=-0.3, x_init=[0.0])
+    run = phoid.io.run_from_arrays(t, sim.x, r=r, u=sim.command, P=4000.0, D=60.0, index=1)
+    loop = {"sample_time": 1e-3, "velocity": "central-difference", "saturation": 200.0,
+            "delay": 0.4e-3}
+    phoid.io.write_experiment(folder, [run], method="tracking", fixed={"k": 0.0}, loop=loop)
+    return folder
+
+
+def _long_names(sample_set_path: Path, folder: Path) -> Path:
+    """The example set with its first run's file renamed to a 60-character name."""
+    import shutil
+
+    shutil.copytree(sample_set_path, folder)
+    long = "a-run-file-name-that-is-much-longer-than-the-column-run01.csv.gz"
+    (folder / "run01.csv.gz").rename(folder / long)
+    manifest = folder / "experiment.toml"
+    manifest.write_text(manifest.read_text().replace('"run01.csv.gz"', f'"{long}"'))
+    return folder
+
+
+SIMULATE = {  # `phoid simulate` options of each kind (as the method's own tests give them)
+    "friction": ["--m", "1", "--c", "2", "--k", "100", "--fc", "0.05", "--P", "0:150:5",
+                 "--D", "0.5:3:5", "--delay", "0.02", "--duration", "6", "--noise", "1e-5",
+                 "--quantum", "1e-6", "--x0", "0.008", "--seed", "3"],
+    "free": ["--method", "free", "--m", "1", "--c", "2", "--k", "100", "--duration", "6",
+             "--noise", "1e-5", "--seed", "3"],
+    "forced": ["--method", "forced", "--omega", "2:14:6", "--duration", "20", "--fs", "250",
+               "--noise", "1e-5", "--offset", "1e-3", "--seed", "12"],
+    "digital": ["--m", "2", "--c", "1", "--k", "64", "--P", "0.25:25:6", "--D", "0.6:6:6",
+                "--sample-time", "0.01", "--delay-samples", "1", "--duration", "8",
+                "--noise", "1e-5", "--seed", "4"],
+}
+IDENTIFY = {"friction": ["--friction"], "free": ["--mass", "1"], "forced": [], "digital": [],
+            "free-friction": ["--friction"]}
+
+
+@pytest.mark.parametrize("kind", ["example", "ols", "long-names", "friction", "free",
+                                  "free-friction", "forced", "digital", "tracking"])
+def test_every_line_fits_100_columns(kind, sample_set_path, tmp_path):
+    # relative paths, as a user types them (the report names the set as given)
+    args: list[str] = []
+    if kind in ("example", "ols"):
+        folder = sample_set_path
+        args = ["--estimator", "ols"] if kind == "ols" else []
+    elif kind == "long-names":
+        folder = _long_names(sample_set_path, tmp_path / "long")
+    elif kind == "tracking":
+        folder = _tracking_set(tmp_path / "tracking")
+    else:
+        folder = tmp_path / kind
+        sim = phoid("simulate", kind, *SIMULATE[kind.replace("free-friction", "free")],
+                    cwd=tmp_path)
+        assert sim.returncode == 0, sim.stderr
+        args = IDENTIFY[kind]
+    if folder.is_relative_to(tmp_path):
+        folder = folder.relative_to(tmp_path)
+    res = phoid("identify", str(folder), *args, cwd=tmp_path)
+    assert res.returncode == 0, res.stderr
+    wide = [line for line in res.stdout.splitlines() if len(line) > 100]
+    assert not wide, f"{len(wide)} lines over 100 columns, e.g.\n" + "\n".join(wide[:3])
+    assert len(res.stdout.splitlines()) > 5
