@@ -332,6 +332,12 @@ def test_default_identify_refuses_a_biased_set(tmp_path):
     assert out.exit_code == 2 and out.stdout == ""
     lines = out.stderr.strip().splitlines()
     assert len(lines) == 1 and "run 1 (run01.csv" in lines[0] and "--friction" in lines[0]
+    # the way it names is public (issue 30: it named phoid.methods.friction's function)
+    assert "phoid.methods" not in lines[0] and "phoid.identify(experiment, friction=True)" \
+        in lines[0]
+    import phoid
+
+    assert "identify" in phoid.__all__
 
 
 def test_cli_simulate_writes_bias_per_run(tmp_path):

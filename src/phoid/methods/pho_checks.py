@@ -43,9 +43,10 @@ def refuse_bias(experiment: Any, method: str) -> None:
     the friction fit models it (``phoid identify --friction``, :mod:`phoid.methods.friction`)."""
     for r in getattr(experiment, "runs", ()):
         if getattr(r, "bias", 0.0):
-            hint = ("; fit it with the stick-slip model: phoid identify --friction "
-                    "(phoid.methods.friction.identify_friction_set)" if method == "pho" else
-                    f"; a {method} set has no PD loop to carry it")
+            # the public ways only (the CLI's option, phoid's own function)
+            hint = (f"; a {method} set has no PD loop to carry it" if method != "pho" else
+                    "; fit it with the stick-slip model: phoid identify --friction "
+                    "(in Python: phoid.identify(experiment, friction=True))")
             raise IdentificationError(
                 f"{experiment.path}: {r.name}: bias = {r.bias:g} N: a biased PD command is not "
                 f"a linear loop, so the mode fit does not apply{hint}")
