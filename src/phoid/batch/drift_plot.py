@@ -12,18 +12,37 @@ from __future__ import annotations
 
 import re
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from phoid._output import OutputFolder, png_writer
 
-__all__ = ["plot_trend", "trend_figure_names"]
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
+
+__all__ = ["axis_label", "plot_trend", "trend_figure", "trend_figure_names"]
 
 #: the SI units of the parameters a batch row can hold (docs/format.md, "phoid batch output");
 #: a parameter not listed is labelled by its name alone
 UNITS = {"m": "kg", "c": "N s/m", "k": "N/m", "fc": "N", "delay": "s", "omega0": "rad/s",
-         "zeta": "1", "sigma": "1/s", "c_over_m": "1/s", "k_over_m": "1/s²", "offset_force": "N"}
+         "zeta": "–", "sigma": "1/s", "c_over_m": "1/s", "k_over_m": "1/s²", "offset_force": "N"}
+
+#: how a parameter is written on an axis: its symbol as in the text reports (σ is the decay
+#: rate; mathtext where unicode has no glyph); a parameter not listed by its name
+SYMBOLS = {"omega0": "ω₀", "zeta": "ζ", "sigma": "σ", "fc": "$f_c$", "c_over_m": "c/m",
+           "k_over_m": "k/m", "offset_force": "offset force", "delay": "delay"}
+
+
+def axis_label(name: str) -> str:
+    """The y label of a parameter's panel: symbol and unit, e.g. ``ω₀ (rad/s)``, ``ζ (–)``.
+
+    >>> axis_label("omega0"), axis_label("zeta"), axis_label("m")
+    ('ω₀ (rad/s)', 'ζ (–)', 'm (kg)')
+    """
+    symbol = SYMBOLS.get(name, str(name).replace("$", r"\$"))
+    unit = UNITS.get(name)
+    return f"{symbol} ({unit})" if unit else symbol
 
 
 #: the most characters of a unit's name in its figure's file name (file systems take 255 bytes)
@@ -71,51 +90,53 @@ def plot_trend(trend: Any, out_dir: str | Path, *, overwrite: bool = False) -> l
     list of Path
         The files written.
     """
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
     out = OutputFolder(out_dir, overwrite=overwrite)
     units = [u for u in trend.units if u.charts]
     names = trend_figure_names([u.unit for u in units])
     out.check(names)
-    written = []
-    for unit, name in zip(units, names, strict=True):
-        n = len(unit.charts)
-        fig = Figure(figsize=(7.5, 2.2 * n + 0.6), layout="constrained")
-        FigureCanvasAgg(fig)
-        axes = fig.subplots(n, 1, sharex=True, squeeze=False)[:, 0]
-        for ax, chart in zip(axes, unit.charts, strict=True):
-            import pandas as pd
+    return [out.write(name, png_writer(trend_figure(trend, unit), 110))
+            for unit, name in zip(units, names, strict=True)]
 
-            t = pd.to_datetime([p.order for p in chart.points], utc=True)
-            x = np.array([p.value for p in chart.points])
-            s = np.array([p.stderr for p in chart.points])
-            base = np.array([p.baseline for p in chart.points])
-            flag = np.array([p.flagged for p in chart.points])
-            if chart.baseline is not None:
-                half = trend.threshold * np.sqrt(s ** 2 + chart.baseline_stderr ** 2)
-                ax.axhline(chart.baseline, color="0.3", lw=1, label="baseline")
-                tested = ~base
-                ax.fill_between(t[tested], (chart.baseline - half)[tested],
-                                (chart.baseline + half)[tested], step="mid", color="C0",
-                                alpha=0.15, label=f"±{trend.threshold:g} σ limits")
-            ax.errorbar(t[base], x[base], s[base], fmt="o", color="0.5", ms=4,
-                        label="baseline points")
-            ax.errorbar(t[~base & ~flag], x[~base & ~flag], s[~base & ~flag], fmt="o",
-                        color="C0", ms=4, label="in control")
-            if flag.any():
-                ax.errorbar(t[flag], x[flag], s[flag], fmt="o", color="C3", ms=6,
-                            label="flagged")
-            si = UNITS.get(chart.name)
-            ax.set_ylabel(f"{chart.name} ({si})" if si else chart.name)
-        axes[0].set_title(f"{trend.by} {unit.unit}: estimates ± stderr")
-        handles: dict[str, Any] = {}
-        for ax in axes:  # one legend for the panels: every kind of mark, once
-            for handle, label in zip(*ax.get_legend_handles_labels(), strict=True):
-                handles.setdefault(label, handle)
-        fig.legend(list(handles.values()), list(handles), loc="outside lower center",
-                   ncols=len(handles), fontsize="small")
-        axes[-1].set_xlabel("time (UTC)" if unit.ordered_by == "time"
-                            else "identified at (UTC; the sets carry no time)")
-        written.append(out.write(name, png_writer(fig, 110)))
-    return written
+
+def trend_figure(trend: Any, unit: Any) -> Figure:
+    """The figure of one unit of ``trend`` (one panel per chart), as :func:`plot_trend`
+    writes it; ``trend`` and ``unit`` read as there."""
+    import pandas as pd
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    n = len(unit.charts)
+    fig = Figure(figsize=(7.5, 2.2 * n + 0.6), layout="constrained")
+    FigureCanvasAgg(fig)
+    axes = fig.subplots(n, 1, sharex=True, squeeze=False)[:, 0]
+    for ax, chart in zip(axes, unit.charts, strict=True):
+        t = pd.to_datetime([p.order for p in chart.points], utc=True)
+        x = np.array([p.value for p in chart.points])
+        s = np.array([p.stderr for p in chart.points])
+        base = np.array([p.baseline for p in chart.points])
+        flag = np.array([p.flagged for p in chart.points])
+        if chart.baseline is not None:
+            half = trend.threshold * np.sqrt(s ** 2 + chart.baseline_stderr ** 2)
+            ax.axhline(chart.baseline, color="0.3", lw=1, label="baseline")
+            tested = ~base
+            ax.fill_between(t[tested], (chart.baseline - half)[tested],
+                            (chart.baseline + half)[tested], step="mid", color="C0",
+                            alpha=0.15, label=f"±{trend.threshold:g} stderr limits")
+        ax.errorbar(t[base], x[base], s[base], fmt="o", color="0.5", ms=4,
+                    label="baseline points")
+        ax.errorbar(t[~base & ~flag], x[~base & ~flag], s[~base & ~flag], fmt="o",
+                    color="C0", ms=4, label="in control")
+        if flag.any():
+            ax.errorbar(t[flag], x[flag], s[flag], fmt="o", color="C3", ms=6,
+                        label="flagged")
+        ax.set_ylabel(axis_label(chart.name))
+    axes[0].set_title(f"{trend.by} {unit.unit}: estimates ± stderr".replace("$", r"\$"))
+    handles: dict[str, Any] = {}
+    for ax in axes:  # one legend for the panels: every kind of mark, once
+        for handle, label in zip(*ax.get_legend_handles_labels(), strict=True):
+            handles.setdefault(label, handle)
+    fig.legend(list(handles.values()), list(handles), loc="outside lower center",
+               ncols=len(handles), fontsize="small")
+    axes[-1].set_xlabel("time (UTC)" if unit.ordered_by == "time"
+                        else "identified at (UTC; the sets carry no time)")
+    return fig

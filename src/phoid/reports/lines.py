@@ -33,6 +33,12 @@ __all__ = ["Line", "forced_line_points", "forced_lines_figure", "mk_covariance",
 #: P = 1 − exp(−Δχ²/2), i.e. 39.3 % and 86.5 %.
 ELLIPSE_LEVELS = (1.0, 4.0)
 
+#: size (inches) and base font size (points) of a lines figure: drawn for the HTML report's
+#: two-column grid (shown about 560 px wide, half its width at 120 dpi), where 11 pt text
+#: is still about 10 px high
+LINES_SIZE = (9.0, 6.0)
+LINES_FONT = 12
+
 
 @dataclass(frozen=True)
 class Line:
@@ -206,27 +212,30 @@ def _draw_lines(fig: Figure, lines: tuple[Line, Line], xlabels: tuple[str, str],
     """Two columns: each line with its error-barred points above, its residuals in stderr
     units below."""
     axes = fig.subplots(2, 2, sharex="col", height_ratios=[3, 1.3])
+    fs = LINES_FONT
     for j, ln in enumerate(lines):
         a, ar = axes[0, j], axes[1, j]
         span = float(np.ptp(ln.y)) if ln.y.size > 1 else 0.0
         tiny = span > 0 and float(np.nanmax(ln.yerr, initial=0.0)) < 0.01 * span
-        a.errorbar(ln.x, ln.y, xerr=ln.xerr, yerr=ln.yerr, fmt="o", ms=3, capsize=3,
+        a.errorbar(ln.x, ln.y, xerr=ln.xerr, yerr=ln.yerr, fmt="o", ms=4, capsize=3,
                    elinewidth=1, color="C0",
-                   label="runs (±1 stderr" + (", bars within the markers: residuals below)"
-                                              if tiny else ")"))
+                   label="runs (±1 stderr" + (", bars within the markers)" if tiny else ")"))
         hi = float(np.max(ln.x)) if ln.x.size else 1.0
         xx = np.linspace(min(0.0, float(np.min(ln.x, initial=0.0))), hi * 1.05, 50)
-        a.plot(xx, ln.slope * xx + ln.intercept, "-", color="C1", lw=1, label=ln.label)
-        a.set_ylabel(ylabels[j])
-        a.legend(fontsize=7, loc="best")
+        a.plot(xx, ln.slope * xx + ln.intercept, "-", color="C1", lw=1,
+               label=ln.label.replace(": ", "\n", 1))  # the equation, then the values
+        a.set_ylabel(ylabels[j], fontsize=fs)
+        a.tick_params(labelsize=fs - 1)
+        a.legend(fontsize=fs - 2, loc="best")
         a.grid(alpha=0.3)
         z = ln.normalised
         ar.axhspan(-2, 2, color="0.85", lw=0, label="±2")
         ar.axhline(0, color="C1", lw=1)
-        ar.errorbar(ln.x, z, yerr=np.where(np.isfinite(z), 1.0, np.nan), fmt="o", ms=3,
+        ar.errorbar(ln.x, z, yerr=np.where(np.isfinite(z), 1.0, np.nan), fmt="o", ms=4,
                     capsize=3, elinewidth=1, color="C0")
-        ar.set_ylabel("residual (stderr)")
-        ar.set_xlabel(xlabels[j])
+        ar.set_ylabel("residual (stderr)", fontsize=fs)
+        ar.set_xlabel(xlabels[j], fontsize=fs)
+        ar.tick_params(labelsize=fs - 1)
         ar.grid(alpha=0.3)
 
 
@@ -244,19 +253,21 @@ def pho_lines_figure(ident: Any) -> Figure:
     from matplotlib.figure import Figure
 
     lines = pho_line_points(ident)
-    fig = Figure(figsize=(11, 6.5), layout="constrained")
-    _draw_lines(fig, lines, ("2σᵢ (1/s)", "ω₀ᵢ² = σᵢ² + ω_dᵢ² (rad²/s²)"),
-                ("c′ᵢ (N s/m)", "k′ᵢ (N/m)"))
+    fig = Figure(figsize=LINES_SIZE, layout="constrained")
+    _draw_lines(fig, lines, (r"$2\sigma_i$ (1/s)",
+                             r"$\omega_{0i}^2 = \sigma_i^2 + \omega_{di}^2$ (rad²/s²)"),
+                (r"$c'_i$ (N s/m)", r"$k'_i$ (N/m)"))
     fit = ident.fit
-    how = ("ordinary least squares per line" if getattr(fit, "estimator", "") == "ols"
-           else "the joint weighted fit of m, c, k")
+    how = ("OLS per line" if getattr(fit, "estimator", "") == "ols"
+           else "joint weighted fit")
     comp = "" if getattr(fit, "compensated", True) else ", delay not compensated"
-    title = f"eq. (35) lines ({how}{comp}); error bars ±1 stderr from each run's σ, ω_d"
+    fig.suptitle(f"eq. (35) lines ({how}{comp}); bars ±1 stderr from each run's "
+                 r"$\sigma$, $\omega_d$", fontsize=LINES_FONT + 1)
     if getattr(ident, "digital", None) is not None:
-        title += (f"\nsampled loop: points through the continuous eq. (32) at the equivalent "
-                  f"delay {_used_delay(ident):.4g} s,\nan approximation the residuals include; "
-                  "m, c, k come from the sampled loop's exact roots")
-    fig.suptitle(title)
+        fig.text(0.5, 0.0, f"sampled loop: points through eq. (32) at the equivalent delay "
+                 f"{_used_delay(ident):.4g} s (the residuals include that approximation); "
+                 "m, c, k from the loop's exact roots", ha="center", va="bottom",
+                 fontsize=LINES_FONT - 3)
     return fig
 
 
@@ -269,9 +280,10 @@ def forced_lines_figure(result: Any) -> Figure:
     from matplotlib.figure import Figure
 
     lines = forced_line_points(result)
-    fig = Figure(figsize=(11, 6.5), layout="constrained")
+    fig = Figure(figsize=LINES_SIZE, layout="constrained")
     _draw_lines(fig, lines, ("ω² (rad²/s²)", "ω (rad/s)"), ("R cos ρ (N/m)", "R sin ρ (N/m)"))
-    fig.suptitle("eq. (20) lines; error bars ±1 stderr of each run's response")
+    fig.suptitle("eq. (20) lines; bars ±1 stderr of each run's response",
+                 fontsize=LINES_FONT + 1)
     return fig
 
 

@@ -23,10 +23,125 @@ if TYPE_CHECKING:
     from matplotlib.axes import Axes
     from matplotlib.figure import Figure
 
-__all__ = ["forced_run_figure", "free_run_figure", "friction_run_figure", "pho_run_figure",
-           "residual_acf", "run_figure", "stick_intervals"]
+__all__ = [
+    "COLUMNS",
+    "DPI",
+    "column_envelope",
+    "decimate_line",
+    "display_unit",
+    "forced_run_figure",
+    "free_run_figure",
+    "friction_run_figure",
+    "pho_run_figure",
+    "plain",
+    "residual_acf",
+    "run_figure",
+    "stick_intervals",
+]
 
 _ACF_MAX_LAGS = 2000  # most lags drawn (the band and the first periods are what matters)
+#: resolution the figures are written at (dots per inch; :func:`phoid.reports.figures.save_png`)
+DPI = 120
+#: a per-run figure's width and its fixed margins, inches (a fixed layout: no layout engine
+#: measuring every text at each save)
+_WIDTH, _LEFT, _RIGHT = 8.5, 0.9, 0.2
+#: pixel columns of a per-run figure's time axes: the most distinct x positions it can show
+COLUMNS = int((_WIDTH - _LEFT - _RIGHT) * DPI)
+
+
+def _columns_of(t: np.ndarray, columns: int,
+                span: tuple[float, float] | None) -> tuple[np.ndarray, np.ndarray, float, float]:
+    """Each sample's column (0 … columns − 1) over ``span`` (default: t's range) and the
+    first index of each run of equal columns in ``t``'s order."""
+    t0, t1 = (float(np.min(t)), float(np.max(t))) if span is None else span
+    width = (t1 - t0) / columns if t1 > t0 else 1.0
+    col = np.clip(np.floor((t - t0) / width), 0, columns - 1).astype(np.int64)
+    starts = np.flatnonzero(np.r_[True, col[1:] != col[:-1]])
+    return col, starts, t0, width
+
+
+def column_envelope(t: np.ndarray, y: np.ndarray, columns: int = COLUMNS,
+                    span: tuple[float, float] | None = None
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The minimum, maximum and mean of ``y`` in each pixel column of a time axis.
+
+    The axis ``span`` (default: t's range) is cut into ``columns`` equal columns; every
+    sample falls in one. Drawn as a band from minimum to maximum, the envelope shows what
+    every sample would (each column's extremes, so a spike or a misfit stays visible) at
+    a cost of ``columns`` points, and the mean line shows a residual's systematic part that
+    a solid block of noise hides.
+
+    Parameters
+    ----------
+    t, y : ndarray
+        Sample times (s, in increasing order) and values; NaN values are left out.
+    columns : int
+        Pixel columns of the axis (:data:`COLUMNS` for a per-run figure).
+    span : (float, float), optional
+        The axis's time range; default ``(min(t), max(t))``.
+
+    Returns
+    -------
+    tc, lo, hi, mean : ndarray
+        Each occupied column's centre (s), and the minimum, maximum and mean of its samples
+        (NaN where all are NaN).
+    """
+    t = np.asarray(t, dtype=float)
+    y = np.asarray(y, dtype=float)
+    if t.size == 0:
+        e = np.empty(0)
+        return e, e, e, e
+    col, starts, t0, width = _columns_of(t, max(int(columns), 1), span)
+    ok = np.isfinite(y)
+    lo = np.fmin.reduceat(np.where(ok, y, np.nan), starts)
+    hi = np.fmax.reduceat(np.where(ok, y, np.nan), starts)
+    cnt = np.add.reduceat(ok.astype(float), starts)
+    tot = np.add.reduceat(np.where(ok, y, 0.0), starts)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean = np.where(cnt > 0, tot / np.where(cnt > 0, cnt, 1.0), np.nan)
+    return t0 + (col[starts] + 0.5) * width, lo, hi, mean
+
+
+def decimate_line(t: np.ndarray, y: np.ndarray, columns: int = COLUMNS,
+                  span: tuple[float, float] | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """The samples a line through (t, y) needs to look as it does at ``columns`` pixels.
+
+    Keeps, in each pixel column (as :func:`column_envelope`), the first and last samples and
+    the first at its minimum and maximum, in time order: the line through them spans each
+    column's extremes and joins its neighbours as the full line does. Records of at most
+    4 samples per column are returned whole.
+
+    Parameters
+    ----------
+    t, y : ndarray
+        Sample times (s, increasing) and values.
+    columns : int
+        Pixel columns of the axis.
+    span : (float, float), optional
+        The axis's time range; default ``(min(t), max(t))``.
+
+    Returns
+    -------
+    (ndarray, ndarray)
+        The kept samples' times and values.
+    """
+    t = np.asarray(t, dtype=float)
+    y = np.asarray(y, dtype=float)
+    columns = max(int(columns), 1)
+    if t.size <= 4 * columns:
+        return t, y
+    _col, starts, _t0, _w = _columns_of(t, columns, span)
+    group = np.repeat(np.arange(starts.size), np.diff(np.r_[starts, t.size]))
+    yy = np.where(np.isfinite(y), y, np.nan)
+    keep = np.zeros(t.size, dtype=bool)
+    keep[starts] = True
+    keep[np.r_[starts[1:] - 1, t.size - 1]] = True
+    for red in (np.fmin, np.fmax):
+        ext = red.reduceat(yy, starts)
+        at = np.flatnonzero(yy == ext[group])
+        _g, first = np.unique(group[at], return_index=True)
+        keep[at[first]] = True
+    return t[keep], y[keep]
 
 
 def residual_acf(r: np.ndarray, max_lag: int) -> np.ndarray:
@@ -61,6 +176,63 @@ def stick_intervals(t: np.ndarray, v: np.ndarray, after: float) -> list[tuple[fl
     return out
 
 
+def plain(text: str) -> str:
+    """``text`` drawn as it is in a figure whose labels use mathtext: its ``$`` escaped."""
+    return str(text).replace("$", r"\$")
+
+
+def display_unit(x_unit: str = "m") -> tuple[float, str]:
+    """The scale and unit a record in ``x_unit`` is drawn in: m as mm, rad as mrad (both
+    ×1000), any other unit (a sensor's: V, counts) as it is. Every x label, band and legend
+    entry of a run figure uses this one rule."""
+    return {"m": (1e3, "mm"), "rad": (1e3, "mrad")}.get(str(x_unit), (1.0, str(x_unit)))
+
+
+def _run_axes(fig: Figure, heights: Sequence[float]) -> list[Axes]:
+    """The panels of a run figure in a fixed layout (inches; no layout engine): the time
+    panels stacked on one axis, the last height the autocorrelation's on its own lag axis
+    below. Sets the figure's height."""
+    from matplotlib.ticker import MaxNLocator
+
+    top, gap, acf_gap, bottom = 0.4, 0.12, 0.62, 0.5
+    *timed, acf = heights
+    height = top + sum(timed) + gap * (len(timed) - 1) + acf_gap + acf + bottom
+    fig.set_size_inches(_WIDTH, height)
+    left, right = _LEFT / _WIDTH, 1.0 - _RIGHT / _WIDTH
+    axes: list[Axes] = []
+    y = height - top
+    for h in timed:
+        y -= h
+        axes.append(fig.add_axes((left, y / height, right - left, h / height),
+                                 sharex=axes[0] if axes else None))
+        y -= gap
+    axes.append(fig.add_axes((left, bottom / height, right - left, acf / height)))
+    for ax in axes[1:]:  # the short panels: few y ticks (each is drawn text, and time)
+        ax.yaxis.set_major_locator(MaxNLocator(nbins=4))
+    return axes
+
+
+def _title(fig: Figure, text: str) -> None:
+    """A run figure's title, placed in the fixed top margin (an axes title would be moved
+    clear of the tick labels at every draw, a fifth of the drawing time)."""
+    fig.text(0.5, 1.0 - 0.1 / fig.get_figheight(), text, ha="center", va="top", fontsize=10)
+
+
+def _residual_panel(ax: Axes, ts: np.ndarray, resid: np.ndarray, span: tuple[float, float],
+                    scale: float, color: str = "C1") -> None:
+    """The residual, readable at any record length: each sample as a dot where the axis has
+    room for them (at most 2 per pixel column); else each pixel column's minimum–maximum as a
+    band (every spike kept) and its mean as a line (a misfit's systematic part, which a solid
+    block of noise hides)."""
+    if resid.size <= 2 * COLUMNS:
+        ax.plot(ts, resid * scale, ".", ms=2.5, color=color, label="residual")
+        return
+    tc, lo, hi, mean = column_envelope(ts, resid * scale, COLUMNS, span)
+    ax.fill_between(tc, lo, hi, step="mid", color=color, alpha=0.35, lw=0,
+                    label="residual: min–max per pixel column")
+    ax.plot(tc, mean, lw=0.8, color=color, label="mean per pixel column")
+
+
 def _acf_panel(ax: Axes, t: np.ndarray, resid: np.ndarray, period: float | None) -> None:
     """The residual's autocorrelation against lag (s), with the white-noise band."""
     n = resid.size
@@ -71,29 +243,53 @@ def _acf_panel(ax: Axes, t: np.ndarray, resid: np.ndarray, period: float | None)
     lags = np.arange(rho.size) * dt
     band = 1.96 / math.sqrt(max(n, 1))
     ax.axhspan(-band, band, color="0.85", lw=0, label=f"±1.96/√n (white noise, n = {n})")
-    ax.plot(lags[1:], rho[1:], lw=0.8, color="C4", label="autocorrelation of the residual")
+    ax.plot(*decimate_line(lags[1:], rho[1:]), lw=0.8, color="C4",
+            label="autocorrelation of the residual")
     ax.axhline(0, color="0.4", lw=0.5)
     ax.set_xlabel("lag (s)")
-    ax.set_ylabel("residual ACF")
-    ax.legend(fontsize=7, loc="upper right")
+    ax.set_ylabel("residual ACF (–)")
+    ax.legend(loc="upper right", fontsize=7)
+
+
+def _record(ax: Axes, t: np.ndarray, y: np.ndarray, span: tuple[float, float]) -> None:
+    """The record, under the fit: dots where the axis has room for each sample, else the
+    line through each pixel column's extremes (:func:`decimate_line`)."""
+    if t.size <= 2 * COLUMNS:
+        ax.plot(t, y, ".", ms=2.5, color="0.35", label="record", zorder=2)
+    else:
+        ax.plot(*decimate_line(t, y, COLUMNS, span), lw=0.8, color="0.45", label="record",
+                zorder=2)
+
+
+def _fit_line(ax: Axes, t: np.ndarray, y: np.ndarray, label: str,
+              span: tuple[float, float]) -> None:
+    """A fitted model over the record: thin and half transparent, so the record shows on
+    both sides of it and a misfit is seen."""
+    ax.plot(*decimate_line(t, y, COLUMNS, span), lw=0.7, color="C0", alpha=0.85,
+            label=label, zorder=3)
 
 
 def run_figure(t: np.ndarray, x: np.ndarray, sel: np.ndarray, model: np.ndarray, *,
                noise_sd: float, title: str, model_label: str,
                markers: Sequence[tuple[float, str]] = (), force: np.ndarray | None = None,
-               force_label: str = "u (N)", period: float | None = None) -> Figure:
+               force_label: str = "u (N)", period: float | None = None,
+               x_unit: str = "m") -> Figure:
     """One run's figure (module docstring), from plain arrays.
+
+    Drawn for what the eye can see at :data:`DPI`: lines through each pixel column's extremes
+    (:func:`decimate_line`) and the residual as its per-column envelope and mean
+    (:func:`column_envelope`), in a fixed layout.
 
     Parameters
     ----------
     t, x : ndarray
-        The whole record, s and m.
+        The whole record, s and ``x_unit``.
     sel : ndarray of bool
         The samples the model was fitted to (residual and autocorrelation over these).
     model : ndarray
-        The fitted x at ``t[sel]``, m.
+        The fitted x at ``t[sel]``, ``x_unit``.
     noise_sd : float
-        The fit's white-noise sd, m (the band is ±2 sd; none when not finite).
+        The fit's white-noise sd, ``x_unit`` (the band is ±2 sd; none when not finite).
     title, model_label : str
     markers : sequence of (float, str)
         Vertical lines (time s, label), e.g. the release.
@@ -103,44 +299,46 @@ def run_figure(t: np.ndarray, x: np.ndarray, sel: np.ndarray, model: np.ndarray,
     period : float, optional
         The oscillation period, s: the autocorrelation is drawn over two of them (at least
         50 lags, at most a quarter of the samples).
+    x_unit : str
+        The unit of x: drawn as :func:`display_unit` says (m as mm).
     """
     from matplotlib.figure import Figure
 
+    scale, unit = display_unit(x_unit)
     has_f = force is not None and np.shape(force) == np.shape(t)
-    heights = [3.0, 1.2] + ([1.1] if has_f else []) + [1.3]
-    fig = Figure(figsize=(8.5, 2.0 + 1.45 * sum(heights) / 1.2), layout="constrained")
-    gs = fig.add_gridspec(len(heights), 1, height_ratios=heights)
-    ax = fig.add_subplot(gs[0])
-    axr = fig.add_subplot(gs[1], sharex=ax)
+    fig = Figure()
+    axes = _run_axes(fig, [3.2, 1.4] + ([1.1] if has_f else []) + [1.3])
+    ax, axr = axes[0], axes[1]
+    span = (float(np.min(t)), float(np.max(t))) if t.size else (0.0, 1.0)
     ts, xs = t[sel], x[sel]
     resid = xs - model
-    ax.plot(t, x * 1e3, lw=0.6, color="0.5", label="record")
-    ax.plot(ts, model * 1e3, lw=1.0, color="C0", label=model_label)
+    _record(ax, t, x * scale, span)
+    _fit_line(ax, ts, model * scale, model_label, span)
     band = 2.0 * noise_sd if math.isfinite(noise_sd) and noise_sd > 0 else None
     if band is not None:
-        ax.fill_between(ts, (model - band) * 1e3, (model + band) * 1e3, color="C0", alpha=0.25,
-                        lw=0, label=f"±2 noise sd ({noise_sd:.3g} m)")
-        axr.axhspan(-band * 1e3, band * 1e3, color="C0", alpha=0.2, lw=0,
-                    label="±2 noise sd")
+        axr.axhspan(-band * scale, band * scale, color="C0", alpha=0.15, lw=0,
+                    label=f"±2 noise sd (sd {noise_sd * scale:.3g} {unit})")
+    _residual_panel(axr, ts, resid, span, scale)
     for j, (tm, label) in enumerate(markers):
         for a in (ax, axr):
             a.axvline(tm, color=f"C{3 + j}", ls=":", lw=1, label=label if a is ax else None)
-    ax.set_ylabel("x (mm)")
-    ax.set_title(title, fontsize=10)
+    ax.set_ylabel(f"x ({unit})")
+    _title(fig, title)
     ax.legend(loc="upper right", fontsize=7)
-    axr.plot(ts, resid * 1e3, lw=0.5, color="C1")
-    axr.set_ylabel("residual (mm)")
+    axr.set_ylabel(f"residual ({unit})")
+    axr.legend(loc="upper right", fontsize=7, ncols=3)
     last = axr
     if has_f:
-        axf = fig.add_subplot(gs[2], sharex=ax)
-        axf.plot(t, force, lw=0.6, color="C2")
+        axf = axes[2]
+        axf.plot(*decimate_line(t, np.asarray(force, dtype=float), COLUMNS, span), lw=0.6,
+                 color="C2")
         axf.set_ylabel(force_label)
         last = axf
     last.set_xlabel("t (s)")
-    for a in fig.axes:
+    for a in axes[:-1]:
         if a is not last:
             a.tick_params(labelbottom=False)
-    _acf_panel(fig.add_subplot(gs[-1]), ts, resid, period)
+    _acf_panel(axes[-1], ts, resid, period)
     return fig
 
 
@@ -164,8 +362,8 @@ def pho_run_figure(ident: Any, i: int) -> Figure:
     period = 2 * math.pi / r.omega_d if r.omega_d > 0 else None
     return run_figure(
         t, x, sel, model, noise_sd=float(r.fit.noise_sd), model_label=label,
-        title=(f"{r.file}: P = {r.P:g} N/m, D = {r.D:g} N s/m, σ = {r.sigma:.5g} 1/s, "
-               f"ω_d = {r.omega_d:.5g} rad/s"),
+        title=(f"{plain(r.file)}: P = {r.P:g} N/m, D = {r.D:g} N s/m, σ = {r.sigma:.5g} 1/s, "
+               f"$\\omega_d$ = {r.omega_d:.5g} rad/s"),
         markers=[(r.fit.release, "release")],
         force=None if u is None else np.asarray(u, dtype=float), force_label="u (N)",
         period=period)
@@ -188,9 +386,9 @@ def free_run_figure(result: Any, i: int) -> Figure:
     period = 2 * math.pi / math.sqrt(wd2) if wd2 > 0 else None
     return run_figure(
         t, x, sel, model, noise_sd=float(r.noise_sd), model_label="fitted free response",
-        title=(f"{r.file}: σ = {s:.5g} 1/s, ω₀ = {w0:.5g} rad/s, "
+        title=(f"{plain(r.file)}: σ = {s:.5g} 1/s, ω₀ = {w0:.5g} rad/s, "
                f"ζ = {result.zeta.value:.4g}"),
-        markers=[(r.release, "release")], period=period)
+        markers=[(r.release, "release")], period=period, x_unit=getattr(result, "x_unit", "m"))
 
 
 def forced_run_figure(result: Any, i: int) -> Figure:
@@ -209,7 +407,7 @@ def forced_run_figure(result: Any, i: int) -> Figure:
     return run_figure(
         t, x, sel, model, noise_sd=float(getattr(r, "noise_sd", math.nan)),
         model_label="steady state + transient",
-        title=f"{r.file}: ω = {r.omega:.5g} rad/s, R = {r.R:.5g} N/m, ρ = {r.rho:.4g} rad",
+        title=f"{plain(r.file)}: ω = {r.omega:.5g} rad/s, R = {r.R:.5g} N/m, ρ = {r.rho:.4g} rad",
         markers=markers, force=F, force_label="F (N)",
         period=2 * math.pi / r.omega if r.omega > 0 else None)
 
@@ -234,19 +432,15 @@ def friction_run_figure(result: Any, i: int) -> Figure:
     sel = t <= r.t_end
     resid = x[sel] - xm[sel]
     sticks = stick_intervals(t, vm, r.release)
-    heights = [3.0, 1.2, 1.1, 1.3]
-    fig = Figure(figsize=(8.5, 9.0), layout="constrained")
-    gs = fig.add_gridspec(len(heights), 1, height_ratios=heights)
-    ax = fig.add_subplot(gs[0])
-    axr = fig.add_subplot(gs[1], sharex=ax)
-    axv = fig.add_subplot(gs[2], sharex=ax)
-    ax.plot(t, x * 1e3, lw=0.6, color="0.5", label="record")
-    ax.plot(t, xm * 1e3, lw=1.0, color="C0", label="fitted stick–slip simulation")
+    fig = Figure()
+    ax, axr, axv, axa = _run_axes(fig, [3.2, 1.4, 1.1, 1.3])
+    span = (float(np.min(t)), float(np.max(t))) if t.size else (0.0, 1.0)
+    _record(ax, t, x * 1e3, span)
+    _fit_line(ax, t, xm * 1e3, "fitted stick–slip simulation", span)
     sd = float(r.noise_sd)
     if math.isfinite(sd) and sd > 0:
-        ax.fill_between(t[sel], (xm[sel] - 2 * sd) * 1e3, (xm[sel] + 2 * sd) * 1e3,
-                        color="C0", alpha=0.25, lw=0, label=f"±2 noise sd ({sd:.3g} m)")
-        axr.axhspan(-2e3 * sd, 2e3 * sd, color="C0", alpha=0.2, lw=0)
+        axr.axhspan(-2e3 * sd, 2e3 * sd, color="C0", alpha=0.15, lw=0,
+                    label=f"±2 noise sd (sd {sd * 1e3:.3g} mm)")
     for j, (a, b) in enumerate(sticks):
         for axx in (ax, axr, axv):
             axx.axvspan(a, b, color="C2", alpha=0.18, lw=0,
@@ -260,18 +454,19 @@ def friction_run_figure(result: Any, i: int) -> Figure:
             axx.axvline(r.stick_time, color="C2", ls="-", lw=1.2,
                         label=f"sticks for good ({r.stick_time:.4g} s)" if axx is ax else None)
     ax.set_ylabel("x (mm)")
-    ax.set_title(f"{r.name}: P = {r.P:g} N/m, D = {r.D:g} N s/m, f_c = "
-                 f"{result.fc.value:.4g} N, {len(sticks)} stick interval"
-                 f"{'' if len(sticks) == 1 else 's'}", fontsize=10)
+    _title(fig, f"{plain(r.name)}: P = {r.P:g} N/m, D = {r.D:g} N s/m, $f_c$ = "
+                f"{result.fc.value:.4g} N, {len(sticks)} stick interval"
+                f"{'' if len(sticks) == 1 else 's'}")
     ax.legend(loc="upper right", fontsize=7)
-    axr.plot(t[sel], resid * 1e3, lw=0.5, color="C1")
+    _residual_panel(axr, t[sel], resid, span, 1e3)
     axr.set_ylabel("residual (mm)")
-    axv.plot(t, vm * 1e3, lw=0.8, color="C0")
+    axr.legend(loc="upper right", fontsize=7, ncols=3)
+    axv.plot(*decimate_line(t, vm * 1e3, COLUMNS, span), lw=0.8, color="C0")
     axv.set_ylabel("fitted v (mm/s)")
     axv.set_xlabel("t (s)")
     ax.tick_params(labelbottom=False)
     axr.tick_params(labelbottom=False)
     w = float(r.omega_d)
-    _acf_panel(fig.add_subplot(gs[3]), t[sel], resid,
+    _acf_panel(axa, t[sel], resid,
                2 * math.pi / w if math.isfinite(w) and w > 0 else None)
     return fig
