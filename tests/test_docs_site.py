@@ -5,10 +5,10 @@ docs/reference/api/<package>.md, one page per package; this checks those lists a
 ``__all__`` of ``phoid`` and of every public subpackage (one that is not private and defines
 ``__all__``), found by walking the package, so a new public name or subpackage without a
 reference entry fails here. It reads the sources only: it needs neither Sphinx nor the
-``docs`` extra. Building the site itself (warnings as errors, tutorials executed) takes about
-a minute and a half on two cores: ``make docs`` does it, and so does
-``test_site_builds_with_warnings_as_errors`` when PHOID_DOCS_BUILD=1 and Sphinx is installed
-(skipped otherwise).
+``docs`` extra. Building the site itself (warnings as errors, tutorials executed) takes
+50-90 s on two cores: ``make docs`` does it, and so do the last two tests (the build, then the
+home page and the tutorial in headless Chromium) when PHOID_DOCS_BUILD=1 and Sphinx is
+installed (skipped otherwise).
 """
 
 from __future__ import annotations
@@ -109,36 +109,81 @@ def test_docs_extra_and_make_target_exist() -> None:
 
 _HAVE_SPHINX = all(importlib.util.find_spec(name) is not None
                    for name in ("sphinx", "numpydoc", "myst_nb", "pydata_sphinx_theme"))
+CHROMIUM = Path("/usr/bin/chromium")
+CHROMEDRIVER = Path("/usr/bin/chromedriver")
 
 
-@pytest.mark.slow
-@pytest.mark.skipif(not _HAVE_SPHINX, reason="the docs extra is not installed "
-                    "(pip install -e '.[docs]')")
-@pytest.mark.skipif(os.environ.get("PHOID_DOCS_BUILD") != "1",
-                    reason="building the site takes ~90 s: `make docs` builds it; "
+@pytest.fixture(scope="module")
+def site(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The site built once from a clean state (-E) into a temporary folder: its html folder."""
+    if not _HAVE_SPHINX:
+        pytest.skip("the docs extra is not installed (pip install -e '.[docs]')")
+    if os.environ.get("PHOID_DOCS_BUILD") != "1":
+        pytest.skip("building the site takes ~50-90 s: `make docs` builds it; "
                     "PHOID_DOCS_BUILD=1 runs this test")
-def test_site_builds_with_warnings_as_errors(tmp_path: Path) -> None:
+    out = tmp_path_factory.mktemp("site")
     # -W: any warning (a malformed docstring, a broken cross-reference, a failing tutorial
-    # cell or phoid-command) fails the build; -E: no saved environment; the output goes to
-    # tmp_path, the doctrees too
+    # cell or phoid-command) fails the build; -E: no saved environment
     done = subprocess.run(
         [sys.executable, "-m", "sphinx", "-b", "html", "-W", "--keep-going", "-E", "-q",
-         "-d", str(tmp_path / "doctrees"), str(DOCS), str(tmp_path / "html")],
+         "-d", str(out / "doctrees"), str(DOCS), str(out / "html")],
         capture_output=True, text=True, timeout=600, check=False,
     )
     assert done.returncode == 0, done.stderr[-4000:]
-    index = (tmp_path / "html" / "index.html").read_text(encoding="utf-8")
+    return out / "html"
+
+
+@pytest.mark.slow
+def test_site_builds_with_warnings_as_errors(site: Path) -> None:
+    index = (site / "index.html").read_text(encoding="utf-8")
     assert "parametric" in index
-    started = (tmp_path / "html" / "getting-started.html").read_text(encoding="utf-8")
+    started = (site / "getting-started.html").read_text(encoding="utf-8")
     # the commands' output, made at build time: Table 1's heading from `phoid paper`
     assert "Table 1" in started
-    tutorial = (tmp_path / "html" / "tutorials" / "pho-example-set.html").read_text(
-        encoding="utf-8")
+    tutorial = (site / "tutorials" / "pho-example-set.html").read_text(encoding="utf-8")
     assert "m = " in tutorial
     # offline: MathJax is part of the site, and no page loads a script or a style sheet
     # from elsewhere
-    assert (tmp_path / "html" / "_static" / "mathjax" / "tex-chtml.js").is_file()
-    for page in (tmp_path / "html").rglob("*.html"):
+    assert (site / "_static" / "mathjax" / "tex-chtml.js").is_file()
+    for page in site.rglob("*.html"):
         text = page.read_text(encoding="utf-8")
         remote = re.findall(r'<(?:script|link)[^>]+(?:src|href)="(?:https?:)?//[^"]+"', text)
         assert not remote, f"{page.name} loads {remote[0]}"
+
+
+@pytest.mark.slow
+def test_site_in_a_browser(site: Path, tmp_path: Path) -> None:
+    # the home page and the tutorial in headless Chromium, as tests/test_html_report.py opens
+    # its reports: the maths typeset by the site's own MathJax, nothing fetched from the
+    # network, and a screenshot of each (kept in tmp_path)
+    if importlib.util.find_spec("selenium") is None:
+        pytest.skip("selenium is not installed (the `test` extra has it)")
+    for path in (CHROMIUM, CHROMEDRIVER):
+        if not path.is_file():
+            pytest.skip(f"{path} is absent: install Debian's chromium and chromium-driver")
+    from selenium import webdriver
+    from selenium.webdriver.chrome.options import Options
+    from selenium.webdriver.chrome.service import Service
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    opts = Options()
+    opts.binary_location = str(CHROMIUM)
+    for arg in ("--headless=new", "--no-sandbox", "--disable-dev-shm-usage",
+                "--window-size=1300,1800"):
+        opts.add_argument(arg)
+    driver = webdriver.Chrome(service=Service(str(CHROMEDRIVER)), options=opts)
+    try:
+        for name, page in (("home", "index.html"),
+                           ("tutorial", "tutorials/pho-example-set.html")):
+            driver.get((site / page).as_uri())
+            # both pages write maths ($P_i$, $D_i$): MathJax turns each into an mjx-container
+            WebDriverWait(driver, 30).until(
+                lambda d: d.execute_script(
+                    "return document.querySelectorAll('mjx-container').length") > 0)
+            fetched = driver.execute_script(
+                "return performance.getEntriesByType('resource').map(e => e.name)")
+            assert all(u.startswith(("file:", "data:")) for u in fetched), fetched
+            shot = tmp_path / f"{name}.png"
+            assert driver.save_screenshot(str(shot)) and shot.stat().st_size > 10_000
+    finally:
+        driver.quit()
