@@ -145,3 +145,45 @@ def test_every_line_fits_100_columns(kind, sample_set_path, tmp_path):
     wide = [line for line in res.stdout.splitlines() if len(line) > 100]
     assert not wide, f"{len(wide)} lines over 100 columns, e.g.\n" + "\n".join(wide[:3])
     assert len(res.stdout.splitlines()) > 5
+
+
+# --- one notation, and ASCII where the stream cannot show it -----------------------------
+def test_an_ascii_stdout_gets_the_ascii_notation_aligned(sample_set_path, tmp_path):
+    uni = phoid("identify", str(sample_set_path))
+    asc = phoid("identify", str(sample_set_path), env={"PYTHONIOENCODING": "ascii"})
+    assert uni.returncode == 0 and asc.returncode == 0, asc.stderr
+    assert "ω₀" in uni.stdout and "ζ" in uni.stdout and "±" in uni.stdout
+    assert asc.stdout.isascii(), [c for c in asc.stdout if not c.isascii()][:5]
+    for word in ("omega0 = ", "zeta = ", "+/-", "sigma +/- stderr", "chi2/dof"):
+        assert word in asc.stdout, word
+    assert "?" not in asc.stdout  # every symbol spelt out, none replaced
+    # the runs table stays aligned: each cell of the units row ends where its name ends
+    lines = asc.stdout.splitlines()
+    head = next(i for i, x in enumerate(lines) if x.split()[:2] == ["run", "P"])
+    for name, unit in (("sigma +/- stderr", "1/s"), ("omega_d +/- stderr", "rad/s")):
+        end = lines[head].index(name) + len(name)
+        assert lines[head + 1][:end].endswith(unit), (name, lines[head + 1])
+    assert max(len(x) for x in lines) <= 100
+    # the same numbers in both: only the notation differs
+    assert [x.split()[0] for x in lines if ".csv" in x] == [
+        x.split()[0] for x in uni.stdout.splitlines() if ".csv" in x]
+
+
+def test_an_ascii_stderr_gets_errors_in_ascii(tmp_path):
+    # "--hold must be finite and ≥ 0 s" (cli.py's own message) on an ASCII stderr
+    res = phoid("simulate", str(tmp_path / "o"), "--hold", "-1",
+                env={"PYTHONIOENCODING": "ascii"})
+    assert res.returncode == 2
+    assert res.stderr.isascii() and ">= 0" in res.stderr, res.stderr
+
+
+def test_the_stream_text_is_unchanged_where_the_stream_encodes_it():
+    import io
+
+    from phoid.reports.notation import stream_text
+
+    text = "ω₀ = 5.6567 ± 0.0002 rad/s"
+    utf8 = io.TextIOWrapper(io.BytesIO(), encoding="utf-8")
+    latin = io.TextIOWrapper(io.BytesIO(), encoding="latin-1")  # has ± but no ω
+    assert stream_text(text, utf8) == text
+    assert stream_text(text, latin) == "omega0 = 5.6567 +/- 0.0002 rad/s"

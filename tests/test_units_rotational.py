@@ -85,8 +85,8 @@ def test_a_free_decay_in_degrees_is_the_one_in_radians(tmp_path):
     s = b.summary()
     assert s["x_unit"] == "rad" and s["c"]["unit"] == "N m s/rad"
     text = b.report()
-    assert "moment of inertia J = 0.002 kg m^2" in text and "x0 rad" in text
-    assert "v0 rad/s" in text and " N s/m" not in text
+    assert "moment of inertia J = 0.002 kg m^2" in text and _unit_below(text, "x0") == "rad"
+    assert _unit_below(text, "v0") == "rad/s" and " N s/m" not in text
 
 
 def test_a_rotational_sets_forces_are_torques(tmp_path):
@@ -123,10 +123,19 @@ def test_a_free_decay_in_sensor_units_gives_rates_labelled_in_its_unit(tmp_path,
     assert s["x_unit"] == label and not {"m", "c", "k"} & set(s)
     assert s["omega0"]["value"] == pytest.approx(math.hypot(SIGMA, OMEGA_D), rel=1e-4)
     text = runner.invoke(app, ["identify", str(folder)]).stdout
-    assert f"x0 {label}" in text and f"v0 {label}/s" in text and "x0 m " not in text
-    assert f"x is in sensor units, {label}" in text
+    assert _unit_below(text, "x0") == label and _unit_below(text, "v0") == f"{label}/s"
+    assert f"x is in sensor units, {label}" in " ".join(text.split())
     back = read_experiment(write_experiment(tmp_path / "w", exp))
     assert back.x_unit == label
+
+
+def _unit_below(text: str, name: str) -> str:
+    """The runs table's unit of column ``name``: the header row names the columns, the row
+    below gives their units, each right-aligned with its name (text reports since issue 30)."""
+    lines = text.splitlines()
+    i = next(i for i, x in enumerate(lines) if x.split()[:1] == ["run"] and name in x.split())
+    end = lines[i].index(f" {name}") + 1 + len(name)
+    return lines[i + 1][:end].split("  ")[-1].strip()
 
 
 def test_a_mass_with_sensor_units_is_refused(tmp_path):

@@ -39,8 +39,9 @@ app = typer.Typer(
 
 def _fail(message: str) -> None:
     from phoid._output import safe_text
+    from phoid.reports.notation import stream_text
 
-    typer.echo(f"phoid: error: {safe_text(message)}", err=True)
+    typer.echo(stream_text(f"phoid: error: {safe_text(message)}", sys.stderr), err=True)
     raise typer.Exit(2)
 
 
@@ -211,15 +212,17 @@ def _write_html(result, html: Path | None, experiment, overwrite: bool) -> None:
 def _print_result(result, as_json: bool, written, plots, html=None) -> None:
     """The result as JSON (warnings also on stderr) or as the text report; figures written."""
     from phoid._output import safe_text
+    from phoid.reports.notation import stream_notation, stream_text
+    from phoid.reports.text import fit_width
 
-    if as_json:
+    if as_json:  # JSON escapes its unicode itself
         typer.echo(json.dumps(result.summary(), indent=1))
         for w in result.warnings:
-            typer.echo(f"phoid: warning: {safe_text(w)}", err=True)
+            typer.echo(stream_text(f"phoid: warning: {safe_text(w)}", sys.stderr), err=True)
     else:  # the report's own fields are escaped; this catches any other control character
-        from phoid.reports.text import fit_width
-
-        typer.echo(fit_width(safe_text(result.report(), newlines=True)))
+        with stream_notation(sys.stdout):  # tables aligned in the stream's notation
+            text = result.report()
+        typer.echo(stream_text(fit_width(safe_text(text, newlines=True)), sys.stdout))
     if written:
         typer.echo(f"{len(written)} figure{'s' * (len(written) != 1)} written to {plots}",
                    err=as_json)
@@ -761,15 +764,19 @@ def main() -> None:
             ctx = getattr(exc, "ctx", None)
             where = f" (see '{ctx.command_path} --help')" if ctx is not None else ""
             msg = " ".join(str(exc.format_message()).split())
-            print(f"phoid: error: {msg}{where}", file=sys.stderr)
+            from phoid.reports.notation import stream_text
+
+            print(stream_text(f"phoid: error: {msg}{where}", sys.stderr), file=sys.stderr)
             sys.exit(exc.exit_code)
         if type(exc).__name__ == "Abort":  # end of input at a prompt
             sys.exit(1)
         if os.environ.get("PHOID_DEBUG"):
             raise
         msg = " ".join(str(exc).split()) or type(exc).__name__
-        print(f"phoid: internal error ({type(exc).__name__}): {msg} -- please report it",
-              file=sys.stderr)
+        from phoid.reports.notation import stream_text
+
+        print(stream_text(f"phoid: internal error ({type(exc).__name__}): {msg} -- please "
+                          "report it", sys.stderr), file=sys.stderr)
         sys.exit(1)
     # standalone_mode=False: a command's typer.Exit(code) comes back as its code, a finished
     # command as its return value (None)

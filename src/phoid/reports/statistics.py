@@ -27,6 +27,8 @@ from typing import Any
 
 import numpy as np
 
+from phoid.reports.notation import notation
+
 __all__ = [
     "correlation",
     "correlation_json",
@@ -156,25 +158,27 @@ def statistics_lines(stats: Mapping[str, Any]) -> list[str]:
     """
     import textwrap
 
+    def row(label: str, value: str) -> str:  # label column 15 wide in either notation
+        return f"    {notation(label):<15}{value}"
+
     of = str(stats["of"])
     if stats.get("chi2") is None and stats.get("dof") is None:
         why = of.removeprefix("not computed:").strip()
         text = textwrap.wrap(f"not computed ({why})" if why else "not computed", 76) or [""]
-        return ["[[Fit statistics]]", f"    χ²             {text[0]}",
-                *(f"{'':<19}{w}" for w in text[1:])]
+        return ["[[Fit statistics]]", row("χ²", text[0]), *(f"{'':<19}{w}" for w in text[1:])]
     wrapped = textwrap.wrap(of, 76) or [""]
-    lines = ["[[Fit statistics]]", f"    χ² of          {wrapped[0]}",
+    lines = ["[[Fit statistics]]", row("χ² of", wrapped[0]),
              *(f"{'':<19}{w}" for w in wrapped[1:])]
     if stats.get("weighted", True):
-        lines.append(f"    χ²             {_fmt(stats['chi2'])}")
-        lines.append(f"    dof            {_fmt(stats['dof'], 'd')}")
-        lines.append(f"    χ²/dof         {_fmt(stats['chi2_dof'], '.4g')}"
+        lines.append(row("χ²", _fmt(stats["chi2"])))
+        lines.append(row("dof", _fmt(stats["dof"], "d")))
+        lines.append(row("χ²/dof", _fmt(stats["chi2_dof"], ".4g"))
                      + ("" if stats.get("p_value") is None
                         else f"   (P(χ² ≥ this) = {stats['p_value']:.3g})"))
     else:
-        lines.append(f"    RSS            {_fmt(stats['chi2'])}   (unweighted: noise unknown)")
-        lines.append(f"    dof            {_fmt(stats['dof'], 'd')}")
-        lines.append(f"    RSS/dof        {_fmt(stats['chi2_dof'], '.4g')}")
+        lines.append(row("RSS", f"{_fmt(stats['chi2'])}   (unweighted: noise unknown)"))
+        lines.append(row("dof", _fmt(stats["dof"], "d")))
+        lines.append(row("RSS/dof", _fmt(stats["chi2_dof"], ".4g")))
     return lines
 
 

@@ -10,6 +10,7 @@ import math
 from typing import Any
 
 from phoid._output import safe_text
+from phoid.reports.notation import notation
 from phoid.reports.statistics import correlation_lines, ratio_text, statistics_lines
 
 __all__ = [
@@ -120,8 +121,9 @@ def text_table(columns: list[tuple[str, str]], rows: list[list[str]], *, width: 
         return []
     n = len(columns)
     gap = "  "
-    cells = [[str(c) for c in r[:n]] + [""] * (n - len(r[:n])) for r in rows]
-    notes = [str(r[n]) if len(r) > n else "" for r in rows]
+    columns = [(notation(name), notation(unit)) for name, unit in columns]
+    cells = [[notation(str(c)) for c in r[:n]] + [""] * (n - len(r[:n])) for r in rows]
+    notes = [notation(str(r[n])) if len(r) > n else "" for r in rows]
     widths = [max([len(columns[j][0]), len(columns[j][1]), *(len(r[j]) for r in cells)])
               for j in range(n)]
     lab = min(widths[0], label_width)
@@ -475,11 +477,14 @@ def free_text(result: Any) -> str:
     xu = safe_text(str(getattr(result, "x_unit", "m")))
     lines = [f"phoid identify (free decay): {safe_text(result.source)}" if result.source
              else "phoid identify (free decay)", ""]
-    for name, est in (("σ", result.sigma), ("ω₀", result.omega0), ("ζ", result.zeta),
-                      ("c/m", result.c_over_m), ("k/m", result.k_over_m)):
+    named = [(notation(n), e) for n, e in (("σ", result.sigma), ("ω₀", result.omega0),
+                                            ("ζ", result.zeta), ("c/m", result.c_over_m),
+                                            ("k/m", result.k_over_m))]
+    label = max(len(n) for n, _ in named) + 1  # "=" aligned in either notation
+    for name, est in named:
         val = (format_estimate(est.value, est.stderr) if math.isfinite(est.value)
                else "undefined")
-        lines.append(f"  {name:<4}= {val} {est.unit}".rstrip())
+        lines.append(f"  {name:<{label}}= {val} {est.unit}".rstrip())
     lines.append(f"  regime: {result.regime}")
     for j, (s, se) in enumerate(zip(result.roots, result.roots_stderr, strict=True), 1):
         re = format_estimate(s.real, se[0])

@@ -1,0 +1,112 @@
+"""One notation for phoid's text output, and its ASCII spelling where a stream cannot show it.
+
+σ is a decay rate (1/s), ω₀ and ω_d angular frequencies, ζ a damping ratio, and a standard
+error is written "stderr" or "±" (never σ). Where the stream's encoding cannot write them
+(``PYTHONIOENCODING=ascii``, a Latin-1 terminal), :func:`stream_text` spells them out:
+``omega0``, ``zeta``, ``+/-``, ``chi2``; inside :func:`stream_notation` the text reports lay out
+their tables in that spelling already, so that the columns stay aligned.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import contextvars
+from collections.abc import Iterator
+from typing import TextIO
+
+__all__ = ["ascii_text", "notation", "stream_notation", "stream_text"]
+
+# the notation's unicode and its ASCII spelling, longest first (ω₀ before ω)
+_ASCII = (
+    ("Δχ²", "delta chi2"), ("χ²", "chi2"), ("ω₀", "omega0"), ("ω_d", "omega_d"),
+    ("ω", "omega"), ("σ̂", "sigma_hat"), ("σ", "sigma"), ("ζ", "zeta"), ("ρ", "rho"),
+    ("ŷ", "y_hat"), ("Δ", "delta "), ("±", "+/-"), ("′", "'"), ("²", "^2"), ("³", "^3"),
+    ("≥", ">="), ("≤", "<="), ("≈", "~"), ("≠", "!="), ("−", "-"), ("–", "-"), ("—", "--"),
+    ("…", "..."), ("×", "x"), ("·", "*"), ("‖", "||"), ("√", "sqrt"), ("→", "->"),
+    ("₀", "0"), ("₁", "1"), ("₂", "2"), ("µ", "u"), ("μ", "u"), ("°", " deg"), ("⚠", "!"),
+)
+_ASCII_NOTATION: contextvars.ContextVar[bool] = contextvars.ContextVar(
+    "phoid_ascii_notation", default=False)
+
+
+def ascii_text(text: str) -> str:
+    """``text`` in ASCII: phoid's notation spelt out (ω₀ → omega0, ζ → zeta, ± → +/-,
+    χ² → chi2, …), any other non-ASCII character as ``?``.
+
+    Parameters
+    ----------
+    text : str
+
+    Returns
+    -------
+    str
+
+    Examples
+    --------
+    >>> ascii_text("ω₀ = 5.6567 ± 0.0002 rad/s,  ζ = 0.0442")
+    'omega0 = 5.6567 +/- 0.0002 rad/s,  zeta = 0.0442'
+    """
+    for uni, asc in _ASCII:
+        text = text.replace(uni, asc)
+    return text.encode("ascii", "replace").decode("ascii")
+
+
+def _encodes(stream: TextIO | None, text: str) -> bool:
+    """Whether ``stream``'s encoding (UTF-8 where it names none) can write ``text``."""
+    encoding = getattr(stream, "encoding", None) or "utf-8"
+    try:
+        text.encode(encoding)
+    except (UnicodeEncodeError, LookupError):
+        return False
+    return True
+
+
+def stream_text(text: str, stream: TextIO | None = None) -> str:
+    """``text`` as ``stream`` can show it: unchanged where its encoding writes it (UTF-8),
+    else in ASCII (:func:`ascii_text`: ``PYTHONIOENCODING=ascii``, a Latin-1 terminal).
+
+    The one place where phoid's output falls back to ASCII; the command line passes every
+    report, warning and error through it.
+
+    Parameters
+    ----------
+    text : str
+    stream : text stream, optional
+        Default: standard output.
+
+    Returns
+    -------
+    str
+    """
+    import sys
+
+    stream = sys.stdout if stream is None else stream
+    return text if _encodes(stream, text) else ascii_text(text)
+
+
+@contextlib.contextmanager
+def stream_notation(stream: TextIO | None = None) -> Iterator[None]:
+    """Within it, the text reports write their tables in ASCII when ``stream`` cannot show
+    phoid's notation (so that columns stay aligned once :func:`stream_text` spells it out).
+
+    Parameters
+    ----------
+    stream : text stream, optional
+        Default: standard output.
+    """
+    import sys
+
+    stream = sys.stdout if stream is None else stream
+    token = _ASCII_NOTATION.set(not _encodes(stream, "σω₀ζ±χ²′"))
+    try:
+        yield
+    finally:
+        _ASCII_NOTATION.reset(token)
+
+
+def notation(text: str) -> str:
+    """``text`` in the notation of the report being written: unicode, or ASCII inside
+    :func:`stream_notation` for a stream that cannot show it."""
+    return ascii_text(text) if _ASCII_NOTATION.get() else text
+
+
