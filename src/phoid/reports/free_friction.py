@@ -97,7 +97,7 @@ def free_friction_text(result: Any) -> str:
 
 
 def _run_figure(result: Any, i: int):
-    from phoid.reports.runs import run_figure
+    from phoid.reports.runs import plain, run_figure
 
     r = result.runs[i]
     t, x = (np.asarray(a, dtype=float) for a in result.data[i][:2])
@@ -111,10 +111,11 @@ def _run_figure(result: Any, i: int):
     return run_figure(
         t, x, sel, model, noise_sd=float(r.noise_sd),
         model_label="fitted Coulomb + viscous decay",
-        title=(f"{r.file}: σ = {s:.5g} 1/s, ω₀ = {w0:.5g} rad/s, f_c/m = "
+        title=(f"{plain(r.file)}: σ = {s:.5g} 1/s, ω₀ = {w0:.5g} rad/s, $f_c/m$ = "
                f"{result.fc_over_m.value:.4g} {result.fc_over_m.unit}, {r.half_cycles} "
                "half-cycles"),
-        markers=markers, period=2 * math.pi / math.sqrt(wd2) if wd2 > 0 else None)
+        markers=markers, period=2 * math.pi / math.sqrt(wd2) if wd2 > 0 else None,
+        x_unit=getattr(result, "x_unit", "m"))
 
 
 def plot_free_friction(result: Any, out_dir: str | Path, *,

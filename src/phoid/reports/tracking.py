@@ -117,6 +117,12 @@ def plot_tracking(result: Any, path: str | Path | None = None, *,
     """
     from matplotlib.figure import Figure
 
+    from phoid.reports.runs import decimate_line
+
+    def _thin(tt: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        # what the figure's ~1000 pixel columns can show: each column's extremes
+        return decimate_line(tt, np.asarray(y, dtype=float), 1000)
+
     val = _validation_of(result)
     t = np.asarray(val.t)
     rel = {e.name: e.relative_error for e in val.errors}
@@ -130,24 +136,24 @@ def plot_tracking(result: Any, path: str | Path | None = None, *,
         value = rel.get(name, math.nan)
         ax.set_title(f"{text}: relative error {_number(value, '.4g')} %", fontsize=9)
 
-    ax_x.plot(t, val.r * 1e3, lw=0.6, color="0.6", label="reference r")
-    ax_x.plot(t, val.x * 1e3, lw=0.9, color="C0", label="measured x")
-    ax_x.plot(t, val.x_sim * 1e3, lw=0.8, ls="--", color="C1", label="simulated x")
+    ax_x.plot(*_thin(t, val.r * 1e3), lw=0.6, color="0.6", label="reference r")
+    ax_x.plot(*_thin(t, val.x * 1e3), lw=0.9, color="C0", label="measured x")
+    ax_x.plot(*_thin(t, val.x_sim * 1e3), lw=0.8, ls="--", color="C1", label="simulated x")
     ax_x.set_ylabel("x (mm)")
     title(ax_x, "position", "position")
-    ax_e.plot(t, (val.x - val.r) * 1e3, lw=0.7, color="C0", label="measured")
-    ax_e.plot(t, (val.x_sim - val.r) * 1e3, lw=0.7, ls="--", color="C1", label="simulated")
+    ax_e.plot(*_thin(t, (val.x - val.r) * 1e3), lw=0.7, color="C0", label="measured")
+    ax_e.plot(*_thin(t, (val.x_sim - val.r) * 1e3), lw=0.7, ls="--", color="C1", label="simulated")
     ax_e.set_ylabel("x − r (mm)")
     title(ax_e, "tracking error", "tracking error")
-    ax_res.plot(t, (val.x - val.x_sim) * 1e6, lw=0.6, color="C3")
+    ax_res.plot(*_thin(t, (val.x - val.x_sim) * 1e6), lw=0.6, color="C3")
     ax_res.axhline(0.0, color="0.7", lw=0.5)
     ax_res.set_ylabel("x − x_sim (µm)")
     ax_res.set_title("residual, measured − simulated (position and tracking error alike)",
                      fontsize=9)
     if has_force:
         ax_f = axes[3]
-        ax_f.plot(t, val.force, lw=0.7, color="C0", label="measured")
-        ax_f.plot(t, val.force_sim, lw=0.7, ls="--", color="C1", label="simulated")
+        ax_f.plot(*_thin(t, val.force), lw=0.7, color="C0", label="measured")
+        ax_f.plot(*_thin(t, val.force_sim), lw=0.7, ls="--", color="C1", label="simulated")
         ax_f.set_ylabel("F (N)")
         title(ax_f, "force", "force")
     start, stop = val.window
