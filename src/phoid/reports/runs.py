@@ -207,8 +207,12 @@ def _run_axes(fig: Figure, heights: Sequence[float]) -> list[Axes]:
                                  sharex=axes[0] if axes else None))
         y -= gap
     axes.append(fig.add_axes((left, bottom / height, right - left, acf / height)))
-    for ax in axes[1:]:  # the short panels: few y ticks (each is drawn text, and time)
-        ax.yaxis.set_major_locator(MaxNLocator(nbins=4))
+    # few ticks (each one is drawn text, and a fifth of the drawing time): 5 on the time and
+    # lag axes (one locator for the time panels, which share it) and the record's y axis, 4
+    # on the short panels
+    for axis, nbins in ((axes[0].xaxis, 5), (axes[-1].xaxis, 5), (axes[0].yaxis, 5),
+                        *((ax.yaxis, 4) for ax in axes[1:])):
+        axis.set_major_locator(MaxNLocator(nbins=nbins))
     return axes
 
 
