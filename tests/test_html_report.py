@@ -31,6 +31,7 @@ import phoid.io
 from phoid.cli import app
 from phoid.dynamics.controller import SampledController
 from phoid.dynamics.plant import Plant
+from phoid.reports.html import column_label, report_html
 from phoid.reports.text import format_estimate
 from phoid.simulation.tracking import simulate_tracking
 
@@ -223,9 +224,10 @@ def test_optional_summary_keys_are_shown():
     text = " ".join(_parse(fragment).text)
     for caption in ("Fit statistics", "Covariance", "Correlation"):
         assert caption in text
-    assert "chi2_dof" in text and "1.05" in text
+    # headed with words, not the JSON's keys (issue 30)
+    assert "χ²/dof" in text and "chi2_dof" not in text and "1.05" in text
     assert "m (kg)" in text and "k (N/m)" in text and "0.0667" in text
-    assert "residual_noise_ratio" in text and "3.5" in text
+    assert "resid/noise" in text and "residual_noise_ratio" not in text and "3.5" in text
     assert "0.500 ± 0.01" in text  # sigma ± sigma_stderr in one cell (format_estimate)
     assert fragment.count('class="phoid-aside"') == 1  # the run set aside is marked
     assert "odd" in text
@@ -450,8 +452,9 @@ def test_report_in_a_browser(key, browser, sets, results, tmp_path):
             t => t.caption && t.caption.textContent === 'Estimates');
         return Array.from(t.rows).slice(1).map(r => Array.from(r.cells).map(
             c => c.textContent));""")
+    # each estimate under its words (ω₀ for omega0, as the text report writes it)
     shown = {r[0]: r[1] for r in rows}
-    ests = _estimates(summary)
+    ests = {column_label(k): e for k, e in _estimates(summary).items()}
     assert set(ests) <= set(shown), (set(ests), set(shown))
     for name, e in ests.items():
         if e["value"] is None:
@@ -492,3 +495,49 @@ def test_summary_json_in_the_page_matches(results, tmp_path):
     page = report_html(results["forced"], figures=False)
     pre = re.search(r"<pre>(.*?)</pre>", page, re.S).group(1)
     assert json.loads(html.unescape(pre)) == json.loads(json.dumps(results["forced"].summary()))
+
+
+# the kinds of result whose report has a runs table, a statistics block or a design's tables
+WIDE = ["pho", "forced", "free", "friction", "tracking", "design", "replay"]
+
+
+@pytest.mark.parametrize("key", WIDE)
+def test_no_table_overflows_its_box_at_1200_px(key, browser, results, tmp_path):
+    # issue 30: the runs table ran past the page at 1200 px; every table must fit the box it
+    # is in (no sideways scroll) and the page must not scroll sideways
+    path = tmp_path / f"{key}.html"
+    path.write_text(report_html(results[key], figures=False), encoding="utf-8")
+    size = browser.get_window_size()
+    browser.set_window_size(1200, 900)
+    try:
+        browser.get(path.resolve().as_uri())
+        # each table's box (its scroll box) inside the box it is in, and the tables that
+        # only fit by scrolling sideways
+        page, boxes, scrolled = browser.execute_script("""
+            const de = document.documentElement;
+            const tables = Array.from(document.querySelectorAll('table'));
+            const name = t => t.caption ? t.caption.textContent : '';
+            return [[de.scrollWidth, de.clientWidth],
+                    tables.filter(t => t.parentElement.getBoundingClientRect().right >
+                                       t.parentElement.parentElement.getBoundingClientRect()
+                                       .right + 1).map(name),
+                    tables.filter(t => t.getBoundingClientRect().width >
+                                       t.parentElement.clientWidth + 1).map(name)];""")
+    finally:
+        browser.set_window_size(size["width"], size["height"])
+    assert page[0] <= page[1], page  # the page never scrolls sideways
+    assert not boxes, boxes
+    # the set's runs table fits without scrolling (it ran to 1256 px on the example set);
+    # only a table of many columns (a forced set's 17, a design's long exact gains) may
+    # scroll inside its box
+    if key in ("pho", "free", "tracking"):
+        assert not scrolled, scrolled
+    # words, not the JSON's keys, heading every table: its header cells and the first cell
+    # of each row (a key-value table's key); the values may quote anything
+    page_text = path.read_text(encoding="utf-8")
+    heads = re.findall(r"<th[^>]*>(.*?)</th>", page_text)
+    heads += re.findall(r"<tr[^>]*><td[^>]*>(.*?)</td>", page_text)
+    assert heads
+    for key_name in ("c_prime", "k_prime", "chi2_dof", "omega_d", "residual_rms", "p_value",
+                     "omega0", "residual_noise_ratio", "x_unit"):
+        assert not [h for h in heads if key_name in h], key_name

@@ -38,7 +38,8 @@ from phoid._output import OutputFolder
 from phoid.errors import OutputError
 from phoid.reports.text import format_estimate, format_gain
 
-__all__ = ["check_report_target", "environment", "estimates_of", "file_checksums",
+__all__ = ["check_report_target", "column_label", "environment", "estimates_of",
+           "file_checksums",
            "report_html", "result_figures", "result_html", "short_repr", "summary_of",
            "write_report"]
 
@@ -52,6 +53,19 @@ _RUN_UNITS = {
     "viscous_residual_rms": "m", "stop_time": "s", "C": "m",
 }
 _MAIN = ("m", "c", "k", "fc")
+# the words (and the text report's notation) a summary's JSON key is shown with; a key not
+# listed is shown with spaces for its underscores
+_LABELS = {
+    "file": "run", "name": "run", "sigma": "σ", "omega_d": "ω_d", "omega0": "ω₀",
+    "omega": "ω", "zeta": "ζ", "rho": "ρ", "c_prime": "c′", "k_prime": "k′",
+    "residual_rms": "resid", "residual_noise_ratio": "resid/noise", "chi2": "χ²",
+    "chi2_dof": "χ²/dof", "p_value": "P(χ² ≥ this)", "of": "χ² of", "n_samples": "samples",
+    "stick_time": "sticks at", "c_over_m": "c/m", "k_over_m": "k/m", "fc": "f_c",
+    "fc_over_m": "f_c/m", "x_unit": "unit of x", "noise_placement_source": "noise placement from",
+    "settle_time": "settled at", "t_start": "start", "x0": "x₀", "v0": "v₀",
+    "relative_error_percent": "relative error (%)", "dof": "dof", "rss": "RSS",
+    "n_residuals": "residuals", "k_over_m_stderr": "k/m stderr",
+}
 # the per-run values a user gives (gains, bias): shown exactly as given, never rounded
 _GAINS = ("P", "D", "bias", "hold_P", "hold_D")
 _STYLE = """
@@ -59,10 +73,11 @@ _STYLE = """
 .phoid-result h3{margin:.2em 0;font-size:15px}
 .phoid-result table{border-collapse:collapse;margin:.4em 0 .8em 0}
 .phoid-result th,.phoid-result td{border:1px solid #ccc;padding:2px 6px;text-align:right;
- white-space:nowrap}
-.phoid-result th{background:#f2f2f2}
+ white-space:normal}
+.phoid-result th{background:#f2f2f2;vertical-align:bottom}
+.phoid-result .phoid-unit{font-weight:normal;color:#555}
 .phoid-result td.phoid-text,.phoid-result th.phoid-text{text-align:left;white-space:normal}
-.phoid-result td.phoid-wide{min-width:24em}
+.phoid-result td.phoid-wide{min-width:14em;width:18em}
 .phoid-result .phoid-scroll{overflow-x:auto;max-width:100%}
 .phoid-result tr.phoid-aside td{color:#999;text-decoration:line-through}
 .phoid-warnings{background:#fff3cd;border:1px solid #e0a800;padding:4px 10px;margin:.4em 0}
@@ -136,8 +151,33 @@ def _scalar_text(value: Any) -> str:
     if isinstance(value, (list, tuple)) and all(isinstance(v, (int, float, str)) for v in value):
         return ", ".join(_scalar_text(v) for v in value)
     if isinstance(value, (dict, list, tuple)):
-        return json.dumps(value, default=str)
+        return json.dumps(value, default=str, ensure_ascii=False)  # χ², ≤ as written
     return str(value)
+
+
+def column_label(key: str) -> str:
+    """The words a summary's JSON key is shown with in HTML (``c_prime`` → ``c′``,
+    ``chi2_dof`` → ``χ²/dof``, ``omega0`` → ``ω₀``; others with spaces for underscores).
+
+    Parameters
+    ----------
+    key : str
+
+    Returns
+    -------
+    str
+
+    Examples
+    --------
+    >>> column_label("chi2_dof"), column_label("noise_placement")
+    ('χ²/dof', 'noise placement')
+    """
+    key = str(key)
+    if key in _LABELS:
+        return _LABELS[key]
+    if key.endswith("_stderr") and key[: -len("_stderr")] in _LABELS:
+        return f"{_LABELS[key[: -len('_stderr')]]} stderr"
+    return key.replace("_", " ")
 
 
 def _e(value: Any) -> str:
@@ -187,8 +227,9 @@ def short_repr(result: Any, *, limit: int = 6) -> str:
 def _table(head: Sequence[str], rows: Iterable[Sequence[str]], *, caption: str = "",
            text_cols: Sequence[int] = (0,), row_classes: Sequence[str] | None = None,
            wide: int | None = None) -> str:
-    """A table of already-escaped cells (column ``wide`` at least 24 em wide), scrolled
-    sideways when it is wider than the page."""
+    """A table of already-escaped cells (column ``wide`` about 18 em wide) that fits its box:
+    headers and cells wrap at their spaces (a value ± stderr on two lines), and the box
+    scrolls sideways only where even that is not enough (a number is never cut)."""
     def cls(j: int) -> str:
         names = ["phoid-text"] * (j in text_cols) + ["phoid-wide"] * (j == wide)
         return f' class="{" ".join(names)}"' if names else ""
@@ -214,8 +255,10 @@ def _estimates_table(ests: dict[str, dict[str, Any]]) -> str:
                and math.isfinite(se) and se > 0 else "")
         notes = "; ".join(f"{k} {_scalar_text(v)}" for k, v in est.items()
                           if k not in ("value", "stderr", "unit"))
-        rows.append([_e(name), _e(_estimate_text(est)), _e(est.get("unit", "")), _e(rel),
-                     _e(notes)])
+        notes = "; ".join(f"{column_label(k)} {_scalar_text(v)}" for k, v in est.items()
+                          if k not in ("value", "stderr", "unit"))
+        rows.append([_e(column_label(name)), _e(_estimate_text(est)), _e(est.get("unit", "")),
+                     _e(rel), _e(notes)])
     return _table(["parameter", "estimate ± stderr", "unit", "rel. stderr", "notes"], rows,
                   caption="Estimates", text_cols=(0, 2, 4))
 
@@ -230,7 +273,7 @@ def _warnings_block(warnings: Sequence[Any], title: str = "warning") -> str:
 
 
 def _key_values(mapping: dict[str, Any], caption: str) -> str:
-    rows = [[_e(k), _e(v)] for k, v in mapping.items()]
+    rows = [[_e(column_label(k)), _e(v)] for k, v in mapping.items()]
     return _table(["", "value"], rows, caption=caption, text_cols=(0, 1)) if rows else ""
 
 
@@ -240,7 +283,7 @@ def _matrix(params: Sequence[Any], matrix: Any, caption: str,
         rows_in = [[float(v) for v in row] for row in matrix]
     except (TypeError, ValueError):
         return ""
-    names = [str(p) + (f" ({u})" if units and u else "")
+    names = [column_label(str(p)) + (f" ({u})" if units and u else "")
              for p, u in zip(params, units or [None] * len(params), strict=False)]
     if len(names) != len(rows_in):
         names = [str(i + 1) for i in range(len(rows_in))]
@@ -278,7 +321,9 @@ def _runs_table(runs: list[Any], label: Any = None) -> str:
             keys.insert(0, first)
     cols = [k for k in keys if not (k.endswith("_stderr") and k[: -len("_stderr")] in keys)]
     warned = any(r.get("warnings") for r in runs)
-    head = [_e(k + (f" ({label(_RUN_UNITS[k])})" if k in _RUN_UNITS else "")) for k in cols]
+    # the column's words, its unit on a line of its own: narrow columns, a table that fits
+    head = [_e(column_label(k)) + (f'<br><span class="phoid-unit">({_e(label(_RUN_UNITS[k]))})'
+                                   "</span>" if k in _RUN_UNITS else "") for k in cols]
     rows, classes = [], []
     for r in runs:
         row = []
