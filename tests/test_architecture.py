@@ -166,7 +166,7 @@ def test_no_import_cycle():
 
 
 BASE = {"phoid.errors", "phoid._validate", "phoid._threads", "phoid._output", "phoid._lazy",
-        "phoid._progress"}
+        "phoid._progress", "phoid._notation"}
 # what each subpackage may import (docs/architecture.md, "The layout"); the top-level modules
 # (phoid, phoid.api, phoid.cli, phoid.paper) may import everything and nothing imports them
 LAYERS: dict[str, set[str]] = {

@@ -180,7 +180,7 @@ def test_an_ascii_stderr_gets_errors_in_ascii(tmp_path):
 def test_the_stream_text_is_unchanged_where_the_stream_encodes_it():
     import io
 
-    from phoid.reports.notation import stream_text
+    from phoid._notation import stream_text
 
     text = "ω₀ = 5.6567 ± 0.0002 rad/s"
     utf8 = io.TextIOWrapper(io.BytesIO(), encoding="utf-8")

@@ -32,19 +32,49 @@ import contextvars
 import os
 import secrets
 import stat
+import sys
 from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path, PurePosixPath
-from typing import IO, Any
+from typing import IO, Any, NoReturn
 
 from phoid.errors import OutputError, PhoidError
 
-__all__ = ["OutputFolder", "check_not_input", "cli_wording", "png_writer", "protect_inputs",
-           "safe_text", "save_figure"]
+__all__ = ["OutputFolder", "check_not_input", "cli_wording", "exit_with_error", "png_writer",
+           "protect_inputs", "safe_text", "save_figure"]
 
 # characters never printed raw: controls (a line break, ESC), format characters (the bidi
 # overrides U+202A-U+202E and isolates U+2066-U+2069, zero-width ones), lone surrogates (a
 # file name's undecodable bytes) and the line and paragraph separators
 _UNSAFE_CATEGORIES = frozenset({"Cc", "Cf", "Cs", "Zl", "Zp"})
+
+
+def exit_with_error(message: object, code: int = 2) -> NoReturn:
+    """End a command: ``phoid: error: <message>`` on one line of stderr, exit status ``code``.
+
+    The one way every ``phoid`` command reports a user's error: the message on one line (its
+    whitespace runs, line breaks included, made one space), unsafe characters escaped
+    (:func:`safe_text`), and spelled in ASCII where stderr cannot encode phoid's notation
+    (:func:`phoid._notation.stream_text`).
+
+    Parameters
+    ----------
+    message : object
+        What is wrong (``str()`` of anything else), naming the file, run, field or option.
+    code : int
+        The exit status (2: bad input; 1: a failure after the work began).
+
+    Raises
+    ------
+    typer.Exit
+        Always.
+    """
+    import typer
+
+    from phoid._notation import stream_text
+
+    text = safe_text(" ".join(str(message).split()))
+    typer.echo(stream_text(f"phoid: error: {text}", sys.stderr), err=True)
+    raise typer.Exit(code)
 
 
 def safe_text(text: object, *, newlines: bool = False) -> str:

@@ -10,11 +10,12 @@ import json
 import math
 import sys
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, NoReturn
 
 import typer
 
 from phoid import __version__
+from phoid._output import exit_with_error
 
 app = typer.Typer(
     name="phoid",
@@ -37,12 +38,8 @@ app = typer.Typer(
 )
 
 
-def _fail(message: str) -> None:
-    from phoid._output import safe_text
-    from phoid.reports.notation import stream_text
-
-    typer.echo(stream_text(f"phoid: error: {safe_text(message)}", sys.stderr), err=True)
-    raise typer.Exit(2)
+def _fail(message: str) -> NoReturn:
+    exit_with_error(message)
 
 
 def _version(value: bool) -> None:
@@ -211,8 +208,8 @@ def _write_html(result, html: Path | None, experiment, overwrite: bool) -> None:
 
 def _print_result(result, as_json: bool, written, plots, html=None) -> None:
     """The result as JSON (warnings also on stderr) or as the text report; figures written."""
+    from phoid._notation import stream_notation, stream_text
     from phoid._output import safe_text
-    from phoid.reports.notation import stream_notation, stream_text
     from phoid.reports.text import fit_width
 
     if as_json:  # JSON escapes its unicode itself
@@ -764,7 +761,7 @@ def main() -> None:
             ctx = getattr(exc, "ctx", None)
             where = f" (see '{ctx.command_path} --help')" if ctx is not None else ""
             msg = " ".join(str(exc.format_message()).split())
-            from phoid.reports.notation import stream_text
+            from phoid._notation import stream_text
 
             print(stream_text(f"phoid: error: {msg}{where}", sys.stderr), file=sys.stderr)
             sys.exit(exc.exit_code)
@@ -773,7 +770,7 @@ def main() -> None:
         if os.environ.get("PHOID_DEBUG"):
             raise
         msg = " ".join(str(exc).split()) or type(exc).__name__
-        from phoid.reports.notation import stream_text
+        from phoid._notation import stream_text
 
         print(stream_text(f"phoid: internal error ({type(exc).__name__}): {msg} -- please "
                           "report it", sys.stderr), file=sys.stderr)

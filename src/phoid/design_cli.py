@@ -10,18 +10,17 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, NoReturn
 
 import typer
+
+from phoid._output import exit_with_error
 
 __all__ = ["design"]
 
 
-def _fail(message: str) -> None:
-    from phoid._output import safe_text
-
-    typer.echo(f"phoid: error: {safe_text(message)}", err=True)
-    raise typer.Exit(2)
+def _fail(message: str) -> NoReturn:
+    exit_with_error(message)
 
 
 def _band(text: str) -> tuple[float, float]:

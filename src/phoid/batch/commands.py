@@ -8,18 +8,17 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, NoReturn
 
 import typer
+
+from phoid._output import exit_with_error
 
 __all__ = ["batch"]
 
 
-def _fail(message: str, code: int = 2) -> None:
-    from phoid._output import safe_text
-
-    typer.echo(f"phoid: error: {safe_text(' '.join(message.split()))}", err=True)
-    raise typer.Exit(code)
+def _fail(message: str, code: int = 2) -> NoReturn:
+    exit_with_error(message, code)
 
 
 def _finished(store) -> str:

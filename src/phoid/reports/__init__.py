@@ -3,8 +3,9 @@
 :mod:`~phoid.reports.lines` draw them; matplotlib imported only when drawing) of results,
 both for a tracking validation (:mod:`~phoid.reports.tracking`), the fit statistics' blocks
 (:mod:`~phoid.reports.statistics`: covariance → correlation, JSON and text) and HTML views
-(:mod:`~phoid.reports.html`: the notebook display and the single-file report); the notation
-and its ASCII spelling for a stream that cannot show it (:mod:`~phoid.reports.notation`).
+(:mod:`~phoid.reports.html`: the notebook display and the single-file report). The notation
+and its ASCII spelling for a stream that cannot show it are phoid's base (``phoid._notation``):
+the error line every command prints uses them too.
 
 Results are taken by duck typing: nothing here imports the methods, planning or paper modules.
 """

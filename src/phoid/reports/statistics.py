@@ -27,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from phoid.reports.notation import notation
+from phoid._notation import notation
 
 __all__ = [
     "correlation",

@@ -9,8 +9,8 @@ from __future__ import annotations
 import math
 from typing import Any
 
+from phoid._notation import notation
 from phoid._output import safe_text
-from phoid.reports.notation import notation
 from phoid.reports.statistics import correlation_lines, ratio_text, statistics_lines
 
 __all__ = [

@@ -10,18 +10,18 @@ import sys
 import threading
 import time
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, NoReturn
 
 import typer
 
+from phoid._output import exit_with_error
 from phoid._progress import task
 
 __all__ = ["parse_listen", "run", "serve_until_stopped", "virtual_rig"]
 
 
-def _fail(message: str) -> None:
-    typer.echo(f"phoid: error: {' '.join(message.split())}", err=True)
-    raise typer.Exit(2)
+def _fail(message: str) -> NoReturn:
+    exit_with_error(message)
 
 
 # the names VirtualRig's and Plant's messages use, and the options they come from

@@ -6,10 +6,11 @@ Errors a user can cause print one line ``phoid: error: …`` and exit with statu
 from __future__ import annotations
 
 import re
-from typing import Annotated
+from typing import Annotated, NoReturn
 
 import typer
 
+from phoid._output import exit_with_error
 from phoid.rig.commands import parse_listen, serve_until_stopped
 
 __all__ = ["virtual_plant"]
@@ -20,9 +21,8 @@ _OPTIONS = {"`m`": "--m", "`c`": "--c", "`k`": "--k", "`fc`": "--fc",
             "seed": "--seed"}
 
 
-def _fail(message: str) -> None:
-    typer.echo(f"phoid: error: {' '.join(message.split())}", err=True)
-    raise typer.Exit(2)
+def _fail(message: str) -> NoReturn:
+    exit_with_error(message)
 
 
 def _in_option_words(message: str) -> str:
