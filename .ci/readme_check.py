@@ -2,15 +2,19 @@
 """Run every ``sh`` and ``python`` code block of README.md as written, in a copy of the checkout.
 
 The README's examples are meant to be run from a clone alone, in order, from the checkout's
-root with phoid's virtual environment activated (``. .venv/bin/activate``). This script does
-exactly that in a temporary copy of the checkout (its git-tracked files, as they are in the
-working tree), so nothing beside the clone (no ``../shared``) is reachable by a relative path
-and the checkout itself is left untouched:
+root after ``make demo`` (the first block activates the venv: ``. .venv/bin/activate``). This
+script does exactly that in a temporary copy of the checkout (its git-tracked files, as they are
+in the working tree, and ``.venv`` a link to the venv given), so nothing beside the clone (no
+``../shared``) is reachable by a relative path and the checkout itself is left untouched:
 
 * each ``sh`` block runs with ``bash -e -o pipefail``, each ``python`` block with the virtual
   environment's python, in block order, in the same folder, each under a timeout;
 * the first failing block stops the check: the block, its exit status and the tail of its
   standard output and error are printed, and the exit status is 1;
+* a ``text`` block that directly follows a run block (only blank lines between) is the output
+  to expect: each of its lines must be a line the block printed (spaces collapsed, standard
+  output or error, in order); a line starting with ``…`` stands for lines left out, a ``…``
+  inside a line for characters left out (digits that depend on the CPU, say);
 * afterwards every file the blocks created must be git-ignored (``git status`` in the copy is
   clean), so that running the README leaves no clutter to commit.
 
@@ -65,9 +69,67 @@ def blocks(text: str) -> list[tuple[int, str, str, str | None]]:
     return out
 
 
-def copy_checkout(dest: Path) -> None:
+def expected_outputs(text: str) -> dict[int, list[str]]:
+    """The output excerpt of each run block: {run block's first code line: the lines of the
+    ``text`` block that directly follows it (only blank lines between)}, elisions included."""
+    lines = text.splitlines()
+    out: dict[int, list[str]] = {}
+    i, last_run_end, last_run_start = 0, None, None
+    while i < len(lines):
+        m = FENCE.match(lines[i])
+        if not m:
+            if lines[i].strip():
+                last_run_end = None
+            i += 1
+            continue
+        lang, start = m.group(1).lower(), i + 1
+        j = start
+        while j < len(lines) and not lines[j].startswith("```"):
+            j += 1
+        if lang == "text" and last_run_end is not None:
+            out[last_run_start] = lines[start:j]
+        if lang in RUNNABLE:
+            last_run_start, last_run_end = start, j
+        else:
+            last_run_end = None
+        i = j + 1
+    return out
+
+
+def _squeeze(line: str) -> str:
+    return " ".join(line.split())
+
+
+def missing_lines(expected: list[str], stdout: str, stderr: str = "") -> list[str]:
+    """The lines of ``expected`` (an output excerpt) that the block did not print: each must be
+    a line of ``stdout`` or ``stderr`` (spaces collapsed), after the previous one matched in the
+    same stream; blank lines and lines starting with ``…`` are skipped."""
+    streams = [[_squeeze(x) for x in stdout.splitlines()],
+               [_squeeze(x) for x in stderr.splitlines()]]
+    cursor = [0, 0]
+    missing = []
+    for line in expected:
+        want = _squeeze(line)
+        if not want or want.startswith("…"):
+            continue
+        pattern = re.compile(".*?".join(map(re.escape, want.split("…"))))
+        for k, stream in enumerate(streams):
+            hit = next((n for n in range(cursor[k], len(stream))
+                        if pattern.fullmatch(stream[n])), None)
+            if hit is not None:
+                cursor[k] = hit + 1
+                break
+        else:
+            missing.append(line)
+    return missing
+
+
+def copy_checkout(dest: Path, venv: Path | None = None) -> None:
     """The git-tracked files of the checkout (working-tree content) into ``dest``, made a git
-    repository with them committed, so that ``git status`` there lists what the blocks create."""
+    repository with them committed, so that ``git status`` there lists what the blocks create.
+
+    With ``venv``, ``dest/.venv`` is a link to it (excluded from ``git status``), so that a block
+    reads as in a clone after ``make demo``: ``. .venv/bin/activate``, ``.venv/bin/python``."""
     files = subprocess.run(["git", "ls-files", "-z"], cwd=ROOT, check=True,
                            capture_output=True).stdout.decode().split("\0")
     for f in filter(None, files):
@@ -81,6 +143,10 @@ def copy_checkout(dest: Path) -> None:
     subprocess.run([*git, "init", "-q"], cwd=dest, check=True)
     subprocess.run([*git, "add", "-A"], cwd=dest, check=True)
     subprocess.run([*git, "commit", "-q", "--no-verify", "-m", "checkout"], cwd=dest, check=True)
+    if venv is not None:
+        (dest / ".venv").symlink_to(venv, target_is_directory=True)
+        with open(dest / ".git" / "info" / "exclude", "a", encoding="utf-8") as f:
+            f.write("/.venv\n")  # a link: .gitignore's `.venv/` names a folder only
 
 
 def tail(s: str, n: int = 4000) -> str:
@@ -105,13 +171,15 @@ def main(argv: list[str] | None = None) -> int:
                PATH=f"{venv / 'bin'}{os.pathsep}{os.environ.get('PATH', '')}",
                MPLBACKEND="Agg")
     env.pop("PYTHONHOME", None)
-    todo = blocks((ROOT / "README.md").read_text(encoding="utf-8"))
+    readme = (ROOT / "README.md").read_text(encoding="utf-8")
+    todo = blocks(readme)
+    excerpts = expected_outputs(readme)
     tmp = Path(tempfile.mkdtemp(prefix="phoid-readme-"))
     work = tmp / "phoid"
     work.mkdir()
     status = 0
     try:
-        copy_checkout(work)
+        copy_checkout(work, venv)
         t_all = time.perf_counter()
         for n, (line, kind, code, skip) in enumerate(todo, start=1):
             head = f"block {n}/{len(todo)} (README.md:{line}, {kind})"
@@ -136,6 +204,13 @@ def main(argv: list[str] | None = None) -> int:
                 err = (e.stderr or b"").decode(errors="replace") if isinstance(
                     e.stderr, bytes) else (e.stderr or "")
             dt = time.perf_counter() - t0
+            missing = missing_lines(excerpts.get(line, []), out, err) if rc == 0 else []
+            if missing:
+                print(f"{head}: its output lacks these lines of the excerpt after it:\n"
+                      + "\n".join(missing) + f"\n--- stdout (tail) ---\n{tail(out)}"
+                      f"\n--- stderr (tail) ---\n{tail(err)}", file=sys.stderr, flush=True)
+                status = 1
+                break
             if rc != 0:
                 print(f"{head}: FAILED ({rc}) after {dt:.1f} s\n--- block ---\n{code}"
                       f"--- stdout (tail) ---\n{tail(out)}\n--- stderr (tail) ---\n{tail(err)}",
