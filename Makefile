@@ -82,9 +82,11 @@ fuzz: $(STAMP)
 	$(PY) fuzz/fuzz_readers.py $${TMPDIR:-/tmp}/phoid-fuzz-corpus fuzz/seeds -dict=fuzz/readers.dict -max_len=8192 -timeout=30 -rss_limit_mb=2048 -artifact_prefix=fuzz/ -max_total_time=$(FUZZ_SECONDS)
 
 ## the documentation site (docs/, docs/about.md) into docs/_build/html with warnings as errors
-## (-W --keep-going), offline: installs the docs extra once, then builds, executing the
-## tutorials and the commands shown with their output (tests/test_docs_site.py checks the
-## reference's names in `make test`; PHOID_DOCS_BUILD=1 makes it build the site too)
+## (-W --keep-going), offline, from a clean state (-E: a page added since the last build gets
+## its reference stubs): installs the docs extra once, then builds, executing the tutorials and
+## the commands shown with their output, and stamps the build (.phoid-docs-ok) once it passed;
+## tests/test_docs_site.py checks the reference's names, and the stamped build's pages in
+## headless Chromium while it is newer than its sources (PHOID_DOCS_BUILD=1: builds its own)
 DOCS_STAMP := $(VENV)/.installed-docs
 .PHONY: docs
 $(DOCS_STAMP): pyproject.toml $(STAMP)
@@ -92,7 +94,9 @@ $(DOCS_STAMP): pyproject.toml $(STAMP)
 	touch $@
 
 docs: $(DOCS_STAMP)
-	$(PY) -m sphinx -b html -W --keep-going -q docs docs/_build/html
+	rm -f docs/_build/html/.phoid-docs-ok
+	$(PY) -m sphinx -b html -W --keep-going -E -q docs docs/_build/html
+	touch docs/_build/html/.phoid-docs-ok
 
 clean:
 	rm -rf $(VENV) phoid-out build dist *.egg-info

@@ -6,9 +6,12 @@ docs/reference/api/<package>.md, one page per package; this checks those lists a
 ``__all__``), found by walking the package, so a new public name or subpackage without a
 reference entry fails here. It reads the sources only: it needs neither Sphinx nor the
 ``docs`` extra. Building the site itself (warnings as errors, tutorials executed) takes
-50-90 s on two cores: ``make docs`` does it, and so do the last two tests (the build, then the
-home page and the tutorial in headless Chromium) when PHOID_DOCS_BUILD=1 and Sphinx is
-installed (skipped otherwise).
+about 100 s on two cores: ``make docs`` does it (CI runs it before the tests). The last two
+tests check a built site (its pages, then the home page and a tutorial in headless Chromium,
+a screenshot of each in the test's tmp_path): the one ``make docs`` left in docs/_build/html
+when it is newer than every source it was built from (docs/, src/phoid, examples/; the stamp
+``make docs`` writes after a build without warnings), else, with PHOID_DOCS_BUILD=1, one
+built here into a temporary folder; without either they are skipped, with the reason.
 """
 
 from __future__ import annotations
@@ -113,14 +116,86 @@ CHROMIUM = Path("/usr/bin/chromium")
 CHROMEDRIVER = Path("/usr/bin/chromedriver")
 
 
+#: what ``make docs`` builds, and the stamp it writes there after a build without warnings
+BUILT = DOCS / "_build" / "html"
+BUILT_STAMP = BUILT / ".phoid-docs-ok"
+#: the sources a build is made from: a file here newer than the stamp makes the build stale
+SOURCES = (DOCS, DOCS.parent / "src" / "phoid", DOCS.parent / "examples")
+
+
+def newest_source(roots: tuple[Path, ...] = SOURCES) -> tuple[float, Path | None]:
+    """The newest file under ``roots`` (mtime, path), build outputs and caches left out."""
+    newest: tuple[float, Path | None] = (0.0, None)
+    for root in roots:
+        for path in root.rglob("*"):
+            rel = path.relative_to(root).parts
+            if (any(part in ("_build", "generated", "__pycache__") or part.startswith(".")
+                    for part in rel) or not path.is_file()):
+                continue
+            mtime = path.stat().st_mtime
+            if mtime > newest[0]:
+                newest = (mtime, path)
+    return newest
+
+
+def fresh_build(html: Path = BUILT, stamp: Path = BUILT_STAMP,
+                roots: tuple[Path, ...] = SOURCES) -> str | None:
+    """None when ``html`` holds a build newer than every source, else why it does not."""
+    if not stamp.is_file() or not (html / "index.html").is_file():
+        return f"no finished `make docs` build in {html}"
+    when, path = newest_source(roots)
+    if when > stamp.stat().st_mtime:
+        return f"the build in {html} is older than {path}"
+    return None
+
+
+def test_a_source_newer_than_the_build_makes_it_stale(tmp_path: Path) -> None:
+    # the freshness rule itself, on a made-up tree: a stamp newer than every source is fresh;
+    # a source touched after it, or no stamp, is not (mtimes set explicitly: no sleeping)
+    src, html = tmp_path / "docs", tmp_path / "html"
+    (src / "_build").mkdir(parents=True)
+    html.mkdir()
+    page, index, stamp = src / "page.md", html / "index.html", html / ".ok"
+    for f in (page, index):
+        f.write_text("x", encoding="utf-8")
+    assert fresh_build(html, stamp, (src,)) is not None  # no stamp yet
+    stamp.write_text("", encoding="utf-8")
+    os.utime(page, (1_000_000, 1_000_000))
+    os.utime(stamp, (2_000_000, 2_000_000))
+    (src / "_build" / "late.html").write_text("x", encoding="utf-8")  # outputs do not count
+    assert fresh_build(html, stamp, (src,)) is None
+    os.utime(page, (3_000_000, 3_000_000))
+    assert "page.md" in (fresh_build(html, stamp, (src,)) or "")
+
+
+def test_make_docs_writes_the_stamp_only_after_a_clean_build() -> None:
+    # the fixture below trusts docs/_build/html only where `make docs` stamped it, which it
+    # must do after sphinx succeeded (the recipe's lines run in order, stopping at a failure)
+    makefile = (DOCS.parent / "Makefile").read_text(encoding="utf-8")
+    recipe = re.search(r"^docs:.*\n((?:\t.*\n)+)", makefile, re.MULTILINE)
+    assert recipe, "no docs target in the Makefile"
+    lines = recipe.group(1).splitlines()
+    build = next(i for i, line in enumerate(lines) if "sphinx" in line)
+    made = [i for i, line in enumerate(lines) if "touch" in line and BUILT_STAMP.name in line]
+    gone = [i for i, line in enumerate(lines) if "rm -f" in line and BUILT_STAMP.name in line]
+    # removed before the build (a failed build leaves no stamp), written after it
+    assert made and gone and gone[0] < build < made[0], lines
+    assert "&&" not in lines[build] and "||" not in lines[build] and lines[build].lstrip()[0] != "-"
+    assert "docs/_build/html" in lines[build]
+
+
 @pytest.fixture(scope="module")
 def site(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """The site built once from a clean state (-E) into a temporary folder: its html folder."""
+    """A built site's html folder: `make docs`'s when it is fresh, else (PHOID_DOCS_BUILD=1)
+    one built once from a clean state (-E) into a temporary folder."""
+    if os.environ.get("PHOID_DOCS_BUILD") != "1":
+        stale = fresh_build()
+        if stale is None:
+            return BUILT
+        pytest.skip(f"{stale}: `make docs` builds the site (~100 s); PHOID_DOCS_BUILD=1 "
+                    "builds it here")
     if not _HAVE_SPHINX:
         pytest.skip("the docs extra is not installed (pip install -e '.[docs]')")
-    if os.environ.get("PHOID_DOCS_BUILD") != "1":
-        pytest.skip("building the site takes ~50-90 s: `make docs` builds it; "
-                    "PHOID_DOCS_BUILD=1 runs this test")
     out = tmp_path_factory.mktemp("site")
     # -W: any warning (a malformed docstring, a broken cross-reference, a failing tutorial
     # cell or phoid-command) fails the build; -E: no saved environment
@@ -142,6 +217,21 @@ def test_site_builds_with_warnings_as_errors(site: Path) -> None:
     assert "Table 1" in started
     tutorial = (site / "tutorials" / "pho-example-set.html").read_text(encoding="utf-8")
     assert "m = " in tutorial
+    # every tutorial executed (myst-nb writes each cell's output; a failing cell fails the
+    # build) and the two on measured records say which record they show
+    for page in ("emps-axis", "pendulum-free-decay", "fleet-batch-trend", "overdamped-design"):
+        text = (site / "tutorials" / f"{page}.html").read_text(encoding="utf-8")
+        assert 'class="cell_output' in text, page
+    for page in ("emps-axis", "pendulum-free-decay"):
+        text = (site / "tutorials" / f"{page}.html").read_text(encoding="utf-8")
+        # the box a cell displays (bold: <strong>), not the cell's code that writes it
+        shows = [s for s in ("<strong>This page shows the real",
+                             "<strong>This page shows a synthetic stand-in") if s in text]
+        assert len(shows) == 1, (page, shows)
+    # the user guide's pages and phoid.batch's reference
+    for page in ("guide/free-friction", "guide/inloop", "guide/batch", "guide/design",
+                 "reference/api/phoid.batch"):
+        assert (site / f"{page}.html").is_file(), page
     # offline: MathJax is part of the site, and no page loads a script or a style sheet
     # from elsewhere
     assert (site / "_static" / "mathjax" / "tex-chtml.js").is_file()
