@@ -6,6 +6,19 @@ read from, the (m, k) confidence region). File names: ``<stem>.png`` per run (th
 name without folders and extensions; :func:`run_names`), ``lines.png``, ``mk-ellipse.png``;
 the seed paper's ``figure1a.png`` and ``figure1b.png``.
 
+Figures are drawn in parallel (:func:`render_pngs`): a set's figures are independent, and
+each costs matplotlib a few tenths of a second of fixed work (axes, ticks, text, legends),
+whatever its data. Where the platform forks (POSIX), the figures are shared out among
+worker processes forked from this one (at most one per usable CPU, :data:`MAX_WORKERS`, one
+per figure), each returning its figures' PNG bytes, which this process writes in order: the
+files and their bytes are those of drawing them one after another. They are drawn here, one
+after another, where forking is not possible or not safe: one usable CPU, no ``fork`` start
+method (Windows; macOS, where Apple's libraries are not fork-safe), a daemonic process (a
+``multiprocessing`` or Dask worker, which may have no children), a process running other
+Python threads (a notebook kernel, a threaded server). The environment variable
+:data:`WORKERS_ENV` (``PHOID_FIGURE_WORKERS``), a whole number ≥ 1, sets how many processes
+draw (``1``: this one, one after another); unset, one per usable CPU.
+
 matplotlib is imported inside the functions that draw, so importing this module is cheap. The
 results are taken by duck typing (see :mod:`phoid.reports.text`): this subpackage never
 imports the methods that make them.
@@ -13,7 +26,16 @@ imports the methods that make them.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+import contextlib
+import functools
+import multiprocessing
+import os
+import pickle
+import signal
+import sys
+import threading
+import warnings
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -25,12 +47,22 @@ from phoid.reports.text import format_number
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
-__all__ = ["DPI", "figure1", "figure1_panel", "plot_forced", "plot_free", "plot_friction",
-           "plot_identification", "png_bytes", "run_names", "save_png"]
+__all__ = ["DPI", "MAX_WORKERS", "WORKERS_ENV", "figure1", "figure1_panel", "figure_workers",
+           "plot_forced", "plot_free", "plot_friction", "plot_identification", "png_bytes",
+           "render_pngs", "run_names", "save_png", "write_pngs"]
 
 
 #: resolution of the PNG files, dots per inch
 DPI = 120
+#: the environment variable that bounds the processes drawing figures (a whole number ≥ 1;
+#: 1 draws them in the calling process, one after another)
+WORKERS_ENV = "PHOID_FIGURE_WORKERS"
+#: the most worker processes drawing figures at once (each holds a copy of matplotlib's state)
+MAX_WORKERS = 8
+
+#: the figures the worker processes draw: set just before they are forked, read there by index
+#: (the draw callables are closures over results: inherited, never pickled)
+_PENDING: list[Callable[[], Figure]] = []
 
 
 def png_bytes(fig: Figure, dpi: float = DPI) -> bytes:
@@ -45,7 +77,9 @@ def png_bytes(fig: Figure, dpi: float = DPI) -> bytes:
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from PIL import Image
 
-    canvas = FigureCanvasAgg(fig)
+    # a figure drawn again (a run figure's axes reused: :func:`phoid.reports.runs.recycle`)
+    # keeps its canvas, and the canvas its renderer: the sizes of texts drawn before are known
+    canvas = fig.canvas if type(fig.canvas) is FigureCanvasAgg else FigureCanvasAgg(fig)
     fig.set_dpi(dpi)
     canvas.draw()
     image = Image.fromarray(np.asarray(canvas.buffer_rgba())).convert("RGB")
@@ -59,6 +93,189 @@ def save_png(fig: Figure, out: OutputFolder, name: str) -> Path:
     """Render ``fig`` as PNG (:func:`png_bytes`) into ``out``/``name`` (atomic, no links
     followed)."""
     return out.write(name, png_bytes(fig))
+
+
+def _png_of(draw: Callable[[], Figure]) -> bytes:
+    """The PNG of the figure ``draw`` returns; a run figure is then handed back for the next
+    one to reuse (:func:`phoid.reports.runs.recycle`)."""
+    from phoid.reports.runs import recycle
+
+    fig = draw()
+    png = png_bytes(fig)
+    recycle(fig)
+    return png
+
+
+def _usable_cpus() -> int:
+    """The CPUs this process may run on (its affinity where the platform says, else all)."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        return os.cpu_count() or 1
+
+
+def _workers_setting() -> int | None:
+    """:data:`WORKERS_ENV` as a whole number ≥ 1, or None where it is unset or empty.
+
+    Raises
+    ------
+    ValueError
+        It is set to anything else (one line naming the variable and its value).
+    """
+    text = os.environ.get(WORKERS_ENV, "").strip()
+    if not text:
+        return None
+    try:
+        value = int(text, 10)
+    except ValueError:
+        value = 0
+    if value < 1 or not (text.isascii() and text.isdigit()):
+        raise ValueError(f"environment variable {WORKERS_ENV}={text[:40]!r}: give a whole "
+                         "number >= 1 (the processes drawing figures; 1: one after another "
+                         "in this process)")
+    return value
+
+
+def figure_workers(n: int, workers: int | None = None) -> int:
+    """How many processes :func:`render_pngs` draws ``n`` figures with (1: this process alone).
+
+    ``workers`` if given, else :data:`WORKERS_ENV` if set, else the usable CPUs
+    (``os.sched_getaffinity``); at most ``n`` and :data:`MAX_WORKERS`. 1 where forking is
+    not possible or not safe, whatever was asked: no ``fork`` start method (or macOS, whose
+    system libraries are not fork-safe), a daemonic process (which may have no children), or
+    other Python threads running in this one (a fork copies only the calling thread, and the
+    locks the others hold).
+
+    Raises
+    ------
+    ValueError
+        :data:`WORKERS_ENV` is set to something other than a whole number ≥ 1.
+    """
+    if workers is None:
+        workers = _workers_setting() or _usable_cpus()
+    cap = min(int(workers), int(n), MAX_WORKERS)
+    if cap < 2 or sys.platform == "darwin" \
+            or "fork" not in multiprocessing.get_all_start_methods() \
+            or multiprocessing.current_process().daemon or threading.active_count() > 1:
+        return 1
+    return cap
+
+
+def _draw_png(k: int) -> tuple[bytes | None, list[tuple[Any, str]]]:
+    """In a worker: figure ``k`` of :data:`_PENDING` as PNG bytes, and the warnings drawing it
+    gave (category, message); None for the bytes where drawing failed (the caller draws it
+    again, to raise what drawing it there raises)."""
+    try:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            png = _png_of(_PENDING[k])
+        said = []
+        for w in caught:
+            category = w.category
+            try:
+                pickle.dumps(category)
+            except Exception:  # a category defined where it cannot be named: kept as text
+                category = RuntimeWarning
+            said.append((category, str(w.message)))
+        return png, said
+    except BaseException:  # any failure: drawn again by the caller, which raises it
+        return None, []
+
+
+def _worker_start() -> None:
+    """A worker ignores Ctrl-C: the process that forked it stops the work, once."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def _prepare_to_fork() -> None:
+    """Import what drawing needs and load the font list here, once, for every worker."""
+    from matplotlib import font_manager
+    from matplotlib.backends import backend_agg  # noqa: F401
+    from matplotlib.figure import Figure  # noqa: F401
+    from PIL import Image  # noqa: F401
+
+    font_manager.findfont(font_manager.FontProperties())
+
+
+def render_pngs(draws: Sequence[Callable[[], Figure]], *,
+                workers: int | None = None) -> Iterator[bytes]:
+    """The PNG bytes (:func:`png_bytes`) of the figure each of ``draws`` returns, in order.
+
+    Parameters
+    ----------
+    draws : sequence of callables
+        Each returns one matplotlib Figure (drawn afresh, in whichever process draws it).
+    workers : int, optional
+        The most processes to draw with (1: this process, one after another); default
+        :data:`WORKERS_ENV`, else one per usable CPU. Bounded by :func:`figure_workers`.
+
+    Yields
+    ------
+    bytes
+        Figure ``k``'s PNG, as drawn in this process: the bytes do not depend on where or in
+        which order the figures were drawn.
+
+    Raises
+    ------
+    Exception
+        What drawing a figure raises, as drawing it in this process raises it: a worker that
+        fails leaves the figure to this process, which draws it again (and raises there);
+        a warning a worker's drawing gives is given again here.
+    ValueError
+        :data:`WORKERS_ENV` is not a whole number ≥ 1.
+    """
+    draws = list(draws)
+    n = figure_workers(len(draws), workers)
+    if n < 2:
+        for draw in draws:
+            yield _png_of(draw)
+        return
+    from concurrent.futures import ProcessPoolExecutor
+    from concurrent.futures.process import BrokenProcessPool
+
+    _prepare_to_fork()
+    pool = ProcessPoolExecutor(n, mp_context=multiprocessing.get_context("fork"),
+                               initializer=_worker_start)
+    try:
+        _PENDING[:] = draws
+        try:
+            with warnings.catch_warnings():
+                # Python ≥ 3.12 warns about forking a process with native threads (a BLAS
+                # pool's): none of them runs Python or holds a lock the workers take, and
+                # forking with other Python threads running is refused above
+                warnings.filterwarnings("ignore", category=DeprecationWarning,
+                                        message=r".*multi-threaded.*fork")
+                # last first: the whole-set figures come last and cost the most
+                futures = {k: pool.submit(_draw_png, k) for k in reversed(range(len(draws)))}
+        finally:
+            _PENDING.clear()  # the workers hold their copy; nothing here keeps the figures
+        for k in range(len(draws)):
+            try:
+                png, said = futures[k].result()
+            except BrokenProcessPool:  # a worker died (killed): the rest are drawn here
+                png, said = None, []
+            for category, message in said:
+                warnings.warn(message, category, stacklevel=2)
+            yield png if png is not None else _png_of(draws[k])
+    finally:
+        pool.shutdown(wait=True, cancel_futures=True)
+
+
+def write_pngs(out: OutputFolder, figures: Sequence[tuple[str, Callable[[], Figure]]]
+               ) -> list[Path]:
+    """Draw ``figures`` (each ``(name, draw)``) with :func:`render_pngs` and write each to
+    ``out``/``name`` as it comes, in order (:meth:`phoid._output.OutputFolder.write`:
+    atomic, no links followed). Returns the paths written.
+
+    The names are not checked here: check them all first (:meth:`OutputFolder.check`), so
+    that a file in the way writes nothing.
+    """
+    names = [name for name, _ in figures]
+    written = []
+    with contextlib.closing(render_pngs([draw for _, draw in figures])) as pngs:
+        for name, png in zip(names, pngs, strict=True):
+            written.append(out.write(name, png))
+    return written
 
 
 def _stem(file: str) -> str:
@@ -137,9 +354,8 @@ def _write_figures(out_dir: str | Path, overwrite: bool, runs: Sequence[Any],
     names = {i: all_names[i] for i in plotted}
     out = OutputFolder(out_dir, overwrite=overwrite)
     out.check([*names.values(), *(name for name, _ in extra)])
-    written = [save_png(draw_run(i), out, names[i]) for i in plotted]
-    written += [save_png(draw(), out, name) for name, draw in extra]
-    return written
+    return write_pngs(out, [*((names[i], functools.partial(draw_run, i)) for i in plotted),
+                            *extra])
 
 
 def plot_free(result: Any, out_dir: str | Path, *, overwrite: bool = False) -> list[Path]:
@@ -275,7 +491,8 @@ def figure1(result: Any, out_dir: str | Path, *,
     """
     out = OutputFolder(out_dir, overwrite=overwrite)
     out.check(["figure1a.png", "figure1b.png"])
-    paths = [save_png(figure1_panel(result, tag), out, f"figure1{tag}.png") for tag in "ab"]
+    paths = write_pngs(out, [(f"figure1{tag}.png", functools.partial(figure1_panel, result, tag))
+                             for tag in "ab"])
     return paths[0], paths[1]
 
 

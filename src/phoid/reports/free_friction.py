@@ -6,6 +6,7 @@ only where a figure is drawn.
 
 from __future__ import annotations
 
+import functools
 import math
 from pathlib import Path
 from typing import Any
@@ -13,7 +14,7 @@ from typing import Any
 import numpy as np
 
 from phoid._output import OutputFolder, safe_text
-from phoid.reports.figures import run_names, save_png
+from phoid.reports.figures import run_names, write_pngs
 from phoid.reports.statistics import ratio_text
 from phoid.reports.text import adequacy_lines, fit_statistics_lines, format_estimate
 
@@ -148,4 +149,5 @@ def plot_free_friction(result: Any, out_dir: str | Path, *,
     plotted = [i for i, r in enumerate(result.runs) if r.used and i < len(result.data)]
     out = OutputFolder(out_dir, overwrite=overwrite)
     out.check([names[i] for i in plotted])
-    return [save_png(_run_figure(result, i), out, names[i]) for i in plotted]
+    return write_pngs(out, [(names[i], functools.partial(_run_figure, result, i))
+                            for i in plotted])

@@ -350,5 +350,5 @@ def mk_ellipse_figure(result: Any) -> Figure:
     ax.set_xlabel("m (kg)")
     ax.set_ylabel("k (N/m)")
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=7, loc="upper left")
+    ax.legend(fontsize=8, loc="upper left")
     return fig

@@ -14,6 +14,7 @@ imported inside the functions that draw.
 from __future__ import annotations
 
 import math
+import weakref
 from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
@@ -34,12 +35,19 @@ __all__ = [
     "friction_run_figure",
     "pho_run_figure",
     "plain",
+    "recycle",
     "residual_acf",
     "run_figure",
     "stick_intervals",
 ]
 
 _ACF_MAX_LAGS = 2000  # most lags drawn (the band and the first periods are what matters)
+#: run figures handed back (:func:`recycle`), by layout (kind, panel heights), and the layout
+#: of each run figure made; at most _SPARES kept per layout
+_SPARE: dict[tuple[str, tuple[float, ...]], list[Figure]] = {}
+_LAYOUT: weakref.WeakKeyDictionary[Figure, tuple[str, tuple[float, ...]]] = \
+    weakref.WeakKeyDictionary()
+_SPARES = 1
 #: resolution the figures are written at (dots per inch; :func:`phoid.reports.figures.save_png`)
 DPI = 120
 #: a per-run figure's width and its fixed margins, inches (a fixed layout: no layout engine
@@ -144,6 +152,22 @@ def decimate_line(t: np.ndarray, y: np.ndarray, columns: int = COLUMNS,
     return t[keep], y[keep]
 
 
+def _fast_length(n: int) -> int:
+    """The least 2ᵃ·3ᵇ·5ᶜ ≥ ``n`` (≥ 1): a length the FFT does fast."""
+    best = 1 << max(int(n) - 1, 0).bit_length()
+    odd = 1
+    while odd < best:  # odd: each 3ᵇ·5ᶜ below the power of 2, times the least 2ᵃ reaching n
+        f3 = odd
+        while f3 < best:
+            m = f3
+            while m < n:
+                m *= 2
+            best = min(best, m)
+            f3 *= 3
+        odd *= 5
+    return best
+
+
 def residual_acf(r: np.ndarray, max_lag: int) -> np.ndarray:
     """Sample autocorrelation ρ̂(j) = Σₜ r̃ₜ r̃ₜ₊ⱼ / Σₜ r̃ₜ², j = 0 … max_lag, r̃ = r − mean(r).
 
@@ -157,7 +181,7 @@ def residual_acf(r: np.ndarray, max_lag: int) -> np.ndarray:
     den = float(r @ r)
     if n < 2 or den == 0.0:
         return np.ones(max(max_lag, 0) + 1)
-    nfft = 1 << (2 * n - 1).bit_length()
+    nfft = _fast_length(n + max_lag)  # zero padding to n + max_lag: no lag ≤ max_lag wraps
     f = np.fft.rfft(r, nfft)
     acov = np.fft.irfft(f * np.conj(f), nfft)[: max_lag + 1]
     return acov / den
@@ -216,6 +240,63 @@ def _run_axes(fig: Figure, heights: Sequence[float]) -> list[Axes]:
     return axes
 
 
+def _blank_figure(kind: str, heights: Sequence[float]) -> tuple[Figure, list[Axes]]:
+    """A run figure's empty panels (:func:`_run_axes`): a figure handed back by
+    :func:`recycle` with the same ``kind`` and panel heights, cleared, else a new one.
+
+    Building the axes and their ticks is a third of the cost of a run figure; a set's run
+    figures share one layout, so one figure per layout serves them all, one after another.
+    """
+    from matplotlib.figure import Figure
+
+    key = (kind, tuple(float(h) for h in heights))
+    spare = _SPARE.get(key)
+    fig = spare.pop() if spare else None
+    if fig is None:
+        fig = Figure()
+        axes = _run_axes(fig, heights)
+    else:
+        axes = list(fig.axes)
+        _clear(fig, axes)
+    _LAYOUT[fig] = key
+    return fig, axes
+
+
+def _clear(fig: Figure, axes: Sequence[Axes]) -> None:
+    """Back to what :func:`_run_axes` made: every artist, legend and figure text removed, data
+    limits, view limits (autoscaled) and property cycle as on new axes; the axes, their
+    locators, tick settings and ticks kept."""
+    from matplotlib.transforms import Bbox
+
+    for text in list(fig.texts):
+        text.remove()
+    for ax in axes:
+        legend = ax.get_legend()
+        if legend is not None:
+            legend.remove()
+        for artist in [*ax.lines, *ax.patches, *ax.collections, *ax.texts, *ax.images]:
+            artist.remove()
+        ax.set_xlabel("")
+        ax.set_ylabel("")
+        ax.dataLim.set_points(Bbox.null().get_points())
+        ax.ignore_existing_data_limits = True
+        ax.set_prop_cycle(None)
+        ax.set_xlim(0.0, 1.0, auto=True)
+        ax.set_ylim(0.0, 1.0, auto=True)
+
+
+def recycle(fig: Figure) -> None:
+    """Hand back a run figure whose drawing is done (its PNG written): the next run figure of
+    the same layout made in this process reuses its axes. The figure must not be used after;
+    a figure that is not a run figure is left alone.
+    """
+    key = _LAYOUT.pop(fig, None)
+    if key is not None:
+        spare = _SPARE.setdefault(key, [])
+        if len(spare) < _SPARES:
+            spare.append(fig)
+
+
 def _title(fig: Figure, text: str) -> None:
     """A run figure's title, placed in the fixed top margin (an axes title would be moved
     clear of the tick labels at every draw, a fifth of the drawing time)."""
@@ -247,12 +328,11 @@ def _acf_panel(ax: Axes, t: np.ndarray, resid: np.ndarray, period: float | None)
     lags = np.arange(rho.size) * dt
     band = 1.96 / math.sqrt(max(n, 1))
     ax.axhspan(-band, band, color="0.85", lw=0, label=f"±1.96/√n (white noise, n = {n})")
-    ax.plot(*decimate_line(lags[1:], rho[1:]), lw=0.8, color="C4",
-            label="autocorrelation of the residual")
+    ax.plot(*decimate_line(lags[1:], rho[1:]), lw=0.8, color="C4")  # named by the y label
     ax.axhline(0, color="0.4", lw=0.5)
     ax.set_xlabel("lag (s)")
     ax.set_ylabel("residual ACF (–)")
-    ax.legend(loc="upper right", fontsize=7)
+    ax.legend(loc="upper right", fontsize=8)
 
 
 def _record(ax: Axes, t: np.ndarray, y: np.ndarray, span: tuple[float, float]) -> None:
@@ -306,12 +386,9 @@ def run_figure(t: np.ndarray, x: np.ndarray, sel: np.ndarray, model: np.ndarray,
     x_unit : str
         The unit of x: drawn as :func:`display_unit` says (m as mm).
     """
-    from matplotlib.figure import Figure
-
     scale, unit = display_unit(x_unit)
     has_f = force is not None and np.shape(force) == np.shape(t)
-    fig = Figure()
-    axes = _run_axes(fig, [3.2, 1.4] + ([1.1] if has_f else []) + [1.3])
+    fig, axes = _blank_figure("run", [3.2, 1.4] + ([1.1] if has_f else []) + [1.3])
     ax, axr = axes[0], axes[1]
     span = (float(np.min(t)), float(np.max(t))) if t.size else (0.0, 1.0)
     ts, xs = t[sel], x[sel]
@@ -328,9 +405,9 @@ def run_figure(t: np.ndarray, x: np.ndarray, sel: np.ndarray, model: np.ndarray,
             a.axvline(tm, color=f"C{3 + j}", ls=":", lw=1, label=label if a is ax else None)
     ax.set_ylabel(f"x ({unit})")
     _title(fig, title)
-    ax.legend(loc="upper right", fontsize=7)
+    ax.legend(loc="upper right", fontsize=8)
     axr.set_ylabel(f"residual ({unit})")
-    axr.legend(loc="upper right", fontsize=7, ncols=3)
+    axr.legend(loc="upper right", fontsize=8, ncols=3)
     last = axr
     if has_f:
         axf = axes[2]
@@ -428,16 +505,13 @@ def friction_run_figure(result: Any, i: int) -> Figure:
     simulator's velocity is exactly 0 while stuck: :func:`stick_intervals`) and ``fc``
     (``value``, N).
     """
-    from matplotlib.figure import Figure
-
     r = result.runs[i]
     t, x = (np.asarray(a, dtype=float) for a in result.data[i][:2])
     xm, vm = result.model(i, t)
     sel = t <= r.t_end
     resid = x[sel] - xm[sel]
     sticks = stick_intervals(t, vm, r.release)
-    fig = Figure()
-    ax, axr, axv, axa = _run_axes(fig, [3.2, 1.4, 1.1, 1.3])
+    fig, (ax, axr, axv, axa) = _blank_figure("friction", [3.2, 1.4, 1.1, 1.3])
     span = (float(np.min(t)), float(np.max(t))) if t.size else (0.0, 1.0)
     _record(ax, t, x * 1e3, span)
     _fit_line(ax, t, xm * 1e3, "fitted stick–slip simulation", span)
@@ -461,10 +535,10 @@ def friction_run_figure(result: Any, i: int) -> Figure:
     _title(fig, f"{plain(r.name)}: P = {r.P:g} N/m, D = {r.D:g} N s/m, $f_c$ = "
                 f"{result.fc.value:.4g} N, {len(sticks)} stick interval"
                 f"{'' if len(sticks) == 1 else 's'}")
-    ax.legend(loc="upper right", fontsize=7)
+    ax.legend(loc="upper right", fontsize=8)
     _residual_panel(axr, t[sel], resid, span, 1e3)
     axr.set_ylabel("residual (mm)")
-    axr.legend(loc="upper right", fontsize=7, ncols=3)
+    axr.legend(loc="upper right", fontsize=8, ncols=3)
     axv.plot(*decimate_line(t, vm * 1e3, COLUMNS, span), lw=0.8, color="C0")
     axv.set_ylabel("fitted v (mm/s)")
     axv.set_xlabel("t (s)")

@@ -163,7 +163,7 @@ def plot_tracking(result: Any, path: str | Path | None = None, *,
         if stop < len(t):
             ax.axvspan(t[stop - 1], t[-1], color="0.9", lw=0)
         if ax is not ax_res:
-            ax.legend(loc="upper right", fontsize=7)
+            ax.legend(loc="upper right", fontsize=8)
     axes[-1].set_xlabel("t (s)")
     if path is None:
         return fig

@@ -1,0 +1,254 @@
+"""Figures drawn in worker processes (:func:`phoid.reports.figures.render_pngs`).
+
+The rule under test: where the figures are drawn changes nothing a user sees. The same files,
+the same bytes as drawn one after another in the calling process, the same error and the same
+warnings; drawing stays in the calling process where forking is unsafe (a daemonic process,
+other Python threads). Expected values are those of the serial drawing
+(``PHOID_FIGURE_WORKERS=1``, or ``workers=1``) and, for the file names, the set's manifest
+(each run's file name without folders and extensions, then ``lines.png``, ``mk-ellipse.png``:
+the names :func:`phoid.reports.figures.plot_identification` documents). Which process drew a
+figure is read from files the drawing writes (its process id): real processes, real files.
+
+Set: examples/paper-sample (19 runs, each with a fit: 21 figures); small figures of a few
+artists where only the mechanism is under test. No timings here (bench/bench_figures.py).
+"""
+
+from __future__ import annotations
+
+import functools
+import multiprocessing
+import os
+import subprocess
+import sys
+import threading
+import warnings
+from pathlib import Path
+
+import pytest
+from typer.testing import CliRunner
+
+import phoid
+from phoid._output import OutputFolder
+from phoid.cli import app
+from phoid.io import read_experiment
+from phoid.reports.figures import (
+    WORKERS_ENV,
+    figure_workers,
+    plot_identification,
+    png_bytes,
+    render_pngs,
+    write_pngs,
+)
+from phoid.reports.lines import mk_ellipse_figure, pho_lines_figure
+from phoid.reports.runs import pho_run_figure
+
+ROOT = Path(__file__).resolve().parents[1]
+SAMPLE = ROOT / "examples" / "paper-sample"
+FORKS = sys.platform != "darwin" and "fork" in multiprocessing.get_all_start_methods()
+needs_fork = pytest.mark.skipif(not FORKS, reason="no fork start method: figures are drawn "
+                                "in the calling process only")
+
+
+@pytest.fixture(scope="module")
+def gls():
+    return phoid.identify(read_experiment(SAMPLE))
+
+
+def _small_figure(folder: Path, k: int, fail: str = ""):
+    """Figure ``k``: a line through k's points and its number, after writing the id of the
+    process drawing it to ``folder``/``k``.pid. ``fail``: "raise" raises ValueError, "warn"
+    gives a UserWarning, "die" ends a worker process (not the caller) at once."""
+    from matplotlib.figure import Figure
+
+    (folder / f"{k}.pid").write_text(str(os.getpid()))
+    if fail == "raise":
+        raise ValueError(f"figure {k} cannot be drawn")
+    if fail == "warn":
+        warnings.warn(f"figure {k} says so", UserWarning, stacklevel=1)
+    if fail == "die" and os.getpid() != int((folder / "caller.pid").read_text()):
+        os._exit(3)
+    fig = Figure(figsize=(2, 1.5))
+    ax = fig.subplots()
+    ax.plot(range(k + 2), [j * j for j in range(k + 2)], label=f"figure {k}")
+    ax.legend(fontsize=8)
+    return fig
+
+
+def _draws(folder: Path, n: int, **fail: str):
+    """``n`` small figures; ``fail`` maps "k<number>" to that figure's ``fail``."""
+    (folder / "caller.pid").write_text(str(os.getpid()))
+    return [functools.partial(_small_figure, folder, k, fail.get(f"k{k}", ""))
+            for k in range(n)]
+
+
+def _pids(folder: Path, n: int) -> list[int]:
+    return [int((folder / f"{k}.pid").read_text()) for k in range(n)]
+
+
+# --------------------------------------------------------------------------------------------
+# the example set: the files and their bytes
+
+
+@needs_fork
+def test_parallel_files_are_the_serial_files(gls, tmp_path, monkeypatch):
+    assert all(r.fit is not None for r in gls.runs)  # every run has its figure
+    monkeypatch.setenv(WORKERS_ENV, "1")
+    serial = plot_identification(gls, tmp_path / "serial")
+    monkeypatch.setenv(WORKERS_ENV, "3")
+    parallel = plot_identification(gls, tmp_path / "parallel")
+    expected = [Path(r.file).name.split(".")[0] + ".png" for r in read_experiment(SAMPLE).runs]
+    expected += ["lines.png", "mk-ellipse.png"]
+    assert [p.name for p in serial] == expected
+    assert [p.name for p in parallel] == expected
+    # nothing else in the folder (no temporary file left), and every file byte for byte
+    assert sorted(p.name for p in (tmp_path / "parallel").iterdir()) == sorted(expected)
+    for s, p in zip(serial, parallel, strict=True):
+        assert p.read_bytes() == s.read_bytes(), p.name
+
+
+def test_a_run_figure_drawn_after_others_is_the_one_drawn_alone(gls, tmp_path):
+    # the run figures of one layout reuse one figure's axes, one after another: run 8 drawn
+    # alone in a fresh interpreter must be the bytes of run 8 drawn eighth
+    serial = list(render_pngs([functools.partial(pho_run_figure, gls, i) for i in range(8)],
+                              workers=1))
+    alone = tmp_path / "alone.png"
+    code = ("import sys, phoid; from phoid.io import read_experiment; "
+            "from phoid.reports.figures import png_bytes; "
+            "from phoid.reports.runs import pho_run_figure; "
+            "r = phoid.identify(read_experiment(sys.argv[1])); "
+            "open(sys.argv[2], 'wb').write(png_bytes(pho_run_figure(r, 7)))")
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(
+        [str(ROOT / "src"), *filter(None, [os.environ.get("PYTHONPATH")])]))
+    subprocess.run([sys.executable, "-c", code, str(SAMPLE), str(alone)], check=True,
+                   env=env, timeout=120)
+    assert alone.read_bytes() == serial[7]
+    # and the public function still gives a figure of its own, not one handed back
+    a, b = pho_run_figure(gls, 0), pho_run_figure(gls, 1)
+    assert a is not b and png_bytes(a) == serial[0]
+
+
+# --------------------------------------------------------------------------------------------
+# where the figures are drawn
+
+
+@needs_fork
+def test_figures_are_drawn_in_worker_processes_with_the_same_bytes(tmp_path):
+    one, two = tmp_path / "one", tmp_path / "two"
+    one.mkdir()
+    two.mkdir()
+    serial = list(render_pngs(_draws(one, 5), workers=1))
+    assert set(_pids(one, 5)) == {os.getpid()}
+    parallel = list(render_pngs(_draws(two, 5), workers=2))
+    assert os.getpid() not in _pids(two, 5)
+    assert parallel == serial
+
+
+def _in_daemon(folder: str) -> None:
+    """A daemonic process's work: draw 4 small figures and write them (it may have no
+    children, so they must be drawn here)."""
+    out = OutputFolder(folder)
+    write_pngs(out, [(f"{k}.png", d) for k, d in enumerate(_draws(Path(folder), 4))])
+
+
+@needs_fork
+def test_a_daemonic_process_draws_its_figures_itself(tmp_path):
+    ctx = multiprocessing.get_context("fork")
+    proc = ctx.Process(target=_in_daemon, args=(str(tmp_path),), daemon=True)
+    proc.start()
+    proc.join(120)
+    assert proc.exitcode == 0  # a daemon forking a worker would have failed (AssertionError)
+    assert set(_pids(tmp_path, 4)) == {proc.pid}
+    ref = tmp_path / "ref"
+    ref.mkdir()
+    serial = list(render_pngs(_draws(ref, 4), workers=1))
+    assert [(tmp_path / f"{k}.png").read_bytes() for k in range(4)] == serial
+
+
+@needs_fork
+def test_with_another_thread_running_the_figures_are_drawn_here(tmp_path):
+    stop = threading.Event()
+    other = threading.Thread(target=stop.wait, daemon=True)
+    other.start()
+    try:
+        assert figure_workers(5, 4) == 1
+        list(render_pngs(_draws(tmp_path, 5), workers=4))
+    finally:
+        stop.set()
+        other.join()
+    assert set(_pids(tmp_path, 5)) == {os.getpid()}
+    assert figure_workers(5, 4) == 4  # the thread gone: workers again
+
+
+# --------------------------------------------------------------------------------------------
+# errors and warnings
+
+
+@needs_fork
+def test_an_error_in_a_figure_is_raised_as_drawn_here(tmp_path, capfd, monkeypatch):
+    folders = [tmp_path / "serial", tmp_path / "parallel"]
+    errors = []
+    for folder, workers in zip(folders, ("1", "2"), strict=True):
+        monkeypatch.setenv(WORKERS_ENV, workers)
+        folder.mkdir()
+        out = OutputFolder(folder / "png")
+        with pytest.raises(ValueError) as info:
+            write_pngs(out, [(f"{k}.png", d)
+                             for k, d in enumerate(_draws(folder, 4, k2="raise"))])
+        errors.append((type(info.value), str(info.value)))
+    assert errors[0] == errors[1] == (ValueError, "figure 2 cannot be drawn")
+    # the files before the failing one are written, as drawn one after another; none after
+    for folder in folders:
+        assert sorted(p.name for p in (folder / "png").iterdir()) == ["0.png", "1.png"]
+    assert "Traceback" not in capfd.readouterr().err  # no worker printed its own
+
+
+@needs_fork
+def test_a_worker_that_dies_leaves_its_figures_to_the_caller(tmp_path):
+    (tmp_path / "a").mkdir()
+    (tmp_path / "b").mkdir()
+    serial = list(render_pngs(_draws(tmp_path / "a", 4), workers=1))
+    got = list(render_pngs(_draws(tmp_path / "b", 4, k1="die"), workers=2))
+    assert got == serial
+    assert int((tmp_path / "b" / "1.pid").read_text()) == os.getpid()  # drawn again here
+
+
+@needs_fork
+def test_a_warning_in_a_worker_is_given_here(tmp_path):
+    with pytest.warns(UserWarning, match="figure 3 says so"):
+        pngs = list(render_pngs(_draws(tmp_path, 4, k3="warn"), workers=2))
+    assert len(pngs) == 4
+    assert os.getpid() not in _pids(tmp_path, 4)
+
+
+@pytest.mark.parametrize("value", ["0", "-2", "two", "1.5", "+3", "3 4"])
+def test_a_bad_workers_setting_is_an_error_naming_the_variable(value, monkeypatch):
+    monkeypatch.setenv(WORKERS_ENV, value)
+    with pytest.raises(ValueError, match=f"environment variable {WORKERS_ENV}="):
+        figure_workers(5)
+
+
+def test_the_command_line_says_which_setting_is_wrong(tmp_path):
+    r = CliRunner().invoke(app, ["identify", str(SAMPLE), "--plots", str(tmp_path / "p")],
+                           env={WORKERS_ENV: "many"})
+    assert r.exit_code == 2
+    assert r.output.startswith("phoid: error: ") and WORKERS_ENV in r.output
+    assert "Traceback" not in r.output
+
+
+def test_an_empty_setting_is_unset_and_one_is_serial(monkeypatch):
+    monkeypatch.setenv(WORKERS_ENV, "")
+    assert figure_workers(1) == 1  # one figure: never a worker
+    monkeypatch.setenv(WORKERS_ENV, "1")
+    assert figure_workers(21) == 1
+
+
+# --------------------------------------------------------------------------------------------
+# legends readable (issue 30: 7-pt legends were too small)
+
+
+def test_every_legend_is_at_least_8_pt(gls):
+    figures = [pho_run_figure(gls, 0), pho_lines_figure(gls), mk_ellipse_figure(gls)]
+    sizes = [t.get_fontsize() for fig in figures for ax in fig.axes
+             if ax.get_legend() is not None for t in ax.get_legend().get_texts()]
+    assert len(sizes) >= 8  # 3 legends of the run figure, the lines', the region's
+    assert min(sizes) >= 8
