@@ -51,9 +51,11 @@ test: $(TEST_STAMP)
 lint: $(TEST_STAMP)
 	$(VENV)/bin/ruff check $(LINTED)
 
-## run every sh and python block of README.md as written, in a temporary copy of the checkout
+## run every sh and python block of README.md, then of docs/examples.md (the commands the README
+## showed before it became a quick start), as written, in a temporary copy of the checkout
 readme: $(TEST_STAMP)
 	$(PY) .ci/readme_check.py --venv $(VENV)
+	$(PY) .ci/readme_check.py --venv $(VENV) --file docs/examples.md
 
 ## build the wheel, install it into a clean venv and run `phoid paper` there
 wheel:

@@ -24,6 +24,7 @@ printed (the set-up block: CI runs ``make test`` itself, and ``make demo`` build
 Usage (from the checkout; ``make readme`` does this)::
 
     .venv/bin/python .ci/readme_check.py [--venv .venv] [--timeout 600] [--keep]
+    .venv/bin/python .ci/readme_check.py --file docs/examples.md   # the site's examples page
 """
 
 from __future__ import annotations
@@ -159,6 +160,9 @@ def main(argv: list[str] | None = None) -> int:
                     help="virtual environment with phoid installed (default: .venv)")
     ap.add_argument("--timeout", type=float, default=600.0, help="seconds per block")
     ap.add_argument("--keep", action="store_true", help="keep the temporary copy")
+    ap.add_argument("--file", default="README.md",
+                    help="the Markdown file whose blocks to run, relative to the checkout "
+                         "(default README.md; e.g. docs/examples.md)")
     args = ap.parse_args(argv)
     venv = args.venv.resolve()
     py = venv / "bin" / "python"
@@ -171,7 +175,8 @@ def main(argv: list[str] | None = None) -> int:
                PATH=f"{venv / 'bin'}{os.pathsep}{os.environ.get('PATH', '')}",
                MPLBACKEND="Agg")
     env.pop("PYTHONHOME", None)
-    readme = (ROOT / "README.md").read_text(encoding="utf-8")
+    name = args.file
+    readme = (ROOT / name).read_text(encoding="utf-8")
     todo = blocks(readme)
     excerpts = expected_outputs(readme)
     tmp = Path(tempfile.mkdtemp(prefix="phoid-readme-"))
@@ -182,7 +187,7 @@ def main(argv: list[str] | None = None) -> int:
         copy_checkout(work, venv)
         t_all = time.perf_counter()
         for n, (line, kind, code, skip) in enumerate(todo, start=1):
-            head = f"block {n}/{len(todo)} (README.md:{line}, {kind})"
+            head = f"block {n}/{len(todo)} ({name}:{line}, {kind})"
             if skip is not None:
                 print(f"{head}: skipped: {skip}", flush=True)
                 continue
