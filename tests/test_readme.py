@@ -14,8 +14,9 @@ What is checked here, on the README as committed (fast; `make readme` runs its b
 * every block that runs is followed by the output to expect, and at least five ``phoid``
   commands are shown.
 
-And the part of ``.ci/readme_check.py`` that compares a block's output with the excerpt after
-it, on made-up text.
+And ``.ci/readme_check.py`` itself: the comparison of a block's output with the excerpt after
+it, on made-up text, and the whole check on a made-up page (a real subprocess in a copy of the
+checkout).
 """
 
 from __future__ import annotations
@@ -23,6 +24,8 @@ from __future__ import annotations
 import ast
 import importlib.util
 import re
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -161,3 +164,35 @@ def test_expected_outputs_pairs_a_text_block_with_the_block_just_before_it() -> 
 def test_missing_lines(stdout: str, stderr: str, missing: list[str]) -> None:
     (excerpt,) = check.expected_outputs(SAMPLE).values()
     assert check.missing_lines(excerpt, stdout, stderr) == missing
+
+
+def _run_check(tmp_path: Path, markdown: str) -> subprocess.CompletedProcess[str]:
+    page = tmp_path / "page.md"
+    page.write_text(markdown, encoding="utf-8")
+    venv = Path(sys.prefix)
+    if not (venv / "bin" / "phoid").is_file():
+        pytest.skip(f"no phoid script in {venv}/bin: the check needs phoid's venv")
+    return subprocess.run(
+        [sys.executable, str(ROOT / ".ci" / "readme_check.py"), "--venv", str(venv),
+         "--file", str(page), "--timeout", "60"],
+        capture_output=True, text=True, timeout=120, stdin=subprocess.DEVNULL)
+
+
+def test_the_check_runs_a_page_activating_the_venv_and_compares_its_excerpt(
+        tmp_path: Path) -> None:
+    ok = """```sh
+. .venv/bin/activate
+echo "m = 2.000 ± 0.001 kg"; phoid --version
+```
+
+```text
+m = 2.000 ± …
+```
+"""
+    r = _run_check(tmp_path, ok)
+    assert r.returncode == 0, r.stdout + r.stderr
+    r = _run_check(tmp_path, ok.replace("m = 2.000 ± …", "m = 1.999 ± …"))
+    assert r.returncode == 1
+    assert "lacks these lines" in r.stderr and "m = 1.999 ± …" in r.stderr
+    r = _run_check(tmp_path, "```sh\ntouch clutter.txt\n```\n")  # a file git would list
+    assert r.returncode == 1 and "clutter.txt" in r.stderr
