@@ -122,7 +122,7 @@ def _scaled(name, m, c, k, delay, P, D, *, fs, duration, x0) -> SetSpec:
 
 
 _I19, _I15, _I12 = np.arange(19), np.arange(15), np.arange(12)
-TABLE1 = _scaled("table1", 2.0, 1.0, 64.0, 0.1, 0.25 + 1.375 * _I19, 0.6 + 0.3 * _I19,
+TABLE1 = _scaled("table1", 2.0, 1.0, 64.0, 0.1, 0.25 + 1.375 * _I19, (6 + 3 * _I19) / 10,
                  fs=1000.0, duration=15.0, x0=0.01)
 OVERDAMPED = _scaled("overdamped", 0.5, 40.0, 20.0, 0.005, 50.0 + 72.0 * _I15,
                      -38.4 + 0.6 * _I15, fs=1000.0, duration=5.0, x0=0.005)

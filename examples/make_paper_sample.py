@@ -13,7 +13,10 @@ suite checks phoid's simulator against. phoid is used only for the Cramér–Rao
 The experiment (the seed paper's, ERRATA 6 in docs/equations.md):
 
 * plant m = 2 kg, c = 1 N·s/m, k = 64 N/m, no friction; loop delay Δt = 0.1 s;
-* 19 runs, Pᵢ = 0.25 + 1.375 i N/m, Dᵢ = 0.6 + 0.3 i N·s/m (i = 0 … 18);
+* 19 runs, Pᵢ = 0.25 + 1.375 i N/m, Dᵢ = 0.6 + 0.3 i N·s/m (i = 0 … 18), each gain the double
+  nearest its decimal (D₁ = 0.9, not the sum 0.8999999999999999; the records were first
+  computed with the sums, at most 1 ulp from these: rerun with these, every data file came out
+  byte for byte the same);
 * each run held at x₀ = 10 mm (the loop closed, u = −P x₀) for 0.2 s, then released from rest
   (the past before the release is the held x₀), and recorded for 15 s after the release at
   1 kHz: 15 200 samples from t = 0;
@@ -58,7 +61,9 @@ M, C, K = 2.0, 1.0, 64.0  # kg, N·s/m, N/m
 DELAY = 0.1  # s
 I19 = np.arange(19)
 P = 0.25 + 1.375 * I19  # N/m   (the same doubles as bench/sets.py's TABLE1)
-D = 0.6 + 0.3 * I19  # N·s/m
+# N·s/m: the decimals 0.6, 0.9, …, 6.0 (an integer over 10 is the double nearest each);
+# 0.6 + 0.3 i would be 0.8999999999999999 for i = 1 and 5.999999999999999 for i = 18
+D = (6 + 3 * I19) / 10
 X0 = 0.01  # m, release position
 FS = 1000.0  # Hz
 HOLD = 0.2  # s, held segment before the release

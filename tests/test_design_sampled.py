@@ -162,7 +162,9 @@ def test_design_cli_prints_the_loop_and_the_inloop_prediction(tmp_path):
     out = r.stdout
     assert "sampled loop: sample_time 0.001 s, delay_samples 1" in out
     assert "noise in the loop" in out and "in-loop Cramér–Rao bound" in out
-    assert "dm(smp)" in out and "Sampled loop modes" in out
+    # the delay margin's column, in whole samples (its unit in the row under the names)
+    head = out.splitlines().index(next(x for x in out.splitlines() if "delay margin" in x))
+    assert "samples" in out.splitlines()[head + 1] and "Sampled loop modes" in out
     # --json (in this process; a smaller design: 4 runs of 3 s): the new keys, and the
     # prediction is the in-loop bound of the printed gains, evaluated afresh
     r = _cli("design", "--m", 0.5, "--c", 40, "--k", 20, "--sample-time", 0.001,

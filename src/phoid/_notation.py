@@ -1,10 +1,13 @@
-"""One notation for phoid's text output, and its ASCII spelling where a stream cannot show it.
+"""One notation and one width for phoid's text output, and its ASCII spelling where a stream
+cannot show it.
 
 σ is a decay rate (1/s), ω₀ and ω_d angular frequencies, ζ a damping ratio, and a standard
 error is written "stderr" or "±" (never σ). Where the stream's encoding cannot write them
 (``PYTHONIOENCODING=ascii``, a Latin-1 terminal), :func:`stream_text` spells them out:
 ``omega0``, ``zeta``, ``+/-``, ``chi2``; inside :func:`stream_notation` the text reports lay out
-their tables in that spelling already, so that the columns stay aligned.
+their tables in that spelling already, so that the columns stay aligned. No line of a report
+is wider than :data:`WIDTH` columns: the tables are laid out to fit
+(:func:`phoid.reports.text.text_table`) and :func:`fit_width` wraps the prose.
 """
 
 from __future__ import annotations
@@ -14,7 +17,10 @@ import contextvars
 from collections.abc import Iterator
 from typing import TextIO
 
-__all__ = ["ascii_text", "notation", "stream_notation", "stream_text"]
+__all__ = ["WIDTH", "ascii_text", "fit_width", "notation", "stream_notation", "stream_text"]
+
+#: The widest line phoid prints in a report (a terminal's 100 columns).
+WIDTH = 100
 
 # the notation's unicode and its ASCII spelling, longest first (ω₀ before ω)
 _ASCII = (
@@ -31,7 +37,8 @@ _ASCII_NOTATION: contextvars.ContextVar[bool] = contextvars.ContextVar(
 
 def ascii_text(text: str) -> str:
     """``text`` in ASCII: phoid's notation spelt out (ω₀ → omega0, ζ → zeta, ± → +/-,
-    χ² → chi2, …), any other non-ASCII character as ``?``.
+    χ² → chi2, …), a letter with an accent without it (é → e), any other non-ASCII character
+    as ``?``.
 
     Parameters
     ----------
@@ -46,8 +53,13 @@ def ascii_text(text: str) -> str:
     >>> ascii_text("ω₀ = 5.6567 ± 0.0002 rad/s,  ζ = 0.0442")
     'omega0 = 5.6567 +/- 0.0002 rad/s,  zeta = 0.0442'
     """
+    import unicodedata
+
     for uni, asc in _ASCII:
         text = text.replace(uni, asc)
+    if not text.isascii():  # a letter with an accent without it (Cramér → Cramer)
+        text = "".join(c for c in unicodedata.normalize("NFKD", text)
+                       if not unicodedata.combining(c))
     return text.encode("ascii", "replace").decode("ascii")
 
 
@@ -110,3 +122,44 @@ def notation(text: str) -> str:
     return ascii_text(text) if _ASCII_NOTATION.get() else text
 
 
+def fit_width(text: str, width: int = WIDTH) -> str:
+    """``text`` with every line wider than ``width`` wrapped at spaces: the continuation
+    indented two more than the line (a ``- `` item's under its text). A word longer than the
+    width (a path) is kept whole, never cut.
+
+    The one width-fitting function of phoid's text: every ``report()`` and every command's
+    text output passes through it (tables are laid out to fit before, so that it only wraps
+    prose). The text is first put in the report's :func:`notation` (ASCII inside
+    :func:`stream_notation` for a stream that cannot show it), so that it is wrapped where
+    the lines are as printed (``≤`` spelled ``<=`` is a column wider).
+
+    Parameters
+    ----------
+    text : str
+    width : int
+
+    Returns
+    -------
+    str
+
+    Examples
+    --------
+    >>> print(fit_width("warnings:\\n  - " + "word " * 6, 20))
+    warnings:
+      - word word word
+        word word word
+    """
+    import textwrap
+
+    out: list[str] = []
+    for line in notation(text).split("\n"):
+        if len(line) <= width:
+            out.append(line)
+            continue
+        body = line.lstrip(" ")
+        indent = " " * (len(line) - len(body))
+        more = indent + "  "
+        out.extend(textwrap.wrap(body, width, initial_indent=indent, subsequent_indent=more,
+                                 break_long_words=False, break_on_hyphens=False)
+                   or [line])
+    return "\n".join(out)

@@ -39,8 +39,8 @@ from typing import IO, Any, NoReturn
 
 from phoid.errors import OutputError, PhoidError
 
-__all__ = ["OutputFolder", "check_not_input", "cli_wording", "exit_with_error", "png_writer",
-           "protect_inputs", "safe_text", "save_figure"]
+__all__ = ["OutputFolder", "check_not_input", "cli_wording", "echo_text", "exit_with_error",
+           "png_writer", "protect_inputs", "safe_text", "save_figure"]
 
 # characters never printed raw: controls (a line break, ESC), format characters (the bidi
 # overrides U+202A-U+202E and isolates U+2066-U+2069, zero-width ones), lone surrogates (a
@@ -75,6 +75,39 @@ def exit_with_error(message: object, code: int = 2) -> NoReturn:
     text = safe_text(" ".join(str(message).split()))
     typer.echo(stream_text(f"phoid: error: {text}", sys.stderr), err=True)
     raise typer.Exit(code)
+
+
+def echo_text(text: str | Callable[[], str], *, err: bool = False, wrap: bool = True) -> None:
+    """Print a command's text output: the one way every ``phoid`` command writes text.
+
+    The text is made (when ``text`` is a callable: a ``report()``) inside
+    :func:`phoid._notation.stream_notation`, so that its tables are laid out in the notation
+    the stream can show; then unsafe characters are escaped (:func:`safe_text`, line breaks
+    kept), the notation spelled in ASCII where the stream cannot encode it
+    (:func:`phoid._notation.stream_text`) and lines wider than :data:`phoid._notation.WIDTH`
+    wrapped (:func:`phoid._notation.fit_width`).
+
+    Parameters
+    ----------
+    text : str or callable returning str
+        The text, or what makes it.
+    err : bool
+        Write to standard error instead of standard output.
+    wrap : bool
+        Fit the lines to the width; False for a line a program may read as one (a
+        ``phoid: warning:`` line beside ``--json``, like an error line).
+    """
+    import typer
+
+    from phoid._notation import fit_width, stream_notation, stream_text
+
+    stream = sys.stderr if err else sys.stdout
+    if callable(text):
+        with stream_notation(stream):
+            text = text()
+    # spelled for the stream before it is fitted: ± as +/- is two columns wider
+    text = stream_text(safe_text(text, newlines=True), stream)
+    typer.echo(fit_width(text) if wrap else text, err=err)
 
 
 def safe_text(text: object, *, newlines: bool = False) -> str:

@@ -102,10 +102,10 @@ def paper(
         typer.echo(json.dumps(summary, indent=1))
         typer.echo(f"figures written to {fa} and {fb}", err=True)
     else:
-        typer.echo(result.table())
-        typer.echo("")
-        typer.echo(f"Figure 1(a) written to {fa}")
-        typer.echo(f"Figure 1(b) written to {fb}")
+        from phoid._output import echo_text
+
+        echo_text(lambda: f"{result.table()}\n\nFigure 1(a) written to {fa}\n"
+                          f"Figure 1(b) written to {fb}")
 
 
 @app.command()
@@ -162,7 +162,7 @@ def identify(
 
     Each run's free decay is fitted for its dominant mode (decay rate sigma and damped frequency
     omega_d with their uncertainty); the delay-corrected modes of all runs then give m, c, k.
-    Prints the estimates with +- one standard error and units, the open-loop zeta and omega0,
+    Prints the estimates with +/- one standard error and units, the open-loop zeta and omega0,
     a per-run table and any warnings.
     """
     from phoid._output import protect_inputs
@@ -208,23 +208,19 @@ def _write_html(result, html: Path | None, experiment, overwrite: bool) -> None:
 
 def _print_result(result, as_json: bool, written, plots, html=None) -> None:
     """The result as JSON (warnings also on stderr) or as the text report; figures written."""
-    from phoid._notation import stream_notation, stream_text
-    from phoid._output import safe_text
-    from phoid.reports.text import fit_width
+    from phoid._output import echo_text, safe_text
 
     if as_json:  # JSON escapes its unicode itself
         typer.echo(json.dumps(result.summary(), indent=1))
         for w in result.warnings:
-            typer.echo(stream_text(f"phoid: warning: {safe_text(w)}", sys.stderr), err=True)
+            echo_text(f"phoid: warning: {safe_text(w)}", err=True, wrap=False)
     else:  # the report's own fields are escaped; this catches any other control character
-        with stream_notation(sys.stdout):  # tables aligned in the stream's notation
-            text = result.report()
-        typer.echo(stream_text(fit_width(safe_text(text, newlines=True)), sys.stdout))
+        echo_text(result.report)
     if written:
-        typer.echo(f"{len(written)} figure{'s' * (len(written) != 1)} written to {plots}",
-                   err=as_json)
+        echo_text(f"{len(written)} figure{'s' * (len(written) != 1)} written to {plots}",
+                  err=as_json)
     if html is not None:
-        typer.echo(f"report written to {html}", err=as_json)
+        echo_text(f"report written to {html}", err=as_json)
 
 
 _REPLAY_OPTIONS = {"out", "m", "c", "k", "fc", "offset_force", "delay", "gzip", "overwrite",
@@ -279,7 +275,9 @@ def _simulate_replay(ctx, out, replay, *, m, c, k, fc, offset_force, delay, gzip
     except (ValueError, OSError) as exc:
         _fail(str(exc))
     _print_result(result, as_json, written, plots)
-    typer.echo(f"simulated set written to {manifest}", err=as_json)
+    from phoid._output import echo_text
+
+    echo_text(f"simulated set written to {manifest}", err=as_json)
 
 
 # the largest magnitude (and the smallest non-zero one) a number given to `simulate` may have,
@@ -338,10 +336,18 @@ def _numbers(option: str, text: str, unit: str, sign: str = "any") -> list[float
                              f"holds at most {MAX_RUNS:,} runs, MAX_RUNS); got {n}")
         for end in (a, b):
             _number(option, end, unit, sign)
-        values = np.linspace(a, b, n).tolist()
+        values = _decimal_steps(np.linspace(a, b, n).tolist())
     for val in values:
         _number(option, val, unit, sign)
     return values
+
+
+def _decimal_steps(values: list[float]) -> list[float]:
+    """The inner values of a start:stop:count range as the decimals the range means: each to
+    15 significant digits (0.6:6:19 gives 0.9, not the 0.8999999999999999 of the binary
+    steps, and a gain is written and printed as given); the ends exactly as given."""
+    return [v if i in (0, len(values) - 1) else float(f"{v:.15g}")
+            for i, v in enumerate(values)]
 
 
 # simulate's numeric options: (parameter, option, unit, sign)
@@ -632,7 +638,7 @@ def simulate(
             )
     except (ValueError, OSError) as exc:
         _fail(_in_option_words(str(exc)))
-    typer.echo(f"wrote {len(Ps)} runs to {path}")
+    _wrote(len(Ps), path)
 
 
 def _check_simulation_size(runs: int, hold: float, duration: float, fs: float) -> None:
@@ -709,7 +715,14 @@ def _simulate_other(ctx, out, *, method, m, c, k, fc, B, omega, duration, fs, x0
                                     extra={"simulated": truth}, gzip=gzip, overwrite=overwrite)
     except (ValueError, OSError) as exc:
         _fail(_in_option_words(str(exc)))
-    typer.echo(f"wrote {len(runs)} runs to {path}")
+    _wrote(len(runs), path)
+
+
+def _wrote(runs: int, path: Path) -> None:
+    """The line `phoid simulate` ends with: how many runs, and the manifest written."""
+    from phoid._output import echo_text
+
+    echo_text(f"wrote {runs} run{'s' * (runs != 1)} to {path}")
 
 
 from phoid import design_cli as _design_cli  # noqa: E402  (typer functions, lazy inside)

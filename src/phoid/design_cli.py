@@ -173,9 +173,9 @@ def design(
     rate and record length; independent seeds spawned from --seed), identifies them on a Dask
     cluster (--scheduler, or a local cluster of --workers processes) and reports, for m, c,
     k, the predicted stderr against the replicas' SD, the mean reported stderr, the bias with
-    its Monte Carlo error, RMSE/predicted and the coverage of +-3 reported stderr.
+    its Monte Carlo error, RMSE/predicted and the coverage of +/-3 reported stderr.
     """
-    from phoid._output import protect_inputs, safe_text
+    from phoid._output import echo_text, protect_inputs, safe_text
     from phoid.batch.sets import set_files
     from phoid.planning import check_experiment
     from phoid.planning import design as make_design
@@ -263,17 +263,17 @@ def design(
             summary["rehearsal"] = rehearsal.summary()
         typer.echo(json.dumps(summary, indent=1))
         for w in (*result.warnings, *(rehearsal.warnings if rehearsal is not None else ())):
-            typer.echo(f"phoid: warning: {safe_text(w)}", err=True)
+            echo_text(f"phoid: warning: {safe_text(w)}", err=True, wrap=False)
     else:
-        typer.echo(safe_text(result.report(), newlines=True))
+        echo_text(result.report)
         if rehearsal is not None:
-            typer.echo("\n" + safe_text(rehearsal.report(), newlines=True))
+            echo_text(lambda: "\n" + rehearsal.report())
     if written is not None:
-        typer.echo(f"schedule written to {written}", err=as_json)
+        echo_text(f"schedule written to {written}", err=as_json)
     if plot is not None:
-        typer.echo(f"figure written to {plot}", err=as_json)
+        echo_text(f"figure written to {plot}", err=as_json)
     if html is not None:
-        typer.echo(f"report written to {html}", err=as_json)
+        echo_text(f"report written to {html}", err=as_json)
     if check_set is not None and not result.safe:
         # a check that finds a run unsafe must fail a script that runs it before the rig does
         typer.echo("phoid: some runs are unsafe on the prior (see UNSAFE above)", err=True)

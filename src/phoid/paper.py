@@ -25,6 +25,7 @@ from phoid.dynamics import forward_map
 from phoid.dynamics.plant import Plant
 from phoid.methods.pho import MCKFit, fit_lines
 from phoid.methods.pho_measure import measure_modes
+from phoid.reports.text import text_table
 from phoid.simulation import simulate
 
 __all__ = [
@@ -41,7 +42,7 @@ __all__ = [
 PAPER_PLANT = Plant(m=2.0, c=1.0, k=64.0)
 PAPER_DELAY = 0.1  # s
 PAPER_P = 0.25 + 1.375 * np.arange(19)  # N/m
-PAPER_D = 0.6 + 0.3 * np.arange(19)  # N s/m
+PAPER_D = (6 + 3 * np.arange(19)) / 10  # N s/m: 0.6, 0.9, … 6 (0.6 + 0.3 i: 0.8999999999999999)
 PAPER_WITH = {"m": 1.9884, "c": 1.0035, "k": 63.7668}  # Table 1, "with compensation"
 PAPER_WITHOUT = {"m": 1.0169, "c": 4.2321, "k": 35.1812}  # Table 1, "without compensation"
 
@@ -107,16 +108,14 @@ class PaperResult:
         """Table 1 side by side: actual, the paper's two columns, phoid's two, relative errors."""
         s = self.summary()
         units = {"m": "kg", "c": "N s/m", "k": "N/m"}
-        hdr = (f"{'':<12}{'actual':>9}{'paper with':>13}{'phoid with':>16}{'rel. error':>12}"
-               f"{'paper without':>15}{'phoid without':>15}{'rel. error':>12}")
-        rows = ["Table 1: parametric oscillation with and without delay compensation", "", hdr]
-        for q in "mck":
-            rows.append(
-                f"{q + ' (' + units[q] + ')':<12}{s['actual'][q]:>9g}{s['paper_with'][q]:>13.4f}"
-                f"{s['with_compensation'][q]:>16.10f}{s['relative_error_with'][q]:>12.2e}"
-                f"{s['paper_without'][q]:>15.4f}{s['without_compensation'][q]:>15.4f}"
-                f"{s['relative_error_without'][q]:>+12.1%}"
-            )
+        cells = [[f"{q} ({units[q]})", f"{s['actual'][q]:g}", f"{s['paper_with'][q]:.4f}",
+                  f"{s['with_compensation'][q]:.10f}", f"{s['relative_error_with'][q]:.2e}",
+                  f"{s['paper_without'][q]:.4f}", f"{s['without_compensation'][q]:.4f}",
+                  f"{s['relative_error_without'][q]:+.1%}"] for q in "mck"]
+        rows = ["Table 1: parametric oscillation with and without delay compensation", "",
+                *text_table([("", ""), ("actual", ""), ("paper with", ""), ("phoid with", ""),
+                             ("rel. error", ""), ("paper without", ""), ("phoid without", ""),
+                             ("rel. error", "")], cells, indent=0)]
         mw = s["mass_from_damping_line"]
         rows += [
             "",

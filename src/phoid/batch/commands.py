@@ -120,6 +120,9 @@ def batch(
     if as_json:
         typer.echo(json.dumps(counts, indent=1))
     else:
-        typer.echo(f"{counts['sets']} sets: {report.computed} identified, {report.skipped} "
-                   f"already done, {report.errors} with an error; rows in {store.parquet} "
-                   f"and {store.csv}")
+        from phoid._output import echo_text
+
+        n = counts["sets"]
+        echo_text(f"{n} set{'s' * (n != 1)}: {report.computed} identified, {report.skipped} "
+                  f"already done, {report.errors} with an error; rows in {store.parquet} "
+                  f"and {store.csv}")

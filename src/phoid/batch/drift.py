@@ -51,6 +51,11 @@ REQUIRED_COLUMNS = ("set", "checksum", "status", "method", "time", "finished")
 _ORDER = ("m", "c", "k", "fc", "delay", "omega0", "zeta", "sigma", "omega_d")
 
 
+#: how a parameter is written in the report: its symbol as in the other text reports (σ is
+#: the decay rate); a parameter not listed by its name
+_SYMBOLS = {"omega0": "ω₀", "zeta": "ζ", "sigma": "σ", "omega_d": "ω_d", "c_over_m": "c/m",
+            "k_over_m": "k/m", "offset_force": "offset force"}
+
 _TINY = float(np.finfo(float).tiny)  # the smallest normal float: a stderr below it is no stderr
 
 
@@ -195,34 +200,40 @@ class Trend:
     def report(self) -> str:
         """A text table: per unit and parameter the last value ± stderr, its change from the
         baseline, z, and the number of flagged points."""
+        from phoid._notation import fit_width
         from phoid._output import safe_text
-        from phoid.reports.text import format_number
+        from phoid.batch.drift_plot import UNITS
+        from phoid.reports.text import format_number, text_table
 
         lines = [f"trend of {safe_text(self.source)} by {safe_text(self.by)}: baseline = "
                  "weighted mean of the first "
                  f"{self.baseline} points; flag |z| > {self.threshold:g} "
-                 f"(false alarm rate {100 * self.false_alarm_rate:.2g} % per point)"]
-        head = (f"{'unit':<12} {'param':<7} {'n':>4} {'last':>13} {'± stderr':>11} "
-                f"{'change':>12} {'z':>7} {'flagged':>8}")
-        lines += ["", head, "-" * len(head)]
+                 f"(false alarm rate {100 * self.false_alarm_rate:.2g} % per point)", ""]
+        rows = []
         for u in self.units:
             for ch in u.charts:
                 last = ch.points[-1]
-                change = "" if ch.baseline is None else f"{_change(last.value, ch):12.5g}"
-                z = "" if last.z is None else format_number(last.z, 2)
-                lines.append(f"{safe_text(u.unit):<12} {safe_text(ch.name):<7} "
-                             f"{len(ch.points):>4} "
-                             f"{last.value:13.6g} {last.stderr:11.3g} {change:>12} {z:>7} "
-                             f"{ch.flagged:>8}")
+                rows.append([safe_text(u.unit), _SYMBOLS.get(ch.name, safe_text(ch.name)),
+                             UNITS.get(ch.name, "").replace("–", ""), str(len(ch.points)),
+                             f"{last.value:.6g}", f"{last.stderr:.3g}",
+                             "" if ch.baseline is None else f"{_change(last.value, ch):.5g}",
+                             "" if last.z is None else format_number(last.z, 2),
+                             str(ch.flagged)])
+        lines += text_table([(safe_text(self.by), ""), ("parameter", ""), ("unit", ""),
+                             ("points", ""), ("last", ""), ("± stderr", ""),
+                             ("change", ""), ("z", ""), ("flagged", "")], rows, indent=0,
+                            left=3)
         flagged = [(u.unit, ch.name, p) for u in self.units for ch in u.charts
                    for p in ch.points if p.flagged]
         if flagged:
             lines += ["", "flagged points:"]
-            lines += [f"  {safe_text(unit)} {safe_text(name)} at {p.order}: {p.value:.6g} ± "
-                      f"{p.stderr:.3g} (z = {format_number(p.z or 0.0, 2)}; "
-                      f"{safe_text(p.set)})" for unit, name, p in flagged]
+            lines += [f"  {safe_text(unit)} {_SYMBOLS.get(name, safe_text(name))} at {p.order}: "
+                      f"{p.value:.6g} ± {p.stderr:.3g} "
+                      f"{UNITS.get(name, '').replace('–', '')}".rstrip()
+                      + f" (z = {format_number(p.z or 0.0, 2)}; {safe_text(p.set)})"
+                      for unit, name, p in flagged]
         lines += [f"warning: {safe_text(w)}" for w in self.warnings]
-        return "\n".join(lines)
+        return fit_width("\n".join(lines))
 
 
 def _change(value: float, chart: ParameterChart) -> float:
@@ -435,7 +446,8 @@ def trend(results: str | Path | Any, *, by: str = "axis", baseline: int = 5,
     warnings: list[str] = []
     ok = frame[(frame["status"] == "ok") & frame[by].notna()]
     if len(ok) == 0:
-        raise ExperimentError(f"{source}: no row with status 'ok' and a {by!r}")
+        raise ExperimentError(f"{source}: no row with status 'ok' and a value in the column "
+                              f"{by!r}")
     if (dropped := int((frame["status"] == "ok").sum()) - len(ok)):
         warnings.append(f"{dropped} ok rows without a {by!r} left out")
     units = []
@@ -457,6 +469,7 @@ def trend(results: str | Path | Any, *, by: str = "axis", baseline: int = 5,
         charts = []
         for name in _parameters(rows):
             estimated = rows[rows[name].notna()]
+            shown = _SYMBOLS.get(name, name)  # as the report writes it
             spread = estimated[f"{name}_stderr"].to_numpy(float)
             with np.errstate(invalid="ignore"):
                 usable = (np.isfinite(estimated[name].to_numpy(float)) & np.isfinite(spread)
@@ -465,7 +478,7 @@ def trend(results: str | Path | Any, *, by: str = "axis", baseline: int = 5,
             if len(sel) == 0 and not np.isfinite(spread).any():
                 continue  # never estimated with an uncertainty (e.g. a delay given)
             if (left := len(estimated) - len(sel)):
-                warnings.append(f"{by} {unit}, {name}: {left} of {len(estimated)} estimates "
+                warnings.append(f"{by} {unit}, {shown}: {left} of {len(estimated)} estimates "
                                 "without a finite value and stderr > 0 (a finite, normal "
                                 f"float: at least {_TINY:.3g}) left out of the chart "
                                 f"(first: {estimated['set'][~usable].iloc[0]})")
@@ -483,12 +496,12 @@ def trend(results: str | Path | Any, *, by: str = "axis", baseline: int = 5,
                            flagged=bool(chart["flagged"][i]), baseline=i < baseline)
                 for i, (_, r) in enumerate(sel.iterrows()))
             if chart["baseline"] is None:
-                warnings.append(f"{by} {unit}, {name}: {len(x)} points, no more than the "
-                                f"baseline's {baseline}; nothing tested")
+                warnings.append(f"{by} {unit}, {shown}: {len(x)} point{'s' * (len(x) != 1)}, "
+                                f"no more than the baseline's {baseline}; nothing tested")
             elif chart["p"] is not None and chart["p"] < 1e-3:
                 warnings.append(
-                    f"{by} {unit}, {name}: the {baseline} baseline points scatter more than "
-                    f"their stderrs explain (chi2 = {chart['chi2']:.3g} on {baseline - 1} dof, "
+                    f"{by} {unit}, {shown}: the {baseline} baseline points scatter more than "
+                    f"their stderrs explain (χ² = {chart['chi2']:.3g} on {baseline - 1} dof, "
                     f"p = {chart['p']:.2g}); the control limits are too narrow")
             charts.append(ParameterChart(name, points, chart["baseline"],
                                          chart["baseline_stderr"], chart["chi2"], chart["p"]))

@@ -144,27 +144,37 @@ class Rehearsal:
 
     def report(self) -> str:
         """The predicted stderr against the replicas' spread, bias and coverage, as text."""
-        from phoid.reports.text import format_number
+        from phoid._notation import fit_width
+        from phoid.reports.text import format_number, text_table
 
         lines = [f"rehearsal: {self.replicas} simulated replicas of the schedule "
-                 f"(seed {self.seed}), {self.identified} identified",
-                 "",
-                 f"{'':<3}{'true':>10} {'predicted':>10} {'observed SD':>11} "
-                 f"{'SD/pred [95% if right]':>24} {'mean stderr':>11} {'bias ± MC error':>21} "
-                 f"{'RMSE/pred':>9} {'cover ±3':>8}"]
-        for p in self.parameters:
-            lo, hi = p.sd_ratio_range
-            lines.append(
-                f"{p.name:<3}{p.true:10.4g} {p.predicted:10.3g} {p.observed_sd:11.3g} "
-                f"{format_number(p.sd_ratio, 3):>8} [{format_number(lo, 3)}, "
-                f"{format_number(hi, 3)}]{'':>0} {p.mean_stderr:11.3g} "
-                f"{p.bias:10.2g} ± {p.bias_mc:8.2g} {format_number(p.rmse_ratio, 3):>9} "
-                f"{100 * p.coverage:7.1f}%")
-        lines.append(f"(units {', '.join(f'{p.name}: {p.unit}' for p in self.parameters)}; "
-                     f"cover ±3: share of replicas within 3 reported stderr, "
+                 f"(seed {self.seed}), {self.identified} identified", ""]
+        def span(r: tuple[float, float]) -> str:
+            return f"[{format_number(r[0], 3)}, {format_number(r[1], 3)}]"
+
+        # SD/pred's 95 % range once below the table when it is the same for every parameter
+        # (the same number of replicas identified), else a column of its own
+        ranges = {span(p.sd_ratio_range) for p in self.parameters}
+        own = len(ranges) > 1
+        rows = [[f"{p.name} ({p.unit})", f"{p.true:.4g}", f"{p.predicted:.3g}",
+                 f"{p.observed_sd:.3g}", format_number(p.sd_ratio, 3),
+                 *([span(p.sd_ratio_range)] if own else []), f"{p.mean_stderr:.3g}",
+                 f"{p.bias:.2g} ± {p.bias_mc:.2g}", format_number(p.rmse_ratio, 3),
+                 f"{100 * p.coverage:.1f}"] for p in self.parameters]
+        # a header of two rows: each column's name and what it is of (a row's unit is in its
+        # label; SD/pred, RMSE/pred and the coverage have none)
+        lines += text_table([("", ""), ("true", ""), ("predicted", "stderr"),
+                             ("observed", "SD"), ("SD/", "pred"),
+                             *([("95% if", "right")] if own else []), ("mean", "stderr"),
+                             ("bias", "± MC error"), ("RMSE/", "pred"), ("cover", "±3 (%)")],
+                            rows, indent=0)
+        if ranges and not own:
+            lines.append(f"(SD/pred: within {ranges.pop()} in 95 % of rehearsals where the "
+                         "predicted stderrs are right)")
+        lines.append(f"(cover ±3: the share of replicas within 3 reported stderr, "
                      f"{100 * NOMINAL_COVERAGE:.2f} % if the stderrs are right)")
         lines += [f"warning: {w}" for w in self.warnings]
-        return "\n".join(lines)
+        return fit_width("\n".join(lines))
 
 
 def _spec(design: Any) -> dict[str, Any]:

@@ -43,10 +43,10 @@ def trend(
     (or, where a row has none, by when it was identified, with a warning) and charts every
     estimated parameter: the baseline is the inverse-variance weighted mean b of the first
     --baseline points, and each later point gets z = (x - b) / sqrt(stderr^2 + stderr_b^2),
-    flagged when |z| > --threshold. Prints per unit and parameter the last value +- stderr,
+    flagged when |z| > --threshold. Prints per unit and parameter the last value +/- stderr,
     its change from the baseline, z and the number of flagged points.
     """
-    from phoid._output import protect_inputs, safe_text
+    from phoid._output import echo_text, protect_inputs, safe_text
     from phoid.batch.cluster import require_batch
     from phoid.batch.drift import trend as make_trend
 
@@ -65,9 +65,9 @@ def trend(
     if as_json:
         typer.echo(json.dumps(result.summary(), indent=1))
         for w in result.warnings:
-            typer.echo(f"phoid: warning: {safe_text(w)}", err=True)
+            echo_text(f"phoid: warning: {safe_text(w)}", err=True, wrap=False)
     else:
-        typer.echo(safe_text(result.report(), newlines=True))
+        echo_text(result.report)
     if written:
-        typer.echo(f"{len(written)} figure{'s' * (len(written) != 1)} written to {plots}",
-                   err=as_json)
+        echo_text(f"{len(written)} figure{'s' * (len(written) != 1)} written to {plots}",
+                  err=as_json)

@@ -119,8 +119,11 @@ class ResultBase(NotebookDisplay):
                 **self.fit_statistics()}
 
     def report(self) -> str:
-        """The plain-text report (the function of :mod:`phoid.reports` named by ``REPORT``)."""
-        return load(self.REPORT)(self)
+        """The plain-text report (the function of :mod:`phoid.reports` named by ``REPORT``),
+        no line wider than 100 columns (:func:`phoid._notation.fit_width`)."""
+        from phoid._notation import fit_width
+
+        return fit_width(load(self.REPORT)(self))
 
     def plot(self, out_dir: str | Path, *, overwrite: bool = False) -> list[Path]:
         """Write the result's figures as PNG files into ``out_dir`` (the function of

@@ -79,7 +79,8 @@ class TrackingReplay(NotebookDisplay):
         return json_safe(out)
 
     def report(self) -> str:
-        """Plain text: the parameters and each run's relative errors."""
+        """Plain text: the parameters and each run's relative errors (100 columns)."""
+        from phoid._notation import fit_width
         from phoid.reports.tracking import validation_lines
 
         p = self.parameters
@@ -94,7 +95,7 @@ class TrackingReplay(NotebookDisplay):
                       f"differences): {ratio_text(q)}"]
         if self.warnings:
             lines += ["", "warnings:"] + [f"  - {w}" for w in self.warnings]
-        return "\n".join(lines)
+        return fit_width("\n".join(lines))
 
     def plot(self, folder: str | Path, *, overwrite: bool = False) -> list[Path]:
         """One PNG per run (measured vs simulated, residual, force) into ``folder``."""

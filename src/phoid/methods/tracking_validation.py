@@ -171,10 +171,11 @@ class TrackingValidation(NotebookDisplay):
         }
 
     def report(self) -> str:
-        """Plain-text report (:func:`phoid.reports.tracking.tracking_text`)."""
+        """Plain-text report (:func:`phoid.reports.tracking.tracking_text`), 100 columns."""
+        from phoid._notation import fit_width
         from phoid.reports.tracking import tracking_text
 
-        return tracking_text(self)
+        return fit_width(tracking_text(self))
 
     def plot(self, path: str | Path | None = None, *, overwrite: bool = False) -> Any:
         """The figure of :func:`phoid.reports.tracking.plot_tracking`: a PNG at ``path``

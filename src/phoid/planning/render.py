@@ -10,8 +10,10 @@ from typing import Any
 
 import numpy as np
 
+from phoid._notation import fit_width, notation
 from phoid._output import OutputFolder, png_writer
 from phoid.planning.settings import UNITS, DesignError, fmt_range
+from phoid.reports.text import format_gain, text_table
 
 __all__ = ["design_report", "loop_words", "plot_design"]
 
@@ -32,37 +34,39 @@ def design_report(d: Any) -> str:
         lines.append(f"{title} for {pr}, delay {st.delay:g} s")
     lines.append(f"record {st.duration:g} s at {st.fs:g} Hz, noise {st.noise:g} m, "
                  f"release amplitude {st.amplitude:g} m; safety checked over "
-                 + ", ".join(f"{n} {fmt_range(r)}"
+                 + ", ".join(f"{n} {fmt_range(r)} {UNITS.get(n, '')}".rstrip()
                              for n, r in d.prior["checked_ranges"].items()))
     lines.append("")
-    dm_head = "dm(smp)" if sampled else "dmargin"
-    head = (f"{'run':>3} {'P (N/m)':>11} {'D (N s/m)':>11} {'sigma':>8} {'omega_d':>8} "
-            f"{'zeta':>6} {'cycles':>7} {'margin':>8} {dm_head:>8} {'share':>6}  status")
-    lines.append(head)
-    for i, r in enumerate(d.runs, start=1):
-        status = "ok" if r.safe and r.informative else (
-            "UNSAFE" if not r.safe else "uninformative")
-        dm = (f"{r.delay_margin_samples:>8g}" if sampled else f"{r.delay_margin:>8.3g}")
-        lines.append(
-            f"{i:>3} {r.P:>11.5g} {r.D:>11.5g} {r.sigma:>8.4g} {r.omega_d:>8.4g} "
-            f"{r.zeta:>6.3f} {r.cycles:>7.1f} {r.margin:>8.3g} {dm} "
-            f"{r.share:>6.3f}  {status}")
+    # a checked schedule's gains exactly as given; a design's to 6 significant digits (the
+    # schedule it writes, --out, and --json hold every digit)
+    gain = format_gain if d.kind != "design" else (lambda g: f"{g:.6g}")
+    rows = [[str(i), gain(r.P), gain(r.D), f"{r.sigma:.4g}", f"{r.omega_d:.4g}",
+             f"{r.zeta:.3f}", f"{r.cycles:.1f}", f"{r.margin:.3g}",
+             f"{r.delay_margin_samples:g}" if sampled else f"{r.delay_margin:.3g}",
+             f"{r.share:.3f}",
+             "ok" if r.safe and r.informative else "UNSAFE" if not r.safe else "uninformative"]
+            for i, r in enumerate(d.runs, start=1)]
+    lines.extend(text_table([("run", ""), ("P", "N/m"), ("D", "N s/m"), ("σ", "1/s"),
+                             ("ω_d", "rad/s"), ("ζ", ""), ("cycles", ""), ("margin", "1/s"),
+                             ("delay margin", "samples" if sampled else "s"), ("share", ""),
+                             ("status", "")], rows, indent=0))
+    mode = ("the dominant mode of the sampled loop, exact, at the nominal plant" if sampled
+            else "the dominant mode at the nominal plant")
+    extra = (f" (stable up to delay_samples {st.delay_samples} + the margin)" if sampled
+             else "")
+    lines.append(f"  σ, ω_d, ζ: {mode}; margin: the smallest decay rate of the rightmost root "
+                 "over the prior; delay margin: the smallest extra delay before instability "
+                 f"over the prior{extra}; share: the run's share of the set's information")
+    if d.kind == "design":
+        lines.append("  gains to 6 significant digits: the schedule (--out) and --json hold "
+                     "every digit")
     if sampled:
-        lines.append("  sigma 1/s, omega_d rad/s: the dominant mode of the sampled loop, exact "
-                     "(nominal plant); margin: smallest decay rate of the rightmost root (1/s) "
-                     f"and dm(smp): smallest extra delay in whole samples before instability "
-                     f"(stable up to delay_samples {st.delay_samples} + dm), both over the "
-                     "prior")
         lines.append("")
         order = len(d.runs[0].roots) if d.runs else 0
         lines.append(f"Sampled loop modes at the nominal plant (all {order} roots of its "
                      "characteristic polynomial, rightmost first; s = ln(z)/T, 1/s):")
         for i, r in enumerate(d.runs, start=1):
             lines.append(f"  run {i}: " + _modes_text(r.roots))
-    else:
-        lines.append("  sigma 1/s, omega_d rad/s (nominal plant); margin: smallest decay rate "
-                     "of the rightmost root (1/s) and dmargin: smallest extra delay before "
-                     "instability (s), both over the prior")
     lines.append("")
     if d.bound == "in-loop":
         lines.append("Predicted standard errors (in-loop Cramér–Rao bound at the nominal plant: "
@@ -79,7 +83,7 @@ def design_report(d: Any) -> str:
     for j, name in enumerate(("m", "c", "k")):
         e = getattr(d, name)
         extra = f"  (modal {_g(d.modal_stderr[j])})" if d.bound == "in-loop" else ""
-        lines.append(f"  {name} = {e.value:.6g} {e.unit}  ± {_g(e.stderr)}  "
+        lines.append(f"  {name} = {e.value:.6g} ± {_g(e.stderr)} {e.unit}  "
                      f"[{_g(d.stderr_worst[j])}]{extra}")
     if d.notes:
         lines.append("")
@@ -88,7 +92,7 @@ def design_report(d: Any) -> str:
         lines.append("")
         lines.append("Warnings:")
         lines.extend(f"  - {w}" for w in d.warnings)
-    return "\n".join(lines)
+    return fit_width(notation("\n".join(lines)))
 
 
 def loop_words(st: Any) -> str:

@@ -415,7 +415,7 @@ def assemble(P: np.ndarray, D: np.ndarray, prior: Prior, st: DesignSettings, kin
         else:
             zmin = float(np.nanmin(ev.zeta[i]))
             if zmin < 0.5 * zlo:
-                rw.append(("damping", zmin, f"barely damped for some plants (zeta down to "
+                rw.append(("damping", zmin, f"barely damped for some plants (ζ down to "
                                             f"{zmin:.3g} < {0.5 * zlo:g})"))
             if sampled:
                 dm = float(np.min(ev.dsamples[i]))
@@ -437,10 +437,10 @@ def assemble(P: np.ndarray, D: np.ndarray, prior: Prior, st: DesignSettings, kin
             rw.append(("cycles", cyc_min, f"only {cyc_min:.1f} cycles above the noise floor "
                                           f"for some plants (< {st.min_cycles:g})"))
         if rings and not ev.in_band[i]:
-            rw.append(("band", float(ev.zeta[i, 0]), f"zeta {ev.zeta[i, 0]:.3g} outside the "
+            rw.append(("band", float(ev.zeta[i, 0]), f"ζ {ev.zeta[i, 0]:.3g} outside the "
                                                      f"band {zlo:g}-{zhi:g}"))
         if not np.all(ev.ok_freq[i] | ~np.isfinite(ev.s[i])):
-            rw.append(("bandwidth", 0.0, f"omega_d above the bandwidth limit "
+            rw.append(("bandwidth", 0.0, f"ω_d above the bandwidth limit "
                                          f"{st.omega_max:.4g} rad/s"))
         if not ev.ok_limits[i]:
             rw.append(("limits", 0.0, f"gains beyond the limits (|P| <= {st.pmax:g} N/m, "
@@ -562,7 +562,7 @@ def _grouped(found: dict[str, list[tuple[int, float]]], st: DesignSettings, n: i
         elif kind == "noring":
             out.append(f"{runs}: do not ring for some plants of the prior")
         elif kind == "damping":
-            out.append(f"{runs}: barely damped for some plants of the prior (zeta down to "
+            out.append(f"{runs}: barely damped for some plants of the prior (ζ down to "
                        f"{min(vals):.3g})")
         elif kind == "dmargin" and st.digital is not None:
             out.append(f"{runs}: delay margin down to {min(vals):g} samples "
@@ -577,10 +577,10 @@ def _grouped(found: dict[str, list[tuple[int, float]]], st: DesignSettings, n: i
             out.append(f"{runs}: as few as {min(vals):.1f} cycles above the noise floor for "
                        f"some plants of the prior (< {st.min_cycles:g})")
         elif kind == "band":
-            out.append(f"{runs}: zeta at the nominal plant outside the band "
+            out.append(f"{runs}: ζ at the nominal plant outside the band "
                        f"{st.zeta[0]:g}-{st.zeta[1]:g} ({min(vals):.3g} to {max(vals):.3g})")
         elif kind == "bandwidth":
-            out.append(f"{runs}: omega_d above the bandwidth limit {st.omega_max:.4g} rad/s")
+            out.append(f"{runs}: ω_d above the bandwidth limit {st.omega_max:.4g} rad/s")
         elif kind == "limits":
             out.append(f"{runs}: gains beyond the limits |P| <= {st.pmax:g} N/m, "
                        f"|D| <= {st.dmax:g} N s/m")

@@ -189,7 +189,7 @@ def design(
     if not w_hi > w_lo * 1.001:
         raise DesignError(
             f"no room for ringing runs: {st.min_cycles:g} cycles in {st.duration:g} s need "
-            f"omega_d ≥ {w_lo:.4g} rad/s, but the bandwidth limit is {st.omega_max:.4g} rad/s "
+            f"ω_d ≥ {w_lo:.4g} rad/s, but the bandwidth limit is {st.omega_max:.4g} rad/s "
             f"(raise --max-freq or {rate}, or record longer)"
         )
     W = np.geomspace(w_lo, w_hi, _N_OMEGA)
@@ -217,9 +217,9 @@ def design(
         if not np.any(usable):
             raise DesignError(_why_infeasible(st, prior, ok_lim, ev, w_lo))
         warnings.append(
-            "no gains give the nominal plant a mode in the zeta band with "
+            "no gains give the nominal plant a mode in the ζ band with "
             f"{st.min_cycles:g} cycles while staying stable with margin over the whole prior: "
-            "the runs are more damped than asked (see each run's zeta and cycles) and, with "
+            "the runs are more damped than asked (see each run's ζ and cycles) and, with "
             "so few cycles, the predicted stderr is optimistic; narrow the prior (identify "
             "with this schedule, then design again)"
         )
@@ -342,7 +342,7 @@ def sampled_runs(targets: np.ndarray, grid: tuple[np.ndarray, np.ndarray], prior
     if not np.all(good):
         lost = np.abs(targets[~good])
         warnings.append(
-            f"{lost.size} of {P.size} runs dropped: near their targets (omega0 "
+            f"{lost.size} of {P.size} runs dropped: near their targets (ω₀ "
             + ", ".join(f"{w:.4g}" for w in lost) + " rad/s) no gains make the sampled loop "
             "ring stably with the margins over the whole prior; the schedule has "
             f"{int(good.sum())} runs")
@@ -410,11 +410,11 @@ def _why_infeasible(st: DesignSettings, prior: Prior, ok_lim: np.ndarray, ev: Ev
                     w_lo: float) -> str:
     """One line saying which requirement rules out every candidate run (checked in order)."""
     checked = ", ".join(f"{n} {fmt_range(r)}" for n, r in prior.ranges.items())
-    band = f"zeta {st.zeta[0]:g}-{st.zeta[1]:g}"
+    band = f"ζ {st.zeta[0]:g}-{st.zeta[1]:g}"
     if ev is None or not np.any(ok_lim):
         return (f"every gain pair that makes the loop ring with {band} exceeds the limits "
                 f"|P| <= {st.pmax:g} N/m, |D| <= {st.dmax:g} N s/m: raise --pmax/--dmax")
-    span = (f"omega_d {w_lo:.4g}-{st.omega_max:.4g} rad/s ({st.min_cycles:g} cycles in "
+    span = (f"ω_d {w_lo:.4g}-{st.omega_max:.4g} rad/s ({st.min_cycles:g} cycles in "
             f"{st.duration:g} s up to the bandwidth limit)")
     rate = "--fs" if st.sample_time is None else "shorten --sample-time"
     loop = (f"a delay of {st.delay:g} s" if st.sample_time is None else
@@ -431,7 +431,7 @@ def _why_infeasible(st: DesignSettings, prior: Prior, ok_lim: np.ndarray, ev: Ev
                 f"({checked}) with {loop}: narrow the prior")
     keep &= np.all(ev.zeta >= 0.5 * st.zeta[0], axis=1)
     if not np.any(keep):
-        return (f"no gains keep the loop damped (zeta >= {0.5 * st.zeta[0]:g}) for every plant "
+        return (f"no gains keep the loop damped (ζ ≥ {0.5 * st.zeta[0]:g}) for every plant "
                 f"in the prior ({checked}): narrow the prior")
     keep &= np.all(ev.dmargin >= st.delay_margin, axis=1)
     if not np.any(keep):

@@ -13,10 +13,11 @@ from typing import Any
 
 import numpy as np
 
+from phoid._notation import notation
 from phoid._output import OutputFolder, safe_text
 from phoid.reports.figures import run_names, write_pngs
 from phoid.reports.statistics import ratio_text
-from phoid.reports.text import adequacy_lines, fit_statistics_lines, format_estimate
+from phoid.reports.text import adequacy_lines, fit_statistics_lines, format_estimate, text_table
 
 __all__ = ["free_friction_text", "plot_free_friction"]
 
@@ -25,7 +26,7 @@ def _est_line(name: str, est: Any) -> str:
     val = format_estimate(est.value, est.stderr) if math.isfinite(est.value) else "undefined"
     white = getattr(est, "white_stderr", None)
     tail = f"   (white-noise stderr {white:.2g})" if white is not None else ""
-    return f"  {name:<6}= {val} {est.unit}{tail}".rstrip()
+    return f"  {notation(name):<7}= {val} {est.unit}{tail}".rstrip()  # "=" aligned in ASCII
 
 
 def _opt(x: float | None, fmt: str) -> str:
@@ -68,8 +69,8 @@ def free_friction_text(result: Any) -> str:
         for name, est in (("c", result.c), ("k", result.k), ("f_c", result.fc)):
             lines.append(_est_line(name, est))
     else:
-        lines.append("  (m, c, k, f_c are not separately identifiable from a free decay: "
-                     "give the mass with --mass)")
+        lines.append("  (a free decay gives c/m, k/m and f_c/m, not m, c, k, f_c: a known mass "
+                     "(the manifest's, --mass) adds them)")
     ev = result.evidence
     lines.append(f"  friction against the viscous fit: Δχ² = {ev.delta_chi2:.4g} "
                  f"(p = {ev.p_value:.2g}), likelihood ratio {ev.likelihood_ratio:.4g}, "
@@ -79,17 +80,18 @@ def free_friction_text(result: Any) -> str:
                  "zero where |k(x − x_off)| ≤ f_c)")
     lines.append("")
     xu = safe_text(str(getattr(result, "x_unit", "m")))
-    lines.append(f"  {'run':<18}{'samples':>8}{'half-cycles':>12}{'stops at s':>12}"
-                 f"{'stuck at ' + xu:>12}{'resid/noise':>12}{'viscous':>9}")
+    rows = []
     for r, q, qv in zip(result.runs, result.residual_noise_ratios(),
                         result.viscous_residual_noise_ratios(), strict=True):
-        mark = "" if r.used else "  (set aside)"
         stop = _opt(r.stop_time, ".5g") if r.used else "—"
         if r.used and r.stop_time is None:
             stop = "never"
-        lines.append(f"  {safe_text(r.file):<18}{r.n_samples:>8d}{r.half_cycles:>12d}"
-                     f"{stop:>12}{_opt(r.stuck_position, '.4g'):>12}{ratio_text(q):>12}"
-                     f"{ratio_text(qv):>9}{mark}")
+        rows.append([safe_text(r.file), f"{r.n_samples:d}", f"{r.half_cycles:d}", stop,
+                     _opt(r.stuck_position, ".4g"), ratio_text(q), ratio_text(qv),
+                     *([] if r.used else ["(set aside)"])])
+    lines.extend(text_table([("run", ""), ("samples", ""), ("half-cycles", ""),
+                             ("stops at", "s"), ("stuck at", xu), ("resid/noise", ""),
+                             ("viscous", "resid/noise")], rows))
     lines.extend(fit_statistics_lines(result))
     lines.extend(adequacy_lines(result))
     if result.warnings:

@@ -39,6 +39,7 @@ __all__ = [
     "ratio_text",
     "statistics_json",
     "statistics_lines",
+    "symbol",
 ]
 
 #: Correlations below this (in absolute value) are left out of the ``[[Correlations]]`` block,
@@ -202,10 +203,26 @@ def correlation_lines(corr: Mapping[str, Any], min_correl: float = MIN_CORREL) -
              for j in range(i + 1, len(names)) if m[i][j] is not None]
     shown = sorted((p for p in pairs if abs(p[2]) >= min_correl), key=lambda p: -abs(p[2]))
     lines = [f"[[Correlations]] (unreported correlations are < {min_correl:.3f})"]
-    lines += [f"    C({a}, {b}) = {r:+.4f}" for a, b, r in shown]
+    lines += [f"    C({symbol(a)}, {symbol(b)}) = {r:+.4f}" for a, b, r in shown]
     if not shown:
         lines.append("    (none)")
     return lines
+
+
+#: how a parameter's JSON name is written in a report (σ is the decay rate)
+SYMBOLS = {"sigma": "σ", "omega0": "ω₀", "omega_d": "ω_d", "zeta": "ζ", "c_over_m": "c/m",
+           "k_over_m": "k/m", "fc_over_m": "f_c/m", "offset_force": "offset force",
+           "chi2": "χ²"}
+
+
+def symbol(name: str) -> str:
+    """A parameter's JSON name as a report writes it (``sigma`` → σ, ``omega0`` → ω₀,
+    ``c_over_m`` → c/m, in the report's notation); any other name as it is.
+
+    >>> symbol("omega0"), symbol("m")
+    ('ω₀', 'm')
+    """
+    return notation(SYMBOLS.get(name, name))
 
 
 def ratio_text(ratio: float | None) -> str:

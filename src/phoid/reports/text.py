@@ -9,9 +9,9 @@ from __future__ import annotations
 import math
 from typing import Any
 
-from phoid._notation import notation
+from phoid._notation import WIDTH, fit_width, notation
 from phoid._output import safe_text
-from phoid.reports.statistics import correlation_lines, ratio_text, statistics_lines
+from phoid.reports.statistics import correlation_lines, ratio_text, statistics_lines, symbol
 
 __all__ = [
     "adequacy_lines",
@@ -27,10 +27,6 @@ __all__ = [
     "identification_text",
     "text_table",
 ]
-
-#: The widest line a text report prints (a terminal's 100 columns).
-WIDTH = 100
-
 
 # fixed-point notation is used between these magnitudes; beyond them exponent notation
 _FIXED_MIN, _FIXED_MAX = 1e-4, 1e9
@@ -65,40 +61,13 @@ def format_number(value: float, decimals: int = 4) -> str:
     return f"{value:.{decimals}e}"
 
 
-def fit_width(text: str, width: int = WIDTH) -> str:
-    """``text`` with every line wider than ``width`` wrapped at spaces: the continuation
-    indented two more than the line (a ``- `` item's under its text). A word longer than the
-    width (a path) is kept whole, never cut.
-
-    Parameters
-    ----------
-    text : str
-    width : int
-
-    Returns
-    -------
-    str
-    """
-    import textwrap
-
-    out: list[str] = []
-    for line in text.split("\n"):
-        if len(line) <= width:
-            out.append(line)
-            continue
-        body = line.lstrip(" ")
-        indent = " " * (len(line) - len(body))
-        more = indent + "  "
-        out.extend(textwrap.wrap(body, width, initial_indent=indent, subsequent_indent=more,
-                                 break_long_words=False, break_on_hyphens=False)
-                   or [line])
-    return "\n".join(out)
-
-
 def text_table(columns: list[tuple[str, str]], rows: list[list[str]], *, width: int = WIDTH,
-               indent: int = 2, label_width: int = 20) -> list[str]:
+               indent: int = 2, label_width: int = 20, left: int = 1) -> list[str]:
     """A table of text cells no wider than ``width``: names in a header row, units in a row
-    below, the first column (the row's label) left-aligned and the others right-aligned.
+    below, the first ``left`` columns (the first: the row's label) left-aligned and the others
+    right-aligned.
+
+    The one layout of phoid's text tables (identification, design, rehearsal, trend, Table 1).
 
     Columns that do not fit beside the label are wrapped into a further block below (the
     label repeated), and a label longer than ``label_width`` gets a line of its own, the
@@ -111,7 +80,7 @@ def text_table(columns: list[tuple[str, str]], rows: list[list[str]], *, width: 
     rows : list of list of str
         The cells, already formatted, one per column; a row may have one more, a note printed
         after the last block's cells (e.g. "set aside").
-    width, indent, label_width : int
+    width, indent, label_width, left : int
 
     Returns
     -------
@@ -146,8 +115,9 @@ def text_table(columns: list[tuple[str, str]], rows: list[list[str]], *, width: 
         last = b == len(blocks) - 1
 
         def line(label: str, row: list[str], block: list[int] = block) -> str:
-            return (pad + f"{label:<{lab}}" + "".join(gap + f"{row[j]:>{widths[j]}}"
-                                                        for j in block)).rstrip()
+            return (pad + f"{label:<{lab}}" + "".join(
+                gap + (f"{row[j]:<{widths[j]}}" if j < left else f"{row[j]:>{widths[j]}}")
+                for j in block)).rstrip()
 
         out.append(line(columns[0][0], [c[0] for c in columns]))
         if has_units:
@@ -370,7 +340,7 @@ def adequacy_lines(result: Any) -> list[str]:
         state = "n/a" if c.passed is None else "pass" if c.passed else "FAIL"
         nums = (f"{c.statistic:.4g} (limit {c.threshold:.4g})"
                 if math.isfinite(c.statistic) and math.isfinite(c.threshold) else "")
-        lines.append(f"    {c.name:<12}{state:<6}{nums}".rstrip())
+        lines.append(f"    {symbol(c.name):<12}{state:<6}{nums}".rstrip())
     if ad.stderr == "robust":
         infl = ", ".join(f"{n} ×{f:.3g}" for n, f in zip(ad.names, ad.inflation, strict=True))
         lines.append(f"    stderr: robust (Newey–West, widened by the spread between parts where "
@@ -490,6 +460,7 @@ def free_text(result: Any) -> str:
         re = format_estimate(s.real, se[0])
         im = format_estimate(abs(s.imag), se[1])
         sign = "+" if s.imag >= 0 else "−"
+        re, im = (f"({v})" if "±" in v else v for v in (re, im))
         lines.append(f"  root {j}: {re} {sign} {im}i 1/s")
     if result.m is not None and result.c is not None and result.k is not None:
         what = "moment of inertia J" if result.m.unit == "kg m^2" else "mass m"
@@ -500,8 +471,8 @@ def free_text(result: Any) -> str:
         lines.append(f"  (x is in sensor units, {xu}: only σ, ω₀, ζ, c/m and k/m are "
                      "identifiable; c and k need x in a length or an angle unit)")
     else:
-        lines.append("  (m, c, k are not separately identifiable from a free decay: "
-                     "give the mass with --mass to get c and k)")
+        lines.append("  (a free decay gives c/m and k/m, not m, c, k: a known mass (the "
+                     "manifest's, --mass) adds c, k)")
     lines.append("")
     rows = [[safe_text(r.file), f"{r.release:.5g}", "yes" if r.held else "no",
              f"{r.x0:.4g}", f"{r.v0:.4g}", f"{r.n_samples:d}", f"{r.residual_rms:.2g}",

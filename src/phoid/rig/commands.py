@@ -14,7 +14,7 @@ from typing import Annotated, NoReturn
 
 import typer
 
-from phoid._output import exit_with_error
+from phoid._output import echo_text, exit_with_error
 from phoid._progress import task
 
 __all__ = ["parse_listen", "run", "serve_until_stopped", "virtual_rig"]
@@ -202,7 +202,7 @@ def run(
         "--u-max", help="Command limit, N (default: none).")] = None,
     timeout: Annotated[float, typer.Option(
         help="Seconds to wait for the rig (connection, each line, each send; at most a day); "
-             "each run also ends within --timeout + (its samples)·(2T + 0.1 ms).")] = 10.0,
+             "each run also ends within --timeout + (its samples) x (2T + 0.1 ms).")] = 10.0,
     framing: Annotated[str, typer.Option(
         help="How the samples travel: 'text' (PHOID-RIG 1 lines, every rig), 'auto' (offer "
              "the binary COBS frames a microcontroller rig speaks, keep text when the rig "
@@ -260,10 +260,10 @@ def run(
         if main:
             signal.signal(signal.SIGTERM, signal.SIG_DFL if previous is None else previous)
     for msg in result.messages:
-        typer.echo(f"phoid: {msg}", err=True)
+        echo_text(f"phoid: {msg}", err=True, wrap=False)
     done = sum(s == "complete" for s in result.statuses)
-    typer.echo(f"{done} of {len(result.statuses)} runs complete; set written to "
-               f"{result.manifest}")
+    echo_text(f"{done} of {len(result.statuses)} runs complete; set written to "
+              f"{result.manifest}")
     if not result.complete:
         typer.echo("phoid: the plan is not complete (pass --resume to run the rest)", err=True)
         raise typer.Exit(1)
