@@ -121,6 +121,8 @@ BUILT = DOCS / "_build" / "html"
 BUILT_STAMP = BUILT / ".phoid-docs-ok"
 #: the sources a build is made from: a file here newer than the stamp makes the build stale
 SOURCES = (DOCS, DOCS.parent / "src" / "phoid", DOCS.parent / "examples")
+#: compiled files a build or a test may leave beside the sources (the rig's C controller)
+BUILT_SUFFIXES = frozenset({".pyc", ".so", ".o", ".dll", ".dylib", ".a", ".elf", ".hex"})
 
 
 def newest_source(roots: tuple[Path, ...] = SOURCES) -> tuple[float, Path | None]:
@@ -130,7 +132,7 @@ def newest_source(roots: tuple[Path, ...] = SOURCES) -> tuple[float, Path | None
         for path in root.rglob("*"):
             rel = path.relative_to(root).parts
             if (any(part in ("_build", "generated", "__pycache__") or part.startswith(".")
-                    for part in rel) or not path.is_file()):
+                    for part in rel) or path.suffix in BUILT_SUFFIXES or not path.is_file()):
                 continue
             mtime = path.stat().st_mtime
             if mtime > newest[0]:
@@ -163,6 +165,7 @@ def test_a_source_newer_than_the_build_makes_it_stale(tmp_path: Path) -> None:
     os.utime(page, (1_000_000, 1_000_000))
     os.utime(stamp, (2_000_000, 2_000_000))
     (src / "_build" / "late.html").write_text("x", encoding="utf-8")  # outputs do not count
+    (src / "rig.so").write_text("x", encoding="utf-8")  # nor compiled files
     assert fresh_build(html, stamp, (src,)) is None
     os.utime(page, (3_000_000, 3_000_000))
     assert "page.md" in (fresh_build(html, stamp, (src,)) or "")
