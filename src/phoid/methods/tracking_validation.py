@@ -171,11 +171,10 @@ class TrackingValidation(NotebookDisplay):
         }
 
     def report(self) -> str:
-        """Plain-text report (:func:`phoid.reports.tracking.tracking_text`), 100 columns."""
-        from phoid._notation import fit_width
+        """Plain-text report (:func:`phoid.reports.tracking.tracking_text`)."""
         from phoid.reports.tracking import tracking_text
 
-        return fit_width(tracking_text(self))
+        return tracking_text(self)
 
     def plot(self, path: str | Path | None = None, *, overwrite: bool = False) -> Any:
         """The figure of :func:`phoid.reports.tracking.plot_tracking`: a PNG at ``path``

@@ -13,9 +13,10 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from phoid._notation import fit_width
 from phoid._output import safe_text, save_figure
 from phoid.reports.statistics import correlation_lines, ratio_text, statistics_lines
-from phoid.reports.text import adequacy_lines, format_number
+from phoid.reports.text import adequacy_lines, format_number, text_table
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
@@ -56,17 +57,17 @@ def validation_lines(validation: Any) -> list[str]:
     lines = [f"  simulated vs recorded, samples {start + 1}–{stop} of {len(t)} "
              f"(t = {t[start]:g} … {t[stop - 1]:g} s); relative error 100·‖y − ŷ‖/‖y‖",
              f"  measured velocity: {validation.velocity_estimator}",
-             "",
-             f"  {'signal':<16}{'rel. error %':>14}{'rms residual':>16}{'rms measured':>16}"]
-    for e in validation.errors:
-        lines.append(f"  {e.name:<16}{_number(e.relative_error, '.4g'):>14}"
-                     f"{_number(e.rms, '.3g') + ' ' + e.unit:>16}"
-                     f"{_number(e.measured_rms, '.3g') + ' ' + e.unit:>16}")
+             ""]
+    rows = [[safe_text(e.name), _number(e.relative_error, ".4g"), _number(e.rms, ".3g"),
+             _number(e.measured_rms, ".3g"), safe_text(e.unit)] for e in validation.errors]
+    lines += text_table([("signal", ""), ("rel. error", "%"), ("rms residual", ""),
+                         ("rms measured", ""), ("unit", "")], rows)
     return lines
 
 
 def tracking_text(result: Any) -> str:
-    """Plain-text report of a tracking validation (or of a result that carries one).
+    """Plain-text report of a tracking validation (or of a result that carries one), no line
+    wider than 100 columns.
 
     Parameters
     ----------
@@ -81,7 +82,7 @@ def tracking_text(result: Any) -> str:
     lines = ["phoid tracking validation", *validation_lines(validation)]
     if validation.warnings:
         lines += ["", "warnings:"] + [f"  - {safe_text(w)}" for w in validation.warnings]
-    return "\n".join(lines)
+    return fit_width("\n".join(lines))
 
 
 def plot_tracking(result: Any, path: str | Path | None = None, *,
@@ -198,20 +199,20 @@ def identification_text(result: Any) -> str:
         value, se, unit = est.value, est.stderr, est.unit
         if key == "delay":
             value, se, unit = value * 1e3, None if se is None else se * 1e3, "ms"
+        spread, note = (f" ± {se:.4g}", "") if se else ("", "")
         if se is None:
-            spread = "  (no ±: see the warnings)"
+            note = "  (no ±: see the warnings)"
         elif se == 0.0:
-            spread = ("  (assumed)" if result.delay_source == "assumed-zero" else "  (given)") \
+            note = ("  (assumed)" if result.delay_source == "assumed-zero" else "  (given)") \
                 if key == "delay" else "  (fixed)"
-        else:
-            spread = f" ± {se:.4g}"
         white = getattr(est, "white_stderr", None)
         if white is not None and se:
             # a robust stderr reported: the white-noise least-squares one beside it
             white = white * 1e3 if key == "delay" else white
-            unit += f"  (white-noise ± {white:.4g})"
-        lines.append(f"  {labels.get(key, key):<20}{value:>12.7g}{spread} {unit}")
-    lines.append(f"  delay: {result.delay_source}")
+            note = f"  (white-noise ± {white:.4g})"
+        lines.append(f"  {labels.get(key, key):<20}{value:>12.7g}{spread} {unit}{note}")
+    if "delay" not in result.estimates or result.delay_source not in ("given", "assumed-zero"):
+        lines.append(f"  command delay: {result.delay_source}")  # (given)/(assumed) said above
     lines.append("")
     if result.estimator == "idim":
         rel = format_number(fit["relative_error_percent"])
