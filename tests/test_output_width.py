@@ -27,7 +27,7 @@ from typer.testing import CliRunner
 
 import phoid
 import phoid.io
-from phoid._notation import ascii_text
+from phoid._notation import ascii_text, fit_width, stream_notation
 from phoid.cli import app
 from phoid.dynamics.controller import SampledController
 from phoid.dynamics.plant import Plant
@@ -267,3 +267,21 @@ def test_python_reports_fit_100_columns(sets):
     # the long warning lines of a report are wrapped, none cut: every word is still there
     words = " ".join(ident.warnings).split()
     assert all(w in ident.report().split() for w in words)
+
+
+class _AsciiStream:
+    """A stream that says it writes ASCII (as stdout under PYTHONIOENCODING=ascii)."""
+
+    encoding = "ascii"
+
+
+def test_a_report_is_fitted_in_the_notation_it_is_printed_in(sets):
+    # in an ASCII stream "≤" is printed "<=", a column wider: the prose is wrapped where its
+    # lines are as printed, so that no wrap leaves a word alone on a line of its own
+    line = "  " + "a" * 92 + " x ≤ b"  # 100 columns in unicode, 101 in ASCII
+    assert fit_width(line) == line
+    with stream_notation(_AsciiStream()):
+        assert fit_width(line).splitlines() == ["  " + "a" * 92 + " x <=", "    b"]
+        text = phoid.identify(sets["free"], friction=True).report()
+    # report() from Python inside the ASCII notation: all of it spelled out, and fitted
+    assert text.isascii() and max(_widths(text)) <= WIDTH

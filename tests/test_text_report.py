@@ -187,3 +187,18 @@ def test_the_stream_text_is_unchanged_where_the_stream_encodes_it():
     latin = io.TextIOWrapper(io.BytesIO(), encoding="latin-1")  # has ± but no ω
     assert stream_text(text, utf8) == text
     assert stream_text(text, latin) == "omega0 = 5.6567 +/- 0.0002 rad/s"
+
+
+def test_a_table_too_wide_is_wrapped_into_blocks_and_left_columns_stay_left():
+    from phoid.reports.text import text_table
+
+    # 8 columns of 18 characters: 2 + 5 + 8·20 = 167 > 100, so two blocks, the label repeated
+    cols = [("run", ""), *((f"c{j}", "s") for j in range(8))]
+    rows = [["r1", *(f"{j:>18}" for j in range(8))]]
+    out = text_table(cols, rows)
+    assert max(len(x) for x in out) <= 100
+    assert sum(x.split()[0] == "r1" for x in out if x.strip()) == 2
+    # left=2: the second column (a name) starts right after the label's gap, padded after
+    out = text_table([("unit", ""), ("parameter", ""), ("n", "")],
+                     [["x", "ω₀", "3"], ["x", "m", "12"]], indent=0, left=2)
+    assert out[1] == "x     ω₀          3" and out[2] == "x     m          12"
