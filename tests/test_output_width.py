@@ -232,6 +232,13 @@ def test_a_range_of_gains_is_its_decimals(tmp_path):
     assert [r["D"] for r in runs] == [float(f"{0.6 + 0.3 * i:.1f}") for i in range(19)]
     assert [r["P"] for r in runs] == [0.25 + 1.375 * i for i in range(19)]  # exact in binary
     assert res.stdout.strip().startswith("wrote 19 runs")
+    # a step with no short decimal (20/3 apart: 11.666…) stays the binary step, not a
+    # 15-digit rounding of it
+    thirds = _invoke(["simulate", str(tmp_path / "t"), "--P", "5:25:4", "--D", "1",
+                      "--duration", "0.5", "--fs", "100"], "utf-8")
+    assert thirds.exit_code == 0, thirds.output
+    runs3 = tomllib.loads((tmp_path / "t" / "experiment.toml").read_text())["run"]
+    assert [r["P"] for r in runs3] == np.linspace(5.0, 25.0, 4).tolist()
     one = _invoke(["simulate", str(tmp_path / "one"), "--P", "0.30000000000000004", "--D", "1",
                    "--duration", "0.5", "--fs", "100"], "utf-8")
     assert one.exit_code == 0, one.output
@@ -285,3 +292,10 @@ def test_a_report_is_fitted_in_the_notation_it_is_printed_in(sets):
         text = phoid.identify(sets["free"], friction=True).report()
     # report() from Python inside the ASCII notation: all of it spelled out, and fitted
     assert text.isascii() and max(_widths(text)) <= WIDTH
+
+
+def test_paper_errors_name_the_option(tmp_path):
+    # the simulator's words name its keyword (`fs`); the command names its option
+    res = _invoke(["paper", "--fs", "1", "--out", str(tmp_path / "p")], "utf-8")
+    assert res.exit_code == 2 and res.stderr.startswith("phoid: error: --fs must be"), res.stderr
+    assert "`fs`" not in res.stderr

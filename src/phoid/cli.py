@@ -95,7 +95,7 @@ def paper(
         result = reproduce_table1(duration=duration, fs=fs)
         fa, fb = figure1(result, out, overwrite=overwrite)
     except (ValueError, OSError) as exc:
-        _fail(str(exc))
+        _fail(_in_option_words(str(exc)))  # `fs` → --fs, `duration` → --duration
     if as_json:
         summary = result.summary()
         summary["figures"] = [str(fa), str(fb)]
@@ -343,11 +343,20 @@ def _numbers(option: str, text: str, unit: str, sign: str = "any") -> list[float
 
 
 def _decimal_steps(values: list[float]) -> list[float]:
-    """The inner values of a start:stop:count range as the decimals the range means: each to
-    15 significant digits (0.6:6:19 gives 0.9, not the 0.8999999999999999 of the binary
-    steps, and a gain is written and printed as given); the ends exactly as given."""
-    return [v if i in (0, len(values) - 1) else float(f"{v:.15g}")
-            for i, v in enumerate(values)]
+    """The inner values of a start:stop:count range as the decimals the range means: each the
+    shortest decimal within 4 ulp of the binary step (0.6:6:19 gives 0.9, not
+    0.8999999999999999, so that a gain is written and printed as meant; a step with no short
+    decimal, 11.666666666666666 of 5:25:4, stays as it is); the ends exactly as given."""
+    import math
+
+    def short(v: float) -> float:
+        for digits in range(1, 16):
+            d = float(f"{v:.{digits}g}")
+            if abs(d - v) <= 4 * math.ulp(v):
+                return d
+        return v
+
+    return [v if i in (0, len(values) - 1) else short(v) for i, v in enumerate(values)]
 
 
 # simulate's numeric options: (parameter, option, unit, sign)
