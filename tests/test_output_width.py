@@ -216,6 +216,14 @@ def test_pho_gains_are_the_manifests_numbers(sets):
                 rows.setdefault(line.split()[0], line.split())
         for run in manifest["run"]:
             assert rows[run["file"]][1:3] == [format_gain(run["P"]), format_gain(run["D"])]
+    # a checked schedule's gains too: the table's P and D are the set's (rows: run number,
+    # P, D, …)
+    manifest = tomllib.loads((sets["pho"] / "experiment.toml").read_text(encoding="utf-8"))
+    res = _invoke(["design", "--check", str(sets["pho"]), "--m", "1", "--c", "2", "--k", "100",
+                   "--delay", "0.02"], "utf-8")
+    cells = [x.split() for x in res.stdout.splitlines() if x[:1].isdigit()]
+    assert [c[1:3] for c in cells] == [[format_gain(r["P"]), format_gain(r["D"])]
+                                       for r in manifest["run"]], res.stdout
     example = tomllib.loads((EXAMPLE / "experiment.toml").read_text(encoding="utf-8"))
     # the paper's D_i = 0.6 + 0.3 i N s/m as the decimals it prints (i = 0 … 18)
     assert [r["D"] for r in example["run"]] == [float(f"{0.6 + 0.3 * i:.1f}")
