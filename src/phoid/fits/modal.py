@@ -412,13 +412,13 @@ def _fit_finish(prep: _Prepared, sig: float, om: float, beta: np.ndarray, K: np.
     ):
         warnings.append(
             "no oscillation: the dominant motion is not a resolvable damped oscillation "
-            f"(omega_d = {om:.4g} ± {om_se:.2g} rad/s, mode {snr:.3g} noise sds "
-            "strong); sigma and omega_d describe no underdamped mode"
+            f"(ω_d = {om:.4g} ± {om_se:.2g} rad/s, mode {snr:.3g} noise sds "
+            "strong); σ and ω_d describe no underdamped mode"
         )
     if any(-z.real <= sig for z in fl):
         warnings.append(
             "fast_roots: a root given as non-dominant decays no faster than the fitted dominant "
-            f"mode (sigma = {sig:.4g} 1/s); check the roots"
+            f"mode (σ = {sig:.4g} 1/s); check the roots"
         )
     if not converged:
         warnings.append(

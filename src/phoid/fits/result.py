@@ -233,12 +233,12 @@ def common_warnings(sigma: float, sigma_stderr: float, cycles: float, xw, resid,
     if cycles < MIN_CYCLES:
         w.append(
             f"few cycles: only {cycles:.1f} oscillation cycles above the noise floor "
-            f"(< {MIN_CYCLES:g}); sigma and omega_d are poorly supported by the data"
+            f"(< {MIN_CYCLES:g}); σ and ω_d are poorly supported by the data"
         )
     if sigma < 0:
         sure = sigma < -2.0 * sigma_stderr
         w.append(
-            f"growing oscillation: sigma = {sigma:.4g} ± {sigma_stderr:.2g} 1/s < 0 "
+            f"growing oscillation: σ = {sigma:.4g} ± {sigma_stderr:.2g} 1/s < 0 "
             + ("(unstable loop)" if sure else "(within 2 stderr of 0: marginally stable loop?)")
         )
     if is_clipped(xw, resid, floor):

@@ -502,7 +502,7 @@ def fit_modes(
         red = chi2 / dof
         covp = covp * red
         warnings.append(
-            f"the runs disagree more than their noise explains (chi2/dof = {red:.2f}); "
+            f"the runs disagree more than their noise explains (χ²/dof = {red:.2f}); "
             "stderr scaled up accordingly: check the delay, friction or unmodelled dynamics"
         )
     cp, kp = inverse_map(sigma, omega_d, P, D, tau)

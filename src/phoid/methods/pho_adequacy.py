@@ -358,7 +358,7 @@ def assess_pho(res: Any, *, x_unit: str = "m") -> tuple[aq.Adequacy, np.ndarray 
         checks.append(runs_c)
         if not runs_pass:
             causes.append("runs_differ")
-            warns.append(f"{RUNS_DISAGREE} (chi2/dof = {chi2 / dof:.2f}); stderr scaled up "
+            warns.append(f"{RUNS_DISAGREE} (χ²/dof = {chi2 / dof:.2f}); stderr scaled up "
                          "accordingly: check the delay, friction or unmodelled dynamics")
     else:
         checks.append(aq.Check("runs", math.nan, math.nan, None,

@@ -578,7 +578,7 @@ def combine(
         red = chi2 / dof
         covp = covp * red
         warnings.append(
-            f"the runs' modes and u-delays disagree more than their noise explains (chi2/dof = "
+            f"the runs' modes and u-delays disagree more than their noise explains (χ²/dof = "
             f"{red:.2f}); stderr scaled up accordingly: check the delay, friction or "
             "unmodelled dynamics"
         )

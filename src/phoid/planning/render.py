@@ -58,8 +58,8 @@ def design_report(d: Any) -> str:
                  "over the prior; delay margin: the smallest extra delay before instability "
                  f"over the prior{extra}; share: the run's share of the set's information")
     if d.kind == "design":
-        lines.append("  gains to 6 significant digits: the schedule (--out) and --json hold "
-                     "every digit")
+        lines.append("  gains to 6 significant digits; the schedule written (--out, Design.write) "
+                     "and the summary (--json) hold every digit")
     if sampled:
         lines.append("")
         order = len(d.runs[0].roots) if d.runs else 0
@@ -90,7 +90,7 @@ def design_report(d: Any) -> str:
         lines.extend(f"Note: {n}" for n in d.notes)
     if d.warnings:
         lines.append("")
-        lines.append("Warnings:")
+        lines.append("warnings:")  # as in every other report
         lines.extend(f"  - {w}" for w in d.warnings)
     return fit_width(notation("\n".join(lines)))
 

@@ -150,7 +150,7 @@ def assess_forced(*, x: Sequence[np.ndarray], resid: Sequence[np.ndarray],
             f"{chi2 / dof:.3g}, p = {chi2_sf(chi2, float(dof)):.2g}), weighted by {how}"))
         if not runs_pass:
             causes.append("runs_differ")
-            warns.append(f"{RUNS_DISAGREE} (chi2/dof = {chi2 / dof:.3g}); stderr scaled up "
+            warns.append(f"{RUNS_DISAGREE} (χ²/dof = {chi2 / dof:.3g}); stderr scaled up "
                          "accordingly: check for nonlinearity (friction, amplitude-dependent "
                          "stiffness) or a force not acting on the measured mass")
     failed = any(ch.passed is False for ch in checks)

@@ -193,7 +193,7 @@ def fit_response(
         red = chi2 / dof
         covp = covp * red
         warnings.append(
-            f"the runs disagree with eq. (20) more than their noise explains (chi2/dof = "
+            f"the runs disagree with eq. (20) more than their noise explains (χ²/dof = "
             f"{red:.3g}); stderr scaled up accordingly: check for nonlinearity (friction, "
             "amplitude-dependent stiffness) or a force not acting on the measured mass")
     return ResponseFit(m=float(theta[0]), c=float(theta[1]), k=float(theta[2]), cov=covp,

@@ -381,7 +381,7 @@ def _result(setup, idx, reasons, prob, fixed, res, facts, iterations) -> Frictio
                         "the unconstrained estimate)")
     chi2_red = chi2 / dof
     if chi2_red > 1.0 + 5.0 * math.sqrt(2.0 / dof) and chi2_red > 1.2:
-        warnings.append(f"chi2/dof = {chi2_red:.3g}: the model does not fit the records to "
+        warnings.append(f"χ²/dof = {chi2_red:.3g}: the model does not fit the records to "
                         "their noise (stderr scaled up accordingly): check the delay, the "
                         "gains or unmodelled dynamics")
     if len(idx) < 3:

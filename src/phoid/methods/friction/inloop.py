@@ -484,7 +484,7 @@ def _inloop_result(base: FrictionFit, fit: FrictionInLoopFit, windows: Sequence[
                                                               strict=True)]
     route_words = set(base.adequacy.warnings) if base.adequacy is not None else set()
     warnings = [w for w in base.warnings if w not in route_words
-                and not w.startswith("chi2/dof = ") and ": misfit: " not in w]
+                and not w.startswith("χ²/dof = ") and ": misfit: " not in w]
     warnings += list(notes)
     noise = [s for s in (difference_noise(w.y, rounding=True) for w in windows) if s > 0]
     if noise and fit.sigma > 1.5 * float(np.median(noise)):
