@@ -307,3 +307,10 @@ def test_paper_errors_name_the_option(tmp_path):
     res = _invoke(["paper", "--fs", "1", "--out", str(tmp_path / "p")], "utf-8")
     assert res.exit_code == 2 and res.stderr.startswith("phoid: error: --fs must be"), res.stderr
     assert "`fs`" not in res.stderr
+
+
+def test_a_given_delay_is_printed_as_given(sets):
+    # expected: the option's own digits (":g" printed 0.0200000001 as 0.02)
+    res = _invoke(["identify", str(sets["pho"]), "--delay", "0.0200000001"], "utf-8")
+    assert res.exit_code == 0, res.output
+    assert "delay 0.0200000001 s" in res.stdout.splitlines()[1], res.stdout

@@ -31,7 +31,7 @@ def design_report(d: Any) -> str:
                      + ("in the loop (the controller reads the noisy record)"
                         if st.noise_in_loop else "outside the loop"))
     else:
-        lines.append(f"{title} for {pr}, delay {st.delay:g} s")
+        lines.append(f"{title} for {pr}, delay {format_gain(st.delay)} s")
     lines.append(f"record {st.duration:g} s at {st.fs:g} Hz, noise {st.noise:g} m, "
                  f"release amplitude {st.amplitude:g} m; safety checked over "
                  + ", ".join(f"{n} {fmt_range(r)} {UNITS.get(n, '')}".rstrip()
@@ -98,10 +98,11 @@ def design_report(d: Any) -> str:
 def loop_words(st: Any) -> str:
     """A sampled loop in words: ``"sampled loop: sample_time 0.001 s, delay_samples 1,
     backward-difference velocity"``."""
-    vel = st.velocity if st.cutoff is None else f"{st.velocity} (cutoff {st.cutoff:g} rad/s)"
+    vel = (st.velocity if st.cutoff is None
+           else f"{st.velocity} (cutoff {format_gain(st.cutoff)} rad/s)")
     per = round(st.fs * st.sample_time)
     rec = "" if per == 1 else f", {per} recorded samples per period"
-    return (f"sampled loop: sample_time {st.sample_time:g} s, delay_samples "
+    return (f"sampled loop: sample_time {format_gain(st.sample_time)} s, delay_samples "
             f"{st.delay_samples}, {vel} velocity{rec}")
 
 

@@ -257,7 +257,7 @@ def identification_text(ident: Any) -> str:
     str
     """
     lines = [f"phoid identify: {safe_text(ident.source)}" if ident.source else "phoid identify"]
-    delay = (f"{ident.delay:g} s" if ident.delay_stderr is None
+    delay = (f"{format_gain(ident.delay)} s" if ident.delay_stderr is None
              else f"{format_estimate(ident.delay, ident.delay_stderr)} s")
     origin = {"x": " from x", "x+u": " from x and u"}.get(getattr(ident, "delay_from", None), "")
     lines.append(f"  estimator {ident.fit.estimator}, delay {delay} ({ident.delay_source}"
@@ -355,8 +355,8 @@ def _digital_line(result: Any) -> list[str]:
     g = getattr(result, "digital", None)
     if g is None:
         return []
-    filt = f", cut-off {g.cutoff:g} rad/s" if g.cutoff is not None else ""
-    return [f"  digital loop (exact sampled model): T_s = {g.sample_time:g} s, "
+    filt = f", cut-off {format_gain(g.cutoff)} rad/s" if g.cutoff is not None else ""
+    return [f"  digital loop (exact sampled model): T_s = {format_gain(g.sample_time)} s, "
             f"{g.delay_samples}-sample delay, {g.velocity} velocity{filt}"]
 
 
@@ -396,7 +396,7 @@ def friction_text(fit: Any) -> str:
     str
     """
     lines = ["phoid identify --friction (full-record fit through the stick–slip simulator)"]
-    lines.append(f"  delay {fit.delay:g} s (given), χ²/dof {fit.chi2_red:.3g}, "
+    lines.append(f"  delay {format_gain(fit.delay)} s (given), χ²/dof {fit.chi2_red:.3g}, "
                  f"{'converged' if fit.converged else 'NOT converged'}")
     lines.extend(_digital_line(fit))
     if any(getattr(r, "bias", 0.0) for r in fit.runs):
