@@ -39,6 +39,14 @@ def _stats(values: list[float]) -> dict:
             "max_s": max(values), "n": len(values)}
 
 
+def _workers() -> int:
+    """The worker processes ``phoid`` draws the 21 figures with here (its own rule)."""
+    from phoid.reports.figures import figure_workers
+
+    cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    return figure_workers(21, cpus or 1)
+
+
 def run(repeats: int = 5) -> dict:
     """Median wall and CPU times of identify, identify --plots and identify --html.
 
@@ -50,6 +58,7 @@ def run(repeats: int = 5) -> dict:
     wall: dict[str, list[float]] = {}
     cpu: dict[str, list[float]] = {}
     sizes: dict[str, int] = {}
+    env = {k: v for k, v in os.environ.items() if k != "PHOID_FIGURE_WORKERS"}  # the default
     with tempfile.TemporaryDirectory(prefix="phoid-bench-figures-") as tmp:
         for rnd in range(repeats + 1):  # round 0 untimed: caches warm
             out = Path(tmp) / f"r{rnd}"
@@ -59,7 +68,7 @@ def run(repeats: int = 5) -> dict:
             for label, cmd in commands.items():
                 u0 = resource.getrusage(resource.RUSAGE_CHILDREN)
                 t = time.perf_counter()
-                r = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT)
+                r = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, env=env)
                 dt = time.perf_counter() - t
                 u1 = resource.getrusage(resource.RUSAGE_CHILDREN)
                 if r.returncode != 0:
@@ -73,7 +82,7 @@ def run(repeats: int = 5) -> dict:
                      "identify --html FILE": (out / "r.html").stat().st_size}
     return {"wall": {k: _stats(v) for k, v in wall.items()},
             "cpu": {k: _stats(v) for k, v in cpu.items()}, "sizes": sizes,
-            "target": TARGET,
+            "target": TARGET, "workers": _workers(),
             "load_average": list(os.getloadavg()) if hasattr(os, "getloadavg") else None}
 
 
@@ -82,7 +91,10 @@ def section(res: dict) -> list[str]:
     lines = [TITLE, "",
              f"`phoid identify examples/paper-sample` (19 runs of 15 000 samples: 21 figures), "
              f"a fresh process each, median (min–max) of {res['wall']['identify']['n']} rounds; "
-             f"target ≤ {res['target']:g} s for `--plots` and `--html`.", "",
+             f"target ≤ {res['target']:g} s for `--plots` and `--html`. The figures are drawn "
+             f"by {res.get('workers', '?')} worker processes (one per usable CPU; "
+             "`PHOID_FIGURE_WORKERS` unset); CPU s is the command's and its workers' (user + "
+             "system).", "",
              "| command | wall s | CPU s | written |", "|---|---|---|---|"]
     for label, w in res["wall"].items():
         c = res["cpu"][label]

@@ -36,6 +36,7 @@ sys.path.insert(0, str(HERE))
 import bench_adequacy  # noqa: E402
 import bench_batch  # noqa: E402
 import bench_emps  # noqa: E402
+import bench_figures  # noqa: E402
 import bench_identify  # noqa: E402
 import bench_inloop  # noqa: E402
 import bench_scaling  # noqa: E402
@@ -595,6 +596,12 @@ def _targets(res: dict) -> tuple[list[str], list[str]]:
         for label, limit in st["targets"].items():
             t = st["wall"][label]["median_s"]
             rep.append((f"`{label}` in ≤ {limit:g} s wall", t <= limit, f"{t:.2f} s"))
+    fg = res.get("figures")
+    if fg:
+        for label in ("identify --plots DIR", "identify --html FILE"):
+            t = fg["wall"][label]["median_s"]
+            rep.append((f"`phoid {label}` on the example set in ≤ {fg['target']:g} s wall "
+                        "(median)", t <= fg["target"], f"{t:.2f} s"))
     failures = [f"{n}: {got}" for n, ok, got in acc if not ok]
     lines = ["## Targets", "",
              "Accuracy targets (`make bench` exits non-zero when one is missed):", ""]
@@ -720,7 +727,8 @@ def main() -> int:
     ap.add_argument("--repeats", type=int, default=None, help="timing repeats (9)")
     ap.add_argument("--workers", type=int, default=2, help="Monte Carlo worker processes (2)")
     ap.add_argument("--only",
-                    default="sets,mc,speed,sim,scaling,startup,emps,batch,adequacy,inloop",
+                    default="sets,mc,speed,sim,scaling,startup,figures,emps,batch,adequacy,"
+                            "inloop",
                     help="comma-separated sections to run (for development; the default runs "
                          "all and is what BENCHMARKS.md must come from)")
     ap.add_argument("--write", action="store_true",
@@ -760,13 +768,15 @@ def main() -> int:
                     "numpy": np.__version__, "scipy": scipy.__version__,
                     "blas_threads": os.environ.get("OPENBLAS_NUM_THREADS")},
         "sets": {}, "monte_carlo": {}, "identification_speed": {}, "simulation": {},
-        "scaling": {}, "startup": {}, "emps": {}, "batch": {}, "adequacy": {},
+        "scaling": {}, "startup": {}, "figures": {}, "emps": {}, "batch": {},
+        "adequacy": {},
         "inloop": {},
     }
 
     # one step of the progress bar per log line: the sets, then each section (per set)
     steps = 1 + sum(len(SETS) if sec in ("speed", "mc") else 1
-                    for sec in ("speed", "sim", "mc", "scaling", "startup", "emps", "batch")
+                    for sec in ("speed", "sim", "mc", "scaling", "startup", "figures", "emps",
+                                "batch")
                     if sec in only)
     steps += len(bench_adequacy.CASES) if "adequacy" in only else 0
     steps += len(bench_inloop.CASE_NAMES) if "inloop" in only else 0
@@ -819,6 +829,9 @@ def _run_sections(args, res, only, replicas, phoid_replicas, repeats, t_start, a
     if "startup" in only:
         res["startup"] = bench_startup.run(5 if args.quick else max(repeats, 20))
         log("start-up")
+    if "figures" in only:  # issue 30: --plots and --html on the example set in ≤ 3 s
+        res["figures"] = bench_figures.run(2 if args.quick else max(min(repeats, 9), 5))
+        log("figures")
     if "emps" in only:
         # ≥ 3 timed calls (issue 17: medians of at least 3); the fits take seconds each
         res["emps"] = bench_emps.run(3 if args.quick else max(3, min(repeats, 5)),
@@ -862,7 +875,9 @@ def _report(args, res, opts, command) -> int:
     ]
     lines += [*target_lines, ""]
     for sec in (_sets_section, _mc_section, _speed_section, _sim_section, _scaling_section,
-                _startup_section, _emps_section, lambda r: bench_batch.section(r.get("batch")),
+                _startup_section,
+                lambda r: bench_figures.section(r["figures"]) if r.get("figures") else [],
+                _emps_section, lambda r: bench_batch.section(r.get("batch")),
                 lambda r: bench_adequacy.section(r.get("adequacy")),
                 lambda r: bench_inloop.section(r.get("inloop"), r.get("monte_carlo"))):
         part = sec(res)

@@ -10,6 +10,7 @@ through :meth:`plot` of each result.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from pathlib import Path
 
@@ -21,7 +22,7 @@ import phoid
 from phoid.cli import app
 from phoid.dynamics.loop import inverse_map
 from phoid.io import read_experiment
-from phoid.reports.figures import run_names
+from phoid.reports.figures import png_bytes, render_pngs, run_names
 from phoid.reports.lines import (
     ELLIPSE_LEVELS,
     forced_lines_figure,
@@ -421,6 +422,24 @@ def test_identification_plot_names(gls, tmp_path):
     used = [r.file.split(".")[0] for r in gls.runs if r.fit is not None]
     assert names == [f"{s}.png" for s in used] + ["lines.png", "mk-ellipse.png"]
     assert all(p.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" for p in written)
+
+
+@pytest.mark.parametrize("which", ["forced", "free", "friction"])
+def test_run_figures_drawn_one_after_another_are_those_drawn_anew(which, request):
+    # a set's run figures reuse one figure's axes (phoid.reports.runs.recycle): each must be
+    # the bytes of the same run drawn on new axes. The first call below takes the figure a
+    # previous test may have handed back; those after it are new ones (none is handed back)
+    result = request.getfixturevalue(which)
+    draw = {"forced": forced_run_figure, "free": free_run_figure,
+            "friction": friction_run_figure}[which]
+    used = [i for i, r in enumerate(result.runs) if r.used]
+    assert used
+    draw(result, used[0])
+    anew = [png_bytes(draw(result, i)) for i in used]
+    # each run twice over: from the second figure on, every one is drawn on reused axes
+    again = list(render_pngs([functools.partial(draw, result, i) for i in used + used],
+                             workers=1))
+    assert again == anew + anew
 
 
 def test_design_figure_has_a_colour_bar_and_legend():

@@ -204,7 +204,9 @@ def render_pngs(draws: Sequence[Callable[[], Figure]], *,
     Parameters
     ----------
     draws : sequence of callables
-        Each returns one matplotlib Figure (drawn afresh, in whichever process draws it).
+        Each returns a new matplotlib Figure that nothing else holds (made afresh, in
+        whichever process draws it): a run figure is handed back once drawn, for the next one
+        to reuse (:func:`phoid.reports.runs.recycle`).
     workers : int, optional
         The most processes to draw with (1: this process, one after another); default
         :data:`WORKERS_ENV`, else one per usable CPU. Bounded by :func:`figure_workers`.
