@@ -262,12 +262,15 @@ def _widths(text: str) -> list[int]:
 def test_python_reports_fit_100_columns(sets):
     # report() from Python, not only through the command line: every public result's text
     ident = phoid.identify(EXAMPLE)
+    plan = phoid.design(2.0, 1.0, 64.0, delay=0.01, runs=3, duration=2.0)
     results = {
         "identify": ident,
         "identify-free": phoid.identify(sets["free"]),
         "identify-forced": phoid.identify(sets["forced"]),
         "identify-tracking": phoid.identify(sets["track"]),
-        "design": phoid.design(2.0, 1.0, 64.0, delay=0.01, runs=4, duration=3.0),
+        "design": plan,
+        "rehearsal": phoid.rehearse(plan, 3, seed=1),  # in this process (no client)
+        "identify-free-friction": phoid.identify(sets["free"], friction=True),
         "trend": phoid.trend(sets["results"], by="method", baseline=1),
         "replay": phoid.replay_set(phoid.read_experiment(sets["track"]),
                                    {"m": 2.0, "c": 15.0, "k": 0.0, "fc": 1.5,
