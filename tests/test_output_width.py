@@ -5,12 +5,15 @@ asked: UTF-8, or ASCII as under ``PYTHONIOENCODING=ascii``) on sets made here (c
 ``varied_sets``: pho, a sampled loop, forced, free with its mass, Coulomb friction; a tracking
 set written here; examples/paper-sample), and its output is checked for what issue 30 asks:
 
-* no line wider than 100 columns (an error is one line, however long: it names the file, run
-  and field, and is checked to be one line instead);
+* no line wider than 100 columns (an error, or a warning beside --json, is one line however
+  long: it names the file, run and field, and a program reads it as one; it is checked to be
+  one line instead);
 * no ``null``, ``None`` or ``nan`` where a word belongs;
-* in a UTF-8 stream, one notation: σ, ω₀, ω_d, ζ, ±, χ² (not their ASCII spellings); in an ASCII
-  stream, only ASCII (the notation spelled out, nothing replaced by ``?``);
-* gains exactly as given (the pho table's P and D are the manifest's numbers, read back).
+* in a UTF-8 stream, one notation: σ, ω₀, ω_d, ζ, ±, χ² (not their ASCII spellings), every
+  character of it with an ASCII spelling (none would print as ``?``); in an ASCII stream, only
+  ASCII;
+* no ``<bool>`` metavar in any --help;
+* gains (and a given delay) exactly as given: the tables' P and D are the manifest's numbers.
 """
 
 from __future__ import annotations

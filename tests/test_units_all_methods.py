@@ -170,5 +170,10 @@ def test_a_free_friction_set_in_rad_reports_rotational_units(tmp_path):
     assert s["adequacy"]["units"] == ["1/s", "1/s^2", "rad/s^2"]
     text = _cli("identify", folder, "--friction")
     assert "moment of inertia J = 0.5 kg m^2" in text
-    assert "stuck at rad" in text and "N m/rad" in text and "rad/s^2" in text
+    # the runs table: "stuck at" with its unit, rad, in the units row below the names
+    lines = text.splitlines()
+    head = next(i for i, x in enumerate(lines) if "stuck at" in x)
+    col = lines[head].index("stuck at") + len("stuck at")  # right-aligned: the unit ends there
+    assert lines[head + 1][:col].endswith("rad"), lines[head:head + 2]
+    assert "N m/rad" in text and "rad/s^2" in text
     assert "m/s^2" not in text.replace("rad/s^2", "")
