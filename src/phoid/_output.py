@@ -23,6 +23,10 @@ The rules, the same for every command and function that writes (``write_experime
 Problems raise :class:`OutputError` (a ``ValueError``) with one line naming the path. The
 remedy for an existing file is worded for the caller: ``pass overwrite=True`` from Python,
 ``pass --overwrite`` from the command line (:func:`cli_wording`).
+
+What a command prints goes through here too: its text through :func:`echo_text` (escaped, in
+the stream's notation, fitted to 100 columns), an error through :func:`exit_with_error` (one
+line, exit status 2).
 """
 
 from __future__ import annotations
