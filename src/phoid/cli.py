@@ -15,7 +15,7 @@ from typing import Annotated, NoReturn
 import typer
 
 from phoid import __version__
-from phoid._output import exit_with_error
+from phoid._output import echo_text, exit_with_error
 
 app = typer.Typer(
     name="phoid",
@@ -102,8 +102,6 @@ def paper(
         typer.echo(json.dumps(summary, indent=1))
         typer.echo(f"figures written to {fa} and {fb}", err=True)
     else:
-        from phoid._output import echo_text
-
         echo_text(lambda: f"{result.table()}\n\nFigure 1(a) written to {fa}\n"
                           f"Figure 1(b) written to {fb}")
 
@@ -208,7 +206,7 @@ def _write_html(result, html: Path | None, experiment, overwrite: bool) -> None:
 
 def _print_result(result, as_json: bool, written, plots, html=None) -> None:
     """The result as JSON (warnings also on stderr) or as the text report; figures written."""
-    from phoid._output import echo_text, safe_text
+    from phoid._output import safe_text
 
     if as_json:  # JSON escapes its unicode itself
         typer.echo(json.dumps(result.summary(), indent=1))
@@ -275,8 +273,6 @@ def _simulate_replay(ctx, out, replay, *, m, c, k, fc, offset_force, delay, gzip
     except (ValueError, OSError) as exc:
         _fail(str(exc))
     _print_result(result, as_json, written, plots)
-    from phoid._output import echo_text
-
     echo_text(f"simulated set written to {manifest}", err=as_json)
 
 
@@ -343,18 +339,13 @@ def _numbers(option: str, text: str, unit: str, sign: str = "any") -> list[float
 
 
 def _decimal_steps(values: list[float]) -> list[float]:
-    """The inner values of a start:stop:count range as the decimals the range means: each the
-    shortest decimal within 4 ulp of the binary step (0.6:6:19 gives 0.9, not
-    0.8999999999999999, so that a gain is written and printed as meant; a step with no short
-    decimal, 11.666666666666666 of 5:25:4, stays as it is); the ends exactly as given."""
-    import math
+    """The inner values of a start:stop:count range as the decimals it means: each the shortest
+    decimal within 4 ulp of the binary step (0.6:6:19 gives 0.9, not 0.8999999999999999;
+    11.666666666666666 of 5:25:4 has none and stays); the ends exactly as given."""
 
     def short(v: float) -> float:
-        for digits in range(1, 16):
-            d = float(f"{v:.{digits}g}")
-            if abs(d - v) <= 4 * math.ulp(v):
-                return d
-        return v
+        return next((d for d in (float(f"{v:.{n}g}") for n in range(1, 16))
+                     if abs(d - v) <= 4 * math.ulp(v)), v)
 
     return [v if i in (0, len(values) - 1) else short(v) for i, v in enumerate(values)]
 
@@ -729,8 +720,6 @@ def _simulate_other(ctx, out, *, method, m, c, k, fc, B, omega, duration, fs, x0
 
 def _wrote(runs: int, path: Path) -> None:
     """The line `phoid simulate` ends with: how many runs, and the manifest written."""
-    from phoid._output import echo_text
-
     echo_text(f"wrote {runs} run{'s' * (runs != 1)} to {path}")
 
 
