@@ -320,3 +320,24 @@ def test_a_given_delay_is_printed_as_given(sets):
     res = _invoke(["identify", str(sets["pho"]), "--delay", "0.0200000001"], "utf-8")
     assert res.exit_code == 0, res.output
     assert "delay 0.0200000001 s" in res.stdout.splitlines()[1], res.stdout
+
+
+@pytest.mark.parametrize("env", [{"PYTHONIOENCODING": "ascii"},
+                                 {"LC_ALL": "C", "LANG": "C", "PYTHONCOERCECLOCALE": "0",
+                                  "PYTHONUTF8": "0"}], ids=["pythonioencoding", "c-locale"])
+def test_a_real_ascii_terminal_gets_ascii(env, tmp_path):
+    # a real process whose stdout is ASCII (PYTHONIOENCODING=ascii, or the C locale without
+    # Python's UTF-8 coercion): the design report spelled in ASCII (é too), and fitted
+    import os
+    import subprocess
+    import sys
+
+    full = {k: v for k, v in os.environ.items() if k not in ("PYTHONUTF8", "LC_ALL", "LANG")}
+    res = subprocess.run([sys.executable, "-m", "phoid.cli", "design", "--m", "2", "--c", "1",
+                          "--k", "64", "--sample-time", "0.01", "--delay-samples", "1",
+                          "--runs", "3", "--duration", "3"], capture_output=True, timeout=120,
+                         env={**full, **env}, cwd=tmp_path)
+    assert res.returncode == 0, res.stderr
+    out = res.stdout.decode("ascii")  # raises if a byte is not ASCII
+    assert "sigma" in out and "+/-" in out and "Cramer-Rao" in out
+    assert max(len(x) for x in out.splitlines()) <= WIDTH
