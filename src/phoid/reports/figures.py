@@ -42,6 +42,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from phoid._output import OutputFolder
+from phoid._threads import single_blas_thread
 from phoid.reports.text import format_number
 
 if TYPE_CHECKING:
@@ -95,9 +96,16 @@ def save_png(fig: Figure, out: OutputFolder, name: str) -> Path:
     return out.write(name, png_bytes(fig))
 
 
+@single_blas_thread
 def _png_of(draw: Callable[[], Figure]) -> bytes:
     """The PNG of the figure ``draw`` returns; a run figure is then handed back for the next
-    one to reuse (:func:`phoid.reports.runs.recycle`)."""
+    one to reuse (:func:`phoid.reports.runs.recycle`).
+
+    With one BLAS thread (:mod:`phoid._threads`): drawing is many tiny matrix products
+    (matplotlib's transforms), for which OpenBLAS's pool only spins; with a thread per core
+    it used half again the CPU time of the drawing, and two processes drawing at once got
+    in each other's way.
+    """
     from phoid.reports.runs import recycle
 
     fig = draw()
