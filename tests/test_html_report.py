@@ -293,6 +293,33 @@ def test_report_page_without_a_browser(results, tmp_path, sets):
     assert embedded == written and len(written) == len(results["free"].runs)
 
 
+def test_plots_and_html_together_draw_each_figure_once(sets, tmp_path, monkeypatch):
+    # `identify --plots DIR --html FILE` embeds the PNG files it has just written into DIR:
+    # drawing them again for the page would double the command's time (issue 30, item 5).
+    # The drawing for the page is made to fail, so the command passes only if it is not called
+    import base64
+
+    import phoid.reports.html as html_report
+
+    def drawn_again(result):
+        raise AssertionError("the figures were drawn a second time for the HTML page")
+
+    monkeypatch.setattr(html_report, "result_figures", drawn_again)
+    out, page_path = tmp_path / "plots", tmp_path / "r.html"
+    cli("identify", sets["free"], "--plots", out, "--html", page_path)
+    page = page_path.read_text(encoding="utf-8")
+    embedded = sorted(base64.b64decode(s) for s in
+                      re.findall(r'src="data:image/png;base64,([^"]+)"', page))
+    written = sorted(f.read_bytes() for f in out.glob("*.png"))
+    assert written and embedded == written
+    # --html alone still draws them (the page is not left without figures)
+    monkeypatch.undo()
+    cli("identify", sets["free"], "--html", tmp_path / "alone.html")
+    alone = (tmp_path / "alone.html").read_text(encoding="utf-8")
+    assert sorted(base64.b64decode(s) for s in
+                  re.findall(r'src="data:image/png;base64,([^"]+)"', alone)) == written
+
+
 def test_design_html_without_a_browser(tmp_path):
     path = tmp_path / "design.html"
     cli("design", "--m", "2", "--c", "1", "--k", "64", "--delay", "0.1", "--runs", "3",

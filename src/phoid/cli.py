@@ -181,7 +181,9 @@ def identify(
                                       no_compensation=no_compensation, friction=friction,
                                       noise=noise)
                 written = result.plot(plots, overwrite=overwrite) if plots is not None else []
-                _write_html(result, html, exp, overwrite)
+                # the figures just written to --plots are embedded, not drawn again
+                _write_html(result, html, exp, overwrite,
+                            figures=written if plots is not None else True)
     except (ValueError, OSError) as exc:
         _fail(str(exc))
     _print_result(result, as_json, written, plots, html)
@@ -196,12 +198,15 @@ def _experiment_files(experiment) -> list[Path]:
                                      if getattr(r, "file", ""))]
 
 
-def _write_html(result, html: Path | None, experiment, overwrite: bool) -> None:
-    """--html: the single-file report, with the checksums of the set's files."""
+def _write_html(result, html: Path | None, experiment, overwrite: bool,
+                figures=True) -> None:
+    """--html: the single-file report, with the checksums of the set's files (``figures``:
+    see :func:`phoid.reports.html.report_html`)."""
     if html is not None:
         from phoid.reports.html import write_report
 
-        write_report(result, html, experiment=experiment, overwrite=overwrite)
+        write_report(result, html, experiment=experiment, overwrite=overwrite,
+                     figures=figures)
 
 
 def _print_result(result, as_json: bool, written, plots, html=None) -> None:

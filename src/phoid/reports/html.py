@@ -28,6 +28,7 @@ import json
 import math
 import os
 import platform
+import stat
 import sys
 import tempfile
 from collections.abc import Iterable, Sequence
@@ -565,7 +566,8 @@ def _experiment_files(experiment: Any) -> list[Path]:
 
 
 def report_html(result: Any, *, experiment: Any = None, inputs: Iterable[str | Path] = (),
-                title: str | None = None, figures: bool = True) -> str:
+                title: str | None = None,
+                figures: bool | Sequence[str | Path] = True) -> str:
     """A self-contained HTML page of ``result``: summary, runs, figures, environment, inputs.
 
     Parameters
@@ -577,13 +579,21 @@ def report_html(result: Any, *, experiment: Any = None, inputs: Iterable[str | P
         More files to checksum.
     title : str, optional
         The page's title (default: the result's class and source).
-    figures : bool
-        Embed every figure of ``result.plot()`` (base64 PNG).
+    figures : bool or sequence of path
+        Embed every figure of ``result.plot()`` (base64 PNG): ``True`` draws them; a sequence
+        gives the PNG files ``result.plot()`` has just written (``phoid identify --plots DIR
+        --html FILE``), embedded as they are rather than drawn a second time; ``False`` embeds
+        none.
 
     Returns
     -------
     str
         The page: no external URL, no script (its Content-Security-Policy forbids both).
+
+    Raises
+    ------
+    OSError
+        A figure file given is not a regular file or cannot be read.
     """
     summary = summary_of(result)
     source = getattr(result, "source", None) or getattr(result, "path", None)
@@ -591,9 +601,11 @@ def report_html(result: Any, *, experiment: Any = None, inputs: Iterable[str | P
     files = [*(_experiment_files(experiment) if experiment is not None else []),
              *(Path(p) for p in inputs)]
     body = [f"<h1>{_e(title)}</h1>", result_html(result, figure=False)]
-    if figures:
+    if figures is not False:
+        drawn = (result_figures(result) if figures is True
+                 else [(Path(p).name, _read_png(p)) for p in figures])
         # the whole-set figures (eq. 35 lines, …) before the per-run ones
-        figs = sorted(result_figures(result), key=lambda f: f[0].startswith("run"))
+        figs = sorted(drawn, key=lambda f: f[0].startswith("run"))
         body.append(f"<h2>Figures ({len(figs)})</h2>" if figs else
                     f"<h2>Figures</h2><p>{_e(type(result).__name__)} draws no figures.</p>")
         one = ' style="width:100%;max-width:1000px"' if len(figs) == 1 else ""
@@ -619,6 +631,14 @@ def report_html(result: Any, *, experiment: Any = None, inputs: Iterable[str | P
             "figcaption{color:#555;font-size:12px}"
             "img{max-width:100%}pre{font-size:11px}</style></head><body>\n"
             + "\n".join(body) + "\n</body></html>\n")
+
+
+def _read_png(path: str | Path) -> bytes:
+    """The bytes of a figure file just written: a regular file, never followed through a link."""
+    st = os.lstat(path)
+    if not stat.S_ISREG(st.st_mode):
+        raise OSError(f"{path}: not a regular file; the figure cannot be embedded")
+    return Path(path).read_bytes()
 
 
 def check_report_target(path: str | Path, *, overwrite: bool = False,
@@ -655,7 +675,8 @@ def check_report_target(path: str | Path, *, overwrite: bool = False,
 
 
 def write_report(result: Any, path: str | Path, *, experiment: Any = None,
-                 inputs: Iterable[str | Path] = (), overwrite: bool = False) -> Path:
+                 inputs: Iterable[str | Path] = (), overwrite: bool = False,
+                 figures: bool | Sequence[str | Path] = True) -> Path:
     """Write :func:`report_html` of ``result`` to ``path`` (UTF-8) through :mod:`phoid._output`.
 
     Parameters
@@ -667,6 +688,8 @@ def write_report(result: Any, path: str | Path, *, experiment: Any = None,
         Files to checksum (see :func:`report_html`).
     overwrite : bool
         Replace an existing file (never a link, a folder or a special file).
+    figures : bool or sequence of path
+        The figures to embed (see :func:`report_html`).
 
     Returns
     -------
@@ -681,6 +704,6 @@ def write_report(result: Any, path: str | Path, *, experiment: Any = None,
         An input file cannot be read.
     """
     path = check_report_target(path, overwrite=overwrite)
-    page = report_html(result, experiment=experiment, inputs=inputs)
+    page = report_html(result, experiment=experiment, inputs=inputs, figures=figures)
     out = OutputFolder(path.parent, overwrite=overwrite)
     return out.write(os.fspath(path.name), page.encode("utf-8"))
