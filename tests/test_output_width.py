@@ -45,6 +45,8 @@ FORBIDDEN = re.compile(r"\b(null|None|nan|NaN)\b")
 # the ASCII spellings of the notation (phoid._notation), which a UTF-8 stream must not show
 ASCII_SPELLINGS = re.compile(r"\b(sigma|omega0|omega_d|omega|zeta|chi2)\b|\+/-")
 ENCODINGS = ["utf-8", "ascii"]
+# an absolute path in a status line ("… written to /tmp/…")
+PATH = re.compile(r"/\S+")
 
 
 def _tracking_set(folder: Path) -> Path:
@@ -141,7 +143,9 @@ def _check_text(text: str, encoding: str, what: str, *, notation: bool = True) -
     ``notation``: check the UTF-8 text's notation (not in --help, which names options such as
     --zeta and --omega)."""
     lines = text.splitlines()
-    wide = [x for x in lines if len(x) > WIDTH and not x.startswith("phoid: ")]
+    # a path is never split from its line (a status line naming the files written is read by
+    # programs): a line may be wide by its paths alone
+    wide = [x for x in lines if len(PATH.sub("P", x)) > WIDTH and not x.startswith("phoid: ")]
     assert not wide, f"{what}: lines wider than {WIDTH}: {wide}"
     bad = [x for x in lines if FORBIDDEN.search(x)]
     assert not bad, f"{what}: a program's word for a missing value: {bad}"
@@ -166,6 +170,26 @@ def test_command_text_fits_and_reads_one_way(sets, tmp_path, name, args, encodin
     assert res.stdout.strip(), name
     _check_text(res.stdout, encoding, f"{name} stdout")
     _check_text(res.stderr, encoding, f"{name} stderr")
+
+
+@pytest.mark.parametrize("encoding", ENCODINGS)
+def test_a_status_line_keeps_its_long_path_whole(sets, tmp_path, encoding):
+    # "… written to PATH" is one line however long PATH is: a program (or a user's copy and
+    # paste) reads the path from it; wrapping would split it from its words
+    deep = tmp_path.joinpath(*(["a-rather-long-folder-name"] * 5))
+    plots, page = deep / "plots", deep / "report.html"
+    res = _invoke(["identify", str(sets["free"]), "--plots", str(plots), "--html", str(page)],
+                  encoding)
+    assert res.exit_code == 0, res.output
+    lines = res.stdout.splitlines()
+    assert len(str(plots)) > WIDTH  # the case tested: a path wider than the width
+    assert any(x.endswith(f" written to {plots}") for x in lines), lines
+    assert f"report written to {page}" in lines, lines
+    res = _invoke(["simulate", str(deep / "sim"), "--method", "free", "--duration", "2"],
+                  encoding)
+    assert res.exit_code == 0, res.output
+    assert f"wrote 1 run to {deep / 'sim' / 'experiment.toml'}" in res.stdout.splitlines(), \
+        res.stdout
 
 
 @pytest.mark.parametrize("encoding", ENCODINGS)

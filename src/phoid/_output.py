@@ -98,8 +98,9 @@ def echo_text(text: str | Callable[[], str], *, err: bool = False, wrap: bool = 
     err : bool
         Write to standard error instead of standard output.
     wrap : bool
-        Fit the lines to the width; False for a line a program may read as one (a
-        ``phoid: warning:`` line beside ``--json``, like an error line).
+        Fit the lines to the width; False for a line a program may read as one: a status line
+        naming the files written (``… written to PATH``: a path is never split from its
+        line), a ``phoid: warning:`` line beside ``--json``, like an error line.
     """
     import typer
 

@@ -102,8 +102,8 @@ def paper(
         typer.echo(json.dumps(summary, indent=1))
         typer.echo(f"figures written to {fa} and {fb}", err=True)
     else:
-        echo_text(lambda: f"{result.table()}\n\nFigure 1(a) written to {fa}\n"
-                          f"Figure 1(b) written to {fb}")
+        echo_text(result.table)
+        echo_text(f"\nFigure 1(a) written to {fa}\nFigure 1(b) written to {fb}", wrap=False)
 
 
 @app.command()
@@ -221,9 +221,9 @@ def _print_result(result, as_json: bool, written, plots, html=None) -> None:
         echo_text(result.report)
     if written:
         echo_text(f"{len(written)} figure{'s' * (len(written) != 1)} written to {plots}",
-                  err=as_json)
+                  err=as_json, wrap=False)
     if html is not None:
-        echo_text(f"report written to {html}", err=as_json)
+        echo_text(f"report written to {html}", err=as_json, wrap=False)
 
 
 _REPLAY_OPTIONS = {"out", "m", "c", "k", "fc", "offset_force", "delay", "gzip", "overwrite",
@@ -278,7 +278,7 @@ def _simulate_replay(ctx, out, replay, *, m, c, k, fc, offset_force, delay, gzip
     except (ValueError, OSError) as exc:
         _fail(str(exc))
     _print_result(result, as_json, written, plots)
-    echo_text(f"simulated set written to {manifest}", err=as_json)
+    echo_text(f"simulated set written to {manifest}", err=as_json, wrap=False)
 
 
 # the largest magnitude (and the smallest non-zero one) a number given to `simulate` may have,
@@ -725,7 +725,7 @@ def _simulate_other(ctx, out, *, method, m, c, k, fc, B, omega, duration, fs, x0
 
 def _wrote(runs: int, path: Path) -> None:
     """The line `phoid simulate` ends with: how many runs, and the manifest written."""
-    echo_text(f"wrote {runs} run{'s' * (runs != 1)} to {path}")
+    echo_text(f"wrote {runs} run{'s' * (runs != 1)} to {path}", wrap=False)
 
 
 from phoid import design_cli as _design_cli  # noqa: E402  (typer functions, lazy inside)

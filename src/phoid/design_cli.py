@@ -269,11 +269,11 @@ def design(
         if rehearsal is not None:
             echo_text(lambda: "\n" + rehearsal.report())
     if written is not None:
-        echo_text(f"schedule written to {written}", err=as_json)
+        echo_text(f"schedule written to {written}", err=as_json, wrap=False)
     if plot is not None:
-        echo_text(f"figure written to {plot}", err=as_json)
+        echo_text(f"figure written to {plot}", err=as_json, wrap=False)
     if html is not None:
-        echo_text(f"report written to {html}", err=as_json)
+        echo_text(f"report written to {html}", err=as_json, wrap=False)
     if check_set is not None and not result.safe:
         # a check that finds a run unsafe must fail a script that runs it before the rig does
         typer.echo("phoid: some runs are unsafe on the prior (see UNSAFE above)", err=True)

@@ -125,4 +125,4 @@ def batch(
         n = counts["sets"]
         echo_text(f"{n} set{'s' * (n != 1)}: {report.computed} identified, {report.skipped} "
                   f"already done, {report.errors} with an error; rows in {store.parquet} "
-                  f"and {store.csv}")
+                  f"and {store.csv}", wrap=False)

@@ -70,4 +70,4 @@ def trend(
         echo_text(result.report)
     if written:
         echo_text(f"{len(written)} figure{'s' * (len(written) != 1)} written to {plots}",
-                  err=as_json)
+                  err=as_json, wrap=False)

@@ -263,7 +263,7 @@ def run(
         echo_text(f"phoid: {msg}", err=True, wrap=False)
     done = sum(s == "complete" for s in result.statuses)
     echo_text(f"{done} of {len(result.statuses)} runs complete; set written to "
-              f"{result.manifest}")
+              f"{result.manifest}", wrap=False)
     if not result.complete:
         typer.echo("phoid: the plan is not complete (pass --resume to run the rest)", err=True)
         raise typer.Exit(1)
