@@ -143,3 +143,24 @@ def varied_sets(tmp_path_factory) -> dict[str, Path]:
         "0.5:3:3", "--delay", "0.02", "--duration", "2", "--fs", "500", "--noise", "1e-5",
         "--x0", "0.008", "--seed", "3")
     return s
+
+
+@pytest.fixture
+def artefact(tmp_path, request):
+    """``artefact(name)``: the path a test writes a file worth keeping to (a browser's
+    screenshot): under ``$PHOID_TEST_ARTEFACTS/<test module>/<test>/`` where that variable names
+    a folder (.ci/run sets it to ``test-artefacts/`` in the checkout, git-ignored, so CI keeps
+    the screenshots of the HTML reports and of the documentation site), else in the test's
+    ``tmp_path``. The folder is made; an existing file of that name is replaced (the same
+    test's earlier run)."""
+    import os
+    import re
+
+    root = os.environ.get("PHOID_TEST_ARTEFACTS")
+    if root:
+        test = re.sub(r"[^\w.-]+", "_", request.node.name)
+        folder = Path(root) / Path(request.node.fspath).stem / test
+    else:
+        folder = tmp_path
+    folder.mkdir(parents=True, exist_ok=True)
+    return lambda name: folder / name

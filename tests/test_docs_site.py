@@ -8,10 +8,11 @@ reference entry fails here. It reads the sources only: it needs neither Sphinx n
 ``docs`` extra. Building the site itself (warnings as errors, tutorials executed) takes
 about 100 s on two cores: ``make docs`` does it (CI runs it before the tests). The last two
 tests check a built site (its pages, then the home page and a tutorial in headless Chromium,
-a screenshot of each in the test's tmp_path): the one ``make docs`` left in docs/_build/html
-when it is newer than every source it was built from (docs/, src/phoid, examples/; the stamp
-``make docs`` writes after a build without warnings), else, with PHOID_DOCS_BUILD=1, one
-built here into a temporary folder; without either they are skipped, with the reason.
+a screenshot of each among the tests' artefacts, conftest's ``artefact``): the one ``make
+docs`` left in docs/_build/html when it is newer than every source it was built from (docs/,
+src/phoid, examples/; the stamp ``make docs`` writes after a build without warnings), else,
+with PHOID_DOCS_BUILD=1, one built here into a temporary folder; without either they are
+skipped, with the reason.
 """
 
 from __future__ import annotations
@@ -245,10 +246,10 @@ def test_site_builds_with_warnings_as_errors(site: Path) -> None:
 
 
 @pytest.mark.slow
-def test_site_in_a_browser(site: Path, tmp_path: Path) -> None:
+def test_site_in_a_browser(site: Path, artefact) -> None:
     # the home page and the tutorial in headless Chromium, as tests/test_html_report.py opens
     # its reports: the maths typeset by the site's own MathJax, nothing fetched from the
-    # network, and a screenshot of each (kept in tmp_path)
+    # network, and a screenshot of each (kept among the tests' artefacts: conftest's artefact)
     if importlib.util.find_spec("selenium") is None:
         pytest.skip("selenium is not installed (the `test` extra has it)")
     for path in (CHROMIUM, CHROMEDRIVER):
@@ -276,7 +277,7 @@ def test_site_in_a_browser(site: Path, tmp_path: Path) -> None:
             fetched = driver.execute_script(
                 "return performance.getEntriesByType('resource').map(e => e.name)")
             assert all(u.startswith(("file:", "data:")) for u in fetched), fetched
-            shot = tmp_path / f"{name}.png"
+            shot = artefact(f"{name}.png")
             assert driver.save_screenshot(str(shot)) and shot.stat().st_size > 10_000
     finally:
         driver.quit()

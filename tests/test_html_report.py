@@ -449,7 +449,7 @@ NUMBER = r"[-+]?\d+(?:\.\d*)?(?:e[-+]?\d+)?"
 
 
 @pytest.mark.parametrize("key", list(CASES))
-def test_report_in_a_browser(key, browser, sets, results, tmp_path):
+def test_report_in_a_browser(key, browser, sets, results, tmp_path, artefact):
     args, figures = CASES[key]
     path = tmp_path / f"{key}.html"
     out = cli(*(a.format(**sets) for a in args), "--html", path, "--json")
@@ -499,7 +499,7 @@ def test_report_in_a_browser(key, browser, sets, results, tmp_path):
     body = browser.find_element("tag name", "body").text
     for w in summary["warnings"]:
         assert " ".join(w.split())[:60] in " ".join(body.split())
-    shot = tmp_path / f"{key}.png"
+    shot = artefact(f"{key}.png")
     assert browser.save_screenshot(str(shot)) and shot.stat().st_size > 10_000
 
 
