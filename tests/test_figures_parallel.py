@@ -18,9 +18,11 @@ from __future__ import annotations
 import functools
 import multiprocessing
 import os
+import signal
 import subprocess
 import sys
 import threading
+import time
 import warnings
 from pathlib import Path
 
@@ -31,6 +33,7 @@ import phoid
 from phoid._output import OutputFolder
 from phoid.cli import app
 from phoid.io import read_experiment
+from phoid.reports import figures
 from phoid.reports.figures import (
     WORKERS_ENV,
     figure_workers,
@@ -57,7 +60,8 @@ def gls():
 def _small_figure(folder: Path, k: int, fail: str = ""):
     """Figure ``k``: a line through k's points and its number, after writing the id of the
     process drawing it to ``folder``/``k``.pid. ``fail``: "raise" raises ValueError, "warn"
-    gives a UserWarning, "die" ends a worker process (not the caller) at once."""
+    gives a UserWarning, "die" ends a worker process (not the caller) at once, "hang" blocks
+    a worker process (not the caller) for 60 s."""
     from matplotlib.figure import Figure
 
     (folder / f"{k}.pid").write_text(str(os.getpid()))
@@ -67,6 +71,8 @@ def _small_figure(folder: Path, k: int, fail: str = ""):
         warnings.warn(f"figure {k} says so", UserWarning, stacklevel=1)
     if fail == "die" and os.getpid() != int((folder / "caller.pid").read_text()):
         os._exit(3)
+    if fail == "hang" and os.getpid() != int((folder / "caller.pid").read_text()):
+        time.sleep(60)
     fig = Figure(figsize=(2, 1.5))
     ax = fig.subplots()
     ax.plot(range(k + 2), [j * j for j in range(k + 2)], label=f"figure {k}")
@@ -218,6 +224,81 @@ def test_a_warning_in_a_worker_is_given_here(tmp_path):
         pngs = list(render_pngs(_draws(tmp_path, 4, k3="warn"), workers=2))
     assert len(pngs) == 4
     assert os.getpid() not in _pids(tmp_path, 4)
+
+
+def _alive(pid: int) -> bool:
+    """Whether process ``pid`` still runs (a zombie, dead but not yet reaped, does not)."""
+    proc = Path(f"/proc/{pid}/stat")
+    if proc.parent.parent.is_dir() and Path("/proc/self").exists():
+        try:
+            return proc.read_text().rsplit(")", 1)[1].split()[0] not in ("Z", "X")
+        except OSError:
+            return False
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    return True
+
+
+@needs_fork
+def test_a_worker_that_hangs_is_not_waited_for_forever(tmp_path, monkeypatch):
+    # figure 1's worker blocks for 60 s; with STALL_S set to 1 s, the caller gives up on
+    # the workers after 1 s without a figure, kills them and draws figure 1 itself
+    (tmp_path / "a").mkdir()
+    (tmp_path / "b").mkdir()
+    serial = list(render_pngs(_draws(tmp_path / "a", 4), workers=1))
+    monkeypatch.setattr(figures, "STALL_S", 1.0)
+    start = time.monotonic()
+    got = list(render_pngs(_draws(tmp_path / "b", 4, k1="hang"), workers=2))
+    # 20 s: the stall bound (1 s) and four small figures, with room for a loaded machine;
+    # far below the 60 s the hung worker would have taken
+    assert time.monotonic() - start < 20
+    assert got == serial
+    assert int((tmp_path / "b" / "1.pid").read_text()) == os.getpid()  # drawn again here
+    workers = {int(p.read_text()) for p in (tmp_path / "b").glob("*.pid")} - {os.getpid()}
+    assert workers and not any(_alive(pid) for pid in workers)  # killed, not left behind
+
+
+@needs_fork
+def test_workers_end_when_their_caller_is_killed(tmp_path):
+    # a caller killed with SIGKILL cannot stop its pool: its workers, each blocked in a
+    # figure, must end by themselves rather than wait forever on the caller's pipes
+    code = (
+        "import os, sys, time\n"
+        "from pathlib import Path\n"
+        "from matplotlib.figure import Figure\n"
+        "from phoid.reports.figures import render_pngs\n"
+        "folder, me = Path(sys.argv[1]), os.getpid()\n"
+        "def draw(k):\n"
+        "    (folder / f'{k}.pid').write_text(str(os.getpid()))\n"
+        "    if os.getpid() != me:\n"
+        "        time.sleep(60)\n"
+        "    return Figure(figsize=(1, 1))\n"
+        "list(render_pngs([lambda k=k: draw(k) for k in range(2)], workers=2))\n")
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(
+        [str(ROOT / "src"), *filter(None, [os.environ.get("PYTHONPATH")])]))
+    env.pop(WORKERS_ENV, None)
+    caller = subprocess.Popen([sys.executable, "-c", code, str(tmp_path)], env=env)
+    workers: set[int] = set()
+    try:
+        deadline = time.monotonic() + 60  # start-up: importing matplotlib, forking
+        while len(workers) < 2 and time.monotonic() < deadline and caller.poll() is None:
+            time.sleep(0.1)
+            workers = {int(p.read_text() or 0) for p in tmp_path.glob("*.pid")} - {0}
+        assert len(workers) == 2 and caller.pid not in workers
+        caller.kill()
+        caller.wait(30)
+        # 10 s: the workers look for their caller every 0.25 s; far below their 60 s figure
+        deadline = time.monotonic() + 10
+        while any(_alive(pid) for pid in workers) and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert not any(_alive(pid) for pid in workers)
+    finally:
+        caller.kill()
+        for pid in workers:  # left behind (the failure under test): ended here, by id
+            if _alive(pid):
+                os.kill(pid, signal.SIGKILL)
 
 
 @pytest.mark.parametrize("value", ["0", "-2", "two", "1.5", "+3", "3 4"])

@@ -19,6 +19,11 @@ Python threads (a notebook kernel, a threaded server). The environment variable
 :data:`WORKERS_ENV` (``PHOID_FIGURE_WORKERS``), a whole number ≥ 1, sets how many processes
 draw (``1``: this one, one after another); unset, one per usable CPU.
 
+Nothing waits forever on a worker: one that dies leaves its figures to this process, and so
+do all of them when no figure has come back for :data:`STALL_S` seconds (a worker stopped or
+deadlocked), the workers then killed. A worker ends itself when the process that forked it
+is gone (killed, say, by SIGTERM or SIGKILL): no drawing process outlives its caller.
+
 matplotlib is imported inside the functions that draw, so importing this module is cheap. The
 results are taken by duck typing (see :mod:`phoid.reports.text`): this subpackage never
 imports the methods that make them.
@@ -34,6 +39,7 @@ import pickle
 import signal
 import sys
 import threading
+import time
 import warnings
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
@@ -48,9 +54,9 @@ from phoid.reports.text import format_number
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
-__all__ = ["DPI", "MAX_WORKERS", "WORKERS_ENV", "figure1", "figure1_panel", "figure_workers",
-           "plot_forced", "plot_free", "plot_friction", "plot_identification", "png_bytes",
-           "render_pngs", "run_names", "save_png", "write_pngs"]
+__all__ = ["DPI", "MAX_WORKERS", "STALL_S", "WORKERS_ENV", "figure1", "figure1_panel",
+           "figure_workers", "plot_forced", "plot_free", "plot_friction", "plot_identification",
+           "png_bytes", "render_pngs", "run_names", "save_png", "write_pngs"]
 
 
 #: resolution of the PNG files, dots per inch
@@ -60,6 +66,12 @@ DPI = 120
 WORKERS_ENV = "PHOID_FIGURE_WORKERS"
 #: the most worker processes drawing figures at once (each holds a copy of matplotlib's state)
 MAX_WORKERS = 8
+#: seconds without any figure coming back from the workers after which they are killed and
+#: the figures still missing are drawn in the calling process (a figure takes a fraction of
+#: a second; the time this process is stopped, by Ctrl-Z, counts as one second at most)
+STALL_S = 120.0
+#: seconds between a worker's checks that the process that forked it is still there
+_ORPHAN_POLL_S = 0.25
 
 #: the figures the worker processes draw: set just before they are forked, read there by index
 #: (the draw callables are closures over results: inherited, never pickled)
@@ -190,9 +202,55 @@ def _draw_png(k: int) -> tuple[bytes | None, list[tuple[Any, str]]]:
         return None, []
 
 
-def _worker_start() -> None:
-    """A worker ignores Ctrl-C: the process that forked it stops the work, once."""
+def _worker_start(parent: int) -> None:
+    """A worker ignores Ctrl-C: the process that forked it stops the work, once. It ends
+    itself as soon as that process (id ``parent``) is gone: a caller killed with no chance
+    to stop its pool (SIGTERM, SIGKILL) would otherwise leave its workers blocked forever on
+    the pipes it held."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+    def watch() -> None:
+        while os.getppid() == parent:
+            time.sleep(_ORPHAN_POLL_S)
+        os._exit(1)
+
+    threading.Thread(target=watch, name="phoid-orphan-watch", daemon=True).start()
+
+
+class _Stalled(Exception):
+    """No figure came back from the workers for :data:`STALL_S` seconds."""
+
+
+def _result(futures: dict[int, Any], k: int) -> Any:
+    """Figure ``k``'s result, waiting while the workers make progress: :class:`_Stalled`
+    once no figure has come back for :data:`STALL_S` seconds, counted in ticks of at most
+    one second (a pause of this process, Ctrl-Z, counts as one tick, not as its length)."""
+    from concurrent.futures import TimeoutError as FutureTimeout
+
+    tick = min(1.0, STALL_S / 10)
+    done, idle = -1, 0.0
+    while True:
+        try:
+            return futures[k].result(timeout=tick)
+        except FutureTimeout:
+            now = sum(f.done() for f in futures.values())
+            idle = 0.0 if now > done else idle + tick
+            done = now
+            if idle >= STALL_S:
+                raise _Stalled from None
+
+
+def _kill_workers(pool: Any) -> None:
+    """Kill ``pool``'s worker processes (stalled, or the caller stopped): its pending
+    figures fail with BrokenProcessPool, and its shutdown no longer waits on them."""
+    # concurrent.futures keeps its processes in ``_processes`` (Python 3.14: kill_workers)
+    kill = getattr(pool, "kill_workers", None)
+    if callable(kill):
+        kill()
+        return
+    for proc in list((getattr(pool, "_processes", None) or {}).values()):
+        with contextlib.suppress(Exception):
+            proc.kill()
 
 
 def _prepare_to_fork() -> None:
@@ -230,7 +288,9 @@ def render_pngs(draws: Sequence[Callable[[], Figure]], *,
     Exception
         What drawing a figure raises, as drawing it in this process raises it: a worker that
         fails leaves the figure to this process, which draws it again (and raises there);
-        a warning a worker's drawing gives is given again here.
+        a warning a worker's drawing gives is given again here. A worker that dies, or
+        workers that return no figure for :data:`STALL_S` seconds (then killed), leave the
+        figures still missing to this process.
     ValueError
         :data:`WORKERS_ENV` is not a whole number ≥ 1.
     """
@@ -245,7 +305,8 @@ def render_pngs(draws: Sequence[Callable[[], Figure]], *,
 
     _prepare_to_fork()
     pool = ProcessPoolExecutor(n, mp_context=multiprocessing.get_context("fork"),
-                               initializer=_worker_start)
+                               initializer=_worker_start, initargs=(os.getpid(),))
+    finished = False
     try:
         _PENDING[:] = draws
         try:
@@ -259,15 +320,23 @@ def render_pngs(draws: Sequence[Callable[[], Figure]], *,
                 futures = {k: pool.submit(_draw_png, k) for k in reversed(range(len(draws)))}
         finally:
             _PENDING.clear()  # the workers hold their copy; nothing here keeps the figures
+        broken = False
         for k in range(len(draws)):
-            try:
-                png, said = futures[k].result()
-            except BrokenProcessPool:  # a worker died (killed): the rest are drawn here
-                png, said = None, []
+            png, said = None, []
+            if not broken:
+                try:
+                    png, said = _result(futures, k)
+                except (BrokenProcessPool, _Stalled) as exc:  # the rest are drawn here
+                    broken = True
+                    if isinstance(exc, _Stalled):
+                        _kill_workers(pool)
             for category, message in said:
                 warnings.warn(message, category, stacklevel=2)
             yield png if png is not None else _png_of(draws[k])
+        finished = True
     finally:
+        if not finished:  # an error, Ctrl-C or the consumer gone: no figure is waited for
+            _kill_workers(pool)
         pool.shutdown(wait=True, cancel_futures=True)
 
 
