@@ -455,3 +455,33 @@ def test_design_figure_has_a_colour_bar_and_legend():
         import matplotlib.pyplot as plt
 
         plt.close(fig)
+
+
+@pytest.mark.parametrize("unit", [r"$\foo$", "a$b$c"])
+def test_a_sensor_unit_is_drawn_as_written(unit, tmp_path):
+    # a declared sensor unit is the manifest's text: its "$" is no mathtext (an unknown
+    # command ended the plot with matplotlib's parse error; "a$b$c" was drawn as a formula)
+    out = tmp_path / "set"
+    r = runner.invoke(app, ["simulate", str(out), "--method", "free", "--m", "1", "--c", "2",
+                            "--k", "100", "--duration", "3", "--fs", "250", "--noise", "1e-5",
+                            "--seed", "4"])
+    assert r.exit_code == 0, r.output
+    manifest = out / "experiment.toml"
+    toml_unit = unit.replace("\\", "\\\\")  # a TOML basic string
+    manifest.write_text(manifest.read_text() + f'\n[units]\nx = {{signal = "{toml_unit}"}}\n')
+    result = phoid.identify(read_experiment(out))
+    assert result.x_unit == unit
+    fig = free_run_figure(result, 0)
+    labels = [ax.get_ylabel() for ax in fig.axes[:2]]
+    # what is drawn: plain text (no mathtext), the escaped "$" shown as "$" (matplotlib's
+    # rule for "\$")
+    from matplotlib.cbook import is_math_text
+
+    assert not any(is_math_text(s) for s in labels)
+    assert [s.replace(r"\$", "$") for s in labels] == [f"x ({unit})", f"residual ({unit})"]
+    png_bytes(fig)  # drawn: no mathtext error
+    for extra in ([], ["--friction"]):  # the free-friction figure's title names it too
+        r = runner.invoke(app, ["identify", str(out), *extra, "--plots",
+                                str(tmp_path / f"png{len(extra)}")])
+        assert r.exit_code == 0, r.output
+        assert (tmp_path / f"png{len(extra)}" / "run01.png").stat().st_size > 0

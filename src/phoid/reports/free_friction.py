@@ -115,7 +115,7 @@ def _run_figure(result: Any, i: int):
         t, x, sel, model, noise_sd=float(r.noise_sd),
         model_label="fitted Coulomb + viscous decay",
         title=(f"{plain(r.file)}: σ = {s:.5g} 1/s, ω₀ = {w0:.5g} rad/s, $f_c/m$ = "
-               f"{result.fc_over_m.value:.4g} {result.fc_over_m.unit}, {r.half_cycles} "
+               f"{result.fc_over_m.value:.4g} {plain(result.fc_over_m.unit)}, {r.half_cycles} "
                "half-cycles"),
         markers=markers, period=2 * math.pi / math.sqrt(wd2) if wd2 > 0 else None,
         x_unit=getattr(result, "x_unit", "m"))

@@ -387,6 +387,7 @@ def run_figure(t: np.ndarray, x: np.ndarray, sel: np.ndarray, model: np.ndarray,
         The unit of x: drawn as :func:`display_unit` says (m as mm).
     """
     scale, unit = display_unit(x_unit)
+    unit = plain(unit)  # a declared sensor unit is the manifest's text: drawn as written
     has_f = force is not None and np.shape(force) == np.shape(t)
     fig, axes = _blank_figure("run", [3.2, 1.4] + ([1.1] if has_f else []) + [1.3])
     ax, axr = axes[0], axes[1]
