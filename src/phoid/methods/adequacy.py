@@ -219,6 +219,10 @@ class Adequacy:
         The Newey–West sandwich alone (nan when it could not be computed).
     stderr : str
         ``"white"`` or ``"robust"``: which of the two the estimates carry.
+    stderr_note : str
+        Where a check failed but the estimates keep the white-noise stderr (``stderr`` is
+        ``"white"``): what those stderr are and why they stand (empty otherwise; the text
+        report's ``[[Adequacy]]`` block prints it).
     """
 
     checks: tuple[Check, ...]
@@ -230,6 +234,7 @@ class Adequacy:
     robust_cov: np.ndarray = field(repr=False)
     sandwich_cov: np.ndarray = field(repr=False)
     stderr: str = "white"
+    stderr_note: str = ""
 
     @property
     def passed(self) -> bool:

@@ -420,7 +420,16 @@ def _ols(res: Any, idx: list[int], checks: list[aq.Check], causes: list[str],
                 f"{chk.dof} dof"))
     ad = aq.assess(checks, names=("m", "c", "k"), units=("kg", "N s/m", "N/m"),
                    white_cov=own, sandwich_cov=own, causes=causes, warnings=warns)
-    return replace(ad, robust_cov=own.copy(), stderr="white")
+    note = ""
+    if not ad.passed:
+        # the lines' stderr come from the points' scatter about them: already as wide as that
+        # scatter, whatever each run's error and its colour (docs/adequacy.md), so they are not
+        # widened; a failed lines check is a bias, which no stderr shows
+        note = ("the OLS lines' own, from the points' scatter about them (which holds each "
+                "run's error whatever its colour)")
+        if any(c.name == "lines" and c.passed is False for c in ad.checks):
+            note += "; the lines check says m, c, k are biased, which no stderr shows"
+    return replace(ad, robust_cov=own.copy(), stderr="white", stderr_note=note)
 
 
 def apply_pho(res: Any) -> Any:

@@ -87,5 +87,8 @@ def assess_friction(resid: Sequence[np.ndarray], noise: Sequence[float],
     ad = aq.assess(checks, names=("m", "c", "k", "fc"), units=("kg", "N s/m", "N/m", "N"),
                    white_cov=own, sandwich_cov=sand, causes=causes, warnings=warns)
     if ad.stderr == "robust" and not np.all(np.isfinite(sand)):
-        ad = replace(ad, stderr="white")  # no sandwich: the fit's own (scaled) covariance
+        # no sandwich: the fit's own (scaled) covariance
+        ad = replace(ad, stderr="white",
+                     stderr_note="the fit's own, scaled by its χ²/dof: no Newey–West "
+                                 "covariance could be computed for this fit")
     return ad
