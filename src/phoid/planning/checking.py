@@ -109,8 +109,10 @@ def check_experiment(
         placement (``noise_in_loop``) from ``[loop] noise``, else in the loop for a digital
         set (a note says which). For a set with data, ``fs``, ``duration`` (from the release),
         ``amplitude`` and ``noise`` default to what the records show (median over the runs;
-        a digital set's ``fs`` the whole multiple of 1/T nearest) — the skeleton's
-        ``[design]`` values for a skeleton.
+        a digital set's ``fs`` the whole multiple of 1/T nearest; the noise the fits'
+        residual sd where the set is identified, else the records' third-difference noise,
+        with or without the prior ``m``, ``c``, ``k``) — the skeleton's ``[design]`` values
+        for a skeleton. A note says which noise was used.
 
     Returns
     -------
@@ -145,6 +147,7 @@ def check_experiment(
             "sample_time": digital.sample_time, "delay_samples": digital.delay_samples,
             "velocity": digital.velocity, "cutoff": digital.cutoff}
         from_data = _record_settings(exp, digital)
+        noise_from = "records"
     else:
         P, D, delay = sched["P"], sched["D"], sched["delay"]
         stated = sched.get("noise_placement")
@@ -152,6 +155,7 @@ def check_experiment(
                                             "cutoff") if sched.get(key) is not None}
         from_data = {key: sched[key] for key in ("fs", "duration", "noise", "amplitude")
                      if sched.get(key) is not None}
+        noise_from = "skeleton"
     where = exp.path if exp is not None else experiment
     digital_keys = ("sample_time", "delay_samples", "velocity", "cutoff")
     asked = settings.get("noise_in_loop")
@@ -213,13 +217,14 @@ def check_experiment(
             "plant from the set's own identification: "
             + ", ".join(f"{n} = {e.value:.6g} ± {e.stderr:.3g} {e.unit}"
                         for n, e in (("m", ident.m), ("c", ident.c), ("k", ident.k))))
-        if "noise" not in from_data:
+        if noise_from == "records":  # the fits' residual: the records' noise, model-aware
             fit = getattr(ident, "inloop", None)
             sds = [float(fit.sigma)] if fit is not None and math.isfinite(fit.sigma) else [
                 r.fit.noise_sd for r in ident.runs if r.fit is not None
                 and math.isfinite(r.fit.noise_sd)]
             if sds and float(np.median(sds)) > 0:
                 from_data["noise"] = float(np.median(sds))
+                noise_from = "fits"
         # the check relies on this estimate: what the identification warned of stays with it
         carried.extend(f"identification of the set: {w}" for w in ident.warnings)
         for name, val in (("c", c), ("k", k)):
@@ -228,6 +233,7 @@ def check_experiment(
                                f"the check uses {name} = 0; give the prior --{name}")
         c = max(float(c), 0.0) if not isinstance(c, (str, Sequence)) else c
         k = max(float(k), 0.0) if not isinstance(k, (str, Sequence)) else k
+    given_noise = settings.get("noise")
     for key, val in from_data.items():
         if settings.get(key) is None:
             settings[key] = val
@@ -240,7 +246,8 @@ def check_experiment(
                           "after the release; --duration): the identification fits each decay "
                           "from 3 delays after the release; is the delay in seconds?")
     settings = {key: val for key, val in settings.items() if val is not None}
-    d = check(P, D, m, c, k, **settings)
+    d = check(P, D, m, c, k, **settings)  # validates the settings, --noise among them
+    notes.append(_noise_note(given_noise, from_data.get("noise"), noise_from))
     negative = [name for name, g in (("P", P), ("D", D)) if g.size and np.all(g < 0)]
     if negative:
         from phoid.methods.diagnose import SIGN_CONVENTION
@@ -255,11 +262,32 @@ def check_experiment(
     return d
 
 
+def _noise_note(given: Any, found: float | None, source: str) -> str:
+    """The note saying which sensor noise the check used: ``given`` (``--noise``), else
+    ``found`` from ``source`` ("fits", "records" or "skeleton"), else the default."""
+    what = {"fits": "measured from the records (the fits' residual sd, median over the runs)",
+            "records": "measured from the records (their third differences, median over the "
+                       "runs)",
+            "skeleton": "the skeleton's [design] noise"}[source]
+    if given is not None:
+        other = f"; {what.split(' (')[0]}: {found:.3g} m" if found is not None else ""
+        return f"noise {float(given):.3g} m as given (--noise){other}"
+    if found is not None:
+        return f"noise {found:.3g} m {what}; give --noise to use another"
+    why = ("the records show none above rounding" if source != "skeleton"
+           else "the skeleton records none")
+    return (f"noise {DesignSettings.noise:.3g} m: the default ({why}); give --noise for the "
+            "rig's")
+
+
 def _record_settings(exp, digital=None) -> dict[str, float]:
-    """Sample rate, record length after the release and release amplitude seen in a set; a
-    digital set's rate the whole multiple of its loop's rate 1/T nearest the records' (one
+    """Sample rate, record length after the release, release amplitude and sensor noise
+    (third differences, :func:`phoid.methods.fit_statistics.difference_noise`) seen in a set;
+    a digital set's rate the whole multiple of its loop's rate 1/T nearest the records' (one
     line naming the set when none is within 10 %)."""
-    fs, dur, amp = [], [], []
+    from phoid.methods.fit_statistics import difference_noise
+
+    fs, dur, amp, noise = [], [], [], []
     for r in exp.runs:
         t, x = np.asarray(r.t), np.asarray(r.x)
         dt = np.diff(t)
@@ -272,6 +300,7 @@ def _record_settings(exp, digital=None) -> dict[str, float]:
         j = int(np.searchsorted(t, t0))
         tail = x[-max(10, x.size // 10):]
         amp.append(abs(float(x[min(j, x.size - 1)]) - float(np.median(tail))))
+        noise.append(difference_noise(x, rounding=True))
     out = {"fs": float(np.median(fs)), "duration": float(np.median(dur))}
     if digital is not None:
         T = digital.sample_time
@@ -285,4 +314,7 @@ def _record_settings(exp, digital=None) -> dict[str, float]:
     a = float(np.median(amp))
     if a > 0:
         out["amplitude"] = a
+    sd = float(np.median(noise))
+    if math.isfinite(sd) and sd > 0:
+        out["noise"] = sd
     return out
