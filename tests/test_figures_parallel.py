@@ -301,6 +301,29 @@ def test_workers_end_when_their_caller_is_killed(tmp_path):
                 os.kill(pid, signal.SIGKILL)
 
 
+@needs_fork
+def test_a_warning_from_a_worker_is_filtered_as_one_given_here(tmp_path):
+    # the same place (file, line) as drawn here, so that a filter naming the module that gave
+    # it treats it alike: here, every warning an error but this module's UserWarnings ignored
+    places = []
+    for workers in (1, 2):
+        folder = tmp_path / str(workers)
+        folder.mkdir()
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            list(render_pngs(_draws(folder, 4, k3="warn"), workers=workers))
+        places.append([(w.category, str(w.message), w.filename, w.lineno) for w in caught])
+    assert places[0] == places[1] and len(places[0]) == 1
+    assert places[0][0][2] == __file__  # given in _small_figure, stacklevel 1
+    folder = tmp_path / "filtered"
+    folder.mkdir()
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        warnings.filterwarnings("ignore", category=UserWarning, module=__name__)
+        pngs = list(render_pngs(_draws(folder, 4, k3="warn"), workers=2))
+    assert len(pngs) == 4 and os.getpid() not in _pids(folder, 4)
+
+
 @pytest.mark.parametrize("value", ["0", "-2", "two", "1.5", "+3", "3 4"])
 def test_a_bad_workers_setting_is_an_error_naming_the_variable(value, monkeypatch):
     monkeypatch.setenv(WORKERS_ENV, value)

@@ -181,10 +181,10 @@ def figure_workers(n: int, workers: int | None = None) -> int:
     return cap
 
 
-def _draw_png(k: int) -> tuple[bytes | None, list[tuple[Any, str]]]:
+def _draw_png(k: int) -> tuple[bytes | None, list[tuple[Any, str, str, int]]]:
     """In a worker: figure ``k`` of :data:`_PENDING` as PNG bytes, and the warnings drawing it
-    gave (category, message); None for the bytes where drawing failed (the caller draws it
-    again, to raise what drawing it there raises)."""
+    gave (category, message, file name, line: where it was given); None for the bytes where
+    drawing failed (the caller draws it again, to raise what drawing it there raises)."""
     try:
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
@@ -196,7 +196,7 @@ def _draw_png(k: int) -> tuple[bytes | None, list[tuple[Any, str]]]:
                 pickle.dumps(category)
             except Exception:  # a category defined where it cannot be named: kept as text
                 category = RuntimeWarning
-            said.append((category, str(w.message)))
+            said.append((category, str(w.message), str(w.filename), int(w.lineno)))
         return png, said
     except BaseException:  # any failure: drawn again by the caller, which raises it
         return None, []
@@ -215,6 +215,19 @@ def _worker_start(parent: int) -> None:
         os._exit(1)
 
     threading.Thread(target=watch, name="phoid-orphan-watch", daemon=True).start()
+
+
+def _warn_again(category: Any, message: str, filename: str, lineno: int) -> None:
+    """Give here a warning a worker's drawing gave, from where it was given (its file, line
+    and module, and that module's registry of warnings given): the filters that match it
+    (by module: ``ignore::RuntimeWarning:numpy``) and the once-per-place rule treat it as
+    they treat it drawn here."""
+    module = next((name for name, mod in list(sys.modules.items())
+                   if getattr(mod, "__file__", None) == filename), None)
+    registry = (vars(sys.modules[module]).setdefault("__warningregistry__", {})
+                if module is not None else None)
+    warnings.warn_explicit(message, category, filename, lineno, module=module,
+                           registry=registry)
 
 
 class _Stalled(Exception):
@@ -288,9 +301,10 @@ def render_pngs(draws: Sequence[Callable[[], Figure]], *,
     Exception
         What drawing a figure raises, as drawing it in this process raises it: a worker that
         fails leaves the figure to this process, which draws it again (and raises there);
-        a warning a worker's drawing gives is given again here. A worker that dies, or
-        workers that return no figure for :data:`STALL_S` seconds (then killed), leave the
-        figures still missing to this process.
+        a warning a worker's drawing gives is given again here, from the file and line
+        that gave it (filters naming its module apply). A worker that dies, or workers that
+        return no figure for :data:`STALL_S` seconds (then killed), leave the figures still
+        missing to this process.
     ValueError
         :data:`WORKERS_ENV` is not a whole number ≥ 1.
     """
@@ -330,8 +344,8 @@ def render_pngs(draws: Sequence[Callable[[], Figure]], *,
                     broken = True
                     if isinstance(exc, _Stalled):
                         _kill_workers(pool)
-            for category, message in said:
-                warnings.warn(message, category, stacklevel=2)
+            for category, message, filename, lineno in said:
+                _warn_again(category, message, filename, lineno)
             yield png if png is not None else _png_of(draws[k])
         finished = True
     finally:
