@@ -140,6 +140,29 @@ def test_error_rows_are_skipped_unless_retry_errors(base_sets, tmp_path):
     pd.testing.assert_series_equal(after.loc[free], table.loc[free])  # the ok row kept
 
 
+def test_the_summary_counts_mean_what_their_words_say(base_sets, tmp_path):
+    """"identified" is the sets this run identified, "with an error" those this run failed on,
+    "already done" those it skipped (an earlier run's error row among them is not counted
+    again as an error of this run); the three add up to the sets named."""
+    names = [base_sets["pho-a"], base_sets["free"], tmp_path / "missing"]
+    out = tmp_path / "rows.parquet"
+    # the pho set refuses --mass (a free-decay option) and the missing folder is no set: two
+    # errors; the free set identifies
+    first = cli("batch", *names, "--out", out, "--workers", "0", "--mass", "1").stdout
+    assert "3 sets: 1 identified, 2 with an error, 0 already done;" in first, first
+    # again: the pho set's error row (same bytes, same options) and the free row are skipped;
+    # the missing folder (no checksum) is tried again and fails again
+    again = cli("batch", *names, "--out", out, "--workers", "0", "--mass", "1").stdout
+    assert ("3 sets: 0 identified, 1 with an error, 2 already done (1 of them an error row, "
+            "not retried: --retry-errors);") in again, again
+    counts = json.loads(cli("batch", *names, "--out", out, "--workers", "0", "--mass", "1",
+                            "--json").stdout)
+    jsonschema.validate(counts, json.loads(SCHEMA.read_text(encoding="utf-8")))
+    assert counts == {**counts, "sets": 3, "identified": 0, "errors": 1, "computed": 1,
+                      "skipped": 2, "skipped_errors": 1}
+    assert counts["identified"] + counts["errors"] + counts["skipped"] == counts["sets"]
+
+
 def test_rows_equal_identify_json_and_a_rerun_skips_them(base_sets, tmp_path):
     """Serial batch (--workers 0): one row per set, the numbers of `phoid identify --json`,
     [metadata] as columns, a missing folder as an error row; the same command again computes

@@ -115,14 +115,18 @@ def batch(
     except Exception as exc:  # the cluster failed (a worker lost, the scheduler gone)
         what = "the batch" if scheduler is None and workers == 0 else "the Dask cluster"
         _fail(f"{what} failed ({type(exc).__name__}: {exc}); {_finished(store)}", code=1)
-    counts = {"sets": len(report.rows), "computed": report.computed, "skipped": report.skipped,
-              "errors": report.errors, "parquet": str(store.parquet), "csv": str(store.csv)}
+    counts = {"sets": len(report.rows), "computed": report.computed,
+              "identified": report.identified, "errors": report.errors,
+              "skipped": report.skipped, "skipped_errors": report.skipped_errors,
+              "parquet": str(store.parquet), "csv": str(store.csv)}
     if as_json:
         typer.echo(json.dumps(counts, indent=1))
     else:
         from phoid._output import echo_text
 
         n = counts["sets"]
-        echo_text(f"{n} set{'s' * (n != 1)}: {report.computed} identified, {report.skipped} "
-                  f"already done, {report.errors} with an error; rows in {store.parquet} "
-                  f"and {store.csv}", wrap=False)
+        held = (f" ({report.skipped_errors} of them an error row, not retried: --retry-errors)"
+                if report.skipped_errors else "")
+        echo_text(f"{n} set{'s' * (n != 1)}: {report.identified} identified, {report.errors} "
+                  f"with an error, {report.skipped} already done{held}; rows in "
+                  f"{store.parquet} and {store.csv}", wrap=False)

@@ -89,15 +89,23 @@ class BatchReport:
     skipped : int
         Sets whose row the output already held (same checksum and options): not recomputed.
     computed : int
-        Sets identified by this batch (errors included).
+        Sets this batch worked on: ``identified + errors``.
     errors : int
-        Rows of this batch's sets with ``status = "error"``.
+        Sets this batch worked on that ended in an error (``status = "error"``); the error
+        rows it skipped are in ``skipped_errors``.
+    identified : int
+        Sets this batch identified (``status = "ok"``).
+    skipped_errors : int
+        Of the ``skipped`` rows, those with ``status = "error"`` (from an earlier run; tried
+        again with ``retry_errors``).
     """
 
     rows: list[dict[str, Any]]
     skipped: int
     computed: int
     errors: int
+    identified: int = 0
+    skipped_errors: int = 0
 
 
 def _serial(fn: Callable[[Any], Any], items: list[Any], description: str
@@ -158,9 +166,11 @@ def run_batch(sets: Iterable[str | os.PathLike[str]], *, client: Any = None,
     rows: dict[str, dict[str, Any]] = {}
     jobs: list[tuple[str, str, dict[str, Any], dict[str, Any]]] = []
     skipped = 0
+    worked: set[str] = set()  # the sets this run made a row for (not skipped)
 
     def record(row: dict[str, Any]) -> None:
         rows[row["set"]] = row
+        worked.add(row["set"])
         if store is not None:
             store.append(row)
 
@@ -213,8 +223,12 @@ def run_batch(sets: Iterable[str | os.PathLike[str]], *, client: Any = None,
     if store is not None:
         store.finish()
     ordered = [rows[n] for n in names if n in rows]
-    return BatchReport(rows=ordered, skipped=skipped, computed=len(ordered) - skipped,
-                       errors=sum(r["status"] == "error" for r in ordered))
+    new = [r for r in ordered if r["set"] in worked]
+    errors = sum(r["status"] == "error" for r in new)
+    return BatchReport(rows=ordered, skipped=skipped, computed=len(new), errors=errors,
+                       identified=len(new) - errors,
+                       skipped_errors=sum(r["status"] == "error" for r in ordered
+                                          if r["set"] not in worked))
 
 
 def identify_many(sets: Iterable[str | os.PathLike[str]], client: Any = None, *,
