@@ -239,3 +239,31 @@ def test_the_adequacy_block_never_claims_every_check_passed_when_one_failed():
     assert "every check passed" not in failed and "not widened although noise failed" in failed
     noted = adequacy_lines(result(False, "the fit's own, for a reason"))[-1]
     assert noted.endswith("noise failed: the fit's own, for a reason")
+
+
+def test_a_block_whose_columns_have_no_unit_gets_no_units_row():
+    from phoid.reports.text import text_table
+
+    # 8 columns of 18 characters with units, then one without: 4 fit beside the label in
+    # 100 columns (2 + 3 + 4·20 = 85; 105 with a fifth), so three blocks, the last holding the
+    # unitless column alone: it gets no (empty) units row
+    cols = [("run", ""), *((f"c{j}", "s") for j in range(8)), ("ratio", "")]
+    rows = [["r1", *(f"{j:>18}" for j in range(8)), f"{1.0:>18}"]]
+    out = text_table(cols, rows)
+    heads = [i for i, x in enumerate(out) if x.split()[:1] == ["run"]]
+    assert len(heads) == 3 and out[heads[-1]].split() == ["run", "ratio"], out
+    assert out[heads[0] + 1].split() == ["s"] * len(out[heads[0]].split()[1:])
+    assert out[heads[-1] + 1].split()[0] == "r1", out  # the row, not a blank units row
+    assert all(x.strip() or (i and out[i - 1].split()[:1] != ["run"])
+               for i, x in enumerate(out)), out
+
+
+def test_the_ols_report_prints_no_empty_units_row(sample_set_path):
+    # the OLS runs table wraps its resid/noise column into a block of its own on the example
+    # set with --no-compensation (the reviewer's case): no blank line under its header
+    res = phoid("identify", str(sample_set_path), "--estimator", "ols", "--no-compensation")
+    assert res.returncode == 0, res.stderr
+    lines = res.stdout.splitlines()
+    for i, x in enumerate(lines[:-1]):
+        if x.split()[:1] == ["run"]:
+            assert lines[i + 1].strip(), lines[i:i + 3]

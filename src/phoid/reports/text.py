@@ -76,7 +76,8 @@ def text_table(columns: list[tuple[str, str]], rows: list[list[str]], *, width: 
     Parameters
     ----------
     columns : list of (name, unit)
-        The header; ``unit`` "" for none (the units row is left out when no column has one).
+        The header; ``unit`` "" for none (a block's units row is left out when none of its
+        columns, the label's included, has one).
     rows : list of list of str
         The cells, already formatted, one per column; a row may have one more, a note printed
         after the last block's cells (e.g. "set aside").
@@ -106,7 +107,6 @@ def text_table(columns: list[tuple[str, str]], rows: list[list[str]], *, width: 
         else:
             blocks.append([j])
     blocks = blocks or [[]]
-    has_units = any(u for _, u in columns)
     pad = " " * indent
     out: list[str] = []
     for b, block in enumerate(blocks):
@@ -120,7 +120,7 @@ def text_table(columns: list[tuple[str, str]], rows: list[list[str]], *, width: 
                 for j in block)).rstrip()
 
         out.append(line(columns[0][0], [c[0] for c in columns]))
-        if has_units:
+        if any(columns[j][1] for j in (0, *block)):  # no units row without a unit in it
             out.append(line(columns[0][1], [c[1] for c in columns]))
         for r, note in zip(cells, notes, strict=True):
             if len(r[0]) > lab:
