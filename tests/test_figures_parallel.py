@@ -261,6 +261,35 @@ def test_a_worker_that_hangs_is_not_waited_for_forever(tmp_path, monkeypatch):
 
 
 @needs_fork
+def test_a_worker_that_cannot_be_forked_leaves_the_figures_here(tmp_path, monkeypatch):
+    # the system refuses the second fork (EAGAIN: fork(2) at a process limit, as
+    # RLIMIT_NPROC gives; not reproducible for root, who is exempt): the figures are drawn
+    # here, as one after another, and the worker forked first is not left behind
+    import errno
+
+    (tmp_path / "a").mkdir()
+    (tmp_path / "b").mkdir()
+    serial = list(render_pngs(_draws(tmp_path / "a", 4), workers=1))
+    forked: list[int] = []
+    real_fork = os.fork
+
+    def fork() -> int:
+        if forked:
+            raise BlockingIOError(errno.EAGAIN, os.strerror(errno.EAGAIN))
+        pid = real_fork()
+        if pid:
+            forked.append(pid)
+        return pid
+
+    monkeypatch.setattr(os, "fork", fork)
+    got = list(render_pngs(_draws(tmp_path / "b", 4), workers=2))
+    monkeypatch.undo()
+    assert got == serial
+    assert set(_pids(tmp_path / "b", 4)) == {os.getpid()}
+    assert len(forked) == 1 and not _alive(forked[0])  # killed (and reaped)
+
+
+@needs_fork
 def test_workers_end_when_their_caller_is_killed(tmp_path):
     # a caller killed with SIGKILL cannot stop its pool: its workers, each blocked in a
     # figure, must end by themselves rather than wait forever on the caller's pipes

@@ -21,7 +21,8 @@ draw (``1``: this one, one after another); unset, one per usable CPU.
 
 Nothing waits forever on a worker: one that dies leaves its figures to this process, and so
 do all of them when no figure has come back for :data:`STALL_S` seconds (a worker stopped or
-deadlocked), the workers then killed. A worker ends itself when the process that forked it
+deadlocked), the workers then killed, or when a worker cannot be forked (a limit on processes
+or memory reached). A worker ends itself when the process that forked it
 is gone (killed, say, by SIGTERM or SIGKILL): no drawing process outlives its caller.
 
 matplotlib is imported inside the functions that draw, so importing this module is cheap. The
@@ -261,9 +262,13 @@ def _kill_workers(pool: Any) -> None:
     if callable(kill):
         kill()
         return
-    for proc in list((getattr(pool, "_processes", None) or {}).values()):
+    procs = list((getattr(pool, "_processes", None) or {}).values())
+    for proc in procs:
         with contextlib.suppress(Exception):
             proc.kill()
+    for proc in procs:  # reaped: no zombie left where the pool's own thread never ran
+        with contextlib.suppress(Exception):
+            proc.join(5)
 
 
 def _prepare_to_fork() -> None:
@@ -332,9 +337,12 @@ def render_pngs(draws: Sequence[Callable[[], Figure]], *,
                                         message=r".*multi-threaded.*fork")
                 # last first: the whole-set figures come last and cost the most
                 futures = {k: pool.submit(_draw_png, k) for k in reversed(range(len(draws)))}
+            broken = False
+        except OSError:  # a worker could not be forked (a process or memory limit reached)
+            futures, broken = {}, True  # drawn here, as where forking is not possible
+            _kill_workers(pool)  # those forked before
         finally:
             _PENDING.clear()  # the workers hold their copy; nothing here keeps the figures
-        broken = False
         for k in range(len(draws)):
             png, said = None, []
             if not broken:
