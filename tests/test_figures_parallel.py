@@ -353,6 +353,19 @@ def test_a_warning_from_a_worker_is_filtered_as_one_given_here(tmp_path):
     assert len(pngs) == 4 and os.getpid() not in _pids(folder, 4)
 
 
+@pytest.mark.parametrize("report", ["run01.png/report.html", "lines.png/a/b.html",
+                                    "X.PNG", "."])
+def test_a_report_in_the_way_of_a_figure_is_refused_before_the_work(report, tmp_path):
+    # --html under a name --plots writes (run01.png, the sample's first run; lines.png) would
+    # make a folder of it, or the figure a folder: refused before anything is written
+    plots = tmp_path / "png"
+    r = CliRunner().invoke(app, ["identify", str(SAMPLE), "--plots", str(plots),
+                                 "--html", str(plots / report)])
+    assert r.exit_code == 2, r.output
+    assert r.output.startswith("phoid: error: ") and "would collide" in r.output
+    assert not plots.exists()
+
+
 @pytest.mark.parametrize("value", ["0", "-2", "two", "1.5", "+3", "3 4"])
 def test_a_bad_workers_setting_is_an_error_naming_the_variable(value, monkeypatch):
     monkeypatch.setenv(WORKERS_ENV, value)

@@ -653,7 +653,8 @@ def check_report_target(path: str | Path, *, overwrite: bool = False,
         An existing regular file may be replaced.
     figures : str or Path, optional
         Where the same command writes its figures (a folder of PNG files, or one PNG file):
-        ``path`` may be neither that path nor a PNG file inside it.
+        ``path`` may be neither that path nor a PNG file inside it, nor lie under a name
+        ending in ``.png`` inside it (a folder in the way of a figure, or under one).
 
     Raises
     ------
@@ -667,7 +668,7 @@ def check_report_target(path: str | Path, *, overwrite: bool = False,
                           "name (e.g. report.html)")
     if figures is not None:
         h, f = path.resolve(), Path(figures).resolve()
-        if h == f or (h.parent == f and h.suffix.lower() == ".png"):
+        if h == f or (f in h.parents and h.relative_to(f).parts[0].lower().endswith(".png")):
             raise OutputError(f"{path}: would collide with the figures written to {figures}; "
                               "give the report another name")
     OutputFolder(path.parent, overwrite=overwrite).check([path.name])
