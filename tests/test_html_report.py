@@ -320,6 +320,24 @@ def test_plots_and_html_together_draw_each_figure_once(sets, tmp_path, monkeypat
                   re.findall(r'src="data:image/png;base64,([^"]+)"', alone)) == written
 
 
+def test_figure_files_embedded_are_regular_files_never_links(results, tmp_path):
+    # report_html(figures=[paths]) reads files a command has just written: a link (to a file
+    # outside the folder) or a FIFO put in their place is refused, not followed or waited on
+    import os
+
+    from phoid.reports.html import report_html
+
+    secret = tmp_path / "secret.png"
+    secret.write_bytes(b"not a figure of this result")
+    (tmp_path / "plots").mkdir()
+    link, fifo = tmp_path / "plots" / "run01.png", tmp_path / "plots" / "run02.png"
+    link.symlink_to(secret)
+    os.mkfifo(fifo)
+    for bad in (link, fifo):
+        with pytest.raises(OSError, match="cannot be embedded"):
+            report_html(results["free"], figures=[bad])
+
+
 def test_design_html_without_a_browser(tmp_path):
     path = tmp_path / "design.html"
     cli("design", "--m", "2", "--c", "1", "--k", "64", "--delay", "0.1", "--runs", "3",

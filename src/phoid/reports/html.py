@@ -635,10 +635,17 @@ def report_html(result: Any, *, experiment: Any = None, inputs: Iterable[str | P
 
 def _read_png(path: str | Path) -> bytes:
     """The bytes of a figure file just written: a regular file, never followed through a link."""
-    st = os.lstat(path)
-    if not stat.S_ISREG(st.st_mode):
-        raise OSError(f"{path}: not a regular file; the figure cannot be embedded")
-    return Path(path).read_bytes()
+    # opened without following a link (O_NOFOLLOW, where the platform has it), then checked on
+    # the open file: a file swapped for a link or a FIFO between the two is never read
+    flags = os.O_RDONLY | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_NONBLOCK", 0)
+    try:
+        fd = os.open(path, flags)
+    except OSError as exc:
+        raise OSError(f"{path}: {exc.strerror or exc}; the figure cannot be embedded") from None
+    with os.fdopen(fd, "rb") as f:
+        if not stat.S_ISREG(os.fstat(f.fileno()).st_mode):
+            raise OSError(f"{path}: not a regular file; the figure cannot be embedded")
+        return f.read()
 
 
 def check_report_target(path: str | Path, *, overwrite: bool = False,
