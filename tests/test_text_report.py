@@ -267,3 +267,61 @@ def test_the_ols_report_prints_no_empty_units_row(sample_set_path):
     for i, x in enumerate(lines[:-1]):
         if x.split()[:1] == ["run"]:
             assert lines[i + 1].strip(), lines[i:i + 3]
+
+
+# --- one notation: units, the fit statistics, design and tracking warnings ----------------
+@pytest.mark.parametrize("kind, unit, ascii_unit", [
+    ("free", "1/s²", "1/s^2"),  # k/m
+    ("free-friction", "m/s²", "m/s^2"),  # f_c/m
+])
+def test_units_are_written_with_superscripts_and_spelt_out_in_ascii(kind, unit, ascii_unit,
+                                                                    tmp_path):
+    sim = phoid("simulate", "set", *SIMULATE["free"], cwd=tmp_path)
+    assert sim.returncode == 0, sim.stderr
+    uni = phoid("identify", "set", *IDENTIFY[kind], cwd=tmp_path)
+    asc = phoid("identify", "set", *IDENTIFY[kind], cwd=tmp_path,
+                env={"PYTHONIOENCODING": "ascii"})
+    assert uni.returncode == 0 and asc.returncode == 0, (uni.stderr, asc.stderr)
+    assert unit in uni.stdout and "^" not in uni.stdout, uni.stdout
+    assert ascii_unit in asc.stdout and asc.stdout.isascii()
+
+
+def test_the_fit_statistics_block_is_in_the_notation(sample_set_path, example_text):
+    # the GLS fit's "χ² of": the runs' modes (σᵢ, ω_dᵢ), spelt out on an ASCII stream
+    block = example_text.split("[[Fit statistics]]")[1].split("[[")[0]
+    assert "(σᵢ, ω_dᵢ)" in block and "sigma" not in block, block
+    asc = phoid("identify", str(sample_set_path), env={"PYTHONIOENCODING": "ascii"})
+    assert asc.returncode == 0, asc.stderr
+    assert "(sigma_i, omega_d_i)" in asc.stdout.split("[[Fit statistics]]")[1]
+
+
+def test_design_warnings_are_in_the_notation_and_spelt_out_in_ascii():
+    from phoid._notation import ascii_text
+    from phoid.planning import check
+
+    # the paper's plant (m 2, c 1, k 64, delay 0.1 s): run 4 (D 0.1) rings below the ζ band
+    # 0.03-0.2, runs 3-4 exceed --pmax 5 / --dmax 10, and no run's other modes decay 50 times
+    # faster than its ringing one
+    d = check([0.25, 3.0, 25.0, 10.0], [0.6, 2.5, 6.0, 0.1], 2.0, 1.0, 64.0, delay=0.1,
+              pmax=5.0, dmax=10.0, separation=50.0)
+    text = "\n".join(d.warnings)
+    for uni, asc in (("50× faster", "50x faster"), ("|P| ≤ 5 N/m", "|P| <= 5 N/m"),
+                     ("band 0.03–0.2", "band 0.03-0.2"), ("runs 3–4", "runs 3-4")):
+        assert uni in text, (uni, text)
+        assert asc in ascii_text(text), asc
+    assert "<=" not in text and "50x" not in text
+
+
+def test_a_tracking_warning_says_not_reported_rather_than_null():
+    import math
+
+    from phoid.methods.estimate import Estimate
+    from phoid.methods.tracking_identification import _simulable
+
+    # a stderr that overflowed: the text must not say null (JSON writes the stderr as null)
+    est = {"m": Estimate(2.0, math.inf, "kg"), "c": Estimate(1.0, 0.1, "N s/m"),
+           "k": Estimate(0.0, 0.0, "N/m"), "fc": Estimate(0.5, 0.01, "N")}
+    warnings: list[str] = []
+    _simulable(est, warnings)
+    (w,) = warnings
+    assert "stderr of m" in w and "not reported" in w and "null" not in w

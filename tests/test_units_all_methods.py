@@ -114,7 +114,8 @@ def test_a_pho_set_in_degrees_reports_j_and_rotational_units(deg_set):
                                                                  "N m/rad")
     assert s["covariance"]["units"][:3] == ["kg m^2", "N m s/rad", "N m/rad"]
     text = _cli("identify", deg_set)
-    assert "kg m^2" in text and "N m s/rad" in text and "N m/rad" in text
+    # the text report writes a unit's power as a superscript (docs: one notation), JSON "^2"
+    assert "kg m²" in text and "N m s/rad" in text and "N m/rad" in text
     # the runs table: names in a header row, units in the row below (P in N m/rad, resid rad)
     lines = text.splitlines()
     head = next(i for i, x in enumerate(lines) if x.split()[:2] == ["run", "P"])
@@ -169,11 +170,11 @@ def test_a_free_friction_set_in_rad_reports_rotational_units(tmp_path):
     assert s["covariance"]["units"] == ["1/s", "1/s^2", "rad/s^2"]
     assert s["adequacy"]["units"] == ["1/s", "1/s^2", "rad/s^2"]
     text = _cli("identify", folder, "--friction")
-    assert "moment of inertia J = 0.5 kg m^2" in text
+    assert "moment of inertia J = 0.5 kg m²" in text
     # the runs table: "stuck at" with its unit, rad, in the units row below the names
     lines = text.splitlines()
     head = next(i for i, x in enumerate(lines) if "stuck at" in x)
     col = lines[head].index("stuck at") + len("stuck at")  # right-aligned: the unit ends there
     assert lines[head + 1][:col].endswith("rad"), lines[head:head + 2]
-    assert "N m/rad" in text and "rad/s^2" in text
-    assert "m/s^2" not in text.replace("rad/s^2", "")
+    assert "N m/rad" in text and "rad/s²" in text
+    assert "m/s²" not in text.replace("rad/s²", "") and "^" not in text

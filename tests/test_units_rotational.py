@@ -85,7 +85,7 @@ def test_a_free_decay_in_degrees_is_the_one_in_radians(tmp_path):
     s = b.summary()
     assert s["x_unit"] == "rad" and s["c"]["unit"] == "N m s/rad"
     text = b.report()
-    assert "moment of inertia J = 0.002 kg m^2" in text and _unit_below(text, "x0") == "rad"
+    assert "moment of inertia J = 0.002 kg m²" in text and _unit_below(text, "x0") == "rad"
     assert _unit_below(text, "v0") == "rad/s" and " N s/m" not in text
 
 

@@ -17,7 +17,8 @@ import contextvars
 from collections.abc import Iterator
 from typing import TextIO
 
-__all__ = ["WIDTH", "ascii_text", "fit_width", "notation", "stream_notation", "stream_text"]
+__all__ = ["WIDTH", "ascii_text", "fit_width", "notation", "stream_notation", "stream_text",
+           "unit_text"]
 
 #: The widest line phoid prints in a report (a terminal's 100 columns).
 WIDTH = 100
@@ -29,8 +30,11 @@ _ASCII = (
     ("ŷ", "y_hat"), ("Δ", "delta "), ("±", "+/-"), ("′", "'"), ("²", "^2"), ("³", "^3"),
     ("≥", ">="), ("≤", "<="), ("≈", "~"), ("≠", "!="), ("−", "-"), ("–", "-"), ("—", "--"),
     ("…", "..."), ("×", "x"), ("·", "*"), ("‖", "||"), ("√", "sqrt"), ("→", "->"),
-    ("₀", "0"), ("₁", "1"), ("₂", "2"), ("µ", "u"), ("μ", "u"), ("°", " deg"), ("⚠", "!"),
+    ("₀", "0"), ("₁", "1"), ("₂", "2"), ("ᵢ", "_i"), ("µ", "u"), ("μ", "u"), ("°", " deg"),
+    ("⚠", "!"),
 )
+# a power in a unit as phoid's SI strings write it (1/s^2, kg m^2, rad/s^2) and its superscript
+_POWERS = {"2": "²", "3": "³"}
 _ASCII_NOTATION: contextvars.ContextVar[bool] = contextvars.ContextVar(
     "phoid_ascii_notation", default=False)
 
@@ -61,6 +65,30 @@ def ascii_text(text: str) -> str:
         text = "".join(c for c in unicodedata.normalize("NFKD", text)
                        if not unicodedata.combining(c))
     return text.encode("ascii", "replace").decode("ascii")
+
+
+def unit_text(unit: str) -> str:
+    """A unit in phoid's notation: its powers as superscripts (``1/s^2`` → ``1/s²``,
+    ``kg m^2`` → ``kg m²``), as the text reports print it; :func:`ascii_text` spells them
+    back (``1/s^2``) for a stream that cannot show them. The JSON keeps the ASCII unit
+    strings.
+
+    Parameters
+    ----------
+    unit : str
+
+    Returns
+    -------
+    str
+
+    Examples
+    --------
+    >>> unit_text("1/s^2"), unit_text("kg m^2"), unit_text("N s/m")
+    ('1/s²', 'kg m²', 'N s/m')
+    """
+    import re
+
+    return re.sub(r"\^([23])(?![0-9])", lambda m: _POWERS[m.group(1)], str(unit))
 
 
 def _encodes(stream: TextIO | None, text: str) -> bool:

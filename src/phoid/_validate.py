@@ -96,7 +96,7 @@ def overflow_warnings(mass: float, estimates: Sequence[tuple[str, Any, float]]) 
     Returns
     -------
     list of str
-        One warning per product whose value or stderr is not finite (reported as null): the
+        One warning per product whose value or stderr is not finite (null in the JSON): the
         product overflows the floating-point range.
     """
     out = []
@@ -105,8 +105,8 @@ def overflow_warnings(mass: float, estimates: Sequence[tuple[str, Any, float]]) 
             continue
         if not math.isfinite(est.value):
             out.append(f"{label} = {per_mass:.4g} × {mass:.4g} overflows the floating-point "
-                       "range: not given (null)")
+                       "range: not reported")
         elif est.stderr is not None and not math.isfinite(est.stderr):
-            out.append(f"the stderr of {label} overflows the floating-point range: not given "
-                       "(null)")
+            out.append(f"the stderr of {label} overflows the floating-point range: not "
+                       "reported")
     return out

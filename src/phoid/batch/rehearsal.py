@@ -34,6 +34,7 @@ from typing import Any
 
 import numpy as np
 
+from phoid._notation import unit_text
 from phoid.errors import PhoidError
 
 __all__ = ["MAX_REPLICAS", "NOMINAL_COVERAGE", "ParameterRehearsal", "Rehearsal", "rehearse",
@@ -156,7 +157,7 @@ class Rehearsal:
         # (the same number of replicas identified), else a column of its own
         ranges = {span(p.sd_ratio_range) for p in self.parameters}
         own = len(ranges) > 1
-        rows = [[f"{p.name} ({p.unit})", f"{p.true:.4g}", f"{p.predicted:.3g}",
+        rows = [[f"{p.name} ({unit_text(p.unit)})", f"{p.true:.4g}", f"{p.predicted:.3g}",
                  f"{p.observed_sd:.3g}", format_number(p.sd_ratio, 3),
                  *([span(p.sd_ratio_range)] if own else []), f"{p.mean_stderr:.3g}",
                  f"{p.bias:.2g} ± {p.bias_mc:.2g}", format_number(p.rmse_ratio, 3),

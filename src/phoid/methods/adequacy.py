@@ -72,6 +72,7 @@ from typing import Any
 
 import numpy as np
 
+from phoid._notation import unit_text
 from phoid.fits.hac import hac_covariance
 from phoid.methods.chi2 import chi2_isf, chi2_sf
 from phoid.methods.envelope import Envelope, envelope_test, normal_isf, t_isf, turning_points
@@ -676,7 +677,7 @@ def agreement(name: str, values: Sequence[Any], covs: Sequence[Any], *,
                 if z > best[0]:
                     best = (z, j, a, b)
     z, j, a, b = best
-    unit = f" {units[j]}" if units[j] else ""
+    unit = f" {unit_text(units[j])}" if units[j] else ""
     what = (f"{params[j]} {th[a][j]:.4g}{unit} ({labels[a]}) vs {th[b][j]:.4g}{unit} "
             f"({labels[b]}), {z:.3g} combined stderr")
     detail = f"χ² = {chi2:.4g} on {dof} dof, p = {pv:.2g}; largest difference: {what}"

@@ -8,6 +8,7 @@ import math
 import re
 from dataclasses import dataclass
 
+from phoid._notation import unit_text
 from phoid.reports.text import format_estimate
 
 __all__ = ["Estimate"]
@@ -67,7 +68,7 @@ class Estimate:
         """
         se = None if self.stderr is None else float(self.stderr)
         text = format_estimate(float(self.value), se)
-        text = f"{text} {self.unit}" if self.unit else text
+        text = f"{text} {unit_text(self.unit)}" if self.unit else text
         if not spec:
             return text
         if _TEXT_SPEC.fullmatch(spec):

@@ -43,6 +43,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from phoid import _validate as valid
+from phoid._notation import unit_text
 from phoid._threads import single_blas_thread
 from phoid.dynamics.plant import free_response
 from phoid.errors import IdentificationError
@@ -471,6 +472,7 @@ def _from_viscous(vis: FreeIdentification, names: list[str]) -> FreeFrictionIden
     cov = adequacy.robust_cov
     white = sol.cov_white if robust else None
     acc = quantity_unit("m/s^2", x_unit)
+    acc_text = unit_text(acc)  # as the warnings write it (m/s²)
 
     def wv(j: int) -> float | None:
         return None if white is None else float(white[j, j])
@@ -542,10 +544,10 @@ def _from_viscous(vis: FreeIdentification, names: list[str]) -> FreeFrictionIden
     if not significant:
         warnings.append(
             f"friction is not significant (f_c/m = {a:.4g} ± {a_e.stderr or math.nan:.2g} "
-            f"{acc}, Δχ² = {dchi2:.3g} against the viscous fit, p = {p:.2g}): the viscous "
+            f"{acc_text}, Δχ² = {dchi2:.3g} against the viscous fit, p = {p:.2g}): the viscous "
             "model suffices (phoid identify without --friction)")
     elif a < 0:
-        warnings.append(f"f_c/m = {a:.4g} {acc} < 0: the decay is slower than viscous, not "
+        warnings.append(f"f_c/m = {a:.4g} {acc_text} < 0: the decay is slower than viscous, not "
                         "Coulomb friction (not a passive plant)")
     warnings.extend(adequacy.warnings)
     if not sol.converged:

@@ -248,18 +248,18 @@ class Identification(PlantResult, LoopExports):
             return (["m", "c", "k"], ["kg", "N s/m", "N/m"], fit.cov, fit.chi2, fit.dof,
                     "the output error of the plant driven by the force the controller applied "
                     "(the noise in the loop): each run's residual over its noise level from "
-                    "third differences, dof = samples - (m, c, k, start states, offset)")
+                    "third differences, dof = samples − (m, c, k, start states, offset)")
         if fit.cov_full is not None:
             names, units, cov = ["m", "c", "k", "delay"], ["kg", "N s/m", "N/m", "s"], \
                 fit.cov_full
         else:
             names, units, cov = ["m", "c", "k"], ["kg", "N s/m", "N/m"], fit.cov
         if fit.estimator == "gls":
-            of = ("the weighted fit of the runs' modes (sigma_i, omega_d_i) through the exact "
-                  "loop roots (eq. 35), each run weighted by its decay fit's covariance")
+            of = ("the weighted fit of the runs' modes (σᵢ, ω_dᵢ) through the exact loop "
+                  "roots (eq. 35), each run weighted by its decay fit's covariance")
             if self.delay_from == "x+u":
-                of = ("the weighted fit of the runs' modes (sigma_i, omega_d_i) through the "
-                      "exact loop roots (eq. 35) and of the delays of the runs' joint x-u fits, "
-                      "each weighted by its own fit's variance")
+                of = ("the weighted fit of the runs' modes (σᵢ, ω_dᵢ) through the exact loop "
+                      "roots (eq. 35) and of the delays of the runs' joint x–u fits, each "
+                      "weighted by its own fit's variance")
             return names, units, cov, fit.chi2, fit.dof, of
         return names, units, cov, None, None, "not computed: the paper's OLS lines of eq. (35)"

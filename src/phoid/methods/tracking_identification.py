@@ -32,6 +32,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
+from phoid._notation import unit_text
 from phoid.dynamics.controller import SampledController
 from phoid.errors import IdentificationError
 from phoid.interop.exports import PlantExports
@@ -194,13 +195,13 @@ class TrackingIdentification(ResultBase, PlantExports):
         if self.estimator == "output-error" and records and len(records) == len(sims):
             pairs = [(rec.x[rec.start:], sim.x) for rec, sim in zip(records, sims, strict=True)]
             starts = 2 * len(pairs)
-            of = ("the position x - x_sim of the output-error fit over its fitted samples, each "
+            of = ("the position x − x_sim of the output-error fit over its fitted samples, each "
                   "over its run's noise level estimated from third differences")
         else:
             pairs = [(v.x[v.window[0]:v.window[1]], v.x_sim[v.window[0]:v.window[1]])
                      for v in self.validations]
             starts = 0
-            of = ("the position x - x_sim of the loop simulated with the estimates (the "
+            of = ("the position x − x_sim of the loop simulated with the estimates (the "
                   "validation), each sample over its run's noise level estimated from third "
                   "differences")
         chi2, n = 0.0, 0
@@ -406,8 +407,8 @@ def _simulable(estimates: Mapping[str, Estimate], warnings: list[str]) -> dict[s
     for key, e in estimates.items():
         if e.stderr is not None and not math.isfinite(e.stderr):
             warnings.append(f"the stderr of {key} is not finite (the arithmetic overflowed: "
-                            "are the signals' units and the gains right?); it is reported as "
-                            "null")
+                            "are the signals' units and the gains right?); it is not reported "
+                            "(the value stands alone)")
     m = estimates["m"]
     if not m.value > 0:
         se = "" if m.stderr is None else f" ± {m.stderr:.3g}"
@@ -419,7 +420,7 @@ def _simulable(estimates: Mapping[str, Estimate], warnings: list[str]) -> dict[s
         if e.value < 0:
             se = "" if e.stderr is None else f" ± {e.stderr:.3g}"
             warnings.append(
-                f"{key} = {e.value:.4g}{se} {e.unit} is negative, which the plant model "
+                f"{key} = {e.value:.4g}{se} {unit_text(e.unit)} is negative, which the plant model "
                 f"cannot take: the validation simulates {key} = 0 (if {key} is known, give it "
                 "in [fixed])"
             )

@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 
 import phoid._validate as v
+from phoid._notation import unit_text
 from phoid._threads import single_blas_thread
 from phoid.errors import PhoidError
 from phoid.fits import detect_release
@@ -215,7 +216,7 @@ def check_experiment(
         k = ident.k.value if k is None else k
         notes.append(
             "plant from the set's own identification: "
-            + ", ".join(f"{n} = {e.value:.6g} ± {e.stderr:.3g} {e.unit}"
+            + ", ".join(f"{n} = {e.value:.6g} ± {e.stderr:.3g} {unit_text(e.unit)}"
                         for n, e in (("m", ident.m), ("c", ident.c), ("k", ident.k))))
         if noise_from == "records":  # the fits' residual: the records' noise, model-aware
             fit = getattr(ident, "inloop", None)
@@ -268,14 +269,14 @@ def _noise_note(given: Any, found: float | None, source: str) -> str:
     what = {"fits": "measured from the records (the fits' residual sd, median over the runs)",
             "records": "measured from the records (their third differences, median over the "
                        "runs)",
-            "skeleton": "the skeleton's [design] noise"}[source]
+            "skeleton": "from the manifest's [design] noise (its records not read)"}[source]
     if given is not None:
         other = f"; {what.split(' (')[0]}: {found:.3g} m" if found is not None else ""
         return f"noise {float(given):.3g} m as given (--noise){other}"
     if found is not None:
         return f"noise {found:.3g} m {what}; give --noise to use another"
     why = ("the records show none above rounding" if source != "skeleton"
-           else "the skeleton records none")
+           else "no records read, no [design] noise")
     return (f"noise {DesignSettings.noise:.3g} m: the default ({why}); give --noise for the "
             "rig's")
 

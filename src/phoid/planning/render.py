@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from phoid._notation import fit_width, notation
+from phoid._notation import fit_width, notation, unit_text
 from phoid._output import OutputFolder, png_writer
 from phoid.planning.settings import UNITS, DesignError, fmt_range
 from phoid.reports.text import format_gain, text_table
@@ -83,7 +83,7 @@ def design_report(d: Any) -> str:
     for j, name in enumerate(("m", "c", "k")):
         e = getattr(d, name)
         extra = f"  (modal {_g(d.modal_stderr[j])})" if d.bound == "in-loop" else ""
-        lines.append(f"  {name} = {e.value:.6g} ± {_g(e.stderr)} {e.unit}  "
+        lines.append(f"  {name} = {e.value:.6g} ± {_g(e.stderr)} {unit_text(e.unit)}  "
                      f"[{_g(d.stderr_worst[j])}]{extra}")
     if d.notes:
         lines.append("")

@@ -429,7 +429,7 @@ def assemble(P: np.ndarray, D: np.ndarray, prior: Prior, st: DesignSettings, kin
                                               f"(< {st.delay_margin:.3g} s)"))
             if not np.all(ev.separated[i]):
                 rw.append(("separation", 0.0, f"another mode decays less than "
-                                              f"{st.separation:g}x faster than the ringing one "
+                                              f"{st.separation:g}× faster than the ringing one "
                                               "for some plants"))
         cyc = ev.cycles[i][np.isfinite(ev.cycles[i])]
         cyc_min = float(cyc.min()) if cyc.size else 0.0
@@ -438,13 +438,13 @@ def assemble(P: np.ndarray, D: np.ndarray, prior: Prior, st: DesignSettings, kin
                                           f"for some plants (< {st.min_cycles:g})"))
         if rings and not ev.in_band[i]:
             rw.append(("band", float(ev.zeta[i, 0]), f"ζ {ev.zeta[i, 0]:.3g} outside the "
-                                                     f"band {zlo:g}-{zhi:g}"))
+                                                     f"band {zlo:g}–{zhi:g}"))
         if not np.all(ev.ok_freq[i] | ~np.isfinite(ev.s[i])):
             rw.append(("bandwidth", 0.0, f"ω_d above the bandwidth limit "
                                          f"{st.omega_max:.4g} rad/s"))
         if not ev.ok_limits[i]:
-            rw.append(("limits", 0.0, f"gains beyond the limits (|P| <= {st.pmax:g} N/m, "
-                                      f"|D| <= {st.dmax:g} N s/m)"))
+            rw.append(("limits", 0.0, f"gains beyond the limits (|P| ≤ {st.pmax:g} N/m, "
+                                      f"|D| ≤ {st.dmax:g} N s/m)"))
         margin_ok = (np.all(ev.dsamples[i] >= st.delay_margin_samples) if sampled
                      else np.all(ev.dmargin[i] >= st.delay_margin))
         safe = bool(np.all(ev.stable[i]) and np.all(ringing)
@@ -541,12 +541,12 @@ def _sampled_prediction(P, D, prior: Prior, st: DesignSettings, ev, info):
 
 
 def _runs_text(items: list[tuple[int, float]]) -> str:
-    """'run 3' or 'runs 1-4, 7' for the run numbers in ``items``."""
+    """'run 3' or 'runs 1–4, 7' for the run numbers in ``items``."""
     nums = sorted(i for i, _ in items)
     parts, start = [], nums[0]
     for a, b in zip(nums, [*nums[1:], None], strict=True):
         if b != a + 1:
-            parts.append(str(start) if start == a else f"{start}-{a}")
+            parts.append(str(start) if start == a else f"{start}–{a}")
             start = b
     return ("run " if len(nums) == 1 else "runs ") + ", ".join(parts)
 
@@ -571,19 +571,19 @@ def _grouped(found: dict[str, list[tuple[int, float]]], st: DesignSettings, n: i
             out.append(f"{runs}: delay margin down to {min(vals):.3g} s "
                        f"(< {st.delay_margin:.3g} s)")
         elif kind == "separation":
-            out.append(f"{runs}: another loop mode decays less than {st.separation:g}x faster "
+            out.append(f"{runs}: another loop mode decays less than {st.separation:g}× faster "
                        "than the ringing one for some plants")
         elif kind == "cycles":
             out.append(f"{runs}: as few as {min(vals):.1f} cycles above the noise floor for "
                        f"some plants of the prior (< {st.min_cycles:g})")
         elif kind == "band":
             out.append(f"{runs}: ζ at the nominal plant outside the band "
-                       f"{st.zeta[0]:g}-{st.zeta[1]:g} ({min(vals):.3g} to {max(vals):.3g})")
+                       f"{st.zeta[0]:g}–{st.zeta[1]:g} ({min(vals):.3g} to {max(vals):.3g})")
         elif kind == "bandwidth":
             out.append(f"{runs}: ω_d above the bandwidth limit {st.omega_max:.4g} rad/s")
         elif kind == "limits":
-            out.append(f"{runs}: gains beyond the limits |P| <= {st.pmax:g} N/m, "
-                       f"|D| <= {st.dmax:g} N s/m")
+            out.append(f"{runs}: gains beyond the limits |P| ≤ {st.pmax:g} N/m, "
+                       f"|D| ≤ {st.dmax:g} N s/m")
         elif kind == "share":
             out.append(f"{runs}: add little information (share below {0.1 / n:.2g} each)")
     return out

@@ -410,11 +410,11 @@ def _why_infeasible(st: DesignSettings, prior: Prior, ok_lim: np.ndarray, ev: Ev
                     w_lo: float) -> str:
     """One line saying which requirement rules out every candidate run (checked in order)."""
     checked = ", ".join(f"{n} {fmt_range(r)}" for n, r in prior.ranges.items())
-    band = f"ζ {st.zeta[0]:g}-{st.zeta[1]:g}"
+    band = f"ζ {st.zeta[0]:g}–{st.zeta[1]:g}"
     if ev is None or not np.any(ok_lim):
         return (f"every gain pair that makes the loop ring with {band} exceeds the limits "
-                f"|P| <= {st.pmax:g} N/m, |D| <= {st.dmax:g} N s/m: raise --pmax/--dmax")
-    span = (f"ω_d {w_lo:.4g}-{st.omega_max:.4g} rad/s ({st.min_cycles:g} cycles in "
+                f"|P| ≤ {st.pmax:g} N/m, |D| ≤ {st.dmax:g} N s/m: raise --pmax/--dmax")
+    span = (f"ω_d {w_lo:.4g}–{st.omega_max:.4g} rad/s ({st.min_cycles:g} cycles in "
             f"{st.duration:g} s up to the bandwidth limit)")
     rate = "--fs" if st.sample_time is None else "shorten --sample-time"
     loop = (f"a delay of {st.delay:g} s" if st.sample_time is None else
@@ -447,7 +447,7 @@ def _why_infeasible(st: DesignSettings, prior: Prior, ok_lim: np.ndarray, ev: Ev
                 f"some plant of the prior: raise --max-freq or {rate}")
     keep &= ev.separated[:, 0]
     if not np.any(keep):
-        return (f"in every safe run another loop mode decays less than {st.separation:g}x "
+        return (f"in every safe run another loop mode decays less than {st.separation:g}× "
                 "faster than the ringing one, so the decay is not a single mode")
     return (f"no safe run gives {min(st.min_cycles, MIN_CYCLES):g} cycles above the noise "
             f"floor ({st.noise:g} m) in {st.duration:g} s from a release at {st.amplitude:g} "

@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from phoid._notation import notation
+from phoid._notation import notation, unit_text
 from phoid._output import OutputFolder, safe_text
 from phoid.reports.figures import run_names, write_pngs
 from phoid.reports.statistics import ratio_text
@@ -26,7 +26,8 @@ def _est_line(name: str, est: Any) -> str:
     val = format_estimate(est.value, est.stderr) if math.isfinite(est.value) else "undefined"
     white = getattr(est, "white_stderr", None)
     tail = f"   (white-noise stderr {white:.2g})" if white is not None else ""
-    return f"  {notation(name):<7}= {val} {est.unit}{tail}".rstrip()  # "=" aligned in ASCII
+    # "=" aligned in ASCII
+    return f"  {notation(name):<7}= {val} {unit_text(est.unit)}{tail}".rstrip()
 
 
 def _opt(x: float | None, fmt: str) -> str:
@@ -65,7 +66,7 @@ def free_friction_text(result: Any) -> str:
     if result.m is not None and result.c is not None and result.k is not None \
             and result.fc is not None:
         what = "moment of inertia J" if result.m.unit == "kg m^2" else "mass m"
-        lines.append(f"  with the known {what} = {result.m.value:g} {result.m.unit}:")
+        lines.append(f"  with the known {what} = {result.m.value:g} {unit_text(result.m.unit)}:")
         for name, est in (("c", result.c), ("k", result.k), ("f_c", result.fc)):
             lines.append(_est_line(name, est))
     else:
@@ -115,8 +116,8 @@ def _run_figure(result: Any, i: int):
         t, x, sel, model, noise_sd=float(r.noise_sd),
         model_label="fitted Coulomb + viscous decay",
         title=(f"{plain(r.file)}: σ = {s:.5g} 1/s, ω₀ = {w0:.5g} rad/s, $f_c/m$ = "
-               f"{result.fc_over_m.value:.4g} {plain(result.fc_over_m.unit)}, {r.half_cycles} "
-               "half-cycles"),
+               f"{result.fc_over_m.value:.4g} {plain(unit_text(result.fc_over_m.unit))}, "
+               f"{r.half_cycles} half-cycles"),
         markers=markers, period=2 * math.pi / math.sqrt(wd2) if wd2 > 0 else None,
         x_unit=getattr(result, "x_unit", "m"))
 

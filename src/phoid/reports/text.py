@@ -9,7 +9,7 @@ from __future__ import annotations
 import math
 from typing import Any
 
-from phoid._notation import WIDTH, fit_width, notation
+from phoid._notation import WIDTH, fit_width, notation, unit_text
 from phoid._output import safe_text
 from phoid.reports.statistics import correlation_lines, ratio_text, statistics_lines, symbol
 
@@ -91,7 +91,7 @@ def text_table(columns: list[tuple[str, str]], rows: list[list[str]], *, width: 
         return []
     n = len(columns)
     gap = "  "
-    columns = [(notation(name), notation(unit)) for name, unit in columns]
+    columns = [(notation(name), notation(unit_text(unit))) for name, unit in columns]
     cells = [[notation(str(c)) for c in r[:n]] + [""] * (n - len(r[:n])) for r in rows]
     notes = [notation(str(r[n])) if len(r) > n else "" for r in rows]
     widths = [max([len(columns[j][0]), len(columns[j][1]), *(len(r[j]) for r in cells)])
@@ -266,7 +266,7 @@ def identification_text(ident: Any) -> str:
     lines.extend(_noise_line(ident))
     lines.append("")
     for name, est in (("m", ident.m), ("c", ident.c), ("k", ident.k)):
-        lines.append(f"  {name} = {format_estimate(est.value, est.stderr)} {est.unit}")
+        lines.append(f"  {name} = {format_estimate(est.value, est.stderr)} {unit_text(est.unit)}")
     w0, z = ident.omega0, ident.zeta
     zeta = format_estimate(z.value, z.stderr) if math.isfinite(z.value) else "inf (k = 0)"
     lines.append(f"  open-loop ω₀ = {format_estimate(w0.value, w0.stderr)} rad/s,  ζ = {zeta}")
@@ -410,7 +410,7 @@ def friction_text(fit: Any) -> str:
                      + ", ".join(format_gain(r.bias) for r in fit.runs))
     lines.append("")
     for name, est in (("m", fit.m), ("c", fit.c), ("k", fit.k), ("fc", fit.fc)):
-        lines.append(f"  {name} = {format_estimate(est.value, est.stderr)} {est.unit}")
+        lines.append(f"  {name} = {format_estimate(est.value, est.stderr)} {unit_text(est.unit)}")
     lines.append("")
     k_u, c_u, x_u = _unit(fit, "N/m"), _unit(fit, "N s/m"), _unit(fit, "m")
     rows = [[safe_text(r.name), format_gain(r.P), format_gain(r.D), f"{r.sigma:.4g}",
@@ -460,7 +460,7 @@ def free_text(result: Any) -> str:
     for name, est in named:
         val = (format_estimate(est.value, est.stderr) if math.isfinite(est.value)
                else "undefined")
-        lines.append(f"  {name:<{label}}= {val} {est.unit}".rstrip())
+        lines.append(f"  {name:<{label}}= {val} {unit_text(est.unit)}".rstrip())
     lines.append(f"  regime: {result.regime}")
     for j, (s, se) in enumerate(zip(result.roots, result.roots_stderr, strict=True), 1):
         re = format_estimate(s.real, se[0])
@@ -470,9 +470,10 @@ def free_text(result: Any) -> str:
         lines.append(f"  root {j}: {re} {sign} {im}i 1/s")
     if result.m is not None and result.c is not None and result.k is not None:
         what = "moment of inertia J" if result.m.unit == "kg m^2" else "mass m"
-        lines.append(f"  with the known {what} = {result.m.value:g} {result.m.unit}:")
-        lines.append(f"  c = {format_estimate(result.c.value, result.c.stderr)} {result.c.unit}")
-        lines.append(f"  k = {format_estimate(result.k.value, result.k.stderr)} {result.k.unit}")
+        lines.append(f"  with the known {what} = {result.m.value:g} {unit_text(result.m.unit)}:")
+        for name, est in (("c", result.c), ("k", result.k)):
+            lines.append(f"  {name} = {format_estimate(est.value, est.stderr)} "
+                         f"{unit_text(est.unit)}")
     elif getattr(result, "x_unit", "m") not in ("m", "rad"):
         lines.append(f"  (x is in sensor units, {xu}: only σ, ω₀, ζ, c/m and k/m are "
                      "identifiable; c and k need x in a length or an angle unit)")
@@ -514,7 +515,7 @@ def forced_text(result: Any) -> str:
     lines = [f"phoid identify (forced): {safe_text(result.source)}" if result.source
              else "phoid identify (forced)", ""]
     for name, est in (("m", result.m), ("c", result.c), ("k", result.k)):
-        lines.append(f"  {name} = {format_estimate(est.value, est.stderr)} {est.unit}")
+        lines.append(f"  {name} = {format_estimate(est.value, est.stderr)} {unit_text(est.unit)}")
     w0, z = result.omega0, result.zeta
     if math.isfinite(w0.value):
         lines.append(f"  ω₀ = {format_estimate(w0.value, w0.stderr)} rad/s,  "

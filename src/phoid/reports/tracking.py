@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from phoid._notation import fit_width
+from phoid._notation import fit_width, unit_text
 from phoid._output import safe_text, save_figure
 from phoid.reports.statistics import correlation_lines, ratio_text, statistics_lines
 from phoid.reports.text import adequacy_lines, format_number, text_table
@@ -210,7 +210,7 @@ def identification_text(result: Any) -> str:
             # a robust stderr reported: the white-noise least-squares one beside it
             white = white * 1e3 if key == "delay" else white
             note = f"  (white-noise ± {white:.4g})"
-        lines.append(f"  {labels.get(key, key):<20}{value:>12.7g}{spread} {unit}{note}")
+        lines.append(f"  {labels.get(key, key):<20}{value:>12.7g}{spread} {unit_text(unit)}{note}")
     if "delay" not in result.estimates or result.delay_source not in ("given", "assumed-zero"):
         lines.append(f"  command delay: {result.delay_source}")  # (given)/(assumed) said above
     lines.append("")

@@ -203,5 +203,5 @@ class ForcedIdentification(PlantResult):
         Im Zᵢ) (:class:`~phoid.methods.forced.stiffness.ResponseFit`), dof = 2·runs − 3.
         """
         return (["m", "c", "k"], ["kg", "N s/m", "N/m"], self.fit.cov, self.fit.chi2,
-                self.fit.dof, "the weighted (GLS) fit of the eq. (20) lines Re Z_i = k - m "
-                              "omega_i^2, Im Z_i = c omega_i to the runs' dynamic stiffnesses")
+                self.fit.dof, "the weighted (GLS) fit of the eq. (20) lines Re Zᵢ = k − mωᵢ², "
+                              "Im Zᵢ = cωᵢ to the runs' dynamic stiffnesses")
