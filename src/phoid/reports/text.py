@@ -326,8 +326,8 @@ def adequacy_lines(result: Any) -> list[str]:
     result : any identification result
         Read: ``adequacy`` (None, or with ``checks`` — each ``name``, ``statistic``,
         ``threshold``, ``passed`` (None: not applicable) — ``stderr`` ("white" or "robust"),
-        ``passed``, ``names``, ``inflation`` and ``stderr_note`` (optional: why white-noise
-        stderr stand where a check failed)), by duck typing.
+        ``names``, ``inflation`` and ``stderr_note`` (optional: why white-noise stderr stand
+        where a check failed)), by duck typing.
 
     Returns
     -------
@@ -346,13 +346,13 @@ def adequacy_lines(result: Any) -> list[str]:
         infl = ", ".join(f"{n} ×{f:.3g}" for n, f in zip(ad.names, ad.inflation, strict=True))
         lines.append(f"    stderr: robust (Newey–West, widened by the spread between parts where "
                      f"they disagree); over the white-noise stderr: {infl}")
-    elif ad.passed:
+    elif not (failed := [symbol(c.name) for c in ad.checks  # as FAIL is printed above
+                          if c.passed is not None and not c.passed]):
         lines.append("    stderr: white-noise least squares (every check passed)")
     else:
         # a check failed but the estimates keep their white-noise stderr: say so, and why
-        failed = ", ".join(symbol(c.name) for c in ad.checks if c.passed is False)
         why = getattr(ad, "stderr_note", "") or "no robust covariance was computed"
-        lines.append(f"    stderr: not widened although {failed} failed: {why}")
+        lines.append(f"    stderr: not widened although {', '.join(failed)} failed: {why}")
     return lines
 
 
