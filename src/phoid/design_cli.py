@@ -112,7 +112,8 @@ def design(
     duration: Annotated[float | None, typer.Option(
         help="Record length after the release, s [10].")] = None,
     noise: Annotated[float | None, typer.Option(
-        help="Sensor noise standard deviation, m [1e-5].")] = None,
+        help="Sensor noise standard deviation, m [1e-5; with --check: measured from the "
+             "set's records].")] = None,
     amplitude: Annotated[float | None, typer.Option(
         help="Release amplitude x0, m [0.01].")] = None,
     zeta: Annotated[str, typer.Option(
