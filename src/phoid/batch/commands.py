@@ -116,8 +116,9 @@ def batch(
         what = "the batch" if scheduler is None and workers == 0 else "the Dask cluster"
         _fail(f"{what} failed ({type(exc).__name__}: {exc}); {_finished(store)}", code=1)
     counts = {"sets": len(report.rows), "computed": report.computed,
-              "identified": report.identified, "errors": report.errors,
-              "skipped": report.skipped, "skipped_errors": report.skipped_errors,
+              "identified": report.identified, "computed_errors": report.computed_errors,
+              "errors": report.errors, "skipped": report.skipped,
+              "skipped_errors": report.skipped_errors,
               "parquet": str(store.parquet), "csv": str(store.csv)}
     if as_json:
         typer.echo(json.dumps(counts, indent=1))
@@ -127,6 +128,6 @@ def batch(
         n = counts["sets"]
         held = (f" ({report.skipped_errors} of them an error row, not retried: --retry-errors)"
                 if report.skipped_errors else "")
-        echo_text(f"{n} set{'s' * (n != 1)}: {report.identified} identified, {report.errors} "
-                  f"with an error, {report.skipped} already done{held}; rows in "
-                  f"{store.parquet} and {store.csv}", wrap=False)
+        echo_text(f"{n} set{'s' * (n != 1)}: {report.identified} identified, "
+                  f"{report.computed_errors} with an error, {report.skipped} already done"
+                  f"{held}; rows in {store.parquet} and {store.csv}", wrap=False)

@@ -89,12 +89,15 @@ class BatchReport:
     skipped : int
         Sets whose row the output already held (same checksum and options): not recomputed.
     computed : int
-        Sets this batch worked on: ``identified + errors``.
+        Sets this batch worked on: ``identified + computed_errors``.
     errors : int
-        Sets this batch worked on that ended in an error (``status = "error"``); the error
-        rows it skipped are in ``skipped_errors``.
+        Rows of this batch's sets with ``status = "error"``, this run's and the skipped ones
+        of an earlier run: ``computed_errors + skipped_errors`` (the meaning it has always had
+        in ``phoid batch --json``).
     identified : int
         Sets this batch identified (``status = "ok"``).
+    computed_errors : int
+        Sets this batch worked on that ended in an error.
     skipped_errors : int
         Of the ``skipped`` rows, those with ``status = "error"`` (from an earlier run; tried
         again with ``retry_errors``).
@@ -105,6 +108,7 @@ class BatchReport:
     computed: int
     errors: int
     identified: int = 0
+    computed_errors: int = 0
     skipped_errors: int = 0
 
 
@@ -225,10 +229,10 @@ def run_batch(sets: Iterable[str | os.PathLike[str]], *, client: Any = None,
     ordered = [rows[n] for n in names if n in rows]
     new = [r for r in ordered if r["set"] in worked]
     errors = sum(r["status"] == "error" for r in new)
-    return BatchReport(rows=ordered, skipped=skipped, computed=len(new), errors=errors,
-                       identified=len(new) - errors,
-                       skipped_errors=sum(r["status"] == "error" for r in ordered
-                                          if r["set"] not in worked))
+    held = sum(r["status"] == "error" for r in ordered if r["set"] not in worked)
+    return BatchReport(rows=ordered, skipped=skipped, computed=len(new), errors=errors + held,
+                       identified=len(new) - errors, computed_errors=errors,
+                       skipped_errors=held)
 
 
 def identify_many(sets: Iterable[str | os.PathLike[str]], client: Any = None, *,
