@@ -241,6 +241,22 @@ def test_the_adequacy_block_never_claims_every_check_passed_when_one_failed():
     assert noted.endswith("noise failed: the fit's own, for a reason")
 
 
+def test_the_robust_stderr_line_names_the_parameters_in_the_notation():
+    # the robust stderr's inflation per parameter, named as the report names them (σ, k/m),
+    # not by the result's keys (sigma, k_over_m): the real pendulum record's report showed them
+    from types import SimpleNamespace
+
+    from phoid.reports.text import adequacy_lines, symbol
+
+    checks = (SimpleNamespace(name="noise", statistic=30.0, threshold=1.1, passed=False),)
+    res = SimpleNamespace(adequacy=SimpleNamespace(
+        checks=checks, passed=False, stderr="robust", stderr_note="",
+        names=("sigma", "k_over_m"), inflation=(595.0, 287.0)))
+    text = " ".join(adequacy_lines(res))
+    assert f"{symbol('sigma')} ×595, {symbol('k_over_m')} ×287" in text, text
+    assert symbol("sigma") != "sigma" and "k_over_m" not in text
+
+
 def test_a_block_whose_columns_have_no_unit_gets_no_units_row():
     from phoid.reports.text import text_table
 

@@ -343,7 +343,8 @@ def adequacy_lines(result: Any) -> list[str]:
                 if math.isfinite(c.statistic) and math.isfinite(c.threshold) else "")
         lines.append(f"    {symbol(c.name):<12}{state:<6}{nums}".rstrip())
     if ad.stderr == "robust":
-        infl = ", ".join(f"{n} ×{f:.3g}" for n, f in zip(ad.names, ad.inflation, strict=True))
+        infl = ", ".join(f"{symbol(n)} ×{f:.3g}"
+                         for n, f in zip(ad.names, ad.inflation, strict=True))
         lines.append(f"    stderr: robust (Newey–West, widened by the spread between parts where "
                      f"they disagree); over the white-noise stderr: {infl}")
     elif not (failed := [symbol(c.name) for c in ad.checks  # as FAIL is printed above
