@@ -45,55 +45,52 @@ SKIP = re.compile(r"^<!--\s*readme-check:\s*skip:\s*(.*?)\s*-->\s*$")
 RUNNABLE = {"sh": "sh", "bash": "sh", "shell": "sh", "python": "python", "py": "python"}
 
 
-def blocks(text: str) -> list[tuple[int, str, str, str | None]]:
-    """(line number, kind, code, skip reason) of every fenced block, in order."""
-    out = []
+def _fenced(text: str, name: str = "README.md") -> list[tuple[int, str, int, int]]:
+    """Every fenced block of ``text``: (its opening fence's index, language (lower case), its
+    first and its past-the-end code line's index), in order; a block never closed is an error
+    naming ``name`` and the line."""
     lines = text.splitlines()
+    out = []
     i = 0
     while i < len(lines):
         m = FENCE.match(lines[i])
         if not m:
             i += 1
             continue
-        lang, start = m.group(1).lower(), i + 1
-        j = start
+        j = i + 1
         while j < len(lines) and not lines[j].startswith("```"):
             j += 1
         if j == len(lines):
-            raise SystemExit(f"README.md:{i + 1}: code block never closed")
+            raise SystemExit(f"{name}:{i + 1}: code block never closed")
+        out.append((i, m.group(1).lower(), i + 1, j))
+        i = j + 1
+    return out
+
+
+def blocks(text: str, name: str = "README.md") -> list[tuple[int, str, str, str | None]]:
+    """(line number, kind, code, skip reason) of every runnable fenced block, in order."""
+    lines = text.splitlines()
+    out = []
+    for i, lang, start, j in _fenced(text, name):
         prev = next((lines[k] for k in range(i - 1, -1, -1) if lines[k].strip()), "")
         skip = SKIP.match(prev)
         if lang in RUNNABLE:
             out.append((start, RUNNABLE[lang], "\n".join(lines[start:j]) + "\n",
                         skip.group(1) if skip else None))
-        i = j + 1
     return out
 
 
-def expected_outputs(text: str) -> dict[int, list[str]]:
+def expected_outputs(text: str, name: str = "README.md") -> dict[int, list[str]]:
     """The output excerpt of each run block: {run block's first code line: the lines of the
     ``text`` block that directly follows it (only blank lines between)}, elisions included."""
     lines = text.splitlines()
     out: dict[int, list[str]] = {}
-    i, last_run_end, last_run_start = 0, None, None
-    while i < len(lines):
-        m = FENCE.match(lines[i])
-        if not m:
-            if lines[i].strip():
-                last_run_end = None
-            i += 1
-            continue
-        lang, start = m.group(1).lower(), i + 1
-        j = start
-        while j < len(lines) and not lines[j].startswith("```"):
-            j += 1
-        if lang == "text" and last_run_end is not None:
-            out[last_run_start] = lines[start:j]
-        if lang in RUNNABLE:
-            last_run_start, last_run_end = start, j
-        else:
-            last_run_end = None
-        i = j + 1
+    last: tuple[int, int] | None = None  # the previous block, when it was a run block
+    for i, lang, start, j in _fenced(text, name):
+        if lang == "text" and last is not None and not any(
+                x.strip() for x in lines[last[1] + 1:i]):
+            out[last[0]] = lines[start:j]
+        last = (start, j) if lang in RUNNABLE else None
     return out
 
 
@@ -177,8 +174,8 @@ def main(argv: list[str] | None = None) -> int:
     env.pop("PYTHONHOME", None)
     name = args.file
     readme = (ROOT / name).read_text(encoding="utf-8")
-    todo = blocks(readme)
-    excerpts = expected_outputs(readme)
+    todo = blocks(readme, name)
+    excerpts = expected_outputs(readme, name)
     tmp = Path(tempfile.mkdtemp(prefix="phoid-readme-"))
     work = tmp / "phoid"
     work.mkdir()
