@@ -338,6 +338,27 @@ def test_figure_files_embedded_are_regular_files_never_links(results, tmp_path):
             report_html(results["free"], figures=[bad])
 
 
+@pytest.mark.parametrize("key", ["pho", "free", "forced", "friction", "tracking"])
+def test_the_page_reads_in_the_notation_not_in_json(results, key):
+    # issue 30 item 4: the page's tables in the text's notation (σ, k/m, 1/s²), the model checks
+    # as a table (check, result, statistic, limit, detail) — not the summary's JSON (its keys,
+    # its null); the JSON itself stays in its own section, below
+    page = report_html(results[key], figures=False)
+    body = page.split("<h2>Summary (JSON)")[0]
+    text = html.unescape(re.sub(r"<[^>]+>", " ", body))
+    for json_only in (r"\^2\b", r"\bsigma\b", r"\bk_over_m\b", r"\bc_over_m\b", r"\bnull\b",
+                      r"\bchi2", r'"statistic"', r"\bNone\b"):
+        assert not re.search(json_only, text), (key, json_only, re.findall(
+            r".{0,40}" + json_only + r".{0,20}", text)[:2])
+    ad = results[key].summary().get("adequacy")
+    if isinstance(ad, dict) and ad.get("checks"):
+        assert "Adequacy: the stderr reported are" in text, key
+        for c in ad["checks"]:
+            state = "n/a" if c["passed"] is None else "pass" if c["passed"] else "FAIL"
+            assert re.search(rf"{re.escape(column_label(c['name']))}\s+{state}\b", text), (
+                key, c["name"])
+
+
 def test_design_html_without_a_browser(tmp_path):
     path = tmp_path / "design.html"
     cli("design", "--m", "2", "--c", "1", "--k", "64", "--delay", "0.1", "--runs", "3",

@@ -35,6 +35,7 @@ from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
+from phoid._notation import unit_text
 from phoid._output import OutputFolder
 from phoid.errors import OutputError
 from phoid.reports.text import format_estimate, format_gain
@@ -258,7 +259,8 @@ def _estimates_table(ests: dict[str, dict[str, Any]]) -> str:
                           if k not in ("value", "stderr", "unit"))
         notes = "; ".join(f"{column_label(k)} {_scalar_text(v)}" for k, v in est.items()
                           if k not in ("value", "stderr", "unit"))
-        rows.append([_e(column_label(name)), _e(_estimate_text(est)), _e(est.get("unit", "")),
+        rows.append([_e(column_label(name)), _e(_estimate_text(est)),
+                     _e(unit_text(str(est.get("unit", "")))),
                      _e(rel), _e(notes)])
     return _table(["parameter", "estimate ± stderr", "unit", "rel. stderr", "notes"], rows,
                   caption="Estimates", text_cols=(0, 2, 4))
@@ -284,7 +286,7 @@ def _matrix(params: Sequence[Any], matrix: Any, caption: str,
         rows_in = [[float(v) for v in row] for row in matrix]
     except (TypeError, ValueError):
         return ""
-    names = [column_label(str(p)) + (f" ({u})" if units and u else "")
+    names = [column_label(str(p)) + (f" ({unit_text(str(u))})" if units and u else "")
              for p, u in zip(params, units or [None] * len(params), strict=False)]
     if len(names) != len(rows_in):
         names = [str(i + 1) for i in range(len(rows_in))]
@@ -323,7 +325,8 @@ def _runs_table(runs: list[Any], label: Any = None) -> str:
     cols = [k for k in keys if not (k.endswith("_stderr") and k[: -len("_stderr")] in keys)]
     warned = any(r.get("warnings") for r in runs)
     # the column's words, its unit on a line of its own: narrow columns, a table that fits
-    head = [_e(column_label(k)) + (f'<br><span class="phoid-unit">({_e(label(_RUN_UNITS[k]))})'
+    head = [_e(column_label(k)) + (f'<br><span class="phoid-unit">'
+                                   f'({_e(unit_text(label(_RUN_UNITS[k])))})'
                                    "</span>" if k in _RUN_UNITS else "") for k in cols]
     rows, classes = [], []
     for r in runs:
@@ -345,6 +348,47 @@ def _runs_table(runs: list[Any], label: Any = None) -> str:
     text = [0, *([len(head) - 1] if warned else [])]
     return _table(head, rows, caption=f"Runs ({len(runs)})", text_cols=text,
                   row_classes=classes, wide=len(head) - 1 if warned else None)
+
+
+def _adequacy_block(ad: dict[str, Any], note: str = "") -> str:
+    """The model checks (docs/adequacy.md) as the text report gives them: each check with its
+    result, statistic, limit and detail; then each parameter's white-noise and robust stderr
+    and the stderr reported (not the summary's JSON). ``note``: why white-noise stderr stand
+    where a check failed (the result's ``adequacy.stderr_note``)."""
+    rows, failed = [], []
+    for c in ad.get("checks") or ():
+        if not isinstance(c, dict):
+            continue
+        passed = c.get("passed")
+        state = "n/a" if passed is None else "pass" if passed else "FAIL"
+        if passed is False:
+            failed.append(column_label(str(c.get("name", ""))))
+        rows.append([_e(column_label(str(c.get("name", "")))), _e(state),
+                     _e(_scalar_text(c.get("statistic"))), _e(_scalar_text(c.get("threshold"))),
+                     _e(c.get("detail", ""))])
+    stderr = ad.get("stderr")
+    said = {"white": "the white-noise ones", "robust": "robust ones (Newey–West, widened by "
+            "the spread between parts where they disagree)"}.get(str(stderr), str(stderr))
+    if stderr == "white" and failed:  # as the text report: never "every check passed" then
+        said += (f", not widened although {', '.join(failed)} failed: "
+                 + (note or "no robust covariance was computed"))
+    caption = f"Adequacy: the stderr reported are {said}"
+    out = [_table(["check", "result", "statistic", "limit", "detail"], rows, caption=caption,
+                  text_cols=(0, 1, 4)) if rows else ""]
+    params = ad.get("params") or []
+    cols = [(k, w) for k, w in (("stderr_white", "white-noise stderr"),
+                                ("stderr_robust", "robust stderr"),
+                                ("inflation", "robust / white"))
+            if isinstance(ad.get(k), list) and len(ad[k]) == len(params)]
+    units = ad.get("units") if isinstance(ad.get("units"), list) else []
+    if params and cols:
+        prow = [[_e(column_label(str(p))),
+                 _e(unit_text(str(units[i])) if i < len(units) and units[i] else ""),
+                 *(_e(_scalar_text(ad[k][i])) for k, _ in cols)]
+                for i, p in enumerate(params)]
+        out.append(_table(["parameter", "unit", *(w for _, w in cols)], prow,
+                          caption="Stderr of the checked parameters", text_cols=(0, 1)))
+    return "\n".join(x for x in out if x)
 
 
 def _validation_table(validation: list[Any]) -> str:
@@ -381,7 +425,7 @@ def _fit_block(fit: dict[str, Any]) -> str:
 
 
 _SHOWN = {"runs", "warnings", "validation", "statistics", "covariance", "correlation", "fit",
-          "notes", "parameters", "predicted", "method"}
+          "notes", "parameters", "predicted", "method", "adequacy"}
 
 
 def result_html(result: Any, *, figure: bool = True) -> str:
@@ -427,6 +471,9 @@ def result_html(result: Any, *, figure: bool = True) -> str:
         if isinstance(value, dict):
             parts.append(_matrix(value.get("params", []), value.get("matrix", []),
                                  key.capitalize(), value.get("units")))
+    if isinstance(summary.get("adequacy"), dict):
+        parts.append(_adequacy_block(summary["adequacy"], getattr(
+            getattr(result, "adequacy", None), "stderr_note", "") or ""))
     if isinstance(summary.get("fit"), dict):
         parts.append(_fit_block(summary["fit"]))
     if isinstance(summary.get("runs"), list):
