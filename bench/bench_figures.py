@@ -14,29 +14,20 @@ the sizes of the PNG files and of the HTML page are recorded too.
 from __future__ import annotations
 
 import os
-import resource
-import statistics
-import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
 sys.path.insert(0, str(HERE))
 
-from bench_startup import _phoid_command  # noqa: E402
+from bench_startup import _phoid_command, _stats, time_command  # noqa: E402
 from sections import splice_section  # noqa: E402
 
 SAMPLE = ROOT / "examples" / "paper-sample"  # the README's example set (examples/README.md)
 TARGET = 3.0  # s, median of --plots and of --html (issue 30)
 TITLE = "## Figures (`--plots`, `--html`)"
-
-
-def _stats(values: list[float]) -> dict:
-    return {"median_s": statistics.median(values), "min_s": min(values),
-            "max_s": max(values), "n": len(values)}
 
 
 def _workers() -> int:
@@ -66,17 +57,10 @@ def run(repeats: int = 5) -> dict:
                         "identify --plots DIR": [*phoid, "--plots", str(out / "plots")],
                         "identify --html FILE": [*phoid, "--html", str(out / "r.html")]}
             for label, cmd in commands.items():
-                u0 = resource.getrusage(resource.RUSAGE_CHILDREN)
-                t = time.perf_counter()
-                r = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, env=env)
-                dt = time.perf_counter() - t
-                u1 = resource.getrusage(resource.RUSAGE_CHILDREN)
-                if r.returncode != 0:
-                    raise RuntimeError(f"{label} failed ({r.returncode}): {r.stderr[-500:]}")
+                dt, used = time_command(label, cmd, env)
                 if rnd:
                     wall.setdefault(label, []).append(dt)
-                    cpu.setdefault(label, []).append(
-                        u1.ru_utime - u0.ru_utime + u1.ru_stime - u0.ru_stime)
+                    cpu.setdefault(label, []).append(used)
             sizes = {"identify --plots DIR": sum(p.stat().st_size
                                                  for p in (out / "plots").glob("*.png")),
                      "identify --html FILE": (out / "r.html").stat().st_size}

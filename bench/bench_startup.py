@@ -47,6 +47,20 @@ def _stats(values: list[float]) -> dict:
             "max_s": max(values), "n": len(values)}
 
 
+def time_command(label: str, cmd: list[str], env: dict) -> tuple[float, float]:
+    """(wall s, CPU s) of one run of ``cmd`` in a fresh process from the checkout's root: the
+    wall time by ``time.perf_counter``, the child's user + system time by ``getrusage``. A
+    command that fails stops the benchmark (RuntimeError naming ``label``)."""
+    u0 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    t = time.perf_counter()
+    r = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, env=env)
+    dt = time.perf_counter() - t
+    u1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    if r.returncode != 0:
+        raise RuntimeError(f"{label} failed ({r.returncode}): {r.stderr[-500:]}")
+    return dt, u1.ru_utime - u0.ru_utime + u1.ru_stime - u0.ru_stime
+
+
 def run(repeats: int = 20) -> dict:
     """Median wall times of the start-up commands over ``repeats`` rounds (one untimed first).
 
@@ -83,16 +97,10 @@ def _rounds(commands: dict, imports: dict, repeats: int, env: dict) -> dict:
     imp: dict[str, list[float]] = {k: [] for k in imports}
     for rnd in range(repeats + 1):
         for label, cmd in commands.items():
-            u0 = resource.getrusage(resource.RUSAGE_CHILDREN)
-            t = time.perf_counter()
-            r = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, env=env)
-            dt = time.perf_counter() - t
-            u1 = resource.getrusage(resource.RUSAGE_CHILDREN)
-            if r.returncode != 0:
-                raise RuntimeError(f"{label} failed ({r.returncode}): {r.stderr[-500:]}")
+            dt, used = time_command(label, cmd, env)
             if rnd:
                 wall[label].append(dt)
-                cpu[label].append(u1.ru_utime - u0.ru_utime + u1.ru_stime - u0.ru_stime)
+                cpu[label].append(used)
         for label, cmd in imports.items():
             r = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, env=env,
                                check=True)

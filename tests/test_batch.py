@@ -20,15 +20,12 @@ import time
 from pathlib import Path
 
 import jsonschema
-import numpy as np
 import pytest
+from tracking_sets import write_tracking_set
 from typer.testing import CliRunner
 
 import phoid.io
 from phoid.cli import app
-from phoid.dynamics.controller import SampledController
-from phoid.dynamics.plant import Plant
-from phoid.simulation.tracking import simulate_tracking
 
 pd = pytest.importorskip("pandas", reason="the batch extra (pandas) is not installed")
 pytest.importorskip("pyarrow", reason="the batch extra (pyarrow) is not installed")
@@ -54,21 +51,6 @@ def cli(*args, code=0):
     return r
 
 
-def _tracking_set(folder: Path) -> Path:
-    """A tracking set of one short run (the axis of tests/test_tracking_cli.py: m = 2 kg,
-    c = 15 N s/m, fc = 1.5 N, offset -0.3 N, k = 0 fixed) under a 1 kHz PD loop."""
-    ctrl = SampledController(sample_time=1e-3, P=4000.0, D=60.0, velocity="central-difference",
-                             saturation=200.0, delay=0.4e-3)
-    t = 1e-3 * np.arange(1500)
-    r = 0.02 * np.sin(2 * np.pi * 0.7 * t) + 0.01 * np.sin(2 * np.pi * 1.9 * t + 0.3)
-    sim = simulate_tracking(Plant(2.0, 15.0, 0.0, 1.5), ctrl, r, offset=-0.3, x_init=[0.0])
-    run = phoid.io.run_from_arrays(t, sim.x, r=r, u=sim.command, P=4000.0, D=60.0, index=1)
-    loop = {"sample_time": 1e-3, "velocity": "central-difference", "saturation": 200.0,
-            "delay": 0.4e-3}
-    phoid.io.write_experiment(folder, [run], method="tracking", fixed={"k": 0.0}, loop=loop)
-    return folder
-
-
 def _add_metadata(folder: Path, lines: str) -> None:
     manifest = folder / "experiment.toml"
     manifest.write_text(manifest.read_text(encoding="utf-8") + "\n[metadata]\n" + lines,
@@ -84,7 +66,7 @@ def base_sets(tmp_path_factory) -> dict[str, Path]:
                                ("forced", "forced", 4), ("free", "free", 5)):
         cli("simulate", root / name, *SMALL[method], "--seed", seed)
         sets[name] = root / name
-    sets["tracking"] = _tracking_set(root / "tracking")
+    sets["tracking"] = write_tracking_set(root / "tracking", n=1500)
     return sets
 
 

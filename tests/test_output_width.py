@@ -3,7 +3,8 @@
 Each command runs through the command line (typer's CliRunner, whose streams have the encoding
 asked: UTF-8, or ASCII as under ``PYTHONIOENCODING=ascii``) on sets made here (conftest's
 ``varied_sets``: pho, a sampled loop, forced, free with its mass, Coulomb friction; a tracking
-set written here; examples/paper-sample), and its output is checked for what issue 30 asks:
+set (tests/tracking_sets.py); examples/paper-sample), and its output is checked for what
+issue 30 asks:
 
 * no line wider than 100 columns (an error, or a warning beside --json, is one line however
   long: it names the file, run and field, and a program reads it as one; it is checked to be
@@ -26,16 +27,14 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from tracking_sets import write_tracking_set
 from typer.testing import CliRunner
 
 import phoid
 import phoid.io
 from phoid._notation import ascii_text, fit_width, stream_notation
 from phoid.cli import app
-from phoid.dynamics.controller import SampledController
-from phoid.dynamics.plant import Plant
 from phoid.reports.text import format_gain
-from phoid.simulation.tracking import simulate_tracking
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = ROOT / "examples" / "paper-sample"
@@ -49,30 +48,12 @@ ENCODINGS = ["utf-8", "ascii"]
 PATH = re.compile(r"/\S+")
 
 
-def _tracking_set(folder: Path) -> Path:
-    """A tracking set of one run (as tests/test_tracking_cli.py makes them): a small axis
-    (m 2 kg, c 15 N s/m, fc 1.5 N, offset -0.3 N, k 0) under a 1 kHz PD loop following two
-    sines, u recorded, 1 µm of sensor noise."""
-    ctrl = SampledController(sample_time=1e-3, P=4000.0, D=60.0, velocity="central-difference",
-                             saturation=200.0, delay=0.4e-3)
-    n = 3000
-    t = 1e-3 * np.arange(n)
-    r = 0.02 * np.sin(2 * np.pi * 0.7 * t) + 0.01 * np.sin(2 * np.pi * 1.9 * t + 0.3)
-    sim = simulate_tracking(Plant(2.0, 15.0, 0.0, 1.5), ctrl, r, offset=-0.3, x_init=[0.0])
-    x = sim.x + 1e-6 * np.random.default_rng(0).standard_normal(n)
-    run = phoid.io.run_from_arrays(t, x, r=r, u=sim.command, P=4000.0, D=60.0, index=1)
-    phoid.io.write_experiment(folder, [run], method="tracking", fixed={"k": 0.0},
-                              loop={"sample_time": 1e-3, "velocity": "central-difference",
-                                    "saturation": 200.0, "delay": 0.4e-3})
-    return folder
-
-
 @pytest.fixture(scope="module")
 def sets(varied_sets, tmp_path_factory) -> dict[str, Path]:
     """The sets every command runs on, and a batch output of three of them."""
     root = tmp_path_factory.mktemp("width")
-    out = {**varied_sets, "example": EXAMPLE, "track": _tracking_set(root / "track"),
-           "root": root}
+    out = {**varied_sets, "example": EXAMPLE, "root": root,
+           "track": write_tracking_set(root / "track", noise=1e-6)}  # 1 µm of sensor noise
     fleet = root / "fleet"
     for name in ("pho", "dig", "forced"):
         shutil.copytree(varied_sets[name], fleet / name)

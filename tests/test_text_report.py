@@ -10,6 +10,7 @@ import tomllib
 from pathlib import Path
 
 import pytest
+from tracking_sets import write_tracking_set
 
 from phoid.reports.statistics import statistics_lines
 from phoid.reports.text import format_gain
@@ -70,28 +71,6 @@ def test_a_single_missing_statistic_reads_not_computed():
 
 
 # --- width: every line of `phoid identify` fits 100 columns, on every kind of set ----------
-def _tracking_set(folder: Path) -> Path:
-    """A tracking set of one run (as tests/test_tracking_cli.py builds one): a small axis
-    under a 1 kHz PD loop following a two-sine reference, u recorded."""
-    import numpy as np
-
-    import phoid.io
-    from phoid.dynamics.controller import SampledController
-    from phoid.dynamics.plant import Plant
-    from phoid.simulation.tracking import simulate_tracking
-
-    ctrl = SampledController(sample_time=1e-3, P=4000.0, D=60.0, velocity="central-difference",
-                             saturation=200.0, delay=0.4e-3)
-    t = 1e-3 * np.arange(3000)
-    r = 0.02 * np.sin(2 * np.pi * 0.7 * t) + 0.01 * np.sin(2 * np.pi * 1.9 * t + 0.3)
-    sim = simulate_tracking(Plant(2.0, 15.0, 0.0, 1.5), ctrl, r, offset=-0.3, x_init=[0.0])
-    run = phoid.io.run_from_arrays(t, sim.x, r=r, u=sim.command, P=4000.0, D=60.0, index=1)
-    loop = {"sample_time": 1e-3, "velocity": "central-difference", "saturation": 200.0,
-            "delay": 0.4e-3}
-    phoid.io.write_experiment(folder, [run], method="tracking", fixed={"k": 0.0}, loop=loop)
-    return folder
-
-
 def _long_names(sample_set_path: Path, folder: Path) -> Path:
     """The example set with its first run's file renamed to a 60-character name."""
     import shutil
@@ -131,7 +110,7 @@ def test_every_line_fits_100_columns(kind, sample_set_path, tmp_path):
     elif kind == "long-names":
         folder = _long_names(sample_set_path, tmp_path / "long")
     elif kind == "tracking":
-        folder = _tracking_set(tmp_path / "tracking")
+        folder = write_tracking_set(tmp_path / "tracking")
     else:
         folder = tmp_path / kind
         sim = phoid("simulate", kind, *SIMULATE[kind.replace("free-friction", "free")],
